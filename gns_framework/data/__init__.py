@@ -1,0 +1,1 @@
+"""Trajectories, dataset metadata, training windows and batching."""

@@ -1,0 +1,41 @@
+"""Error types raised on bad input: each names the file and the field at fault."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class GnsError(Exception):
+    """Base class of every error gns-framework raises on purpose."""
+
+
+class PluginError(GnsError):
+    """A plugin failed to load, clashes with another, or a component name is unknown."""
+
+
+class RecipeError(GnsError):
+    """A recipe (or scene spec) failed validation.
+
+    ``problems`` lists every ``(location, message)`` found in one pass, so the
+    user fixes all of them at once.
+    """
+
+    def __init__(self, source: str | Path | None, problems: list[tuple[str, str]]):
+        self.source = str(source) if source is not None else "<recipe>"
+        self.problems = problems
+        lines = [f"{self.source}: {len(problems)} problem(s)"]
+        lines += [f"  {loc}: {msg}" if loc else f"  {msg}" for loc, msg in problems]
+        super().__init__("\n".join(lines))
+
+
+class DatasetError(GnsError):
+    """A dataset file is missing, malformed or inconsistent with its metadata."""
+
+
+class CheckpointError(GnsError):
+    """A checkpoint is missing, truncated, corrupt or belongs to another recipe."""
+
+
+def located(path: str | Path, field: str | None, message: str) -> str:
+    """Format ``file: field: message`` the same way everywhere."""
+    return f"{path}: {field}: {message}" if field else f"{path}: {message}"
