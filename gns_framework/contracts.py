@@ -1,0 +1,263 @@
+"""Typed contracts of every component kind.
+
+A component is a plain class with a registry ``name`` and a nested pydantic
+``Params`` model (unknown keys are errors). Plugins return such classes from the
+hooks in :mod:`gns_framework.hookspecs`; the core builds them with
+``cls(params, ...)`` and calls them directly, never through pluggy.
+
+Shapes: N particles (all examples of a batch stacked), E edges, d spatial
+dimensions, C positions of history, L latent size, B examples.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, ClassVar, Literal
+
+from pydantic import BaseModel, ConfigDict
+from torch import Tensor, nn
+
+if TYPE_CHECKING:
+    from .data.metadata import DatasetMetadata
+    from .data.trajectory import Trajectory
+
+
+class Params(BaseModel):
+    """Base of every component's ``Params``: unknown keys are errors."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+@dataclass(frozen=True)
+class Graph:
+    """Directed connectivity of one batch of particles.
+
+    Attributes:
+        senders: (E,) int64 index of the particle each edge comes from.
+        receivers: (E,) int64 index of the particle each edge points to (messages
+            are summed at receivers). Built-in builders sort edges by
+            (receiver, sender).
+        displacement: (E, d) float, ``p_sender - p_receiver`` in dataset units
+            (minimum image in periodic domains).
+        num_nodes: N.
+        truncated: number of neighbours dropped by a neighbour cap (0 when none).
+    """
+
+    senders: Tensor
+    receivers: Tensor
+    displacement: Tensor
+    num_nodes: int
+    truncated: int = 0
+
+    @property
+    def num_edges(self) -> int:
+        return int(self.senders.shape[0])
+
+
+@dataclass(frozen=True)
+class MaterialProperty:
+    """A per-particle scalar a material contributes to node features."""
+
+    name: str
+    description: str
+    unit: str = ""
+    default: float = 0.0
+
+
+@dataclass(frozen=True)
+class Scene:
+    """What the model must know of the scenes it simulates; sizes follow from it.
+
+    Attributes:
+        dim: spatial dimensions d (2 or 3).
+        bounds: (d, 2) lower and upper walls, dataset units.
+        connectivity_radius: R; particles closer than R (strict) are connected.
+        particle_types: sorted type ids the model handles (one per material).
+        kinematic_types: the subset of ``particle_types`` that is prescribed.
+        property_names: per-particle material properties, in node-feature column order.
+        context_size: width of the per-frame global context (0: none).
+        history: C, positions per input window (C - 1 velocities).
+        walls: whether wall-distance features are built (False in periodic domains).
+        boundary_clamp_limit: wall distances / R are clipped to +-this.
+    """
+
+    dim: int
+    bounds: tuple[tuple[float, float], ...]
+    connectivity_radius: float
+    particle_types: tuple[int, ...]
+    kinematic_types: tuple[int, ...] = ()
+    property_names: tuple[str, ...] = ()
+    context_size: int = 0
+    history: int = 6
+    walls: bool = True
+    boundary_clamp_limit: float = 1.0
+
+    @property
+    def num_particle_types(self) -> int:
+        return len(self.particle_types)
+
+    @property
+    def uses_type_embedding(self) -> bool:
+        return len(self.particle_types) > 1
+
+
+@dataclass(frozen=True)
+class ModelSizes:
+    """Sizes shared by encoder, processor and decoder, derived from the scene and recipe."""
+
+    node_in: int
+    edge_in: int
+    latent: int
+    mlp_hidden: int
+    mlp_hidden_layers: int
+    output: int
+    dim: int
+    extras: dict = field(default_factory=dict)
+
+
+class GraphBuilder(ABC):
+    """Finds the edges of a batch of particles."""
+
+    name: ClassVar[str]
+    Params: ClassVar[type[Params]] = Params
+
+    def __init__(self, params: Params, scene: Scene):
+        self.params = params
+        self.scene = scene
+
+    @abstractmethod
+    def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:
+        """Connect particles of the same example.
+
+        Args:
+            position: (N, d) current positions.
+            batch: (N,) int64 example index of every particle, non-decreasing.
+            num_examples: B.
+        """
+
+
+class Encoder(nn.Module, ABC):
+    """Maps node and edge features to latents."""
+
+    name: ClassVar[str]
+    Params: ClassVar[type[Params]] = Params
+
+    @abstractmethod
+    def __init__(self, params: Params, sizes: ModelSizes): ...
+
+    @abstractmethod
+    def forward(self, node_features: Tensor, edge_features: Tensor) -> tuple[Tensor, Tensor]:
+        """(N, node_in), (E, edge_in) -> node latent (N, L), edge latent (E, L)."""
+
+
+class Processor(nn.Module, ABC):
+    """Message passing on the latent graph."""
+
+    name: ClassVar[str]
+    Params: ClassVar[type[Params]] = Params
+
+    @abstractmethod
+    def __init__(self, params: Params, sizes: ModelSizes): ...
+
+    @abstractmethod
+    def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:
+        """(N, L), (E, L) -> updated (N, L), (E, L)."""
+
+
+class Decoder(nn.Module, ABC):
+    """Maps node latents to the normalised quantity the integrator consumes."""
+
+    name: ClassVar[str]
+    Params: ClassVar[type[Params]] = Params
+
+    @abstractmethod
+    def __init__(self, params: Params, sizes: ModelSizes): ...
+
+    @abstractmethod
+    def forward(self, node_latent: Tensor) -> Tensor:
+        """(N, L) -> (N, sizes.output)."""
+
+
+class Integrator(ABC):
+    """Turns the model's (de-normalised) prediction into the next position, and back.
+
+    Time is in frames (dt = 1): velocities and accelerations are finite
+    differences of positions, as in the reference model.
+    """
+
+    name: ClassVar[str]
+    Params: ClassVar[type[Params]] = Params
+    predicts: ClassVar[Literal["acceleration", "velocity"]] = "acceleration"
+
+    def __init__(self, params: Params):
+        self.params = params
+
+    @abstractmethod
+    def next_position(self, position_sequence: Tensor, prediction: Tensor) -> Tensor:
+        """(N, C, d) history and (N, d) prediction -> (N, d) next position."""
+
+    @abstractmethod
+    def target(self, position_sequence: Tensor, next_position: Tensor) -> Tensor:
+        """Exact inverse of :meth:`next_position`: the prediction that reaches ``next_position``."""
+
+
+class Material(ABC):
+    """A particle material: its type id, whether it is prescribed, and its properties.
+
+    Materials carry no code the model runs; they declare what a scene contains.
+    """
+
+    name: ClassVar[str]
+    particle_type: ClassVar[int]
+    kinematic: ClassVar[bool] = False
+    properties: ClassVar[tuple[MaterialProperty, ...]] = ()
+    description: ClassVar[str] = ""
+
+
+class Dataset(ABC):
+    """A dataset layout on disk: metadata plus train/valid/test splits of trajectories."""
+
+    name: ClassVar[str]
+    Params: ClassVar[type[Params]] = Params
+    writable: ClassVar[bool] = False
+
+    def __init__(self, params: Params, path: Path):
+        self.params = params
+        self.path = Path(path)
+
+    @abstractmethod
+    def metadata(self) -> "DatasetMetadata":
+        """The validated metadata of this dataset."""
+
+    @abstractmethod
+    def split(self, name: str) -> Sequence["Trajectory"]:
+        """Trajectories of a split (``train``, ``valid``, ``test``), loaded lazily and validated."""
+
+    def splits(self) -> list[str]:
+        """Names of the splits present on disk."""
+        return [s for s in ("train", "valid", "test") if self.has_split(s)]
+
+    def has_split(self, name: str) -> bool:
+        return False
+
+    @classmethod
+    def write(
+        cls, path: Path, metadata: "DatasetMetadata", splits: dict[str, Sequence["Trajectory"]]
+    ) -> None:
+        """Write ``metadata`` and ``splits`` in this layout (only when ``writable``)."""
+        raise NotImplementedError(f"dataset layout {cls.name!r} is read-only")
+
+
+COMPONENT_KINDS: dict[str, type] = {
+    "graph_builder": GraphBuilder,
+    "encoder": Encoder,
+    "processor": Processor,
+    "decoder": Decoder,
+    "integrator": Integrator,
+    "dataset": Dataset,
+    "material": Material,
+}
+"""Every component kind, by its recipe key, with its contract."""
