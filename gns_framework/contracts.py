@@ -145,8 +145,9 @@ class Encoder(nn.Module, ABC):
     name: ClassVar[str]
     Params: ClassVar[type[Params]] = Params
 
-    @abstractmethod
-    def __init__(self, params: Params, sizes: ModelSizes): ...
+    def __init__(self, params: Params, sizes: ModelSizes):
+        super().__init__()
+        self.params = params
 
     @abstractmethod
     def forward(self, node_features: Tensor, edge_features: Tensor) -> tuple[Tensor, Tensor]:
@@ -159,8 +160,9 @@ class Processor(nn.Module, ABC):
     name: ClassVar[str]
     Params: ClassVar[type[Params]] = Params
 
-    @abstractmethod
-    def __init__(self, params: Params, sizes: ModelSizes): ...
+    def __init__(self, params: Params, sizes: ModelSizes):
+        super().__init__()
+        self.params = params
 
     @abstractmethod
     def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:
@@ -173,8 +175,9 @@ class Decoder(nn.Module, ABC):
     name: ClassVar[str]
     Params: ClassVar[type[Params]] = Params
 
-    @abstractmethod
-    def __init__(self, params: Params, sizes: ModelSizes): ...
+    def __init__(self, params: Params, sizes: ModelSizes):
+        super().__init__()
+        self.params = params
 
     @abstractmethod
     def forward(self, node_latent: Tensor) -> Tensor:

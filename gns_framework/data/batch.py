@@ -1,0 +1,84 @@
+"""A batch of training windows (or rollout states): several examples with their particles stacked."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .trajectory import Trajectory
+
+
+@dataclass(frozen=True)
+class ParticleBatch:
+    """B examples, N particles in all, stored example after example.
+
+    Attributes:
+        position_sequence: (N, C, d) float32, the last C positions (particle-major).
+        particle_type: (N,) int64.
+        batch: (N,) int64 example index of every particle (non-decreasing).
+        num_examples: B.
+        next_position: (N, d) the position after the window (training label), or None.
+        material_property: (N, P) float32 or None.
+        context: (B, c) float32 global context of each example's last input frame, or None.
+    """
+
+    position_sequence: Tensor
+    particle_type: Tensor
+    batch: Tensor
+    num_examples: int
+    next_position: Tensor | None = None
+    material_property: Tensor | None = None
+    context: Tensor | None = None
+
+    @property
+    def num_particles(self) -> int:
+        return int(self.position_sequence.shape[0])
+
+    def to(self, device: torch.device | str) -> "ParticleBatch":
+        move = lambda t: None if t is None else t.to(device, non_blocking=True)  # noqa: E731
+        return replace(
+            self,
+            position_sequence=move(self.position_sequence),
+            particle_type=move(self.particle_type),
+            batch=move(self.batch),
+            next_position=move(self.next_position),
+            material_property=move(self.material_property),
+            context=move(self.context),
+        )
+
+
+def window(trajectory: Trajectory, start: int, history: int, with_target: bool = True) -> ParticleBatch:
+    """The window ``[start, start + history)`` of a trajectory as a batch of one example."""
+    positions = trajectory.position[start : start + history + (1 if with_target else 0)]
+    sequence = torch.from_numpy(np.ascontiguousarray(positions[:history].transpose(1, 0, 2)))
+    n = sequence.shape[0]
+    return ParticleBatch(
+        position_sequence=sequence,
+        particle_type=torch.from_numpy(trajectory.particle_type),
+        batch=torch.zeros(n, dtype=torch.long),
+        num_examples=1,
+        next_position=torch.from_numpy(np.ascontiguousarray(positions[history])) if with_target else None,
+        material_property=None if trajectory.material_property is None else torch.from_numpy(trajectory.material_property),
+        context=None
+        if trajectory.step_context is None
+        else torch.from_numpy(trajectory.step_context[start + history - 1])[None],
+    )
+
+
+def collate(examples: Sequence[ParticleBatch]) -> ParticleBatch:
+    """Stack single- or multi-example batches into one; examples never share edges."""
+    offsets = np.cumsum([0] + [e.num_examples for e in examples])
+    cat = lambda name: None if getattr(examples[0], name) is None else torch.cat([getattr(e, name) for e in examples])  # noqa: E731
+    return ParticleBatch(
+        position_sequence=cat("position_sequence"),
+        particle_type=cat("particle_type"),
+        batch=torch.cat([e.batch + int(o) for e, o in zip(examples, offsets[:-1])]),
+        num_examples=int(offsets[-1]),
+        next_position=cat("next_position"),
+        material_property=cat("material_property"),
+        context=cat("context"),
+    )

@@ -1,0 +1,84 @@
+"""Node and edge features of the reference model, built only from what the scene has.
+
+Node features, in column order (N rows):
+    1. normalised velocity history, time-major ``[v0x, v0y, v1x, ...]``   (C-1)*d
+    2. wall distances ``[p - lower, upper - p] / R`` clipped to +-clamp  2d   (scenes with walls)
+    3. learned particle-type embedding                                   emb  (more than one type)
+    4. per-particle material properties                                  P    (scenes with properties)
+    5. normalised global context of the frame                            c    (scenes with context)
+Edge features (E rows): ``(p_sender - p_receiver) / R`` and its norm, d + 1 columns.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from .contracts import Graph, Scene
+from .normalization import Stats
+
+
+def node_feature_size(scene: Scene, type_embedding_size: int) -> int:
+    size = (scene.history - 1) * scene.dim
+    size += 2 * scene.dim if scene.walls else 0
+    size += type_embedding_size if scene.uses_type_embedding else 0
+    return size + len(scene.property_names) + scene.context_size
+
+
+def edge_feature_size(scene: Scene) -> int:
+    return scene.dim + 1
+
+
+class FeatureBuilder(nn.Module):
+    """Builds node and edge features; owns the particle-type embedding when one is needed."""
+
+    def __init__(
+        self,
+        scene: Scene,
+        velocity_stats: Stats,
+        type_embedding_size: int,
+        context_stats: Stats | None = None,
+    ):
+        super().__init__()
+        self.scene = scene
+        self.velocity_stats = velocity_stats
+        self.context_stats = context_stats
+        self.register_buffer("bounds", torch.tensor(scene.bounds, dtype=torch.float32))
+        self.type_embedding: nn.Embedding | None = None
+        if scene.uses_type_embedding:
+            self.type_embedding = nn.Embedding(scene.num_particle_types, type_embedding_size)
+            table = torch.full((max(scene.particle_types) + 1,), -1, dtype=torch.long)
+            table[list(scene.particle_types)] = torch.arange(scene.num_particle_types)
+            self.register_buffer("type_row", table)
+
+    def node_features(
+        self,
+        position_sequence: Tensor,
+        particle_type: Tensor,
+        material_property: Tensor | None = None,
+        context: Tensor | None = None,
+    ) -> Tensor:
+        """(N, C, d) history [+ (N,) types, (N, P) properties, (N, c) context] -> (N, node_in)."""
+        scene = self.scene
+        n = position_sequence.shape[0]
+        velocity_sequence = position_sequence[:, 1:] - position_sequence[:, :-1]
+        parts = [self.velocity_stats.normalize(velocity_sequence).reshape(n, -1)]
+        if scene.walls:
+            most_recent = position_sequence[:, -1]
+            to_lower = most_recent - self.bounds[:, 0][None]
+            to_upper = self.bounds[:, 1][None] - most_recent
+            distance = torch.cat([to_lower, to_upper], dim=1) / scene.connectivity_radius
+            limit = scene.boundary_clamp_limit
+            parts.append(torch.clamp(distance, -limit, limit))
+        if self.type_embedding is not None:
+            parts.append(self.type_embedding(self.type_row[particle_type]))
+        if scene.property_names:
+            parts.append(material_property.reshape(n, len(scene.property_names)))
+        if scene.context_size:
+            parts.append(self.context_stats.normalize(context))
+        return torch.cat(parts, dim=-1)
+
+    def edge_features(self, graph: Graph) -> Tensor:
+        """(E, d + 1): relative displacement over R, and its length."""
+        relative = graph.displacement / self.scene.connectivity_radius
+        return torch.cat([relative, torch.linalg.vector_norm(relative, dim=-1, keepdim=True)], dim=-1)

@@ -1,0 +1,28 @@
+"""Random-walk training noise on the input position history (Sanchez-Gonzalez et al. 2020, Sec. 3)."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+
+def random_walk_noise(
+    position_sequence: Tensor, noise_std_last_step: float, generator: torch.Generator | None = None
+) -> Tensor:
+    """Noise for a (N, C, d) position history whose velocities follow a random walk.
+
+    Velocity noise is a random walk: a cumulative sum of C - 1 independent
+    N(0, (sigma / sqrt(C - 1))^2) increments, so the last velocity's noise has std
+    sigma. Position noise integrates the velocity noise (a second cumulative sum)
+    from a noise-free first position.
+
+    Returns:
+        (N, C, d) position noise, same dtype and device as the input.
+    """
+    n, c, d = position_sequence.shape
+    num_velocities = c - 1
+    velocity_noise = torch.randn(
+        (n, num_velocities, d), generator=generator, dtype=position_sequence.dtype, device=position_sequence.device
+    ) * (noise_std_last_step / num_velocities**0.5)
+    velocity_noise = torch.cumsum(velocity_noise, dim=1)
+    return torch.cat([torch.zeros_like(velocity_noise[:, :1]), torch.cumsum(velocity_noise, dim=1)], dim=1)

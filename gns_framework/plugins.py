@@ -1,0 +1,211 @@
+"""Plugin discovery: a pluggy manager built by a factory, and the component registry.
+
+Plugins are found through the ``gns_framework`` entry-point group (built-ins
+included). Each is loaded explicitly so a failure names its entry point and
+distribution; every hook implementation is called once, on its own, so each
+component is known with the plugin that provides it.
+"""
+
+from __future__ import annotations
+
+import difflib
+import importlib.metadata
+import inspect
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import pluggy
+
+from . import hookspecs
+from .contracts import COMPONENT_KINDS
+from .errors import PluginError
+
+ENTRY_POINT_GROUP = "gns_framework"
+DISABLE_ENV = "GNS_DISABLE_PLUGINS"
+"""Comma-separated entry-point or distribution names to skip (``*`` skips every plugin)."""
+
+
+@dataclass(frozen=True)
+class ComponentEntry:
+    """A registered component and where it comes from."""
+
+    kind: str
+    name: str
+    cls: type
+    plugin: str
+    distribution: str
+    version: str
+
+    @property
+    def source_file(self) -> str:
+        try:
+            return inspect.getsourcefile(self.cls) or "<unknown>"
+        except TypeError:
+            return "<built-in>"
+
+    @property
+    def provider(self) -> str:
+        return f"plugin {self.plugin!r} ({self.distribution} {self.version})"
+
+
+def did_you_mean(word: str, choices: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` when a close match exists, else an empty string."""
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+class Registry:
+    """Components by kind and name. Built by :func:`load_registry`; immutable afterwards."""
+
+    def __init__(self, entries: Iterable[ComponentEntry]):
+        self._entries: dict[str, dict[str, ComponentEntry]] = {kind: {} for kind in COMPONENT_KINDS}
+        for entry in entries:
+            of_kind = self._entries.setdefault(entry.kind, {})
+            if entry.name in of_kind:
+                first = of_kind[entry.name]
+                raise PluginError(
+                    f"two {entry.kind} components are named {entry.name!r}: "
+                    f"{first.cls.__module__}.{first.cls.__qualname__} from {first.provider} and "
+                    f"{entry.cls.__module__}.{entry.cls.__qualname__} from {entry.provider}; "
+                    f"uninstall or disable one (environment variable {DISABLE_ENV})"
+                )
+            of_kind[entry.name] = entry
+        self._check_material_types()
+
+    def _check_material_types(self) -> None:
+        seen: dict[int, ComponentEntry] = {}
+        for entry in self._entries.get("material", {}).values():
+            type_id = entry.cls.particle_type
+            if type_id in seen:
+                other = seen[type_id]
+                raise PluginError(
+                    f"materials {other.name!r} from {other.provider} and {entry.name!r} from "
+                    f"{entry.provider} both claim particle type {type_id}"
+                )
+            seen[type_id] = entry
+
+    def kinds(self) -> list[str]:
+        return list(self._entries)
+
+    def names(self, kind: str) -> list[str]:
+        return sorted(self._entries.get(kind, {}))
+
+    def entries(self, kind: str | None = None) -> list[ComponentEntry]:
+        kinds = [kind] if kind else self.kinds()
+        return [e for k in kinds for _, e in sorted(self._entries.get(k, {}).items())]
+
+    def entry(self, kind: str, name: str) -> ComponentEntry:
+        if kind not in self._entries:
+            raise PluginError(f"unknown component kind {kind!r}; kinds: {', '.join(self.kinds())}")
+        try:
+            return self._entries[kind][name]
+        except KeyError:
+            choices = self.names(kind)
+            raise PluginError(
+                f"unknown {kind} {name!r}{did_you_mean(name, choices)}; installed: "
+                f"{', '.join(choices) if choices else 'none'}"
+            ) from None
+
+    def get(self, kind: str, name: str) -> type:
+        return self.entry(kind, name).cls
+
+    def material_by_type(self, particle_type: int) -> ComponentEntry:
+        for entry in self._entries.get("material", {}).values():
+            if entry.cls.particle_type == particle_type:
+                return entry
+        known = ", ".join(f"{e.cls.particle_type}={e.name}" for e in self.entries("material"))
+        raise PluginError(f"no installed material has particle type {particle_type}; installed: {known}")
+
+    def version_of(self, kind: str, name: str) -> str:
+        entry = self.entry(kind, name)
+        return f"{entry.distribution} {entry.version}"
+
+
+def _disabled_names() -> set[str]:
+    return {n.strip() for n in os.environ.get(DISABLE_ENV, "").split(",") if n.strip()}
+
+
+def _distribution_of(ep: importlib.metadata.EntryPoint) -> tuple[str, str]:
+    dist = getattr(ep, "dist", None)
+    if dist is None:
+        return "<unknown distribution>", "?"
+    return dist.metadata["Name"], dist.version
+
+
+def make_plugin_manager(
+    load_entry_points: bool = True, plugins: Iterable[tuple[str, object]] = ()
+) -> tuple[pluggy.PluginManager, dict[str, tuple[str, str]]]:
+    """Build a fresh plugin manager (never a shared singleton).
+
+    Args:
+        load_entry_points: load every plugin of the ``gns_framework`` entry-point group,
+            except those named in ``$GNS_DISABLE_PLUGINS``.
+        plugins: extra ``(name, module_or_object)`` plugins to register (tests, embedding).
+
+    Returns:
+        The manager and, per registered plugin name, its ``(distribution, version)``.
+    """
+    pm = pluggy.PluginManager(hookspecs.PROJECT)
+    pm.add_hookspecs(hookspecs)
+    origin: dict[str, tuple[str, str]] = {}
+    disabled = _disabled_names()
+    if load_entry_points and "*" not in disabled:
+        for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+            dist, version = _distribution_of(ep)
+            if ep.name in disabled or dist in disabled or pm.has_plugin(ep.name):
+                continue
+            try:
+                plugin = ep.load()
+            except Exception as exc:
+                raise PluginError(
+                    f"plugin entry point {ep.name!r} = {ep.value!r} of distribution {dist} {version} "
+                    f"failed to load: {type(exc).__name__}: {exc}. Disable it with {DISABLE_ENV}={ep.name}"
+                ) from exc
+            _register(pm, ep.name, plugin, f"entry point {ep.name!r} of distribution {dist} {version}")
+            origin[ep.name] = (dist, version)
+    for name, plugin in plugins:
+        _register(pm, name, plugin, f"plugin {name!r}")
+        origin[name] = ("<registered in process>", "-")
+    return pm, origin
+
+
+def _register(pm: pluggy.PluginManager, name: str, plugin: object, described: str) -> None:
+    try:
+        pm.register(plugin, name=name)
+    except (pluggy.PluginValidationError, ValueError) as exc:
+        raise PluginError(f"{described} is not a valid gns_framework plugin: {exc}") from exc
+    try:
+        pm.check_pending()
+    except pluggy.PluginValidationError as exc:
+        raise PluginError(f"{described} implements an unknown hook: {exc}") from exc
+
+
+def collect_components(pm: pluggy.PluginManager, origin: dict[str, tuple[str, str]]) -> Registry:
+    """Call every hook implementation once and build the registry from what it returns."""
+    entries: list[ComponentEntry] = []
+    for kind, hook_name in hookspecs.HOOK_OF_KIND.items():
+        contract = COMPONENT_KINDS[kind]
+        for impl in getattr(pm.hook, hook_name).get_hookimpls():
+            dist, version = origin.get(impl.plugin_name, ("<unknown distribution>", "?"))
+            where = f"plugin {impl.plugin_name!r} ({dist} {version}), hook {hook_name}"
+            try:
+                classes = impl.function()
+            except Exception as exc:
+                raise PluginError(f"{where} raised {type(exc).__name__}: {exc}") from exc
+            if not isinstance(classes, (list, tuple)):
+                raise PluginError(f"{where} must return a list of classes, got {type(classes).__name__}")
+            for cls in classes:
+                if not (inspect.isclass(cls) and issubclass(cls, contract)):
+                    raise PluginError(f"{where} returned {cls!r}, which is not a subclass of {contract.__name__}")
+                name = getattr(cls, "name", None)
+                if not isinstance(name, str) or not name:
+                    raise PluginError(f"{where}: {cls.__qualname__} has no string class attribute 'name'")
+                entries.append(ComponentEntry(kind, name, cls, impl.plugin_name, dist, version))
+    return Registry(entries)
+
+
+def load_registry(load_entry_points: bool = True, plugins: Iterable[tuple[str, object]] = ()) -> Registry:
+    """Discover installed plugins (plus ``plugins``) and return their components."""
+    pm, origin = make_plugin_manager(load_entry_points, plugins)
+    return collect_components(pm, origin)

@@ -1,0 +1,184 @@
+"""Recipes: one YAML file per experiment, validated in one pass.
+
+Components are named by their registered name (``processor: {name: interaction_network,
+message_passing_steps: 10}``); the keys beside ``name`` are that component's ``Params``.
+Every problem is reported at once with its location.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from .errors import PluginError, RecipeError
+from .plugins import Registry, did_you_mean
+from .validation import problems_from
+from .yaml_loading import load_yaml_mapping
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ComponentSpec(BaseModel):
+    """``name`` of a registered component plus its parameters."""
+
+    model_config = ConfigDict(extra="allow")
+    name: str
+
+    @property
+    def params(self) -> dict[str, Any]:
+        return dict(self.model_extra or {})
+
+
+class DatasetSpec(ComponentSpec):
+    """Dataset layout (``name``: a dataset plugin), its folder and the plugin's parameters."""
+
+    name: str = "safe"
+    path: str = Field(description="folder with metadata.json and <split> files, relative to the working directory")
+
+
+class ModelSpec(_Strict):
+    history: int = Field(6, ge=2, description="C, positions per input window (C - 1 velocities)")
+    latent_size: int = Field(128, ge=1)
+    mlp_hidden_size: int = Field(128, ge=1)
+    mlp_hidden_layers: int = Field(2, ge=0)
+    type_embedding_size: int = Field(16, ge=1, description="used only when the scene has more than one type")
+    connectivity_radius: float | None = Field(None, gt=0, description="default: the dataset's metadata")
+    materials: list[str] | None = Field(None, description="materials the model handles; default: those in the data")
+    material_properties: list[str] | None = Field(
+        None, description="names of the data's material_property columns; default: the materials' properties"
+    )
+    noise_std: float = Field(6.7e-4, ge=0, description="random-walk noise std at the last input velocity")
+    graph_builder: ComponentSpec = ComponentSpec(name="radius")
+    encoder: ComponentSpec = ComponentSpec(name="mlp")
+    processor: ComponentSpec = ComponentSpec(name="interaction_network")
+    decoder: ComponentSpec = ComponentSpec(name="mlp")
+    integrator: ComponentSpec = ComponentSpec(name="semi_implicit_euler")
+
+
+class OptimizerSpec(_Strict):
+    """Adam with ``lr = lr_min + (lr_init - lr_min) * lr_decay ** (step / lr_decay_steps)``."""
+
+    lr_init: float = Field(1e-4, gt=0)
+    lr_min: float = Field(1e-6, ge=0)
+    lr_decay: float = Field(0.1, gt=0, le=1)
+    lr_decay_steps: float = Field(5e6, gt=0)
+
+
+class TrainingSpec(_Strict):
+    steps: int = Field(1000, ge=1)
+    batch_size: int = Field(2, ge=1, description="training windows per step (per process)")
+    optimizer: OptimizerSpec = OptimizerSpec()
+    log_every: int = Field(50, ge=1)
+    validate_every: int = Field(200, ge=1)
+    validation_windows: int = Field(32, ge=1, description="fixed windows of the valid split for the one-step loss")
+    checkpoint_every: int = Field(500, ge=1)
+    keep_checkpoints: int = Field(3, ge=1)
+    device: str = Field("auto", description="auto, cpu, cuda or cuda:N")
+    threads: int | None = Field(None, ge=1, description="torch intra-op threads (default: torch's)")
+
+
+class RolloutSpec(_Strict):
+    split: str = "test"
+    steps: int | None = Field(None, ge=1, description="default: to the end of each trajectory")
+    trajectories: int | None = Field(None, ge=1, description="default: all of the split")
+
+
+class Recipe(_Strict):
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$")
+    description: str = ""
+    seed: int = 0
+    output_dir: str | None = Field(None, description="default: runs/<name>")
+    dataset: DatasetSpec
+    model: ModelSpec = ModelSpec()
+    training: TrainingSpec = TrainingSpec()
+    rollout: RolloutSpec = RolloutSpec()
+
+    @property
+    def run_dir(self) -> Path:
+        return Path(self.output_dir or f"runs/{self.name}")
+
+    def resolved(self) -> dict[str, Any]:
+        """The recipe with every default filled in (stored in checkpoints and tracked runs)."""
+        return self.model_dump(mode="json")
+
+
+COMPONENT_SECTIONS = ("graph_builder", "encoder", "processor", "decoder", "integrator")
+
+
+def validate_recipe(raw: dict, registry: Registry, source: str | Path | None = None) -> Recipe:
+    """Validate a recipe mapping against the schema and the installed components, all at once."""
+    problems: list[tuple[str, str]] = []
+    recipe: Recipe | None = None
+    try:
+        recipe = Recipe.model_validate(raw)
+    except ValidationError as exc:
+        problems += problems_from(exc, Recipe)
+    problems += _component_problems(raw, registry)
+    if problems or recipe is None:
+        raise RecipeError(source, problems)
+    return recipe
+
+
+def _component_problems(raw: dict, registry: Registry) -> list[tuple[str, str]]:
+    problems: list[tuple[str, str]] = []
+    model = raw.get("model") if isinstance(raw.get("model"), dict) else {}
+    sections = [(("model", s), s, model.get(s)) for s in COMPONENT_SECTIONS]
+    sections.append((("dataset",), "dataset", raw.get("dataset")))
+    for loc, kind, spec in sections:
+        if spec is None or not isinstance(spec, dict):
+            continue
+        if kind == "dataset":
+            name = spec.get("name", "safe")
+            params = {k: v for k, v in spec.items() if k not in ("name", "path")}
+        else:
+            name = spec.get("name")
+            params = {k: v for k, v in spec.items() if k != "name"}
+        if not isinstance(name, str):
+            continue
+        try:
+            cls = registry.get(kind, name)
+        except PluginError as exc:
+            problems.append((".".join(loc) + ".name", str(exc)))
+            continue
+        try:
+            cls.Params.model_validate(params)
+        except ValidationError as exc:
+            problems += problems_from(exc, cls.Params, prefix=loc)
+    materials = model.get("materials")
+    if isinstance(materials, list):
+        known = registry.names("material")
+        for i, material in enumerate(materials):
+            if isinstance(material, str) and material not in known:
+                problems.append(
+                    (f"model.materials[{i}]", f"unknown material {material!r}{did_you_mean(material, known)}; "
+                     f"installed: {', '.join(known)}")
+                )
+    return problems
+
+
+def load_recipe(path: str | Path, registry: Registry, overrides: dict | None = None) -> Recipe:
+    """Read and validate a recipe file; ``overrides`` (nested mapping) replace keys first."""
+    raw = load_yaml_mapping(path)
+    if overrides:
+        raw = _merged(raw, overrides)
+    return validate_recipe(raw, registry, path)
+
+
+def _merged(base: dict, overrides: dict) -> dict:
+    out = dict(base)
+    for key, value in overrides.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merged(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def component(registry: Registry, kind: str, spec: ComponentSpec):
+    """The component class named by ``spec`` and its validated ``Params``."""
+    cls = registry.get(kind, spec.name)
+    return cls, cls.Params.model_validate(spec.params)

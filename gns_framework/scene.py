@@ -1,0 +1,94 @@
+"""Deriving the scene (what the model must handle) from dataset metadata, data and recipe."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Sequence
+
+import numpy as np
+
+from .contracts import Scene
+from .data.metadata import DatasetMetadata
+from .data.trajectory import Trajectory
+from .errors import DatasetError, RecipeError
+from .plugins import Registry
+from .recipe import ModelSpec
+
+
+def scene_from_data(
+    metadata: DatasetMetadata,
+    trajectories: Sequence[Trajectory],
+    model: ModelSpec,
+    registry: Registry,
+    source: str = "dataset",
+) -> Scene:
+    """Build the scene a model is sized for.
+
+    Materials: the recipe's ``model.materials`` or, by default, those whose particle
+    types occur in ``trajectories``. Properties and context exist only when the data
+    carries them, so a scene never pays for features it does not use.
+    """
+    if model.materials:
+        materials = [registry.get("material", name) for name in model.materials]
+    else:
+        present = sorted({int(t) for traj in trajectories for t in np.unique(traj.particle_type)})
+        materials = [registry.material_by_type(t).cls for t in present]
+    types = tuple(sorted(m.particle_type for m in materials))
+    for traj in trajectories:
+        unknown = sorted(set(np.unique(traj.particle_type).tolist()) - set(types))
+        if unknown:
+            raise DatasetError(
+                f"{source}: trajectory {traj.key!r}: particle_type: ids {unknown} belong to no material of "
+                f"the model ({', '.join(m.name for m in materials)}); add them to model.materials"
+            )
+
+    property_widths = {0 if t.material_property is None else t.material_property.shape[1] for t in trajectories}
+    if len(property_widths) > 1:
+        raise DatasetError(f"{source}: material_property: trajectories disagree on the number of columns {sorted(property_widths)}")
+    num_properties = property_widths.pop() if property_widths else 0
+    property_names: tuple[str, ...] = ()
+    if num_properties:
+        declared = model.material_properties or [p.name for m in materials for p in m.properties]
+        if len(declared) != num_properties:
+            raise RecipeError(
+                None,
+                [("model.material_properties",
+                  f"the data has {num_properties} material_property column(s) but the names are {declared}; "
+                  "list one name per column")],
+            )
+        property_names = tuple(declared)
+
+    context_widths = {0 if t.step_context is None else t.step_context.shape[1] for t in trajectories}
+    if len(context_widths) > 1:
+        raise DatasetError(f"{source}: step_context: trajectories disagree on its width {sorted(context_widths)}")
+    context_size = context_widths.pop() if context_widths else 0
+    if context_size and (metadata.context_mean is None or len(metadata.context_mean) != context_size):
+        raise DatasetError(
+            f"{source}: metadata.json: context_mean/context_std: needed with {context_size} entries for the step_context"
+        )
+
+    return Scene(
+        dim=metadata.dim,
+        bounds=tuple((float(lo), float(hi)) for lo, hi in metadata.bounds),
+        connectivity_radius=float(model.connectivity_radius or metadata.default_connectivity_radius),
+        particle_types=types,
+        kinematic_types=tuple(sorted(m.particle_type for m in materials if m.kinematic)),
+        property_names=property_names,
+        context_size=context_size,
+        history=model.history,
+        boundary_clamp_limit=metadata.boundary_clamp_limit,
+    )
+
+
+def scene_to_dict(scene: Scene) -> dict:
+    """JSON-ready form of a scene (stored in checkpoints)."""
+    return json.loads(json.dumps(dataclasses.asdict(scene)))
+
+
+def scene_from_dict(raw: dict) -> Scene:
+    fields = dict(raw)
+    fields["bounds"] = tuple(tuple(float(v) for v in b) for b in raw["bounds"])
+    for key in ("particle_types", "kinematic_types", "property_names"):
+        fields[key] = tuple(raw[key])
+    return Scene(**fields)

@@ -1,0 +1,133 @@
+"""The learned simulator: graph builder, features, encoder, processor, decoder and integrator.
+
+The hot path calls the components directly (never through pluggy). ``forward`` is
+the training computation so DistributedDataParallel wraps it and averages gradients.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from .contracts import Decoder, Encoder, Graph, GraphBuilder, Integrator, ModelSizes, Processor, Scene
+from .data.batch import ParticleBatch
+from .data.metadata import DatasetMetadata
+from .features import FeatureBuilder, edge_feature_size, node_feature_size
+from .normalization import Stats
+from .plugins import Registry
+from .recipe import ModelSpec, component
+
+
+class LearnedSimulator(nn.Module):
+    """Predicts the next positions of every particle from its last C positions."""
+
+    def __init__(
+        self,
+        scene: Scene,
+        features: FeatureBuilder,
+        graph_builder: GraphBuilder,
+        encoder: Encoder,
+        processor: Processor,
+        decoder: Decoder,
+        integrator: Integrator,
+        output_stats: Stats,
+    ):
+        super().__init__()
+        self.scene = scene
+        self.features = features
+        self.graph_builder = graph_builder
+        self.encoder = encoder
+        self.processor = processor
+        self.decoder = decoder
+        self.integrator = integrator
+        self.output_stats = output_stats
+        kinematic = torch.zeros(max(scene.particle_types) + 1, dtype=torch.bool)
+        kinematic[list(scene.kinematic_types)] = True
+        self.register_buffer("kinematic_type", kinematic, persistent=False)
+
+    def predicted_mask(self, particle_type: Tensor) -> Tensor:
+        """(N,) True for particles whose motion the model predicts (not kinematic)."""
+        return ~self.kinematic_type[particle_type]
+
+    def build_graph(self, position_sequence: Tensor, batch: ParticleBatch) -> Graph:
+        return self.graph_builder.build(position_sequence[:, -1], batch.batch, batch.num_examples)
+
+    def encode_inputs(self, position_sequence: Tensor, batch: ParticleBatch) -> tuple[Tensor, Tensor, Graph]:
+        """Node features (N, node_in), edge features (E, edge_in) and the graph."""
+        graph = self.build_graph(position_sequence, batch)
+        context = None if batch.context is None else batch.context[batch.batch]
+        nodes = self.features.node_features(position_sequence, batch.particle_type, batch.material_property, context)
+        return nodes, self.features.edge_features(graph), graph
+
+    def normalized_prediction(self, position_sequence: Tensor, batch: ParticleBatch) -> Tensor:
+        """The decoder's output (N, d): normalised acceleration (or velocity) of every particle."""
+        node_features, edge_features, graph = self.encode_inputs(position_sequence, batch)
+        node_latent, edge_latent = self.encoder(node_features, edge_features)
+        node_latent, _ = self.processor(node_latent, edge_latent, graph)
+        return self.decoder(node_latent)
+
+    def predict_next_position(self, batch: ParticleBatch) -> Tensor:
+        """(N, d) next positions of every particle (kinematic ones too; callers overwrite them)."""
+        normalized = self.normalized_prediction(batch.position_sequence, batch)
+        return self.integrator.next_position(batch.position_sequence, self.output_stats.denormalize(normalized))
+
+    def forward(self, batch: ParticleBatch, position_noise: Tensor) -> tuple[Tensor, Tensor]:
+        """Training prediction and target on noise-corrupted inputs.
+
+        The noise is added to the inputs, and the target next position moves with the
+        last input's noise, so the target corrects the velocity noise but not the
+        position noise (Sanchez-Gonzalez et al. 2020, Sec. 3).
+
+        Args:
+            batch: windows with ``next_position``.
+            position_noise: (N, C, d), zero for kinematic particles.
+
+        Returns:
+            predicted and target normalised outputs, (N, d) each.
+        """
+        noisy_sequence = batch.position_sequence + position_noise
+        prediction = self.normalized_prediction(noisy_sequence, batch)
+        next_position_adjusted = batch.next_position + position_noise[:, -1]
+        target = self.output_stats.normalize(self.integrator.target(noisy_sequence, next_position_adjusted))
+        return prediction, target
+
+
+def model_sizes(scene: Scene, model: ModelSpec) -> ModelSizes:
+    return ModelSizes(
+        node_in=node_feature_size(scene, model.type_embedding_size),
+        edge_in=edge_feature_size(scene),
+        latent=model.latent_size,
+        mlp_hidden=model.mlp_hidden_size,
+        mlp_hidden_layers=model.mlp_hidden_layers,
+        output=scene.dim,
+        dim=scene.dim,
+    )
+
+
+def build_simulator(scene: Scene, metadata: DatasetMetadata, model: ModelSpec, registry: Registry) -> LearnedSimulator:
+    """Instantiate the components a recipe names, sized from the scene."""
+    sizes = model_sizes(scene, model)
+    builder_cls, builder_params = component(registry, "graph_builder", model.graph_builder)
+    encoder_cls, encoder_params = component(registry, "encoder", model.encoder)
+    processor_cls, processor_params = component(registry, "processor", model.processor)
+    decoder_cls, decoder_params = component(registry, "decoder", model.decoder)
+    integrator_cls, integrator_params = component(registry, "integrator", model.integrator)
+    integrator = integrator_cls(integrator_params)
+    velocity_stats = Stats(metadata.vel_mean, metadata.vel_std, model.noise_std)
+    if integrator.predicts == "acceleration":
+        output_stats = Stats(metadata.acc_mean, metadata.acc_std, model.noise_std)
+    else:
+        output_stats = Stats(metadata.vel_mean, metadata.vel_std, model.noise_std)
+    context_stats = None
+    if scene.context_size:
+        context_stats = Stats(metadata.context_mean, metadata.context_std)
+    return LearnedSimulator(
+        scene=scene,
+        features=FeatureBuilder(scene, velocity_stats, model.type_embedding_size, context_stats),
+        graph_builder=builder_cls(builder_params, scene),
+        encoder=encoder_cls(encoder_params, sizes),
+        processor=processor_cls(processor_params, sizes),
+        decoder=decoder_cls(decoder_params, sizes),
+        integrator=integrator,
+        output_stats=output_stats,
+    )

@@ -1,0 +1,59 @@
+"""Turning pydantic errors into ``(location, message)`` problems with did-you-mean hints."""
+
+from __future__ import annotations
+
+import typing
+
+from pydantic import BaseModel, ValidationError
+
+from .plugins import did_you_mean
+
+
+def format_location(loc: tuple) -> str:
+    out = ""
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out
+
+
+def _model_at(model: type[BaseModel], path: tuple) -> type[BaseModel] | None:
+    """The pydantic model that owns the field at ``path`` (list indices skipped)."""
+    current: type[BaseModel] | None = model
+    for part in path:
+        if current is None:
+            return None
+        if isinstance(part, int):
+            continue
+        field = current.model_fields.get(part)
+        if field is None:
+            return None
+        current = _first_model(field.annotation)
+    return current
+
+
+def _first_model(annotation) -> type[BaseModel] | None:
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in typing.get_args(annotation):
+        found = _first_model(arg)
+        if found is not None:
+            return found
+    return None
+
+
+def problems_from(exc: ValidationError, model: type[BaseModel], prefix: tuple = ()) -> list[tuple[str, str]]:
+    """Every error of ``exc`` as ``(location, message)``; unknown keys get a did-you-mean."""
+    problems = []
+    for err in exc.errors():
+        loc = tuple(err["loc"])
+        message = err["msg"]
+        if err["type"] == "extra_forbidden":
+            owner = _model_at(model, loc[:-1])
+            choices = list(owner.model_fields) if owner else []
+            message = f"unknown key{did_you_mean(str(loc[-1]), choices)}; allowed: {', '.join(choices)}"
+        elif err["type"] == "missing":
+            message = "required key missing"
+        elif "input" in err and err["type"] not in ("model_type", "dict_type"):
+            message = f"{message} (got {err['input']!r})"
+        problems.append((format_location(prefix + loc), message))
+    return problems

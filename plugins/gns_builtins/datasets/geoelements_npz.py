@@ -1,0 +1,75 @@
+"""geoelements/gns layout: ``<split>.npz`` of pickled ``(positions, particle_type[, material_property])`` tuples.
+
+Each member (``simulation_trajectory_<i>``) is a NumPy object array, so reading it
+unpickles Python objects, which can run code stored in the file: refused unless
+the user opts in with ``allow_pickle: true``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from gns_framework.contracts import Dataset, Params
+from gns_framework.data.atomic import atomic_path, write_text_atomic
+from gns_framework.data.lazy import TrajectorySequence
+from gns_framework.data.metadata import DatasetMetadata, load_metadata
+from gns_framework.data.trajectory import Trajectory
+from gns_framework.errors import DatasetError
+
+from .npz_common import open_npz, read_member
+
+
+class GeoelementsNpzDataset(Dataset):
+    """Datasets written by geoelements/gns (e.g. its Sand, WaterDrop conversions)."""
+
+    name = "npz"
+    writable = True
+
+    class Params(Params):
+        allow_pickle: bool = False
+
+    def metadata(self) -> DatasetMetadata:
+        return load_metadata(self.path)
+
+    def has_split(self, name: str) -> bool:
+        return (self.path / f"{name}.npz").is_file()
+
+    def split(self, name: str) -> Sequence[Trajectory]:
+        file = self.path / f"{name}.npz"
+        archive = open_npz(file, allow_pickle=self.params.allow_pickle)
+
+        def load(key: str) -> Trajectory:
+            item = read_member(archive, file, key)
+            if item.dtype != object or item.ndim != 1 or len(item) not in (2, 3):
+                raise DatasetError(
+                    f"{file}: trajectory {key!r}: expected a (positions, particle_type[, material_property]) "
+                    f"tuple, got an array of dtype {item.dtype} and shape {item.shape}"
+                )
+            return Trajectory(
+                np.asarray(item[0]), np.asarray(item[1]), np.asarray(item[2]) if len(item) == 3 else None, key=key
+            )
+
+        return TrajectorySequence(list(archive.files), load, str(file), self.metadata().dim)
+
+    @classmethod
+    def write(cls, path: Path, metadata: DatasetMetadata, splits: dict[str, Sequence[Trajectory]]) -> None:
+        path = Path(path)
+        for split, trajectories in splits.items():
+            arrays = {}
+            for index, traj in enumerate(trajectories):
+                if traj.step_context is not None:
+                    raise DatasetError(f"{path / split}.npz: {traj.key}: the geoelements layout has no step_context")
+                fields = [np.asarray(traj.position, np.float32), np.asarray(traj.particle_type, np.int64)]
+                if traj.material_property is not None:
+                    prop = np.asarray(traj.material_property, np.float32)
+                    fields.append(prop[:, 0] if prop.shape[1] == 1 else prop)
+                item = np.empty(len(fields), dtype=object)
+                item[:] = fields
+                arrays[traj.key or f"simulation_trajectory_{index}"] = item
+            with atomic_path(path / f"{split}.npz", suffix=".npz") as tmp:
+                np.savez_compressed(tmp, **arrays)
+        write_text_atomic(path / "metadata.json", json.dumps(metadata.to_json_dict(), indent=2) + "\n")

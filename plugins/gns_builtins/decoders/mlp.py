@@ -1,0 +1,25 @@
+"""The reference decoder: an MLP without LayerNorm."""
+
+from __future__ import annotations
+
+from torch import Tensor
+
+from gns_framework.contracts import Decoder, ModelSizes, Params
+
+from ..layers import MLP
+
+
+class MLPDecoder(Decoder):
+    """Node latent (N, L) -> normalised prediction (N, d)."""
+
+    name = "mlp"
+
+    class Params(Params):
+        pass
+
+    def __init__(self, params: Params, sizes: ModelSizes):
+        super().__init__(params, sizes)
+        self.mlp = MLP(sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers, sizes.output)
+
+    def forward(self, node_latent: Tensor) -> Tensor:
+        return self.mlp(node_latent)

@@ -1,0 +1,71 @@
+"""The reference processor: M unshared interaction-network steps with residuals.
+
+One step, with node latents x and edge latents e (Battaglia et al. 2016; the
+paper's Eq. in Sec. 2)::
+
+    e'_k = LN(MLP_e([e_k, x_receiver(k), x_sender(k)]))
+    a_i  = sum of e'_k over edges k whose receiver is i
+    x'_i = LN(MLP_n([x_i, a_i]))
+    x <- x + x',  e <- e + e'
+
+Our concatenation order is DeepMind's ([edge, receiver, sender] and [node,
+aggregate]); geoelements uses [receiver, sender, edge] and [aggregate, node], and
+its checkpoints are imported by reordering the first-layer columns.
+"""
+
+from __future__ import annotations
+
+import torch
+from pydantic import Field
+from torch import Tensor, nn
+
+from gns_framework.contracts import Graph, ModelSizes, Params, Processor
+
+from ..layers import NormedMLP
+
+
+class InteractionStep(nn.Module):
+    """One message-passing step. Shapes: x (N, L), e (E, L)."""
+
+    def __init__(self, latent: int, hidden: int, hidden_layers: int):
+        super().__init__()
+        self.latent = latent
+        self.edge_mlp = NormedMLP(3 * latent, hidden, hidden_layers, latent)
+        self.node_mlp = NormedMLP(2 * latent, hidden, hidden_layers, latent)
+
+    def forward(self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor) -> tuple[Tensor, Tensor]:
+        first = self.edge_mlp.mlp.linears[0]
+        latent = self.latent
+        hidden = first.weight.shape[0]
+        weight_edge = first.weight[:, :latent]
+        # The first edge layer is linear in [e, x_r, x_s]: project the N nodes once and
+        # gather, instead of multiplying E concatenated rows (same result, ~40% fewer FLOPs).
+        weight_nodes = torch.cat([first.weight[:, latent : 2 * latent], first.weight[:, 2 * latent :]], 0)
+        projected = x @ weight_nodes.T
+        h = torch.addmm(first.bias, e, weight_edge.T)
+        h = h + projected[receivers, :hidden] + projected[senders, hidden:]
+        edge_update = self.edge_mlp.norm(self.edge_mlp.mlp.rest(h))
+        aggregate = torch.zeros_like(x).index_add_(0, receivers, edge_update)
+        node_update = self.node_mlp(torch.cat([x, aggregate], dim=-1))
+        return x + node_update, e + edge_update
+
+
+class InteractionNetwork(Processor):
+    """M interaction-network steps with separate weights (the paper's default, M = 10)."""
+
+    name = "interaction_network"
+
+    class Params(Params):
+        message_passing_steps: int = Field(10, ge=1, description="M, number of unshared steps")
+
+    def __init__(self, params: Params, sizes: ModelSizes):
+        super().__init__(params, sizes)
+        self.steps = nn.ModuleList(
+            InteractionStep(sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers)
+            for _ in range(params.message_passing_steps)
+        )
+
+    def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:
+        for step in self.steps:
+            node_latent, edge_latent = step(node_latent, edge_latent, graph.senders, graph.receivers)
+        return node_latent, edge_latent
