@@ -1,0 +1,69 @@
+"""Training windows and their order: deterministic from (seed, step), so resuming is exact."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from .batch import ParticleBatch, collate, window
+from .trajectory import Trajectory
+
+
+class WindowIndex:
+    """Every window ``[start, start + C]`` (C inputs + 1 target) of every trajectory."""
+
+    def __init__(self, trajectories: Sequence[Trajectory], history: int):
+        self.trajectories = trajectories
+        self.history = history
+        pairs = [(i, s) for i, t in enumerate(trajectories) for s in range(t.num_steps - history)]
+        if not pairs:
+            raise ValueError(f"no trajectory has more than history = {history} frames")
+        self.pairs = np.asarray(pairs, dtype=np.int64)
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def batch(self, indices: Sequence[int]) -> ParticleBatch:
+        return collate([window(self.trajectories[t], s, self.history) for t, s in self.pairs[list(indices)]])
+
+
+class WindowOrder:
+    """Which windows each process trains on at each step.
+
+    Windows are shuffled once per epoch with a generator seeded by (seed, epoch);
+    step ``s`` takes the global positions ``[s*G, (s+1)*G)`` of the concatenated
+    epochs (G = batch size x world size) and process ``rank`` its own B of them, so
+    processes see disjoint shards and a resumed run continues with the same data.
+    """
+
+    def __init__(self, num_windows: int, batch_size: int, seed: int, rank: int = 0, world_size: int = 1):
+        self.num_windows = num_windows
+        self.batch_size = batch_size
+        self.seed = seed
+        self.rank = rank
+        self.world_size = world_size
+        self._epoch: int | None = None
+        self._permutation: np.ndarray | None = None
+
+    def permutation(self, epoch: int) -> np.ndarray:
+        if epoch != self._epoch:
+            generator = torch.Generator().manual_seed(self.seed * 1_000_003 + epoch)
+            self._permutation = torch.randperm(self.num_windows, generator=generator).numpy()
+            self._epoch = epoch
+        return self._permutation
+
+    def epoch_of(self, step: int) -> int:
+        return step * self.batch_size * self.world_size // self.num_windows
+
+    def indices(self, step: int) -> list[int]:
+        first = (step * self.world_size + self.rank) * self.batch_size
+        positions = range(first, first + self.batch_size)
+        return [int(self.permutation(p // self.num_windows)[p % self.num_windows]) for p in positions]
+
+
+def step_generator(seed: int, rank: int, step: int) -> torch.Generator:
+    """Noise generator of one (process, step): independent streams, reproducible on resume."""
+    state = np.random.SeedSequence([seed, rank, step]).generate_state(2, dtype=np.uint32)
+    return torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))

@@ -1,0 +1,43 @@
+"""Rebuilding a trained simulator from a checkpoint."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from .checkpoint import load_checkpoint
+from .data.metadata import DatasetMetadata, parse_metadata
+from .errors import CheckpointError, PluginError
+from .plugins import Registry
+from .recipe import Recipe, validate_recipe
+from .scene import scene_from_dict
+from .simulator import LearnedSimulator, build_simulator
+
+
+@dataclass
+class LoadedModel:
+    simulator: LearnedSimulator
+    recipe: Recipe
+    metadata: DatasetMetadata
+    step: int
+    path: Path
+
+
+def load_trained(path: str | Path, registry: Registry, device: torch.device | str = "cpu") -> LoadedModel:
+    """The simulator stored in a checkpoint, with the recipe and metadata it was trained with."""
+    path = Path(path)
+    state = load_checkpoint(path, map_location="cpu")
+    try:
+        recipe = validate_recipe(state["recipe"], registry, f"{path} (stored recipe)")
+    except PluginError as exc:
+        raise CheckpointError(f"{path}: needs a component that is not installed: {exc}") from None
+    metadata = parse_metadata(state["metadata"], f"{path} (stored metadata)")
+    simulator = build_simulator(scene_from_dict(state["scene"]), metadata, recipe.model, registry)
+    try:
+        simulator.load_state_dict(state["model"])
+    except RuntimeError as exc:
+        raise CheckpointError(f"{path}: model: parameters do not fit the stored recipe: {exc}") from None
+    simulator.eval()
+    return LoadedModel(simulator.to(device), recipe, metadata, int(state["step"]), path)

@@ -1,0 +1,105 @@
+"""Autoregressive rollouts and the pickle-free rollout file.
+
+Rollout file (``.npz``, time-major like the datasets; read with ``allow_pickle=False``):
+
+==========================  ==================  ==========================================
+key                         shape, dtype        meaning
+==========================  ==================  ==========================================
+``initial_positions``       (C, N, d) float32   the C ground-truth input frames
+``predicted_rollout``       (S, N, d) float32   predicted frames C .. C+S-1
+``ground_truth_rollout``    (S, N, d) float32   true frames C .. C+S-1
+``particle_type``           (N,) int64
+``material_property``       (N, P) float32      only when the data has properties
+``metadata_json``           () str              the dataset's metadata.json
+``key``                     () str              trajectory key in its split
+==========================  ==================  ==========================================
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from .data.atomic import atomic_path
+from .data.batch import window
+from .data.metadata import DatasetMetadata
+from .data.trajectory import Trajectory
+from .simulator import LearnedSimulator
+
+
+@dataclass(frozen=True)
+class RolloutResult:
+    initial_positions: np.ndarray
+    predicted: np.ndarray
+    ground_truth: np.ndarray
+    trajectory: Trajectory
+    predicted_particles: np.ndarray
+
+    @property
+    def position_mse(self) -> float:
+        """MSE over steps, predicted (non-kinematic) particles and dimensions."""
+        moving = self.predicted_particles
+        return float(((self.predicted - self.ground_truth)[:, moving] ** 2).mean())
+
+
+@torch.inference_mode()
+def rollout(
+    simulator: LearnedSimulator,
+    trajectory: Trajectory,
+    steps: int | None = None,
+    device: torch.device | str = "cpu",
+    progress: bool = False,
+) -> RolloutResult:
+    """Predict ``steps`` frames from the first C of ``trajectory``.
+
+    Kinematic particles follow their prescribed (ground-truth) positions; every other
+    particle only ever sees its own predictions.
+    """
+    history = simulator.scene.history
+    available = trajectory.num_steps - history
+    steps = available if steps is None else min(steps, available)
+    if steps < 1:
+        raise ValueError(f"trajectory {trajectory.key!r} has {trajectory.num_steps} frames; rollout needs more than {history}")
+    state = window(trajectory, 0, history, with_target=False).to(device)
+    truth = torch.from_numpy(trajectory.position[history : history + steps]).to(device)
+    kinematic = ~simulator.predicted_mask(state.particle_type)[:, None]
+    sequence = state.position_sequence
+    predicted = torch.empty_like(truth)
+    context = None if trajectory.step_context is None else torch.from_numpy(trajectory.step_context).to(device)
+    for step in tqdm(range(steps), desc=f"rollout {trajectory.key}", unit="step", disable=not progress):
+        frame_context = None if context is None else context[history - 1 + step][None]
+        current = replace(state, position_sequence=sequence, context=frame_context)
+        next_position = simulator.predict_next_position(current)
+        next_position = torch.where(kinematic, truth[step], next_position)
+        predicted[step] = next_position
+        sequence = torch.cat([sequence[:, 1:], next_position[:, None]], dim=1)
+    return RolloutResult(
+        initial_positions=trajectory.position[:history],
+        predicted=predicted.cpu().numpy(),
+        ground_truth=truth.cpu().numpy(),
+        trajectory=trajectory,
+        predicted_particles=(~kinematic[:, 0]).cpu().numpy(),
+    )
+
+
+def write_rollout(path: str | Path, result: RolloutResult, metadata: DatasetMetadata) -> Path:
+    """Save a rollout with its ground truth (format in the module docstring), atomically."""
+    path = Path(path)
+    arrays = {
+        "initial_positions": result.initial_positions.astype(np.float32),
+        "predicted_rollout": result.predicted.astype(np.float32),
+        "ground_truth_rollout": result.ground_truth.astype(np.float32),
+        "particle_type": result.trajectory.particle_type.astype(np.int64),
+        "metadata_json": np.array(json.dumps(metadata.to_json_dict())),
+        "key": np.array(result.trajectory.key),
+    }
+    if result.trajectory.material_property is not None:
+        arrays["material_property"] = result.trajectory.material_property.astype(np.float32)
+    with atomic_path(path, suffix=".npz") as tmp:
+        np.savez_compressed(tmp, **arrays)
+    return path

@@ -1,0 +1,1 @@
+"""Training a learned simulator from a recipe."""

@@ -1,0 +1,51 @@
+"""Opening a recipe's dataset and deriving its scene: shared by training, rollout and evaluation."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..contracts import Dataset, Scene
+from ..data.metadata import DatasetMetadata
+from ..data.trajectory import Trajectory
+from ..errors import DatasetError
+from ..plugins import Registry
+from ..recipe import DatasetSpec, Recipe, component
+from ..scene import scene_from_data
+
+
+def open_dataset(spec: DatasetSpec, registry: Registry, path: str | Path | None = None) -> Dataset:
+    """The dataset plugin a recipe names, on ``path`` (default: the recipe's)."""
+    cls, params = component(registry, "dataset", spec)
+    folder = Path(path if path is not None else spec.path)
+    if not folder.is_dir():
+        raise DatasetError(f"{folder}: dataset folder not found (dataset.path in the recipe, or --dataset)")
+    return cls(params, folder)
+
+
+@dataclass
+class PreparedData:
+    dataset: Dataset
+    metadata: DatasetMetadata
+    train: Sequence[Trajectory]
+    valid: Sequence[Trajectory] | None
+    scene: Scene
+
+
+def prepare_data(recipe: Recipe, registry: Registry, dataset_path: str | Path | None = None) -> PreparedData:
+    dataset = open_dataset(recipe.dataset, registry, dataset_path)
+    metadata = dataset.metadata()
+    train = dataset.split("train")
+    valid = dataset.split("valid") if dataset.has_split("valid") else None
+    seen = list(train) + (list(valid) if valid is not None else [])
+    scene = scene_from_data(metadata, seen, recipe.model, registry, source=str(dataset.path))
+    return PreparedData(dataset, metadata, train, valid, scene)
+
+
+def plugin_versions(recipe: Recipe, registry: Registry) -> dict[str, str]:
+    """``kind/name -> distribution version`` of every component the recipe uses."""
+    model = recipe.model
+    named = [(kind, getattr(model, kind).name) for kind in ("graph_builder", "encoder", "processor", "decoder", "integrator")]
+    named.append(("dataset", recipe.dataset.name))
+    return {f"{kind}/{name}": registry.version_of(kind, name) for kind, name in named}

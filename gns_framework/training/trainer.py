@@ -1,0 +1,212 @@
+"""The training loop: noisy one-step training windows, validation, checkpoints, exact resume."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from ..checkpoint import checkpoint_name, latest_good_checkpoint, load_checkpoint, prune_checkpoints, save_checkpoint
+from ..data.windows import WindowIndex, WindowOrder, step_generator
+from ..errors import CheckpointError
+from ..loss import masked_acceleration_loss
+from ..noise import random_walk_noise
+from ..plugins import Registry
+from ..recipe import Recipe
+from ..scene import scene_to_dict
+from ..simulator import build_simulator
+from .optim import make_optimizer
+from .setup import plugin_versions, prepare_data
+from .tracking import JsonlTracker, Tracker
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+class Trainer:
+    """Trains the simulator a recipe describes.
+
+    Args:
+        recipe: validated recipe.
+        registry: installed components.
+        run_dir: output folder (default: the recipe's ``output_dir`` or ``runs/<name>``).
+        dataset_path: overrides ``dataset.path``.
+        rank, world_size: this process in a distributed run (1 process by default).
+        tracker: where metrics go (default: ``<run_dir>/metrics.jsonl``).
+    """
+
+    def __init__(
+        self,
+        recipe: Recipe,
+        registry: Registry,
+        run_dir: str | Path | None = None,
+        dataset_path: str | Path | None = None,
+        rank: int = 0,
+        world_size: int = 1,
+        tracker: Tracker | None = None,
+        progress: bool = True,
+    ):
+        self.recipe = recipe
+        self.registry = registry
+        self.run_dir = Path(run_dir) if run_dir is not None else recipe.run_dir
+        self.checkpoint_dir = self.run_dir / "checkpoints"
+        self.rank = rank
+        self.world_size = world_size
+        self.progress = progress
+        if recipe.training.threads:
+            torch.set_num_threads(recipe.training.threads)
+        self.device = resolve_device(recipe.training.device)
+
+        self.data = prepare_data(recipe, registry, dataset_path)
+        self.windows = WindowIndex(self.data.train, recipe.model.history)
+        self.order = WindowOrder(len(self.windows), recipe.training.batch_size, recipe.seed, rank, world_size)
+        self.validation_batches = self._validation_batches()
+
+        torch.manual_seed(recipe.seed)
+        self.simulator = build_simulator(self.data.scene, self.data.metadata, recipe.model, registry).to(self.device)
+        self.model: torch.nn.Module = self.simulator
+        self.optimizer, self.scheduler = make_optimizer(self.simulator.parameters(), recipe.training.optimizer)
+        self.step = 0
+        self.tracker = tracker if tracker is not None else (JsonlTracker(self.run_dir) if rank == 0 else None)
+
+    def _validation_batches(self):
+        valid = self.data.valid
+        if valid is None or len(valid) == 0:
+            return []
+        index = WindowIndex(valid, self.recipe.model.history)
+        count = min(self.recipe.training.validation_windows, len(index))
+        picks = np.unique(np.linspace(0, len(index) - 1, count).round().astype(int))
+        size = self.recipe.training.batch_size
+        return [index.batch(picks[i : i + size]) for i in range(0, len(picks), size)]
+
+    def state(self) -> dict:
+        """Everything a checkpoint needs to rebuild and resume this run."""
+        return {
+            "model": self.simulator.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "scheduler": self.scheduler.state_dict(),
+            "step": self.step,
+            "rng": {"torch": torch.get_rng_state(), "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else []},
+            "recipe": self.recipe.resolved(),
+            "scene": scene_to_dict(self.data.scene),
+            "metadata": self.data.metadata.to_json_dict(),
+            "plugins": plugin_versions(self.recipe, self.registry),
+        }
+
+    def load_state(self, state: dict, source: str) -> None:
+        """Resume from a checkpoint of the same model; anything else is refused with the differences."""
+        saved_model = state["recipe"].get("model", {})
+        current = self.recipe.resolved()["model"]
+        differing = sorted(k for k in set(saved_model) | set(current) if saved_model.get(k) != current.get(k))
+        if differing:
+            details = "; ".join(f"model.{k}: checkpoint {saved_model.get(k)!r}, recipe {current.get(k)!r}" for k in differing)
+            raise CheckpointError(f"{source}: written for a different model: {details}")
+        if state["scene"] != scene_to_dict(self.data.scene):
+            raise CheckpointError(f"{source}: scene: written for {state['scene']}, this dataset gives {scene_to_dict(self.data.scene)}")
+        self.simulator.load_state_dict(state["model"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.scheduler.load_state_dict(state["scheduler"])
+        self.step = int(state["step"])
+        torch.set_rng_state(state["rng"]["torch"])
+        if torch.cuda.is_available() and state["rng"]["cuda"]:
+            torch.cuda.set_rng_state_all(state["rng"]["cuda"])
+
+    def resume(self, checkpoint: str | Path | None = None) -> Path | None:
+        """Resume from ``checkpoint``, or from the newest good one of this run when None."""
+        if checkpoint is not None:
+            path, state = Path(checkpoint), load_checkpoint(checkpoint)
+        else:
+            found = latest_good_checkpoint(self.checkpoint_dir)
+            if found is None:
+                return None
+            path, state = found
+        self.load_state(state, str(path))
+        return path
+
+    def save(self) -> Path | None:
+        if self.rank != 0:
+            return None
+        path = save_checkpoint(self.checkpoint_dir / checkpoint_name(self.step), self.state())
+        prune_checkpoints(self.checkpoint_dir, self.recipe.training.keep_checkpoints)
+        return path
+
+    def train_step(self) -> float:
+        """One optimiser step on this process's windows of the current step; returns its loss."""
+        batch = self.windows.batch(self.order.indices(self.step))
+        mask = self.simulator.predicted_mask(batch.particle_type.to(self.device))
+        noise = random_walk_noise(
+            batch.position_sequence, self.recipe.model.noise_std, step_generator(self.recipe.seed, self.rank, self.step)
+        )
+        batch = batch.to(self.device)
+        noise = noise.to(self.device) * mask[:, None, None]
+        prediction, target = self.model(batch, noise)
+        loss = masked_acceleration_loss(prediction, target, mask)
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"training loss is {loss.item()} at step {self.step}")
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        self.scheduler.step()
+        self.step += 1
+        return float(loss.detach())
+
+    @torch.no_grad()
+    def validate(self) -> dict[str, float]:
+        """One-step loss and next-position MSE on fixed, noise-free windows of the valid split."""
+        if not self.validation_batches:
+            return {}
+        self.simulator.eval()
+        losses, position_errors = [], []
+        for batch in self.validation_batches:
+            batch = batch.to(self.device)
+            mask = self.simulator.predicted_mask(batch.particle_type)
+            prediction, target = self.simulator(batch, torch.zeros_like(batch.position_sequence))
+            losses.append(float(masked_acceleration_loss(prediction, target, mask)))
+            next_position = self.simulator.integrator.next_position(
+                batch.position_sequence, self.simulator.output_stats.denormalize(prediction)
+            )
+            position_errors.append(float(((next_position - batch.next_position)[mask] ** 2).mean()))
+        self.simulator.train()
+        return {"valid_one_step_loss": float(np.mean(losses)), "valid_one_step_position_mse": float(np.mean(position_errors))}
+
+    def train(self, steps: int | None = None) -> list[float]:
+        """Train until ``steps`` (default: the recipe's) total steps; returns this call's losses."""
+        total = steps if steps is not None else self.recipe.training.steps
+        spec = self.recipe.training
+        losses: list[float] = []
+        if self.tracker is not None and self.step == 0:
+            self.tracker.log_params({"recipe": self.recipe.resolved(), "plugins": plugin_versions(self.recipe, self.registry)})
+        bar = tqdm(total=total, initial=self.step, desc="train", unit="step", disable=not self.progress or self.rank != 0)
+        started, started_step = time.perf_counter(), self.step
+        self.simulator.train()
+        while self.step < total:
+            loss = self.train_step()
+            losses.append(loss)
+            bar.update(1)
+            bar.set_postfix(loss=f"{loss:.4g}")
+            metrics = {}
+            if self.step % spec.log_every == 0 or self.step == total:
+                elapsed = time.perf_counter() - started
+                metrics["train_loss"] = float(np.mean(losses[-spec.log_every :]))
+                metrics["steps_per_s"] = (self.step - started_step) / elapsed if elapsed > 0 else math.nan
+                metrics["lr"] = self.scheduler.get_last_lr()[0]
+            if self.step % spec.validate_every == 0 or self.step == total:
+                metrics.update(self.validate())
+            if metrics and self.tracker is not None:
+                self.tracker.log_metrics(metrics, self.step)
+            if self.step % spec.checkpoint_every == 0 or self.step == total:
+                self.save()
+        bar.close()
+        return losses
+
+    def close(self) -> None:
+        if self.tracker is not None:
+            self.tracker.close()
+
