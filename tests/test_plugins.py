@@ -1,0 +1,138 @@
+"""Plugin discovery: entry points, duplicates, unknown names, broken plugins, disabling."""
+
+from __future__ import annotations
+
+import sys
+import textwrap
+
+import pytest
+
+from gns_framework.contracts import COMPONENT_KINDS, Params, Processor
+from gns_framework.errors import PluginError
+from gns_framework.hookspecs import hookimpl
+from gns_framework.plugins import DISABLE_ENV, load_registry
+
+BUILTINS = {
+    "graph_builder": {"radius"},
+    "encoder": {"mlp"},
+    "processor": {"interaction_network"},
+    "decoder": {"mlp"},
+    "integrator": {"semi_implicit_euler"},
+    "dataset": {"safe", "npz"},
+    "material": {"water", "sand", "goop", "rigid"},
+}
+
+
+def test_builtins_come_from_entry_points_of_this_distribution(registry):
+    for kind, names in BUILTINS.items():
+        assert names <= set(registry.names(kind)), kind
+        for name in names:
+            entry = registry.entry(kind, name)
+            assert entry.distribution == "gns-framework"
+            assert entry.plugin.startswith("builtin-")
+            assert entry.source_file.endswith(".py")
+            assert issubclass(entry.cls, COMPONENT_KINDS[kind])
+
+
+def test_every_kind_has_a_hook():
+    from gns_framework import hookspecs
+
+    for kind in COMPONENT_KINDS:
+        assert hasattr(hookspecs, hookspecs.HOOK_OF_KIND[kind])
+
+
+class _OtherInteractionNetwork(Processor):
+    name = "interaction_network"
+
+    class Params(Params):
+        pass
+
+    def forward(self, node_latent, edge_latent, graph):
+        return node_latent, edge_latent
+
+
+class _DuplicatePlugin:
+    @staticmethod
+    @hookimpl
+    def gns_processors():
+        return [_OtherInteractionNetwork]
+
+
+def test_duplicate_names_are_an_error_naming_both_providers():
+    with pytest.raises(PluginError) as info:
+        load_registry(plugins=[("my-dup", _DuplicatePlugin)])
+    message = str(info.value)
+    assert "interaction_network" in message
+    assert "builtin-processors" in message and "gns-framework" in message
+    assert "my-dup" in message
+
+
+def test_unknown_name_lists_choices_with_did_you_mean(registry):
+    with pytest.raises(PluginError) as info:
+        registry.get("processor", "interaction_netwrok")
+    assert "did you mean 'interaction_network'" in str(info.value)
+    assert "installed: interaction_network" in str(info.value)
+
+
+def test_hook_returning_a_non_component_names_the_plugin():
+    class Bad:
+        @staticmethod
+        @hookimpl
+        def gns_encoders():
+            return [dict]
+
+    with pytest.raises(PluginError, match="plugin 'bad-plugin'.*not a subclass of Encoder"):
+        load_registry(plugins=[("bad-plugin", Bad)])
+
+
+def test_material_type_clash_names_both():
+    from gns_framework.contracts import Material
+
+    class Mud(Material):
+        name = "mud"
+        particle_type = 5
+
+    class MudPlugin:
+        @staticmethod
+        @hookimpl
+        def gns_materials():
+            return [Mud]
+
+    with pytest.raises(PluginError, match="'water'.*'mud'.*particle type 5"):
+        load_registry(plugins=[("mud", MudPlugin)])
+
+
+@pytest.fixture
+def broken_distribution(tmp_path, monkeypatch):
+    """An installed distribution whose entry point imports a module that raises."""
+    dist = tmp_path / "broken_gns_plugin-1.2.3.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: broken-gns-plugin\nVersion: 1.2.3\n")
+    (dist / "entry_points.txt").write_text("[gns_framework]\nbroken = broken_gns_module\n")
+    (tmp_path / "broken_gns_module.py").write_text(textwrap.dedent("raise ImportError('missing dependency xyz')\n"))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    yield
+    sys.modules.pop("broken_gns_module", None)
+
+
+def test_broken_plugin_error_names_entry_point_and_distribution(broken_distribution):
+    with pytest.raises(PluginError) as info:
+        load_registry()
+    message = str(info.value)
+    assert "'broken'" in message and "broken-gns-plugin 1.2.3" in message
+    assert "missing dependency xyz" in message
+    assert DISABLE_ENV in message
+
+
+def test_environment_variable_disables_plugins(broken_distribution, monkeypatch):
+    monkeypatch.setenv(DISABLE_ENV, "broken,builtin-materials")
+    registry = load_registry()
+    assert registry.names("material") == []
+    assert "interaction_network" in registry.names("processor")
+
+
+def test_registries_are_independent():
+    first = load_registry(plugins=[("extra", _DuplicatePlugin)], load_entry_points=False)
+    second = load_registry(load_entry_points=False)
+    assert first.names("processor") == ["interaction_network"]
+    assert second.names("processor") == []

@@ -1,0 +1,90 @@
+"""Recipe validation: every shipped recipe, all problems at once, locations, did-you-mean."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from gns_framework.errors import RecipeError
+from gns_framework.recipe import load_recipe, validate_recipe
+
+RECIPES = sorted((Path(__file__).resolve().parents[1] / "recipes").rglob("*.yaml"))
+
+
+def test_recipes_exist():
+    names = {p.name for p in RECIPES}
+    assert {"water2d.yaml", "sand2d.yaml", "sand3d.yaml"} <= names
+
+
+@pytest.mark.parametrize("path", RECIPES, ids=lambda p: str(p.relative_to(p.parents[1])))
+def test_every_shipped_recipe_validates(path, registry):
+    recipe = load_recipe(path, registry)
+    assert recipe.name
+
+
+def _write(tmp_path, text):
+    path = tmp_path / "recipe.yaml"
+    path.write_text(text)
+    return path
+
+
+def test_three_mistakes_are_reported_at_once_with_locations(tmp_path, registry):
+    path = _write(
+        tmp_path,
+        """
+name: broken
+dataset: {path: data/x}
+model:
+  latent_size: -3
+  procesor: {name: interaction_network}
+training:
+  steps: 10
+  optimizer: {lr_init: 1e-4, lr_decay_step: 100}
+""",
+    )
+    with pytest.raises(RecipeError) as info:
+        load_recipe(path, registry)
+    problems = dict(info.value.problems)
+    assert len(info.value.problems) == 3
+    assert "model.latent_size" in problems
+    assert "did you mean 'processor'" in problems["model.procesor"]
+    assert "did you mean 'lr_decay_steps'" in problems["training.optimizer.lr_decay_step"]
+    assert str(path) in str(info.value)
+
+
+def test_unknown_component_lists_installed_choices(registry):
+    raw = {"name": "x", "dataset": {"path": "d"}, "model": {"processor": {"name": "gnn"}, "integrator": {"name": "euler_semi"}}}
+    with pytest.raises(RecipeError) as info:
+        validate_recipe(raw, registry, "r.yaml")
+    problems = dict(info.value.problems)
+    assert "installed: interaction_network" in problems["model.processor.name"]
+    assert "semi_implicit_euler" in problems["model.integrator.name"]
+
+
+def test_component_params_are_validated_with_their_location(registry):
+    raw = {"name": "x", "dataset": {"path": "d", "allow_pickel": True, "name": "npz"},
+           "model": {"processor": {"name": "interaction_network", "message_passing_steps": 0}}}
+    with pytest.raises(RecipeError) as info:
+        validate_recipe(raw, registry)
+    problems = dict(info.value.problems)
+    assert "did you mean 'allow_pickle'" in problems["dataset.allow_pickel"]
+    assert "greater than or equal to 1" in problems["model.processor.message_passing_steps"]
+
+
+def test_unknown_material_is_reported(registry):
+    raw = {"name": "x", "dataset": {"path": "d"}, "model": {"materials": ["watr"]}}
+    with pytest.raises(RecipeError, match=r"model.materials\[0\].*did you mean 'water'"):
+        validate_recipe(raw, registry)
+
+
+def test_yaml_syntax_error_names_line(tmp_path, registry):
+    path = _write(tmp_path, "name: x\ndataset: {path: d\nmodel: {}\n")
+    with pytest.raises(RecipeError, match="line"):
+        load_recipe(path, registry)
+
+
+def test_duplicate_keys_are_errors(tmp_path, registry):
+    path = _write(tmp_path, "name: x\nname: y\ndataset: {path: d}\n")
+    with pytest.raises(RecipeError, match="duplicate key 'name'"):
+        load_recipe(path, registry)
