@@ -336,8 +336,9 @@ def rollout_metrics(
 
     Returns:
         name -> (B,) tensor, or ``None`` when missing; ``"mse_per_step"`` is (B, S).
-        A prediction with a non-finite moving particle has ``diverged`` 1, position
-        errors ``inf`` from the first non-finite frame on, and every other error
+        A prediction with a non-finite moving particle has ``diverged`` 1, an
+        ``inf`` position error in each frame where a particle is non-finite (and
+        in every horizon that includes such a frame), and every other error
         ``inf``, so averaging over rollouts cannot hide it.
     """
     if predicted.position.shape[:2] != target.position.shape[:2]:

@@ -286,6 +286,8 @@ def markdown_table(report: Report) -> str:
     reference = report.reference
     speedup_header = f"speed-up vs {reference.name}" if reference else "speed-up"
     headline = [m for m in HEADLINE_METRICS if any(e.metrics.get(m) is not None for e in report.entries)]
+    if any(e.metrics.get("diverged") for e in report.entries):
+        headline.append("diverged")
     columns = ["model", "kind", "settings", "time per rollout (s)", speedup_header, f"error (%) [{report.error_metric}]"]
     lines = [
         "# Error against run time",
@@ -333,6 +335,7 @@ def plot_error_vs_time(report: Report, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import LogFormatter
 
     fig, ax = plt.subplots(figsize=(6.4, 4.8))
     left_out = []
@@ -346,11 +349,12 @@ def plot_error_vs_time(report: Report, path: Path) -> None:
                 left_out.append(e.name)
                 continue
             points.append((e.seconds, error, e.name))
-        points.sort()
         if not points:
             continue
-        xs, ys, labels = zip(*points)
-        ax.plot(xs, ys, marker=marker, linestyle="-" if kind == "simulator" else "none",
+        xs, ys, _ = zip(*points)
+        # Markers only: settings may vary along different axes (resolution, time step),
+        # so a line through them would suggest a trade-off curve that was not measured.
+        ax.plot(xs, ys, marker=marker, linestyle="none",
                 label="ground-truth simulator" if kind == "simulator" else "learned simulator")
         for x, y, label in points:
             ax.annotate(label, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
@@ -358,6 +362,9 @@ def plot_error_vs_time(report: Report, path: Path) -> None:
         ax.axvline(report.reference.seconds, color="k", linestyle="--", label=f"{report.reference.name} (reference)")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    # Plain numbers; minor ticks are labelled only when the errors span little more than a decade.
+    ax.yaxis.set_major_formatter(LogFormatter(labelOnlyBase=False))
+    ax.yaxis.set_minor_formatter(LogFormatter(labelOnlyBase=False, minor_thresholds=(1.5, 0.5)))
     ax.set_xlabel("wall-clock time per rollout (s)")
     ax.set_ylabel(f"{report.error_metric} (%)")
     title = "Error against run time"

@@ -147,11 +147,14 @@ def load_rollout(path: str | Path) -> Rollout:
     """Read and validate a rollout file; never unpickles (``allow_pickle=False``)."""
     path = Path(path)
     src = str(path)
+    if not path.is_file():
+        raise DatasetError(f"{src}: rollout file not found")
+    # np.load would try to unpickle anything that is not an archive: check first.
+    if not zipfile.is_zipfile(path):
+        raise DatasetError(f"{src}: not a readable .npz rollout file (not a zip archive)")
     try:
         with np.load(path, allow_pickle=False) as archive:
             fields = {name: archive[name] for name in archive.files}
-    except FileNotFoundError:
-        raise DatasetError(f"{src}: rollout file not found") from None
     except (zipfile.BadZipFile, OSError, EOFError) as exc:
         raise DatasetError(f"{src}: not a readable .npz rollout file ({exc})") from None
     except ValueError as exc:
