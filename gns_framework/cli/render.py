@@ -25,8 +25,12 @@ def _positive(value: str) -> int:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("rollout", type=Path, metavar="ROLLOUT.npz", help="rollout file written by gns rollout")
-    parser.add_argument("--vtk", type=Path, metavar="DIR",
-                        help="folder for predicted/ and ground_truth/ frames and their .pvd collections")
+    parser.add_argument(
+        "--vtk",
+        type=Path,
+        metavar="DIR",
+        help="folder for predicted/ and ground_truth/ frames and their .pvd collections",
+    )
     parser.add_argument("--gif", type=_gif_path, metavar="FILE", help="animation, prediction beside ground truth")
     parser.add_argument("--every", type=_positive, default=1, metavar="K", help="animate every K-th frame (default 1)")
     parser.add_argument("--fps", type=_positive, default=20, help="frames per second of the GIF (default 20)")

@@ -63,7 +63,7 @@ class ParticleRollout:
     @classmethod
     def of(
         cls, position: Tensor, particle_type: Tensor, mask: Tensor | None = None, start: Tensor | None = None
-    ) -> "ParticleRollout":
+    ) -> ParticleRollout:
         """Accept one rollout ((S, N, d), (N,), ...) or a batch; check shapes agree."""
         position = torch.as_tensor(position)
         particle_type = torch.as_tensor(particle_type)
@@ -152,9 +152,7 @@ def mse_at_horizons(per_step: Tensor, horizons: Sequence[int] = DEFAULT_HORIZONS
     return result
 
 
-def one_step_mse(
-    predicted: Tensor, target: Tensor, particle_type: Tensor, mask: Tensor | None = None
-) -> Tensor:
+def one_step_mse(predicted: Tensor, target: Tensor, particle_type: Tensor, mask: Tensor | None = None) -> Tensor:
     """Position MSE of one predicted step from true history, L^2.
 
     Shapes:
@@ -168,7 +166,12 @@ def one_step_mse(
 
 
 def sinkhorn_distance(
-    x: Tensor, y: Tensor, x_weight: Tensor, y_weight: Tensor, blur: float, diameter: float | None = None,
+    x: Tensor,
+    y: Tensor,
+    x_weight: Tensor,
+    y_weight: Tensor,
+    blur: float,
+    diameter: float | None = None,
     scaling: float = 0.8,
 ) -> Tensor:
     """Debiased Sinkhorn distance between two batches of particle clouds, L.
@@ -364,10 +367,19 @@ def rollout_metrics(
     diverged = ~finite.flatten(1).all(-1)
     # A diverged rollout has no meaningful cloud, energy or pile: compute on finite
     # stand-in values (so no NaN reaches the solvers), then mark those errors inf.
-    finite_predicted = replace(predicted, position=torch.nan_to_num(predicted.position, nan=0.0, posinf=0.0, neginf=0.0))
+    finite_predicted = replace(
+        predicted, position=torch.nan_to_num(predicted.position, nan=0.0, posinf=0.0, neginf=0.0)
+    )
     distribution = _distribution_errors(
-        finite_predicted, target, dt=dt, bounds=bounds, granular_types=granular_types,
-        vertical_axis=vertical_axis, runout_axis=runout_axis, profile_bins=profile_bins, blur_fraction=blur_fraction,
+        finite_predicted,
+        target,
+        dt=dt,
+        bounds=bounds,
+        granular_types=granular_types,
+        vertical_axis=vertical_axis,
+        runout_axis=runout_axis,
+        profile_bins=profile_bins,
+        blur_fraction=blur_fraction,
     )
     for name, value in distribution.items():
         metrics[name] = None if value is None else torch.where(diverged, torch.inf, value)
@@ -391,8 +403,12 @@ def _distribution_errors(
     size = domain_size(bounds)
     metrics: dict[str, Tensor | None] = {}
     final_distance = sinkhorn_distance(
-        predicted.position[:, -1], target.position[:, -1], predicted.moving, target.moving,
-        blur=blur_fraction * size, diameter=math.sqrt(len(bounds)) * size,
+        predicted.position[:, -1],
+        target.position[:, -1],
+        predicted.moving,
+        target.moving,
+        blur=blur_fraction * size,
+        diameter=math.sqrt(len(bounds)) * size,
     )
     metrics["sinkhorn_final"] = final_distance
     metrics["sinkhorn_final_pct"] = 100 * final_distance / size

@@ -16,6 +16,7 @@ import csv
 import math
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Literal
 
@@ -51,10 +52,14 @@ class Case:
     key: str = "case"
 
     @classmethod
-    def from_rollout(cls, rollout: Rollout, key: str | None = None) -> "Case":
+    def from_rollout(cls, rollout: Rollout, key: str | None = None) -> Case:
         return cls(
-            rollout.initial_positions, rollout.ground_truth_rollout, rollout.particle_type, rollout.metadata,
-            rollout.material_property, key or Path(rollout.source).stem,
+            rollout.initial_positions,
+            rollout.ground_truth_rollout,
+            rollout.particle_type,
+            rollout.metadata,
+            rollout.material_property,
+            key or Path(rollout.source).stem,
         )
 
 
@@ -176,7 +181,7 @@ def evaluate(
         summaries, timings, curves = [], [], []
         for case in cases:
             prediction, timing = time_call(
-                lambda: candidate.simulate(case), repeats=repeats, warmup=warmup, device=candidate.device
+                partial(candidate.simulate, case), repeats=repeats, warmup=warmup, device=candidate.device
             )
             metrics = _score(prediction, case, horizons, granular_types, material_names)
             summaries.append(summarise(metrics))
@@ -190,9 +195,21 @@ def evaluate(
     if reference is not None:
         entries = [_with_speedup(e, reference.seconds) for e in entries]
     gpu = next((c.device for c in candidates if c.device and torch.device(c.device).type == "cuda"), None)
-    return Report(
-        entries, error_metric, len(cases), repeats, warmup, cases[0].metadata.dt, hardware_description(gpu)
+    return Report(entries, error_metric, len(cases), repeats, warmup, cases[0].metadata.dt, hardware_description(gpu))
+
+
+def score_rollout(
+    rollout: Rollout,
+    *,
+    horizons: Sequence[int] = DEFAULT_HORIZONS,
+    granular_types: Collection[int] = (),
+    material_names: Mapping[int, str] | None = None,
+) -> dict[str, float | None]:
+    """Every metric of a rollout file's prediction against its ground truth (no timing)."""
+    metrics = _score(
+        Prediction(rollout.predicted_rollout), Case.from_rollout(rollout), horizons, granular_types, material_names
     )
+    return summarise(metrics)
 
 
 def _same_particles(prediction: Prediction, case: Case) -> bool:
@@ -223,9 +240,14 @@ def _score(
         start=torch.as_tensor(case.initial_positions[-1], dtype=torch.float64),
     )
     return rollout_metrics(
-        predicted, target, dt=case.metadata.dt, bounds=case.metadata.bounds,
-        same_particles=prediction.particle_type is None, horizons=horizons,
-        granular_types=granular_types, material_names=material_names,
+        predicted,
+        target,
+        dt=case.metadata.dt,
+        bounds=case.metadata.bounds,
+        same_particles=prediction.particle_type is None,
+        horizons=horizons,
+        granular_types=granular_types,
+        material_names=material_names,
     )
 
 
@@ -288,21 +310,36 @@ def markdown_table(report: Report) -> str:
     headline = [m for m in HEADLINE_METRICS if any(e.metrics.get(m) is not None for e in report.entries)]
     if any(e.metrics.get("diverged") for e in report.entries):
         headline.append("diverged")
-    columns = ["model", "kind", "settings", "time per rollout (s)", speedup_header, f"error (%) [{report.error_metric}]"]
+    columns = [
+        "model",
+        "kind",
+        "settings",
+        "time per rollout (s)",
+        speedup_header,
+        f"error (%) [{report.error_metric}]",
+    ]
     lines = [
         "# Error against run time",
         "",
         f"Hardware: {format_hardware(report.hardware)}.",
-        f"Timing: median of {report.repeats} repeats per rollout after {report.warmup} warm-up run(s), "
-        f"device synchronised; mean over {report.num_cases} test case(s).",
+        (
+            f"Timing: median of {report.repeats} repeats per rollout after {report.warmup} warm-up run(s), "
+            f"device synchronised; mean over {report.num_cases} test case(s)."
+        ),
         "",
         "| " + " | ".join(columns + headline) + " |",
         "|" + "|".join(["---"] * 3 + ["---:"] * (len(columns) - 3 + len(headline))) + "|",
     ]
     for e in report.entries:
         name = f"{e.name} (reference)" if e.reference else e.name
-        row = [name, e.kind, e.settings or "-", _format(e.seconds), _format(e.speedup),
-               _format(e.metrics.get(report.error_metric))]
+        row = [
+            name,
+            e.kind,
+            e.settings or "-",
+            _format(e.seconds),
+            _format(e.speedup),
+            _format(e.metrics.get(report.error_metric)),
+        ]
         row += [_format(e.metrics.get(m)) for m in headline]
         lines.append("| " + " | ".join(row) + " |")
     lines += ["", "Metrics (L: the dataset's length unit, s: seconds):", ""]
@@ -354,8 +391,13 @@ def plot_error_vs_time(report: Report, path: Path) -> None:
         xs, ys, _ = zip(*points)
         # Markers only: settings may vary along different axes (resolution, time step),
         # so a line through them would suggest a trade-off curve that was not measured.
-        ax.plot(xs, ys, marker=marker, linestyle="none",
-                label="ground-truth simulator" if kind == "simulator" else "learned simulator")
+        ax.plot(
+            xs,
+            ys,
+            marker=marker,
+            linestyle="none",
+            label="ground-truth simulator" if kind == "simulator" else "learned simulator",
+        )
         for x, y, label in points:
             ax.annotate(label, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
     if report.reference is not None:

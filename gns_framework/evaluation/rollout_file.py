@@ -76,10 +76,14 @@ def validate_rollout(rollout: Rollout) -> Rollout:
     src = rollout.source
     initial = np.asarray(rollout.initial_positions)
     if initial.ndim != 3 or initial.shape[2] not in (2, 3) or initial.shape[0] < 1:
-        raise DatasetError(located(src, "initial_positions", f"expected shape (C, N, d) with d = 2 or 3, got {initial.shape}"))
+        raise DatasetError(
+            located(src, "initial_positions", f"expected shape (C, N, d) with d = 2 or 3, got {initial.shape}")
+        )
     _, n, d = initial.shape
     if d != rollout.metadata.dim:
-        raise DatasetError(located(src, "initial_positions", f"has d = {d} but metadata says dim = {rollout.metadata.dim}"))
+        raise DatasetError(
+            located(src, "initial_positions", f"has d = {d} but metadata says dim = {rollout.metadata.dim}")
+        )
     _require_finite(src, "initial_positions", initial)
     truth = np.asarray(rollout.ground_truth_rollout)
     if truth.ndim != 3 or truth.shape[1:] != (n, d) or truth.shape[0] < 1:
@@ -89,7 +93,13 @@ def validate_rollout(rollout: Rollout) -> Rollout:
     if not np.issubdtype(predicted.dtype, np.number):
         raise DatasetError(located(src, "predicted_rollout", f"expected numbers, got {predicted.dtype}"))
     if predicted.shape != truth.shape:
-        raise DatasetError(located(src, "predicted_rollout", f"expected shape {truth.shape} like ground_truth_rollout, got {predicted.shape}"))
+        raise DatasetError(
+            located(
+                src,
+                "predicted_rollout",
+                f"expected shape {truth.shape} like ground_truth_rollout, got {predicted.shape}",
+            )
+        )
     ptype = np.asarray(rollout.particle_type)
     if ptype.shape != (n,):
         raise DatasetError(located(src, "particle_type", f"expected shape ({n},), got {ptype.shape}"))
@@ -168,7 +178,9 @@ def load_rollout(path: str | Path) -> Rollout:
         raise DatasetError(f"{src}: unknown field(s) {', '.join(unknown)}")
     raw_metadata = fields["metadata_json"]
     if raw_metadata.shape != () or raw_metadata.dtype.kind != "U":
-        raise DatasetError(located(src, "metadata_json", f"expected a 0-d string array, got {raw_metadata.dtype} {raw_metadata.shape}"))
+        raise DatasetError(
+            located(src, "metadata_json", f"expected a 0-d string array, got {raw_metadata.dtype} {raw_metadata.shape}")
+        )
     try:
         metadata_dict = json.loads(str(raw_metadata))
     except json.JSONDecodeError as exc:

@@ -8,9 +8,9 @@ open the same way. The ``.pvd`` file lists the frames with their time in seconds
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ElementTree
 from collections.abc import Sequence
 from pathlib import Path
+from xml.etree import ElementTree
 
 import numpy as np
 
@@ -94,12 +94,12 @@ def write_rollout_vtk(
     Returns ``{"predicted": <pvd>, "ground_truth": <pvd>}``; frame times count from
     the first input frame.
     """
-    common = dict(
-        dt=rollout.metadata.dt,
-        particle_type=rollout.particle_type,
-        material_property=rollout.material_property,
-        property_names=property_names,
-    )
+    common = {
+        "dt": rollout.metadata.dt,
+        "particle_type": rollout.particle_type,
+        "material_property": rollout.material_property,
+        "property_names": property_names,
+    }
     return {
         "predicted": write_vtk_series(directory, "predicted", rollout.predicted_trajectory(), **common),
         "ground_truth": write_vtk_series(directory, "ground_truth", rollout.ground_truth_trajectory(), **common),

@@ -87,8 +87,9 @@ def animate_side_by_side(
             ax.set_title(title, fontsize=10)
             for t_id in types:
                 chosen = particle_type == t_id
-                ax.scatter(*positions[t, chosen].T, s=marker_size, color=colours[chosen], label=labels[t_id],
-                           linewidths=0)
+                ax.scatter(
+                    *positions[t, chosen].T, s=marker_size, color=colours[chosen], label=labels[t_id], linewidths=0
+                )
             ax.set_xlim(*bounds[0])
             ax.set_ylim(*bounds[1])
             if dim == 3:
@@ -106,7 +107,11 @@ def animate_side_by_side(
 
 
 def animate_rollout(
-    rollout: Rollout, path: str | Path, *, every: int = 1, fps: int = 20,
+    rollout: Rollout,
+    path: str | Path,
+    *,
+    every: int = 1,
+    fps: int = 20,
     material_names: Mapping[int, str] | None = None,
 ) -> Path:
     """GIF of a rollout file's trajectory, input frames included (see :func:`animate_side_by_side`)."""

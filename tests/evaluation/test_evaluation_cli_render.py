@@ -17,12 +17,16 @@ HEAVY = ("matplotlib", "meshio", "geomloss", "mlflow")
 
 def gns(*args: str) -> subprocess.CompletedProcess:
     entry_point = "import sys; from gns_framework.cli import main; sys.exit(main())"
-    return subprocess.run([sys.executable, "-c", entry_point, *args], capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-c", entry_point, *args], check=False, capture_output=True, text=True, timeout=120
+    )
 
 
 def test_render_writes_vtk_and_gif(make_rollout, tmp_path):
     path = save_rollout(tmp_path / "rollout.npz", make_rollout(dim=2, steps=4))
-    result = gns("render", str(path), "--vtk", str(tmp_path / "vtk"), "--gif", str(tmp_path / "anim.gif"), "--every", "3")
+    result = gns(
+        "render", str(path), "--vtk", str(tmp_path / "vtk"), "--gif", str(tmp_path / "anim.gif"), "--every", "3"
+    )
     assert result.returncode == 0, result.stderr
     frames = read_pvd(tmp_path / "vtk" / "predicted.pvd")
     assert len(frames) == 10 and meshio.read(frames[0][1]).points.shape == (12, 3)
@@ -50,6 +54,6 @@ def test_help_and_plain_imports_load_no_heavy_optional_package():
         "    main(['--help'])\n"
         f"print(json.dumps([m for m in {list(HEAVY)!r} if m in sys.modules]))\n"
     )
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    result = subprocess.run([sys.executable, "-c", code], check=False, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout) == []

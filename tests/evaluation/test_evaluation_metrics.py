@@ -87,7 +87,7 @@ def test_one_step_mse_by_hand():
 
 
 def test_position_mse_refuses_rollouts_of_different_particles():
-    predicted, truth = offset_rollout()
+    _, truth = offset_rollout()
     fewer = ParticleRollout.of(truth.position[0, :, :2], truth.particle_type[0, :2])
     with pytest.raises(ValueError, match="same particles"):
         mse_per_step(fewer, truth)
@@ -222,8 +222,9 @@ def test_pile_profile_in_3d_bins_both_horizontal_axes():
     position = torch.tensor([[[0.1, 0.1, 0.3], [0.9, 0.1, 0.2], [0.1, 0.9, 0.7]]], dtype=torch.float64)
     profile = pile_profile(position, torch.ones(1, 3, dtype=torch.bool), [(0.0, 1.0)] * 3, bins=2)
     # Cell index is x_bin * 2 + y_bin.
-    torch.testing.assert_close(profile[0], torch.tensor([0.3, 0.7, 0.2, float("nan")], dtype=torch.float64),
-                               equal_nan=True)
+    torch.testing.assert_close(
+        profile[0], torch.tensor([0.3, 0.7, 0.2, float("nan")], dtype=torch.float64), equal_nan=True
+    )
 
 
 def test_per_material_breakdown_names_each_material():
@@ -232,8 +233,11 @@ def test_per_material_breakdown_names_each_material():
     predicted[:, 2:, 1] = 0.2  # only the sand particles are off
     particle_type = torch.tensor([WATER, WATER, SAND, SAND])
     metrics = rollout_metrics(
-        ParticleRollout.of(predicted, particle_type), ParticleRollout.of(truth, particle_type),
-        dt=0.01, bounds=UNIT_BOX, material_names={SAND: "sand", WATER: "water"},
+        ParticleRollout.of(predicted, particle_type),
+        ParticleRollout.of(truth, particle_type),
+        dt=0.01,
+        bounds=UNIT_BOX,
+        material_names={SAND: "sand", WATER: "water"},
     )
     assert metrics["mse_full[water]"].item() == 0.0
     assert metrics["mse_full[sand]"].item() == pytest.approx(0.04 / 2)
@@ -274,8 +278,10 @@ def test_diverged_prediction_is_inf_from_its_first_bad_frame_not_averaged_away()
     position[1, 2:, 0, 0] = float("nan")
     types = truth.particle_type.expand(2, 3)
     metrics = rollout_metrics(
-        ParticleRollout.of(position, types), ParticleRollout.of(torch.cat([truth.position] * 2), types),
-        dt=0.01, bounds=UNIT_BOX,
+        ParticleRollout.of(position, types),
+        ParticleRollout.of(torch.cat([truth.position] * 2), types),
+        dt=0.01,
+        bounds=UNIT_BOX,
     )
     assert metrics["diverged"].tolist() == [0.0, 1.0]
     assert metrics["mse_per_step"][1, :2].isfinite().all() and metrics["mse_per_step"][1, 2:].isinf().all()

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from gns_framework.evaluation.report import Candidate, Case, Prediction, evaluate, write_report
+from gns_framework.evaluation.report import Candidate, Case, Prediction, evaluate, score_rollout, write_report
 from gns_framework.evaluation.rollout_file import load_rollout
 
 GRAVITY = np.array([0.0, -9.81])
@@ -75,7 +75,9 @@ def candidates(states):
         Candidate("mpm dt/16", "simulator", simulator(states, 16), reference=True, settings="16 substeps"),
         Candidate("mpm dt/2", "simulator", simulator(states, 2), settings="2 substeps"),
         Candidate("mpm dt/1", "simulator", simulator(states, 1), settings="1 substep"),
-        Candidate("mpm coarse", "simulator", simulator(states, 16, every_other_particle=True), settings="half the particles"),
+        Candidate(
+            "mpm coarse", "simulator", simulator(states, 16, every_other_particle=True), settings="half the particles"
+        ),
         Candidate("gns", "learned", learned, settings="model.pt"),
     ]
 
@@ -84,8 +86,13 @@ def candidates(states):
 def report(scenes, tmp_path):
     states, cases = scenes
     return evaluate(
-        candidates(states), cases, repeats=2, warmup=1, granular_types={SAND},
-        material_names={SAND: "sand"}, rollout_dir=tmp_path / "rollouts",
+        candidates(states),
+        cases,
+        repeats=2,
+        warmup=1,
+        granular_types={SAND},
+        material_names={SAND: "sand"},
+        rollout_dir=tmp_path / "rollouts",
     )
 
 
@@ -93,7 +100,9 @@ def test_entries_hold_speedup_and_error_against_the_reference(report):
     by_name = {e.name: e for e in report.entries}
     reference = by_name["mpm dt/16"]
     assert reference.speedup == pytest.approx(1.0)
-    assert reference.metrics["mse_full"] == 0.0 and reference.metrics["sinkhorn_final_pct"] == pytest.approx(0, abs=1e-3)
+    assert reference.metrics["mse_full"] == 0.0 and reference.metrics["sinkhorn_final_pct"] == pytest.approx(
+        0, abs=1e-3
+    )
     for entry in report.entries:
         assert entry.seconds > 0 and entry.speedup == pytest.approx(reference.seconds / entry.seconds)
     # A coarser time step is faster and less accurate.
@@ -146,3 +155,13 @@ def test_invalid_candidate_lists_are_refused(scenes):
         evaluate(candidates(states)[4:], cases, error_metric="accuracy")
     with pytest.raises(ValueError, match="S = 12 frames"):
         evaluate([Candidate("short", "learned", lambda case: Prediction(case.ground_truth[:3]))], cases)
+
+
+def test_score_rollout_file(make_rollout):
+    # The fixture's prediction is off by 0.001 k in every component at step k (kinematic particles exact).
+    summary = score_rollout(make_rollout(steps=8), granular_types={SAND}, material_names={SAND: "sand"})
+    assert summary["mse_1"] == pytest.approx(1e-6, rel=1e-3)
+    assert summary["mse_5"] == pytest.approx(1e-6 * (1 + 4 + 9 + 16 + 25) / 5, rel=1e-3)
+    assert summary["mse_10"] is None
+    assert summary["mse_full[sand]"] == pytest.approx(summary["mse_full"])
+    assert summary["runout_error"] is not None and summary["diverged"] == 0.0

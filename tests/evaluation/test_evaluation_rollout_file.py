@@ -15,7 +15,13 @@ from gns_framework.evaluation.rollout_file import load_rollout, save_rollout
 def test_round_trip_keeps_every_field(make_rollout, tmp_path):
     rollout = make_rollout(dim=3)
     loaded = load_rollout(save_rollout(tmp_path / "r.npz", rollout))
-    for field in ("initial_positions", "predicted_rollout", "ground_truth_rollout", "particle_type", "material_property"):
+    for field in (
+        "initial_positions",
+        "predicted_rollout",
+        "ground_truth_rollout",
+        "particle_type",
+        "material_property",
+    ):
         np.testing.assert_array_equal(getattr(loaded, field), getattr(rollout, field))
     assert loaded.metadata == rollout.metadata
     assert loaded.particle_type.dtype == np.int64 and loaded.predicted_rollout.dtype == np.float32

@@ -13,7 +13,10 @@ from gns_framework.io.vtk import frame_velocities, read_pvd, write_rollout_vtk, 
 def test_rollout_vtk_loads_back_with_meshio(make_rollout, tmp_path, dim):
     rollout = make_rollout(dim=dim, steps=4, particles=12, history=6)
     collections = write_rollout_vtk(rollout, tmp_path, property_names=["friction_angle", "density"])
-    for name, trajectory in (("predicted", rollout.predicted_trajectory()), ("ground_truth", rollout.ground_truth_trajectory())):
+    for name, trajectory in (
+        ("predicted", rollout.predicted_trajectory()),
+        ("ground_truth", rollout.ground_truth_trajectory()),
+    ):
         frames = read_pvd(collections[name])
         assert [t for t, _ in frames] == pytest.approx([0.01 * k for k in range(10)])
         for t, (_, file) in enumerate(frames):
