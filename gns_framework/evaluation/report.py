@@ -71,14 +71,15 @@ class Prediction:
     resolution has its own particles, so it brings their types and start frame.
 
     Attributes:
-        position: (S, N', d) positions of the same S frames as the ground truth, L.
+        position: (S, N', d) positions of the same S frames as the ground truth, L
+            (a NumPy array or a tensor on any device).
         particle_type: (N',) int64, or None for the case's particles.
         start: (N', d) the frame before the first one, or None for the case's last input frame.
     """
 
-    position: np.ndarray
+    position: np.ndarray | torch.Tensor
     particle_type: np.ndarray | None = None
-    start: np.ndarray | None = None
+    start: np.ndarray | torch.Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -212,6 +213,11 @@ def score_rollout(
     return summarise(metrics)
 
 
+def _host_float64(values: np.ndarray | torch.Tensor) -> torch.Tensor:
+    """A prediction on any device, as a float64 CPU tensor (metrics in double precision)."""
+    return torch.as_tensor(values).detach().to("cpu", torch.float64)
+
+
 def _same_particles(prediction: Prediction, case: Case) -> bool:
     return prediction.particle_type is None and np.shape(prediction.position) == case.ground_truth.shape
 
@@ -223,7 +229,7 @@ def _score(
     granular_types: Collection[int],
     material_names: Mapping[int, str] | None,
 ) -> dict[str, torch.Tensor | None]:
-    position = torch.as_tensor(np.asarray(prediction.position, dtype=np.float64))
+    position = _host_float64(prediction.position)
     if position.ndim != 3 or position.shape[0] != case.ground_truth.shape[0]:
         raise ValueError(
             f"case {case.key!r}: prediction must be (S, N, d) with S = {case.ground_truth.shape[0]} frames, "
@@ -231,9 +237,7 @@ def _score(
         )
     particle_type = case.particle_type if prediction.particle_type is None else prediction.particle_type
     start = case.initial_positions[-1] if prediction.start is None else prediction.start
-    predicted = ParticleRollout.of(
-        position, torch.as_tensor(particle_type), start=torch.as_tensor(np.asarray(start, dtype=np.float64))
-    )
+    predicted = ParticleRollout.of(position, torch.as_tensor(particle_type), start=_host_float64(start))
     target = ParticleRollout.of(
         torch.as_tensor(case.ground_truth, dtype=torch.float64),
         torch.as_tensor(case.particle_type),
@@ -254,7 +258,7 @@ def _score(
 def _as_rollout(prediction: Prediction, case: Case) -> Rollout:
     return Rollout(
         initial_positions=case.initial_positions,
-        predicted_rollout=np.asarray(prediction.position, dtype=np.float32),
+        predicted_rollout=_host_float64(prediction.position).numpy().astype(np.float32),
         ground_truth_rollout=case.ground_truth,
         particle_type=case.particle_type,
         metadata=case.metadata,

@@ -6,6 +6,7 @@ import csv
 
 import numpy as np
 import pytest
+import torch
 from PIL import Image
 
 from gns_framework.evaluation.report import Candidate, Case, Prediction, evaluate, score_rollout, write_report
@@ -66,8 +67,9 @@ def simulator(states, substeps: int, every_other_particle: bool = False):
 
 
 def learned(case: Case) -> Prediction:
+    """A model's rollout, as a tensor like a model returns it, drifting 0.002 L per step."""
     drift = 0.002 * np.arange(1, STEPS + 1)[:, None, None]
-    return Prediction(case.ground_truth + drift)
+    return Prediction(torch.as_tensor(case.ground_truth + drift, dtype=torch.float32))
 
 
 def candidates(states):
