@@ -190,8 +190,8 @@ def sinkhorn_distance(
         from geomloss import SamplesLoss
     except ImportError:
         raise ImportError("the Sinkhorn metric needs geomloss: pip install 'gns-framework[eval]'") from None
-    # Padded particles get zero mass; moving them onto the origin keeps them out of
-    # the cost's range, which geomloss would otherwise use to pick its eps schedule.
+    # Padded particles get zero mass; they are also moved onto the origin so that
+    # garbage or inf in padding never enters the cost matrix (0 mass * inf cost = NaN).
     x = torch.where(x_weight[..., None], x, torch.zeros((), dtype=x.dtype, device=x.device)).contiguous()
     y = torch.where(y_weight[..., None], y, torch.zeros((), dtype=y.dtype, device=y.device)).contiguous()
     a = x_weight.to(x.dtype) / x_weight.sum(-1, keepdim=True).to(x.dtype)
