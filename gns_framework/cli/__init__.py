@@ -18,6 +18,7 @@ COMMANDS: dict[str, str] = {
     "check": "validate recipes and report every problem at once",
     "train": "train a learned simulator from a recipe",
     "rollout": "roll a trained simulator out on a dataset split",
+    "render": "write VTK frames and a prediction-vs-truth GIF of a rollout file",
 }
 """Subcommand name -> one-line help. The module is ``gns_framework.cli.<name>``."""
 

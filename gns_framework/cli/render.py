@@ -1,0 +1,55 @@
+"""``gns render``: turn a rollout file into VTK frames and a side-by-side GIF."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+HELP = "write VTK frames and a prediction-vs-truth GIF of a rollout file"
+
+
+def _gif_path(value: str) -> Path:
+    path = Path(value)
+    if path.suffix.lower() != ".gif":
+        raise argparse.ArgumentTypeError(f"{value}: the animation is written as .gif")
+    return path
+
+
+def _positive(value: str) -> int:
+    number = int(value)
+    if number < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+    return number
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("rollout", type=Path, metavar="ROLLOUT.npz", help="rollout file written by gns rollout")
+    parser.add_argument(
+        "--vtk",
+        type=Path,
+        metavar="DIR",
+        help="folder for predicted/ and ground_truth/ frames and their .pvd collections",
+    )
+    parser.add_argument("--gif", type=_gif_path, metavar="FILE", help="animation, prediction beside ground truth")
+    parser.add_argument("--every", type=_positive, default=1, metavar="K", help="animate every K-th frame (default 1)")
+    parser.add_argument("--fps", type=_positive, default=20, help="frames per second of the GIF (default 20)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..evaluation.rollout_file import load_rollout
+
+    if args.vtk is None and args.gif is None:
+        print("gns render: error: nothing to do: give --vtk DIR and/or --gif FILE", file=sys.stderr)
+        return 2
+    rollout = load_rollout(args.rollout)
+    if args.vtk is not None:
+        from ..io.vtk import write_rollout_vtk
+
+        for name, pvd in write_rollout_vtk(rollout, args.vtk).items():
+            print(f"{name}: {pvd}")
+    if args.gif is not None:
+        from ..viz.animation import animate_rollout
+
+        print(f"animation: {animate_rollout(rollout, args.gif, every=args.every, fps=args.fps)}")
+    return 0

@@ -1,0 +1,467 @@
+"""Error against run time: roll every candidate out on the test cases, time it, score it, report.
+
+A candidate is anything that turns a test case's input frames into a rollout: a
+learned model from a checkpoint, or the ground-truth simulator run at some
+resolution or time step. One simulator setting is the *reference* (the one that
+made the test data); speed-ups are its run time over each candidate's.
+
+The report is a Markdown and a CSV table plus two PNG plots (error against run
+time, log-log; position error over rollout time). matplotlib is imported only
+when the plots are drawn.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Callable, Collection, Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+
+from ..data.metadata import DatasetMetadata
+from .metrics import DEFAULT_HORIZONS, METRIC_UNITS, ParticleRollout, rollout_metrics, summarise
+from .rollout_file import Rollout, save_rollout
+from .timing import Timing, format_hardware, hardware_description, time_call
+
+Kind = Literal["learned", "simulator"]
+
+
+@dataclass(frozen=True)
+class Case:
+    """One test trajectory: the input frames a candidate starts from and the true frames after.
+
+    Attributes:
+        initial_positions: (C, N, d) input frames, L.
+        ground_truth: (S, N, d) true positions of the following frames, L.
+        particle_type: (N,) int64.
+        metadata: the dataset's metadata (bounds, dt, ...).
+        material_property: (N, P) or None.
+        key: name of the trajectory (file names and messages).
+    """
+
+    initial_positions: np.ndarray
+    ground_truth: np.ndarray
+    particle_type: np.ndarray
+    metadata: DatasetMetadata
+    material_property: np.ndarray | None = None
+    key: str = "case"
+
+    @classmethod
+    def from_rollout(cls, rollout: Rollout, key: str | None = None) -> Case:
+        return cls(
+            rollout.initial_positions,
+            rollout.ground_truth_rollout,
+            rollout.particle_type,
+            rollout.metadata,
+            rollout.material_property,
+            key or Path(rollout.source).stem,
+        )
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """A candidate's rollout of a case.
+
+    A learned model predicts the case's own particles; a simulator at another
+    resolution has its own particles, so it brings their types and start frame.
+
+    Attributes:
+        position: (S, N', d) positions of the same S frames as the ground truth, L
+            (a NumPy array or a tensor on any device).
+        particle_type: (N',) int64, or None for the case's particles.
+        start: (N', d) the frame before the first one, or None for the case's last input frame.
+    """
+
+    position: np.ndarray | torch.Tensor
+    particle_type: np.ndarray | None = None
+    start: np.ndarray | torch.Tensor | None = None
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A way of producing rollouts whose error and run time are reported.
+
+    Attributes:
+        name: row label in the report.
+        kind: ``learned`` or ``simulator``.
+        simulate: case -> its rollout; called once per warm-up and repeat, and timed.
+        reference: the simulator setting that produced the ground truth (at most one).
+        settings: resolution, time step or checkpoint, for the table.
+        device: where ``simulate`` computes (synchronised around each timing).
+    """
+
+    name: str
+    kind: Kind
+    simulate: Callable[[Case], Prediction]
+    reference: bool = False
+    settings: str = ""
+    device: str | None = None
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One row of the report: a candidate's mean error over the cases and its run time.
+
+    Attributes:
+        seconds: mean over cases of the median wall-clock time of one rollout, s.
+        spread: mean over cases of (slowest - fastest) repeat, s.
+        metrics: metric name -> mean over cases (None when missing), see METRIC_UNITS.
+        mse_per_step: (S,) position MSE per rolled-out frame averaged over cases, or None.
+        speedup: reference seconds / these seconds, or None without a reference.
+    """
+
+    name: str
+    kind: Kind
+    settings: str
+    device: str
+    reference: bool
+    seconds: float
+    spread: float
+    metrics: dict[str, float | None]
+    mse_per_step: np.ndarray | None
+    speedup: float | None = None
+
+
+@dataclass(frozen=True)
+class Report:
+    entries: list[Entry]
+    error_metric: str
+    num_cases: int
+    repeats: int
+    warmup: int
+    dt: float
+    hardware: dict[str, str | int] = field(default_factory=dict)
+
+    @property
+    def reference(self) -> Entry | None:
+        return next((e for e in self.entries if e.reference), None)
+
+
+def evaluate(
+    candidates: Sequence[Candidate],
+    cases: Sequence[Case],
+    *,
+    repeats: int = 3,
+    warmup: int = 1,
+    error_metric: str = "sinkhorn_final_pct",
+    horizons: Sequence[int] = DEFAULT_HORIZONS,
+    granular_types: Collection[int] = (),
+    material_names: Mapping[int, str] | None = None,
+    rollout_dir: str | Path | None = None,
+) -> Report:
+    """Roll every candidate out on every case, timing each rollout and scoring it.
+
+    Args:
+        candidates: learned models and simulator settings; at most one is the reference.
+        cases: the test split.
+        repeats, warmup: timed and untimed runs per case (the median of the timed ones counts).
+        error_metric: the metric shown as "error" and plotted against run time.
+        horizons, granular_types, material_names: passed to :func:`rollout_metrics`.
+        rollout_dir: when given, every rollout that predicts the case's own particles is
+            written there as ``<candidate>/<case>.npz`` (for ``gns render``).
+    """
+    if not candidates or not cases:
+        raise ValueError("evaluate needs at least one candidate and one case")
+    references = [c.name for c in candidates if c.reference]
+    if len(references) > 1:
+        raise ValueError(f"at most one reference simulator, got {references}")
+    names = [c.name for c in candidates]
+    if len(set(names)) != len(names):
+        raise ValueError(f"candidate names must be unique, got {names}")
+    known = set(METRIC_UNITS) | {f"mse_{h}" for h in horizons}
+    if error_metric not in known:
+        raise ValueError(f"unknown error_metric {error_metric!r}; choose one of {sorted(known)}")
+
+    entries = []
+    for candidate in candidates:
+        summaries, timings, curves = [], [], []
+        for case in cases:
+            prediction, timing = time_call(
+                partial(candidate.simulate, case), repeats=repeats, warmup=warmup, device=candidate.device
+            )
+            metrics = _score(prediction, case, horizons, granular_types, material_names)
+            summaries.append(summarise(metrics))
+            timings.append(timing)
+            curves.append(None if metrics["mse_per_step"] is None else metrics["mse_per_step"][0].numpy())
+            if rollout_dir is not None and _same_particles(prediction, case):
+                save_rollout(Path(rollout_dir) / candidate.name / f"{case.key}.npz", _as_rollout(prediction, case))
+        entries.append(_entry(candidate, summaries, timings, curves))
+
+    reference = next((e for e in entries if e.reference), None)
+    if reference is not None:
+        entries = [_with_speedup(e, reference.seconds) for e in entries]
+    gpu = next((c.device for c in candidates if c.device and torch.device(c.device).type == "cuda"), None)
+    return Report(entries, error_metric, len(cases), repeats, warmup, cases[0].metadata.dt, hardware_description(gpu))
+
+
+def score_rollout(
+    rollout: Rollout,
+    *,
+    horizons: Sequence[int] = DEFAULT_HORIZONS,
+    granular_types: Collection[int] = (),
+    material_names: Mapping[int, str] | None = None,
+) -> dict[str, float | None]:
+    """Every metric of a rollout file's prediction against its ground truth (no timing)."""
+    metrics = _score(
+        Prediction(rollout.predicted_rollout), Case.from_rollout(rollout), horizons, granular_types, material_names
+    )
+    return summarise(metrics)
+
+
+def _host_float64(values: np.ndarray | torch.Tensor) -> torch.Tensor:
+    """A prediction on any device, as a float64 CPU tensor (metrics in double precision)."""
+    return torch.as_tensor(values).detach().to("cpu", torch.float64)
+
+
+def _same_particles(prediction: Prediction, case: Case) -> bool:
+    return prediction.particle_type is None and np.shape(prediction.position) == case.ground_truth.shape
+
+
+def _score(
+    prediction: Prediction,
+    case: Case,
+    horizons: Sequence[int],
+    granular_types: Collection[int],
+    material_names: Mapping[int, str] | None,
+) -> dict[str, torch.Tensor | None]:
+    position = _host_float64(prediction.position)
+    if position.ndim != 3 or position.shape[0] != case.ground_truth.shape[0]:
+        raise ValueError(
+            f"case {case.key!r}: prediction must be (S, N, d) with S = {case.ground_truth.shape[0]} frames, "
+            f"got {tuple(position.shape)}"
+        )
+    particle_type = case.particle_type if prediction.particle_type is None else prediction.particle_type
+    start = case.initial_positions[-1] if prediction.start is None else prediction.start
+    predicted = ParticleRollout.of(position, torch.as_tensor(particle_type), start=_host_float64(start))
+    target = ParticleRollout.of(
+        torch.as_tensor(case.ground_truth, dtype=torch.float64),
+        torch.as_tensor(case.particle_type),
+        start=torch.as_tensor(case.initial_positions[-1], dtype=torch.float64),
+    )
+    return rollout_metrics(
+        predicted,
+        target,
+        dt=case.metadata.dt,
+        bounds=case.metadata.bounds,
+        same_particles=prediction.particle_type is None,
+        horizons=horizons,
+        granular_types=granular_types,
+        material_names=material_names,
+    )
+
+
+def _as_rollout(prediction: Prediction, case: Case) -> Rollout:
+    return Rollout(
+        initial_positions=case.initial_positions,
+        predicted_rollout=_host_float64(prediction.position).numpy().astype(np.float32),
+        ground_truth_rollout=case.ground_truth,
+        particle_type=case.particle_type,
+        metadata=case.metadata,
+        material_property=case.material_property,
+        source=case.key,
+    )
+
+
+def _mean_over_cases(values: list[float | None]) -> float | None:
+    present = [v for v in values if v is not None]
+    return float(np.mean(present)) if present else None
+
+
+def _entry(
+    candidate: Candidate, summaries: list[dict[str, float | None]], timings: list[Timing], curves: list
+) -> Entry:
+    names = list(dict.fromkeys(name for summary in summaries for name in summary))
+    metrics = {name: _mean_over_cases([s.get(name) for s in summaries]) for name in names}
+    same_length = curves and all(c is not None and c.shape == curves[0].shape for c in curves)
+    return Entry(
+        name=candidate.name,
+        kind=candidate.kind,
+        settings=candidate.settings,
+        device=candidate.device or "cpu",
+        reference=candidate.reference,
+        seconds=float(np.mean([t.median for t in timings])),
+        spread=float(np.mean([t.spread for t in timings])),
+        metrics=metrics,
+        mse_per_step=np.mean(curves, axis=0) if same_length else None,
+    )
+
+
+def _with_speedup(entry: Entry, reference_seconds: float) -> Entry:
+    return Entry(**{**entry.__dict__, "speedup": reference_seconds / entry.seconds if entry.seconds > 0 else math.inf})
+
+
+HEADLINE_METRICS = ("mse_1", "mse_20", "mse_full", "sinkhorn_final", "kinetic_energy_error_pct", "runout_error_pct")
+"""Columns of the Markdown table besides time, speed-up and error (the CSV has all)."""
+
+
+def _format(value: float | None, digits: int = 3) -> str:
+    if value is None:
+        return "-"
+    if math.isinf(value):
+        return "inf"
+    return f"{value:.{digits}g}"
+
+
+def markdown_table(report: Report) -> str:
+    """The report as Markdown: header with hardware and protocol, table, metric legend."""
+    reference = report.reference
+    speedup_header = f"speed-up vs {reference.name}" if reference else "speed-up"
+    headline = [m for m in HEADLINE_METRICS if any(e.metrics.get(m) is not None for e in report.entries)]
+    if any(e.metrics.get("diverged") for e in report.entries):
+        headline.append("diverged")
+    columns = [
+        "model",
+        "kind",
+        "settings",
+        "time per rollout (s)",
+        speedup_header,
+        f"error (%) [{report.error_metric}]",
+    ]
+    lines = [
+        "# Error against run time",
+        "",
+        f"Hardware: {format_hardware(report.hardware)}.",
+        (
+            f"Timing: median of {report.repeats} repeats per rollout after {report.warmup} warm-up run(s), "
+            f"device synchronised; mean over {report.num_cases} test case(s)."
+        ),
+        "",
+        "| " + " | ".join(columns + headline) + " |",
+        "|" + "|".join(["---"] * 3 + ["---:"] * (len(columns) - 3 + len(headline))) + "|",
+    ]
+    for e in report.entries:
+        name = f"{e.name} (reference)" if e.reference else e.name
+        row = [
+            name,
+            e.kind,
+            e.settings or "-",
+            _format(e.seconds),
+            _format(e.speedup),
+            _format(e.metrics.get(report.error_metric)),
+        ]
+        row += [_format(e.metrics.get(m)) for m in headline]
+        lines.append("| " + " | ".join(row) + " |")
+    lines += ["", "Metrics (L: the dataset's length unit, s: seconds):", ""]
+    lines += [f"- `{name}`: {meaning}" for name, meaning in METRIC_UNITS.items()]
+    lines.append("")
+    return "\n".join(lines)
+
+
+def write_csv(report: Report, path: Path) -> None:
+    """One row per entry with every metric; missing values are empty cells."""
+    metric_names = list(dict.fromkeys(name for e in report.entries for name in e.metrics))
+    columns = ["name", "kind", "settings", "device", "reference", "seconds_per_rollout", "seconds_spread", "speedup"]
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(columns + metric_names)
+        for e in report.entries:
+            row = [e.name, e.kind, e.settings, e.device, e.reference, e.seconds, e.spread, e.speedup]
+            row += [e.metrics.get(name) for name in metric_names]
+            writer.writerow(["" if v is None else v for v in row])
+
+
+def plot_error_vs_time(report: Report, path: Path) -> None:
+    """Log-log scatter of the error metric against run time per rollout.
+
+    The reference simulator has no error against itself: it is drawn as a
+    vertical line at its run time. Entries with no finite positive error are
+    listed in the title instead of silently dropped.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import LogFormatter
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    left_out = []
+    for kind, marker in (("simulator", "s"), ("learned", "o")):
+        points = []
+        for e in report.entries:
+            if e.kind != kind or e.reference:
+                continue
+            error = e.metrics.get(report.error_metric)
+            if error is None or not math.isfinite(error) or error <= 0:
+                left_out.append(e.name)
+                continue
+            points.append((e.seconds, error, e.name))
+        if not points:
+            continue
+        xs, ys, _ = zip(*points)
+        # Markers only: settings may vary along different axes (resolution, time step),
+        # so a line through them would suggest a trade-off curve that was not measured.
+        ax.plot(
+            xs,
+            ys,
+            marker=marker,
+            linestyle="none",
+            label="ground-truth simulator" if kind == "simulator" else "learned simulator",
+        )
+        for x, y, label in points:
+            ax.annotate(label, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+    if report.reference is not None:
+        ax.axvline(report.reference.seconds, color="k", linestyle="--", label=f"{report.reference.name} (reference)")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    # Plain numbers; minor ticks are labelled only when the errors span little more than a decade.
+    ax.yaxis.set_major_formatter(LogFormatter(labelOnlyBase=False))
+    ax.yaxis.set_minor_formatter(LogFormatter(labelOnlyBase=False, minor_thresholds=(1.5, 0.5)))
+    ax.set_xlabel("wall-clock time per rollout (s)")
+    ax.set_ylabel(f"{report.error_metric} (%)")
+    title = "Error against run time"
+    if left_out:
+        title += f"\n(no finite error: {', '.join(left_out)})"
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_error_over_rollout(report: Report, path: Path) -> None:
+    """Position MSE per frame against simulated time, one line per entry that has it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    for e in report.entries:
+        if e.mse_per_step is None or e.reference:
+            continue
+        time_s = report.dt * np.arange(1, len(e.mse_per_step) + 1)
+        finite = np.isfinite(e.mse_per_step) & (e.mse_per_step > 0)
+        ax.plot(time_s[finite], e.mse_per_step[finite], label=e.name)
+    ax.set_yscale("log")
+    ax.set_xlabel("simulated time since the last input frame (s)")
+    ax.set_ylabel("position MSE (L^2)")
+    ax.set_title("Error over rollout time", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def write_report(report: Report, out_dir: str | Path) -> dict[str, Path]:
+    """Write ``report.md``, ``report.csv``, ``error_vs_time.png`` and ``error_over_rollout.png``."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = {
+        "markdown": out_dir / "report.md",
+        "csv": out_dir / "report.csv",
+        "error_vs_time": out_dir / "error_vs_time.png",
+        "error_over_rollout": out_dir / "error_over_rollout.png",
+    }
+    paths["markdown"].write_text(markdown_table(report))
+    write_csv(report, paths["csv"])
+    plot_error_vs_time(report, paths["error_vs_time"])
+    plot_error_over_rollout(report, paths["error_over_rollout"])
+    return paths

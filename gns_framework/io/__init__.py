@@ -1,0 +1,1 @@
+"""Writers of simulation output for other tools (VTK for ParaView)."""

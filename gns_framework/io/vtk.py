@@ -1,0 +1,113 @@
+"""VTK output for ParaView and friends: one ``.vtu`` per frame plus a ``.pvd`` collection.
+
+Each frame is an unstructured grid of vertex cells (one per particle) written by
+meshio, with point data ``velocity`` (L/s, always 3 components), ``particle_type``
+and one array per material property. 2D points get z = 0, so 2D and 3D scenes
+open the same way. The ``.pvd`` file lists the frames with their time in seconds.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from xml.etree import ElementTree
+
+import numpy as np
+
+from ..evaluation.rollout_file import Rollout
+
+
+def _as_3d(values: np.ndarray) -> np.ndarray:
+    """(..., 2) or (..., 3) -> (..., 3), padding the missing z with 0."""
+    if values.shape[-1] == 3:
+        return values
+    return np.concatenate([values, np.zeros(values.shape[:-1] + (1,), dtype=values.dtype)], axis=-1)
+
+
+def frame_velocities(positions: np.ndarray, dt: float) -> np.ndarray:
+    """(T, N, d) positions -> (T, N, d) velocities in L/s.
+
+    Backward differences ``(p[t] - p[t-1]) / dt``, the way the model sees velocity;
+    frame 0, which has no predecessor, takes the forward difference.
+    """
+    velocity = np.diff(positions, axis=0) / dt
+    return np.concatenate([velocity[:1], velocity]) if len(velocity) else np.zeros_like(positions)
+
+
+def write_vtk_series(
+    directory: str | Path,
+    name: str,
+    positions: np.ndarray,
+    dt: float,
+    particle_type: np.ndarray,
+    material_property: np.ndarray | None = None,
+    property_names: Sequence[str] | None = None,
+) -> Path:
+    """Write ``<directory>/<name>/frame_<t>.vtu`` for every frame and ``<directory>/<name>.pvd``.
+
+    Args:
+        positions: (T, N, d) with d = 2 or 3, L.
+        dt: seconds between frames.
+        particle_type: (N,) int.
+        material_property: (N, P) or None.
+        property_names: P point-data names; ``material_property_<k>`` by default.
+
+    Returns the path of the ``.pvd`` collection.
+    """
+    import meshio
+
+    positions = np.asarray(positions, dtype=np.float32)
+    if positions.ndim != 3 or positions.shape[2] not in (2, 3):
+        raise ValueError(f"positions: expected (T, N, d) with d = 2 or 3, got {positions.shape}")
+    num_frames, num_particles, _ = positions.shape
+    point_data: dict[str, np.ndarray] = {"particle_type": np.asarray(particle_type, dtype=np.int32)}
+    if material_property is not None:
+        material_property = np.asarray(material_property, dtype=np.float32).reshape(num_particles, -1)
+        names = list(property_names or [f"material_property_{k}" for k in range(material_property.shape[1])])
+        if len(names) != material_property.shape[1]:
+            raise ValueError(f"property_names: {len(names)} names for {material_property.shape[1]} properties")
+        point_data.update({n: material_property[:, k] for k, n in enumerate(names)})
+    velocities = _as_3d(frame_velocities(positions, dt))
+    points = _as_3d(positions)
+    cells = [("vertex", np.arange(num_particles, dtype=np.int64)[:, None])]
+
+    directory = Path(directory)
+    (directory / name).mkdir(parents=True, exist_ok=True)
+    width = max(5, len(str(num_frames - 1)))
+    collection = ElementTree.Element("VTKFile", type="Collection", version="0.1", byte_order="LittleEndian")
+    datasets = ElementTree.SubElement(collection, "Collection")
+    for t in range(num_frames):
+        relative = f"{name}/frame_{t:0{width}d}.vtu"
+        mesh = meshio.Mesh(points[t], cells, point_data={"velocity": velocities[t], **point_data})
+        mesh.write(directory / relative)
+        ElementTree.SubElement(datasets, "DataSet", timestep=repr(t * dt), group="", part="0", file=relative)
+    pvd = directory / f"{name}.pvd"
+    ElementTree.ElementTree(collection).write(pvd, xml_declaration=True, encoding="utf-8")
+    return pvd
+
+
+def write_rollout_vtk(
+    rollout: Rollout, directory: str | Path, property_names: Sequence[str] | None = None
+) -> dict[str, Path]:
+    """Write the predicted and the true trajectory of a rollout (input frames included).
+
+    Returns ``{"predicted": <pvd>, "ground_truth": <pvd>}``; frame times count from
+    the first input frame.
+    """
+    common = {
+        "dt": rollout.metadata.dt,
+        "particle_type": rollout.particle_type,
+        "material_property": rollout.material_property,
+        "property_names": property_names,
+    }
+    return {
+        "predicted": write_vtk_series(directory, "predicted", rollout.predicted_trajectory(), **common),
+        "ground_truth": write_vtk_series(directory, "ground_truth", rollout.ground_truth_trajectory(), **common),
+    }
+
+
+def read_pvd(path: str | Path) -> list[tuple[float, Path]]:
+    """(time in s, frame file) of every dataset a ``.pvd`` collection lists, in order."""
+    path = Path(path)
+    root = ElementTree.parse(path).getroot()
+    return [(float(d.get("timestep", "0")), path.parent / d.get("file", "")) for d in root.iter("DataSet")]

@@ -1,0 +1,1 @@
+"""Pictures for people: animations of rollouts beside their ground truth."""

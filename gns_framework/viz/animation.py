@@ -1,0 +1,129 @@
+"""GIF of a rollout: prediction and ground truth side by side, particles coloured by type.
+
+2D scenes are drawn as scatter plots in the domain box; 3D scenes as 3D scatter
+plots seen from a fixed camera. matplotlib (Agg backend) and its Pillow writer
+do the drawing and encoding, imported only when an animation is made.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..evaluation.rollout_file import Rollout
+
+
+def frame_indices(num_frames: int, every: int) -> list[int]:
+    """Frames drawn: every ``every``-th from the first, and always the last one."""
+    if every < 1:
+        raise ValueError(f"every must be >= 1, got {every}")
+    indices = list(range(0, num_frames, every))
+    if indices[-1] != num_frames - 1:
+        indices.append(num_frames - 1)
+    return indices
+
+
+def animate_side_by_side(
+    path: str | Path,
+    predicted: np.ndarray,
+    ground_truth: np.ndarray,
+    particle_type: np.ndarray,
+    bounds: Sequence[Sequence[float]],
+    dt: float,
+    *,
+    every: int = 1,
+    fps: int = 20,
+    material_names: Mapping[int, str] | None = None,
+    first_rolled_out_frame: int = 0,
+) -> Path:
+    """Write a GIF with the prediction on the left and the ground truth on the right.
+
+    Args:
+        path: the ``.gif`` to write.
+        predicted, ground_truth: (T, N, d) positions, d = 2 or 3, L.
+        particle_type: (N,) int; one colour per type.
+        bounds: (d, 2) domain walls, the fixed plot limits.
+        dt: seconds between frames (shown in the title).
+        every: draw every ``every``-th frame (the last is always drawn).
+        fps: frames per second of the GIF.
+        material_names: legend labels per type id, else ``type <id>``.
+        first_rolled_out_frame: frames before it are input frames (labelled as such).
+
+    Returns ``path``.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    path = Path(path)
+    if path.suffix.lower() != ".gif":
+        raise ValueError(f"{path}: animations are written as .gif")
+    predicted, ground_truth = np.asarray(predicted), np.asarray(ground_truth)
+    if predicted.shape != ground_truth.shape or predicted.ndim != 3 or predicted.shape[2] not in (2, 3):
+        raise ValueError(
+            f"predicted and ground_truth must both be (T, N, d) with d = 2 or 3, got {predicted.shape} and {ground_truth.shape}"
+        )
+    dim = predicted.shape[2]
+    particle_type = np.asarray(particle_type)
+    types = sorted(set(particle_type.tolist()))
+    palette = matplotlib.colormaps["tab10"]
+    colours = np.array([palette(types.index(t) % 10) for t in particle_type])
+    labels = {t: (material_names or {}).get(t, f"type {t}") for t in types}
+    marker_size = float(np.clip(4000 / max(len(particle_type), 1), 0.5, 20))
+
+    projection = "3d" if dim == 3 else None
+    fig = plt.figure(figsize=(10, 5))
+    axes = [fig.add_subplot(1, 2, k + 1, projection=projection) for k in range(2)]
+
+    def draw(t: int) -> list:
+        stage = "input" if t < first_rolled_out_frame else "rollout"
+        fig.suptitle(f"t = {t * dt:.4g} s (frame {t}, {stage})", fontsize=10)
+        for ax, positions, title in ((axes[0], predicted, "prediction"), (axes[1], ground_truth, "ground truth")):
+            ax.cla()
+            ax.set_title(title, fontsize=10)
+            for t_id in types:
+                chosen = particle_type == t_id
+                ax.scatter(
+                    *positions[t, chosen].T, s=marker_size, color=colours[chosen], label=labels[t_id], linewidths=0
+                )
+            ax.set_xlim(*bounds[0])
+            ax.set_ylim(*bounds[1])
+            if dim == 3:
+                ax.set_zlim(*bounds[2])
+            else:
+                ax.set_aspect("equal")
+        axes[1].legend(loc="upper right", fontsize=7, markerscale=max(1.0, 6 / marker_size))
+        return []
+
+    animation = FuncAnimation(fig, draw, frames=frame_indices(len(predicted), every), blit=False)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    animation.save(path, writer=PillowWriter(fps=fps))
+    plt.close(fig)
+    return path
+
+
+def animate_rollout(
+    rollout: Rollout,
+    path: str | Path,
+    *,
+    every: int = 1,
+    fps: int = 20,
+    material_names: Mapping[int, str] | None = None,
+) -> Path:
+    """GIF of a rollout file's trajectory, input frames included (see :func:`animate_side_by_side`)."""
+    return animate_side_by_side(
+        path,
+        rollout.predicted_trajectory(),
+        rollout.ground_truth_trajectory(),
+        rollout.particle_type,
+        rollout.metadata.bounds,
+        rollout.metadata.dt,
+        every=every,
+        fps=fps,
+        material_names=material_names,
+        first_rolled_out_frame=len(rollout.initial_positions),
+    )

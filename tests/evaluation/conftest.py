@@ -1,0 +1,60 @@
+"""Small scenes for the evaluation tests, built in memory (nothing is downloaded)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gns_framework.data.metadata import DatasetMetadata
+from gns_framework.evaluation.rollout_file import Rollout
+
+
+def _metadata(dim: int = 2, dt: float = 0.01) -> DatasetMetadata:
+    return DatasetMetadata(
+        bounds=[(0.0, 1.0)] * dim,
+        sequence_length=20,
+        default_connectivity_radius=0.1,
+        dim=dim,
+        dt=dt,
+        vel_mean=[0.0] * dim,
+        vel_std=[1.0] * dim,
+        acc_mean=[0.0] * dim,
+        acc_std=[1.0] * dim,
+    )
+
+
+def _rollout(dim: int = 2, steps: int = 8, particles: int = 12, history: int = 6, seed: int = 0) -> Rollout:
+    """Particles drifting inside the unit box; the prediction is the truth plus a growing offset.
+
+    Types: the last two particles are kinematic (3), the rest sand (6); two material properties.
+    """
+    rng = np.random.default_rng(seed)
+    start = rng.uniform(0.2, 0.8, size=(particles, dim))
+    velocity = rng.normal(0.0, 0.002, size=(particles, dim))
+    frames = start + velocity * np.arange(history + steps)[:, None, None]
+    particle_type = np.full(particles, 6, dtype=np.int64)
+    particle_type[-2:] = 3
+    truth = frames[history:]
+    offset = 0.001 * np.arange(1, steps + 1)[:, None, None] * np.ones((1, particles, dim))
+    offset[:, -2:] = 0.0
+    return Rollout(
+        initial_positions=frames[:history].astype(np.float32),
+        predicted_rollout=(truth + offset).astype(np.float32),
+        ground_truth_rollout=truth.astype(np.float32),
+        particle_type=particle_type,
+        metadata=_metadata(dim),
+        material_property=rng.uniform(0.5, 1.0, size=(particles, 2)).astype(np.float32),
+        source="memory.npz",
+    )
+
+
+@pytest.fixture
+def make_metadata():
+    """Factory of unit-box metadata: ``make_metadata(dim=2, dt=0.01)``."""
+    return _metadata
+
+
+@pytest.fixture
+def make_rollout():
+    """Factory of small rollouts: ``make_rollout(dim=2, steps=8, particles=12, history=6, seed=0)``."""
+    return _rollout

@@ -1,0 +1,169 @@
+"""The error-against-run-time report on a toy ground-truth simulator and a fake learned model."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from gns_framework.evaluation.report import Candidate, Case, Prediction, evaluate, score_rollout, write_report
+from gns_framework.evaluation.rollout_file import load_rollout
+
+GRAVITY = np.array([0.0, -9.81])
+HISTORY, STEPS, DT = 6, 12, 0.01
+SAND = 6
+
+
+def falling_sand(start: np.ndarray, velocity: np.ndarray, substeps: int) -> np.ndarray:
+    """Semi-implicit Euler with ``substeps`` per frame; particles stop on the floor y = 0.
+
+    Returns (HISTORY + STEPS, N, 2) frames: the finer the substeps, the closer to the
+    reference, as for a real solver's time step.
+    """
+    h = DT / substeps
+    position, velocity = start.copy(), velocity.copy()
+    frames = [position.copy()]
+    for _ in range(HISTORY + STEPS - 1):
+        for _ in range(substeps):
+            velocity = velocity + h * GRAVITY
+            position = position + h * velocity
+            landed = position[:, 1] < 0
+            position[landed, 1] = 0.0
+            velocity[landed] = 0.0
+        frames.append(position.copy())
+    return np.stack(frames)
+
+
+@pytest.fixture
+def scenes(make_metadata):
+    """Two test cases made by the reference setting (16 substeps), with their initial states."""
+    metadata = make_metadata(dim=2, dt=DT)
+    states, cases = {}, []
+    for seed in range(2):
+        rng = np.random.default_rng(seed)
+        start = np.column_stack([rng.uniform(0.2, 0.4, 40), rng.uniform(0.2, 0.6, 40)])
+        velocity = np.column_stack([rng.uniform(0.5, 1.5, 40), np.zeros(40)])
+        frames = falling_sand(start, velocity, substeps=16)
+        key = f"case{seed}"
+        states[key] = (start, velocity)
+        cases.append(Case(frames[:HISTORY], frames[HISTORY:], np.full(40, SAND), metadata, key=key))
+    return states, cases
+
+
+def simulator(states, substeps: int, every_other_particle: bool = False):
+    def simulate(case: Case) -> Prediction:
+        start, velocity = states[case.key]
+        if every_other_particle:
+            start, velocity = start[::2], velocity[::2]
+        frames = falling_sand(start, velocity, substeps)
+        if not every_other_particle:
+            return Prediction(frames[HISTORY:])
+        return Prediction(frames[HISTORY:], np.full(len(start), SAND), frames[HISTORY - 1])
+
+    return simulate
+
+
+def learned(case: Case) -> Prediction:
+    """A model's rollout, as a tensor like a model returns it, drifting 0.002 L per step."""
+    drift = 0.002 * np.arange(1, STEPS + 1)[:, None, None]
+    return Prediction(torch.as_tensor(case.ground_truth + drift, dtype=torch.float32))
+
+
+def candidates(states):
+    return [
+        Candidate("mpm dt/16", "simulator", simulator(states, 16), reference=True, settings="16 substeps"),
+        Candidate("mpm dt/2", "simulator", simulator(states, 2), settings="2 substeps"),
+        Candidate("mpm dt/1", "simulator", simulator(states, 1), settings="1 substep"),
+        Candidate(
+            "mpm coarse", "simulator", simulator(states, 16, every_other_particle=True), settings="half the particles"
+        ),
+        Candidate("gns", "learned", learned, settings="model.pt"),
+    ]
+
+
+@pytest.fixture
+def report(scenes, tmp_path):
+    states, cases = scenes
+    return evaluate(
+        candidates(states),
+        cases,
+        repeats=2,
+        warmup=1,
+        granular_types={SAND},
+        material_names={SAND: "sand"},
+        rollout_dir=tmp_path / "rollouts",
+    )
+
+
+def test_entries_hold_speedup_and_error_against_the_reference(report):
+    by_name = {e.name: e for e in report.entries}
+    reference = by_name["mpm dt/16"]
+    assert reference.speedup == pytest.approx(1.0)
+    assert reference.metrics["mse_full"] == 0.0 and reference.metrics["sinkhorn_final_pct"] == pytest.approx(
+        0, abs=1e-3
+    )
+    for entry in report.entries:
+        assert entry.seconds > 0 and entry.speedup == pytest.approx(reference.seconds / entry.seconds)
+    # A coarser time step is faster and less accurate.
+    assert by_name["mpm dt/1"].speedup > 1
+    assert by_name["mpm dt/1"].metrics["mse_full"] > by_name["mpm dt/2"].metrics["mse_full"] > 0
+    # The learned model drifts 0.002 L per step in both components: MSE at step k is (0.002 k)^2.
+    assert by_name["gns"].metrics["mse_1"] == pytest.approx(0.002**2, rel=1e-4)
+    assert by_name["gns"].metrics["mse_full[sand]"] == pytest.approx(by_name["gns"].metrics["mse_full"])
+    assert by_name["gns"].metrics["mse_20"] is None
+    # Another resolution has no particle correspondence: no MSE, but a Sinkhorn error.
+    assert by_name["mpm coarse"].metrics["mse_full"] is None and by_name["mpm coarse"].mse_per_step is None
+    assert by_name["mpm coarse"].metrics["sinkhorn_final_pct"] > 0
+    assert by_name["gns"].metrics["runout_error"] is not None
+    assert report.num_cases == 2 and report.hardware["torch_threads"] >= 1
+
+
+def test_report_files(report, tmp_path):
+    paths = write_report(report, tmp_path / "report")
+    markdown = paths["markdown"].read_text()
+    assert "torch threads" in markdown and "median of 2 repeats" in markdown
+    assert "| mpm dt/16 (reference) | simulator |" in markdown
+    assert "speed-up vs mpm dt/16" in markdown
+    with paths["csv"].open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [r["name"] for r in rows] == [e.name for e in report.entries]
+    gns = next(r for r in rows if r["name"] == "gns")
+    assert gns["mse_50"] == "" and float(gns["mse_1"]) == pytest.approx(0.002**2, rel=1e-4)
+    assert float(gns["speedup"]) > 0 and gns["mse_full[sand]"] != ""
+    for plot in ("error_vs_time", "error_over_rollout"):
+        with Image.open(paths[plot]) as image:
+            assert image.format == "PNG" and image.size[0] > 300
+
+
+def test_rollouts_of_the_same_particles_are_saved_for_rendering(report, tmp_path):
+    saved = sorted(p.relative_to(tmp_path / "rollouts").as_posix() for p in (tmp_path / "rollouts").rglob("*.npz"))
+    same_particles = ["gns", "mpm dt/1", "mpm dt/16", "mpm dt/2"]
+    assert saved == [f"{name}/case{k}.npz" for name in same_particles for k in range(2)]
+    rollout = load_rollout(tmp_path / "rollouts" / "gns" / "case1.npz")
+    assert rollout.num_steps == STEPS and rollout.initial_positions.shape == (HISTORY, 40, 2)
+
+
+def test_invalid_candidate_lists_are_refused(scenes):
+    states, cases = scenes
+    twice = [candidates(states)[0], Candidate("other", "simulator", simulator(states, 2), reference=True)]
+    with pytest.raises(ValueError, match="at most one reference"):
+        evaluate(twice, cases)
+    with pytest.raises(ValueError, match="unique"):
+        evaluate([candidates(states)[4]] * 2, cases)
+    with pytest.raises(ValueError, match="unknown error_metric"):
+        evaluate(candidates(states)[4:], cases, error_metric="accuracy")
+    with pytest.raises(ValueError, match="S = 12 frames"):
+        evaluate([Candidate("short", "learned", lambda case: Prediction(case.ground_truth[:3]))], cases)
+
+
+def test_score_rollout_file(make_rollout):
+    # The fixture's prediction is off by 0.001 k in every component at step k (kinematic particles exact).
+    summary = score_rollout(make_rollout(steps=8), granular_types={SAND}, material_names={SAND: "sand"})
+    assert summary["mse_1"] == pytest.approx(1e-6, rel=1e-3)
+    assert summary["mse_5"] == pytest.approx(1e-6 * (1 + 4 + 9 + 16 + 25) / 5, rel=1e-3)
+    assert summary["mse_10"] is None
+    assert summary["mse_full[sand]"] == pytest.approx(summary["mse_full"])
+    assert summary["runout_error"] is not None and summary["diverged"] == 0.0
