@@ -1,23 +1,10 @@
-"""Autoregressive rollouts and the pickle-free rollout file.
+"""Autoregressive rollouts, saved with their ground truth in the pickle-free rollout file.
 
-Rollout file (``.npz``, time-major like the datasets; read with ``allow_pickle=False``):
-
-==========================  ==================  ==========================================
-key                         shape, dtype        meaning
-==========================  ==================  ==========================================
-``initial_positions``       (C, N, d) float32   the C ground-truth input frames
-``predicted_rollout``       (S, N, d) float32   predicted frames C .. C+S-1
-``ground_truth_rollout``    (S, N, d) float32   true frames C .. C+S-1
-``particle_type``           (N,) int64
-``material_property``       (N, P) float32      only when the data has properties
-``metadata_json``           () str              the dataset's metadata.json
-``key``                     () str              trajectory key in its split
-==========================  ==================  ==========================================
+The file format is documented in :mod:`gns_framework.evaluation.rollout_file`.
 """
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -25,7 +12,6 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from .data.atomic import atomic_path
 from .data.batch import window
 from .data.metadata import DatasetMetadata
 from .data.trajectory import Trajectory
@@ -88,18 +74,17 @@ def rollout(
 
 
 def write_rollout(path: str | Path, result: RolloutResult, metadata: DatasetMetadata) -> Path:
-    """Save a rollout with its ground truth (format in the module docstring), atomically."""
-    path = Path(path)
-    arrays = {
-        "initial_positions": result.initial_positions.astype(np.float32),
-        "predicted_rollout": result.predicted.astype(np.float32),
-        "ground_truth_rollout": result.ground_truth.astype(np.float32),
-        "particle_type": result.trajectory.particle_type.astype(np.int64),
-        "metadata_json": np.array(json.dumps(metadata.to_json_dict())),
-        "key": np.array(result.trajectory.key),
-    }
-    if result.trajectory.material_property is not None:
-        arrays["material_property"] = result.trajectory.material_property.astype(np.float32)
-    with atomic_path(path, suffix=".npz") as tmp:
-        np.savez_compressed(tmp, **arrays)
-    return path
+    """Save a rollout with its ground truth, atomically."""
+    from .evaluation.rollout_file import Rollout, save_rollout
+
+    return save_rollout(
+        path,
+        Rollout(
+            initial_positions=result.initial_positions.astype(np.float32),
+            predicted_rollout=result.predicted.astype(np.float32),
+            ground_truth_rollout=result.ground_truth.astype(np.float32),
+            particle_type=result.trajectory.particle_type.astype(np.int64),
+            metadata=metadata,
+            material_property=result.trajectory.material_property,
+        ),
+    )

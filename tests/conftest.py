@@ -9,7 +9,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from synthetic import write_synthetic_dataset  # noqa: E402
+from gns_framework.demo.soft_spheres import write_synthetic_dataset  # noqa: E402
 
 from gns_framework.plugins import load_registry  # noqa: E402
 

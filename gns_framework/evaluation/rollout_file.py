@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..data.atomic import atomic_path
 from ..data.metadata import DatasetMetadata, parse_metadata
 from ..errors import DatasetError, located
 
@@ -147,9 +148,8 @@ def save_rollout(path: str | Path, rollout: Rollout) -> Path:
     }
     if rollout.material_property is not None:
         arrays["material_property"] = rollout.material_property
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("wb") as handle:
-        np.savez_compressed(handle, **arrays)
+    with atomic_path(path, suffix=".npz") as tmp:
+        np.savez_compressed(tmp, **arrays)
     return path
 
 
