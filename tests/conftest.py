@@ -2,16 +2,12 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
-
-from gns_framework.demo.soft_spheres import write_synthetic_dataset  # noqa: E402
-
-from gns_framework.plugins import load_registry  # noqa: E402
+from gns_framework.demo.soft_spheres import write_synthetic_dataset
+from gns_framework.plugins import load_registry
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -40,8 +36,13 @@ def dataset_multimaterial(tmp_path_factory) -> Path:
     )
 
 
-def small_recipe(dataset: Path, run_dir: Path, **model) -> dict:
-    """A fast recipe mapping (tiny model) for tests that only need the machinery."""
+@pytest.fixture(scope="session")
+def small_recipe():
+    """Builds a fast recipe mapping (tiny model) for tests that only need the machinery."""
+    return _small_recipe
+
+
+def _small_recipe(dataset: Path, run_dir: Path, **model) -> dict:
     return {
         "name": "test",
         "seed": 0,

@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import REPO, small_recipe
 
 from gns_framework.checkpoint import list_checkpoints, load_checkpoint
 from gns_framework.contracts import Params, Processor
@@ -18,6 +17,9 @@ from gns_framework.plugins import load_registry
 from gns_framework.recipe import load_recipe, validate_recipe
 from gns_framework.rollout import rollout, write_rollout
 from gns_framework.training.trainer import Trainer
+
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def test_shipped_recipe_lowers_validation_loss(dataset_2d, tmp_path, registry):
@@ -41,7 +43,7 @@ def _train(recipe_raw, registry, steps, resume=False):
     return losses, trainer
 
 
-def test_resumed_run_continues_identically(dataset_multimaterial, tmp_path, registry):
+def test_resumed_run_continues_identically(dataset_multimaterial, tmp_path, registry, small_recipe):
     straight, straight_trainer = _train(small_recipe(dataset_multimaterial, tmp_path / "a"), registry, 6)
     first, _ = _train(small_recipe(dataset_multimaterial, tmp_path / "b"), registry, 3)
     second, resumed = _train(small_recipe(dataset_multimaterial, tmp_path / "b"), registry, 6, resume=True)
@@ -50,7 +52,7 @@ def test_resumed_run_continues_identically(dataset_multimaterial, tmp_path, regi
         assert torch.equal(a, b), name
 
 
-def test_checkpoint_of_another_model_is_refused(dataset_multimaterial, tmp_path, registry):
+def test_checkpoint_of_another_model_is_refused(dataset_multimaterial, tmp_path, registry, small_recipe):
     _train(small_recipe(dataset_multimaterial, tmp_path), registry, 3)
     other = small_recipe(dataset_multimaterial, tmp_path, latent_size=32)
     trainer = Trainer(validate_recipe(other, registry), registry, progress=False)
@@ -83,7 +85,7 @@ class _TestProcessors:
         return [_MeanFieldProcessor]
 
 
-def test_processor_swapped_by_one_recipe_line(dataset_2d, tmp_path):
+def test_processor_swapped_by_one_recipe_line(dataset_2d, tmp_path, small_recipe):
     registry = load_registry(plugins=[("test-processors", _TestProcessors)])
     raw = small_recipe(dataset_2d, tmp_path)
     raw["model"]["processor"] = {"name": "mean_field"}
@@ -96,7 +98,7 @@ def test_processor_swapped_by_one_recipe_line(dataset_2d, tmp_path):
     assert load_checkpoint(trainer.checkpoint_dir / "checkpoint-000000004.pt")["plugins"]["processor/mean_field"]
 
 
-def test_rollout_keeps_kinematic_particles_on_ground_truth(dataset_multimaterial, tmp_path, registry):
+def test_rollout_keeps_kinematic_particles_on_ground_truth(dataset_multimaterial, tmp_path, registry, small_recipe):
     _train(small_recipe(dataset_multimaterial, tmp_path), registry, 3)
     loaded = load_trained(list_checkpoints(tmp_path / "checkpoints")[-1][1], registry)
     scene = loaded.simulator.scene
@@ -116,7 +118,7 @@ def test_rollout_keeps_kinematic_particles_on_ground_truth(dataset_multimaterial
         assert "material_property" in z.files
 
 
-def test_checkpoints_are_pruned_to_keep(dataset_2d, tmp_path, registry):
+def test_checkpoints_are_pruned_to_keep(dataset_2d, tmp_path, registry, small_recipe):
     raw = small_recipe(dataset_2d, tmp_path)
     raw["training"].update(checkpoint_every=1, keep_checkpoints=2)
     _train(raw, registry, 5)
