@@ -29,12 +29,15 @@ from ..layers import MLP, NormedMLP
 
 
 class EquivariantStep(nn.Module):
-    """One EGNN step. Shapes: h (N, L), e (E, L), offset (N, d); r (E, d) relative positions."""
+    """One EGNN step. Shapes: h (N, L), e (E, L), offset (N, d); r (E, d) relative positions.
 
-    def __init__(self, latent: int, hidden: int, hidden_layers: int):
+    The last step of a stack moves no positions (nothing would read them), so it has no ``position_mlp``.
+    """
+
+    def __init__(self, latent: int, hidden: int, hidden_layers: int, moves_positions: bool):
         super().__init__()
         self.message_mlp = NormedMLP(3 * latent + 1, hidden, hidden_layers, latent)
-        self.position_mlp = MLP(latent, hidden, hidden_layers, 1)
+        self.position_mlp = MLP(latent, hidden, hidden_layers, 1) if moves_positions else None
         self.node_mlp = NormedMLP(2 * latent, hidden, hidden_layers, latent)
 
     def forward(
@@ -43,9 +46,10 @@ class EquivariantStep(nn.Module):
         r = relative + offset[senders] - offset[receivers]
         distance2 = (r * r).sum(-1, keepdim=True)
         message = self.message_mlp(torch.cat([e, h[receivers], h[senders], distance2], dim=-1))
-        # tanh bounds each move to one edge length, which keeps deep stacks stable.
-        pull = r * torch.tanh(self.position_mlp(message))
-        offset = offset - torch.zeros_like(offset).index_add_(0, receivers, pull) / degree
+        if self.position_mlp is not None:
+            # tanh bounds each move to one edge length, which keeps deep stacks stable.
+            pull = r * torch.tanh(self.position_mlp(message))
+            offset = offset - torch.zeros_like(offset).index_add_(0, receivers, pull) / degree
         aggregate = torch.zeros_like(h).index_add_(0, receivers, message)
         h = h + self.node_mlp(torch.cat([h, aggregate], dim=-1))
         return h, e + message, offset
@@ -63,8 +67,8 @@ class EquivariantProcessor(Processor):
         super().__init__(params, sizes)
         self.connectivity_radius = sizes.connectivity_radius
         self.steps = nn.ModuleList(
-            EquivariantStep(sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers)
-            for _ in range(params.message_passing_steps)
+            EquivariantStep(sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers, i < params.message_passing_steps - 1)
+            for i in range(params.message_passing_steps)
         )
 
     def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:
