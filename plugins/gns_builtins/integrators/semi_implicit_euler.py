@@ -15,9 +15,10 @@ class SemiImplicitEuler(Integrator):
     In positions this is ``p[t+1] = 2 p[t] - p[t-1] + a`` (Stoermer-Verlet). Its inverse
     is exact: ``a = (p[t+1] - p[t]) - (p[t] - p[t-1])``.
 
-    Stability: symplectic and time-reversible. On the harmonic oscillator
-    ``a = -omega^2 x`` it is stable for ``omega * dt < 2`` with a bounded energy
-    error of order ``(omega * dt)^2``; beyond 2 the amplitude grows without bound.
+    Stability: symplectic, first order. On the harmonic oscillator ``a = -omega^2 x``
+    it is stable for ``omega dt < 2``: the energy oscillates without drift, within
+    a factor ``1 / (1 +- omega dt / 2)`` of the initial one (started at rest), an
+    error of order ``omega dt``. Beyond ``omega dt = 2`` the amplitude grows geometrically.
     """
 
     name = "semi_implicit_euler"

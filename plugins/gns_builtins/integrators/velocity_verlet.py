@@ -24,8 +24,9 @@ class VelocityVerlet(Integrator):
     order for Euler).
 
     Stability: symplectic and time-reversible, global error O(dt^2). On the harmonic
-    oscillator it is stable for ``omega dt < 2``; the energy error stays bounded,
-    of order ``(omega dt)^2``, and does not drift.
+    oscillator it is stable for ``omega dt < 2``; the energy oscillates without
+    drift between ``1 - (omega dt)^2 / 4`` and 1 times the initial one (started at
+    rest). Beyond ``omega dt = 2`` the amplitude grows geometrically.
     """
 
     name = "velocity_verlet"
