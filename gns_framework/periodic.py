@@ -47,7 +47,9 @@ class PeriodicBox:
             return position
         lower, length = self.lower.to(position), self.length.to(position)
         out = position.clone()
-        out[..., self.dims] = lower + torch.remainder(position[..., self.dims] - lower, length)
+        inside = lower + torch.remainder(position[..., self.dims] - lower, length)
+        # remainder(-tiny, L) rounds to L itself: fold that onto the lower face.
+        out[..., self.dims] = torch.where(inside >= lower + length, lower, inside)
         return out
 
     def unwrap_history(self, position_sequence: Tensor) -> Tensor:

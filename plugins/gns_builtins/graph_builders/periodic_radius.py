@@ -61,7 +61,8 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
         real = receivers < n
         senders, receivers = senders[real], receivers[real]
         displacement = all_position[senders] - all_position[receivers]
-        senders = torch.where(senders < n, senders, ghost_of[(senders - n).clamp(min=0)])
+        owner = torch.cat([torch.arange(n, device=position.device), ghost_of])
+        senders = owner[senders]
         order = torch.argsort(receivers * n + senders)
         return Graph(senders[order], receivers[order], displacement[order], n)
 
