@@ -80,8 +80,10 @@ class Scene:
         property_names: per-particle material properties, in node-feature column order.
         context_size: width of the per-frame global context (0: none).
         history: C, positions per input window (C - 1 velocities).
-        walls: whether wall-distance features are built (False in periodic domains).
+        walls: whether wall-distance features are built (for the non-periodic dimensions).
         boundary_clamp_limit: wall distances / R are clipped to +-this.
+        periodic: per dimension, whether the domain wraps around there (minimum-image
+            displacements, no walls); empty means no periodic dimension.
     """
 
     dim: int
@@ -94,6 +96,7 @@ class Scene:
     history: int = 6
     walls: bool = True
     boundary_clamp_limit: float = 1.0
+    periodic: tuple[bool, ...] = ()
 
     @property
     def num_particle_types(self) -> int:
@@ -102,6 +105,18 @@ class Scene:
     @property
     def uses_type_embedding(self) -> bool:
         return len(self.particle_types) > 1
+
+    @property
+    def periodic_dims(self) -> tuple[int, ...]:
+        """Indices of the dimensions that wrap around."""
+        return tuple(k for k, wraps in enumerate(self.periodic) if wraps)
+
+    @property
+    def wall_dims(self) -> tuple[int, ...]:
+        """Indices of the dimensions bounded by walls (none when ``walls`` is False)."""
+        if not self.walls:
+            return ()
+        return tuple(k for k in range(self.dim) if k not in self.periodic_dims)
 
 
 @dataclass(frozen=True)
@@ -115,6 +130,8 @@ class ModelSizes:
     mlp_hidden_layers: int
     output: int
     dim: int
+    connectivity_radius: float = 1.0
+    """R, the length unit of ``Graph.displacement`` for processors that use geometry."""
     extras: dict = field(default_factory=dict)
 
 
@@ -123,6 +140,8 @@ class GraphBuilder(ABC):
 
     name: ClassVar[str]
     Params: ClassVar[type[Params]] = Params
+    supports_periodic: ClassVar[bool] = False
+    """Whether it connects particles across periodic boundaries (minimum image)."""
 
     def __init__(self, params: Params, scene: Scene):
         self.params = params
@@ -188,7 +207,13 @@ class Integrator(ABC):
     """Turns the model's (de-normalised) prediction into the next position, and back.
 
     Time is in frames (dt = 1): velocities and accelerations are finite
-    differences of positions, as in the reference model.
+    differences of positions, as in the reference model. ``predicts`` says which
+    statistics normalise the decoder's output.
+
+    Integrators that model a second-order ODE may also offer the physical form
+    ``advance(position, velocity, acceleration_fn, dt) -> (position, velocity)``
+    (one step of ``dx/dt = v, dv/dt = acceleration_fn(x)``), for use with a force
+    law instead of a learned model (stability studies, ground-truth generation).
     """
 
     name: ClassVar[str]

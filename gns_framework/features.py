@@ -2,11 +2,14 @@
 
 Node features, in column order (N rows):
     1. normalised velocity history, time-major ``[v0x, v0y, v1x, ...]``   (C-1)*d
-    2. wall distances ``[p - lower, upper - p] / R`` clipped to +-clamp  2d   (scenes with walls)
+    2. wall distances ``[p - lower, upper - p] / R`` clipped to +-clamp  2w   (w dims with walls)
     3. learned particle-type embedding                                   emb  (more than one type)
     4. per-particle material properties                                  P    (scenes with properties)
     5. normalised global context of the frame                            c    (scenes with context)
 Edge features (E rows): ``(p_sender - p_receiver) / R`` and its norm, d + 1 columns.
+
+Dimensions that wrap around (periodic) have no walls; the history passed in must
+already be continuous there (see :class:`~gns_framework.periodic.PeriodicBox`).
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from .normalization import Stats
 
 def node_feature_size(scene: Scene, type_embedding_size: int) -> int:
     size = (scene.history - 1) * scene.dim
-    size += 2 * scene.dim if scene.walls else 0
+    size += 2 * len(scene.wall_dims)
     size += type_embedding_size if scene.uses_type_embedding else 0
     return size + len(scene.property_names) + scene.context_size
 
@@ -63,10 +66,11 @@ class FeatureBuilder(nn.Module):
         n = position_sequence.shape[0]
         velocity_sequence = position_sequence[:, 1:] - position_sequence[:, :-1]
         parts = [self.velocity_stats.normalize(velocity_sequence).reshape(n, -1)]
-        if scene.walls:
-            most_recent = position_sequence[:, -1]
-            to_lower = most_recent - self.bounds[:, 0][None]
-            to_upper = self.bounds[:, 1][None] - most_recent
+        if scene.wall_dims:
+            walled = list(scene.wall_dims)
+            most_recent = position_sequence[:, -1, walled]
+            to_lower = most_recent - self.bounds[walled, 0][None]
+            to_upper = self.bounds[walled, 1][None] - most_recent
             distance = torch.cat([to_lower, to_upper], dim=1) / scene.connectivity_radius
             limit = scene.boundary_clamp_limit
             parts.append(torch.clamp(distance, -limit, limit))

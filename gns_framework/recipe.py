@@ -52,6 +52,10 @@ class ModelSpec(_Strict):
         None, description="names of the data's material_property columns; default: the materials' properties"
     )
     noise_std: float = Field(6.7e-4, ge=0, description="random-walk noise std at the last input velocity")
+    periodic: list[bool] | None = Field(
+        None, description="per dimension, whether the domain wraps around; default: the metadata's periodic_boundary_conditions"
+    )
+    wall_features: bool = Field(True, description="distance-to-wall node features for the non-periodic dimensions")
     graph_builder: ComponentSpec = ComponentSpec(name="radius")
     encoder: ComponentSpec = ComponentSpec(name="mlp")
     processor: ComponentSpec = ComponentSpec(name="interaction_network")

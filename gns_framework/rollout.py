@@ -60,8 +60,7 @@ def rollout(
     for step in tqdm(range(steps), desc=f"rollout {trajectory.key}", unit="step", disable=not progress):
         frame_context = None if context is None else context[history - 1 + step][None]
         current = replace(state, position_sequence=sequence, context=frame_context)
-        next_position = simulator.predict_next_position(current)
-        next_position = torch.where(kinematic, truth[step], next_position)
+        next_position = simulator.predict_next_position(current, prescribed=truth[step])
         predicted[step] = next_position
         sequence = torch.cat([sequence[:, 1:], next_position[:, None]], dim=1)
     return RolloutResult(

@@ -68,6 +68,11 @@ def scene_from_data(
             f"{source}: metadata.json: context_mean/context_std: needed with {context_size} entries for the step_context"
         )
 
+    periodic = model.periodic if model.periodic is not None else metadata.periodic_boundary_conditions
+    if periodic is not None and len(periodic) != metadata.dim:
+        raise RecipeError(None, [("model.periodic", f"has {len(periodic)} entries but the data has dim = {metadata.dim}")])
+    periodic = tuple(bool(p) for p in periodic) if periodic and any(periodic) else ()
+
     return Scene(
         dim=metadata.dim,
         bounds=tuple((float(lo), float(hi)) for lo, hi in metadata.bounds),
@@ -78,6 +83,8 @@ def scene_from_data(
         context_size=context_size,
         history=model.history,
         boundary_clamp_limit=metadata.boundary_clamp_limit,
+        walls=model.wall_features,
+        periodic=periodic,
     )
 
 
@@ -91,4 +98,5 @@ def scene_from_dict(raw: dict) -> Scene:
     fields["bounds"] = tuple(tuple(float(v) for v in b) for b in raw["bounds"])
     for key in ("particle_types", "kinematic_types", "property_names"):
         fields[key] = tuple(raw[key])
+    fields["periodic"] = tuple(raw.get("periodic", ()))
     return Scene(**fields)

@@ -2,6 +2,8 @@
 
 The hot path calls the components directly (never through pluggy). ``forward`` is
 the training computation so DistributedDataParallel wraps it and averages gradients.
+In periodic domains the stored (wrapped) history is made continuous before features
+and targets are computed, and predicted positions are wrapped back into the box.
 """
 
 from __future__ import annotations
@@ -12,8 +14,10 @@ from torch import Tensor, nn
 from .contracts import Decoder, Encoder, Graph, GraphBuilder, Integrator, ModelSizes, Processor, Scene
 from .data.batch import ParticleBatch
 from .data.metadata import DatasetMetadata
+from .errors import RecipeError
 from .features import FeatureBuilder, edge_feature_size, node_feature_size
 from .normalization import Stats
+from .periodic import PeriodicBox
 from .plugins import Registry
 from .recipe import ModelSpec, component
 
@@ -41,6 +45,7 @@ class LearnedSimulator(nn.Module):
         self.decoder = decoder
         self.integrator = integrator
         self.output_stats = output_stats
+        self.box = PeriodicBox(scene)
         kinematic = torch.zeros(max(scene.particle_types) + 1, dtype=torch.bool)
         kinematic[list(scene.kinematic_types)] = True
         self.register_buffer("kinematic_type", kinematic, persistent=False)
@@ -59,17 +64,38 @@ class LearnedSimulator(nn.Module):
         nodes = self.features.node_features(position_sequence, batch.particle_type, batch.material_property, context)
         return nodes, self.features.edge_features(graph), graph
 
-    def normalized_prediction(self, position_sequence: Tensor, batch: ParticleBatch) -> Tensor:
-        """The decoder's output (N, d): normalised acceleration (or velocity) of every particle."""
+    def processed_latent(self, position_sequence: Tensor, batch: ParticleBatch) -> Tensor:
+        """Node latents (N, L) after encoder and processor; the history must be continuous."""
         node_features, edge_features, graph = self.encode_inputs(position_sequence, batch)
         node_latent, edge_latent = self.encoder(node_features, edge_features)
         node_latent, _ = self.processor(node_latent, edge_latent, graph)
-        return self.decoder(node_latent)
+        return node_latent
 
-    def predict_next_position(self, batch: ParticleBatch) -> Tensor:
-        """(N, d) next positions of every particle (kinematic ones too; callers overwrite them)."""
-        normalized = self.normalized_prediction(batch.position_sequence, batch)
-        return self.integrator.next_position(batch.position_sequence, self.output_stats.denormalize(normalized))
+    def normalized_prediction(self, position_sequence: Tensor, batch: ParticleBatch) -> Tensor:
+        """The decoder's output (N, d): normalised acceleration (or velocity) of every particle.
+
+        Every row is decoded, kinematic ones included, so outputs compare one to one
+        with reference implementations.
+        """
+        return self.decoder(self.processed_latent(self.box.unwrap_history(position_sequence), batch))
+
+    def predict_next_position(self, batch: ParticleBatch, prescribed: Tensor | None = None) -> Tensor:
+        """(N, d) next positions: predicted for moving particles, prescribed for kinematic ones.
+
+        Kinematic particles are not integrated and their rows are never decoded.
+
+        Args:
+            batch: the current windows.
+            prescribed: (N, d) next positions whose kinematic rows are used; when None,
+                kinematic particles stay where they are.
+        """
+        sequence = self.box.unwrap_history(batch.position_sequence)
+        moving = self.predicted_mask(batch.particle_type)
+        node_latent = self.processed_latent(sequence, batch)
+        next_position = batch.position_sequence[:, -1].clone() if prescribed is None else prescribed.clone()
+        prediction = self.output_stats.denormalize(self.decoder(node_latent[moving]))
+        next_position[moving] = self.box.wrap(self.integrator.next_position(sequence[moving], prediction))
+        return next_position
 
     def forward(self, batch: ParticleBatch, position_noise: Tensor) -> tuple[Tensor, Tensor]:
         """Training prediction and target on noise-corrupted inputs.
@@ -85,9 +111,11 @@ class LearnedSimulator(nn.Module):
         Returns:
             predicted and target normalised outputs, (N, d) each.
         """
-        noisy_sequence = batch.position_sequence + position_noise
-        prediction = self.normalized_prediction(noisy_sequence, batch)
-        next_position_adjusted = batch.next_position + position_noise[:, -1]
+        sequence = self.box.unwrap_history(batch.position_sequence)
+        next_position = self.box.unwrap_next(sequence[:, -1], batch.next_position)
+        noisy_sequence = sequence + position_noise
+        prediction = self.decoder(self.processed_latent(noisy_sequence, batch))
+        next_position_adjusted = next_position + position_noise[:, -1]
         target = self.output_stats.normalize(self.integrator.target(noisy_sequence, next_position_adjusted))
         return prediction, target
 
@@ -101,6 +129,7 @@ def model_sizes(scene: Scene, model: ModelSpec) -> ModelSizes:
         mlp_hidden_layers=model.mlp_hidden_layers,
         output=scene.dim,
         dim=scene.dim,
+        connectivity_radius=scene.connectivity_radius,
     )
 
 
@@ -112,6 +141,14 @@ def build_simulator(scene: Scene, metadata: DatasetMetadata, model: ModelSpec, r
     processor_cls, processor_params = component(registry, "processor", model.processor)
     decoder_cls, decoder_params = component(registry, "decoder", model.decoder)
     integrator_cls, integrator_params = component(registry, "integrator", model.integrator)
+    if scene.periodic_dims and not builder_cls.supports_periodic:
+        periodic_builders = [e.name for e in registry.entries("graph_builder") if e.cls.supports_periodic]
+        raise RecipeError(
+            None,
+            [("model.graph_builder.name",
+              f"{builder_cls.name!r} does not connect across the periodic dimensions {list(scene.periodic_dims)}; "
+              f"use one of: {', '.join(periodic_builders) or 'none installed'}")],
+        )
     integrator = integrator_cls(integrator_params)
     velocity_stats = Stats(metadata.vel_mean, metadata.vel_std, model.noise_std)
     if integrator.predicts == "acceleration":

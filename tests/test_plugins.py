@@ -71,7 +71,7 @@ def test_unknown_name_lists_choices_with_did_you_mean(registry):
     with pytest.raises(PluginError) as info:
         registry.get("processor", "interaction_netwrok")
     assert "did you mean 'interaction_network'" in str(info.value)
-    assert "installed: interaction_network" in str(info.value)
+    assert "interaction_network" in str(info.value).split("installed: ")[1].split(", ")
 
 
 def test_hook_returning_a_non_component_names_the_plugin():
@@ -127,7 +127,8 @@ def test_broken_plugin_error_names_entry_point_and_distribution(broken_distribut
 def test_environment_variable_disables_plugins(broken_distribution, monkeypatch):
     monkeypatch.setenv(DISABLE_ENV, "broken,builtin-materials")
     registry = load_registry()
-    assert registry.names("material") == []
+    # Installed third-party materials (the example clay) stay; the built-in ones are gone.
+    assert all(entry.plugin != "builtin-materials" for entry in registry.entries("material"))
     assert "interaction_network" in registry.names("processor")
 
 

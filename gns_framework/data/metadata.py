@@ -41,6 +41,9 @@ class DatasetMetadata(BaseModel):
     boundary_augment: float | None = Field(
         default=None, gt=0, description="clip limit of wall-distance features (geoelements); 1.0 when absent"
     )
+    periodic_boundary_conditions: list[bool] | None = Field(
+        default=None, description="per dimension, whether the domain wraps around (LagrangeBench's key); none when absent"
+    )
 
     @model_validator(mode="after")
     def _dimensions_agree(self) -> "DatasetMetadata":
@@ -54,6 +57,10 @@ class DatasetMetadata(BaseModel):
         for lo, hi in self.bounds:
             if not lo < hi:
                 raise ValueError(f"bounds must be (lower, upper) with lower < upper, got {(lo, hi)}")
+        if self.periodic_boundary_conditions is not None and len(self.periodic_boundary_conditions) != self.dim:
+            raise ValueError(
+                f"periodic_boundary_conditions has {len(self.periodic_boundary_conditions)} entries but dim = {self.dim}"
+            )
         if (self.context_mean is None) != (self.context_std is None):
             raise ValueError("context_mean and context_std must be given together")
         if self.context_mean is not None and len(self.context_mean) != len(self.context_std or []):

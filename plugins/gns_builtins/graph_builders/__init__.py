@@ -2,9 +2,12 @@
 
 from gns_framework.hookspecs import hookimpl
 
+from .knn import KnnGraphBuilder
+from .periodic_radius import PeriodicRadiusGraphBuilder
 from .radius import RadiusGraphBuilder
+from .radius_torch_cluster import TorchClusterRadiusGraphBuilder
 
 
 @hookimpl
 def gns_graph_builders():
-    return [RadiusGraphBuilder]
+    return [RadiusGraphBuilder, TorchClusterRadiusGraphBuilder, KnnGraphBuilder, PeriodicRadiusGraphBuilder]

@@ -2,9 +2,12 @@
 
 from gns_framework.hookspecs import hookimpl
 
+from .egnn import EquivariantProcessor
+from .graph_attention import GraphAttentionProcessor
 from .interaction_network import InteractionNetwork
+from .shared_interaction_network import SharedInteractionNetwork
 
 
 @hookimpl
 def gns_processors():
-    return [InteractionNetwork]
+    return [InteractionNetwork, SharedInteractionNetwork, GraphAttentionProcessor, EquivariantProcessor]

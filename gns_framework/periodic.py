@@ -1,0 +1,71 @@
+"""Periodic domains: wrapping positions into the box and minimum-image differences.
+
+In a dimension that wraps around, stored positions jump by the box length L when a
+particle crosses a face. Every difference of positions (velocities, accelerations,
+edge displacements) is therefore taken as the minimum image: the representative
+of ``b - a`` modulo L that lies in ``[-L/2, L/2)``.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from .contracts import Scene
+
+
+class PeriodicBox:
+    """The wrap-around geometry of a scene's periodic dimensions.
+
+    Args:
+        scene: its ``bounds`` give the box; ``periodic_dims`` the wrapping dimensions.
+    """
+
+    def __init__(self, scene: Scene):
+        self.dims = list(scene.periodic_dims)
+        bounds = torch.tensor(scene.bounds, dtype=torch.float64)
+        self.lower = bounds[self.dims, 0]
+        self.length = bounds[self.dims, 1] - bounds[self.dims, 0]
+
+    @property
+    def active(self) -> bool:
+        return bool(self.dims)
+
+    def minimum_image(self, difference: Tensor) -> Tensor:
+        """(..., d) differences of positions -> the same with periodic components in [-L/2, L/2)."""
+        if not self.active:
+            return difference
+        length = self.length.to(difference)
+        out = difference.clone()
+        part = difference[..., self.dims]
+        out[..., self.dims] = part - length * torch.floor(part / length + 0.5)
+        return out
+
+    def wrap(self, position: Tensor) -> Tensor:
+        """(..., d) positions -> the same with periodic components in [lower, lower + L)."""
+        if not self.active:
+            return position
+        lower, length = self.lower.to(position), self.length.to(position)
+        out = position.clone()
+        inside = lower + torch.remainder(position[..., self.dims] - lower, length)
+        # remainder(-tiny, L) rounds to L itself: fold that onto the lower face.
+        out[..., self.dims] = torch.where(inside >= lower + length, lower, inside)
+        return out
+
+    def unwrap_history(self, position_sequence: Tensor) -> Tensor:
+        """(N, C, d) stored history -> a continuous one that ends at the same (wrapped) frame.
+
+        Earlier frames are rebuilt backwards from the last with minimum-image
+        steps, so finite differences of the result are the true displacements.
+        """
+        if not self.active:
+            return position_sequence
+        steps = self.minimum_image(position_sequence[:, 1:] - position_sequence[:, :-1])
+        # Positions before the last, as the last minus the steps taken since.
+        since = torch.flip(torch.cumsum(torch.flip(steps, [1]), 1), [1])
+        last = position_sequence[:, -1:]
+        return torch.cat([last - since, last], dim=1)
+
+    def unwrap_next(self, last_position: Tensor, next_position: Tensor) -> Tensor:
+        """(N, d) stored next frame -> its continuation of ``last_position`` (minimum image)."""
+        return last_position + self.minimum_image(next_position - last_position)

@@ -1,0 +1,249 @@
+"""Conformance checks a plugin author runs on their component, from their own tests.
+
+Each ``check_*`` function builds the component on small random inputs and raises
+``AssertionError`` naming the broken property; it returns nothing when the
+component conforms. Example (pytest)::
+
+    from gns_framework.testing import check_processor
+
+    def test_my_processor_conforms():
+        check_processor(MyProcessor)
+
+The checks use explicit raises, not ``assert``, so they also hold under ``python -O``.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Mapping
+
+import torch
+from torch import Tensor
+
+from .contracts import (
+    Decoder,
+    Encoder,
+    Graph,
+    GraphBuilder,
+    Integrator,
+    Material,
+    MaterialProperty,
+    ModelSizes,
+    Processor,
+    Scene,
+)
+from .periodic import PeriodicBox
+
+__all__ = [
+    "check_decoder",
+    "check_encoder",
+    "check_graph_builder",
+    "check_integrator",
+    "check_material",
+    "check_processor",
+    "small_sizes",
+    "small_scene",
+]
+
+
+def _expect(condition: bool, message: str) -> None:
+    if not condition:
+        raise AssertionError(message)
+
+
+def _close(a: Tensor, b: Tensor, atol: float, rtol: float = 1e-4) -> bool:
+    return a.shape == b.shape and bool(torch.allclose(a, b, atol=atol, rtol=rtol))
+
+
+def small_sizes(dim: int = 2, latent: int = 16, connectivity_radius: float = 0.1) -> ModelSizes:
+    """Sizes of a tiny model (for fast checks)."""
+    return ModelSizes(
+        node_in=(6 - 1) * dim + 2 * dim,
+        edge_in=dim + 1,
+        latent=latent,
+        mlp_hidden=latent,
+        mlp_hidden_layers=2,
+        output=dim,
+        dim=dim,
+        connectivity_radius=connectivity_radius,
+    )
+
+
+def small_scene(dim: int = 2, connectivity_radius: float = 0.1, periodic: tuple[bool, ...] = ()) -> Scene:
+    """A unit-box scene with one material."""
+    return Scene(
+        dim=dim,
+        bounds=tuple((0.0, 1.0) for _ in range(dim)),
+        connectivity_radius=connectivity_radius,
+        particle_types=(5,),
+        periodic=periodic,
+    )
+
+
+def _random_graph(num_nodes: int, dim: int, generator: torch.Generator) -> Graph:
+    """A random directed graph with self-edges, sorted by (receiver, sender), and displacements."""
+    position = torch.rand(num_nodes, dim, generator=generator)
+    adjacency = torch.rand(num_nodes, num_nodes, generator=generator) < 0.3
+    adjacency |= torch.eye(num_nodes, dtype=torch.bool)
+    receivers, senders = adjacency.nonzero(as_tuple=True)
+    return Graph(senders, receivers, position[senders] - position[receivers], num_nodes)
+
+
+def _permuted_graph(graph: Graph, perm: Tensor) -> tuple[Graph, Tensor]:
+    """The graph with node ``perm[k]`` renamed k, edges re-sorted; also the new edge order."""
+    inverse = torch.empty_like(perm)
+    inverse[perm] = torch.arange(perm.numel())
+    senders, receivers = inverse[graph.senders], inverse[graph.receivers]
+    order = torch.argsort(receivers * graph.num_nodes + senders)
+    return Graph(senders[order], receivers[order], graph.displacement[order], graph.num_nodes), order
+
+
+def check_processor(
+    cls: type[Processor], params: Mapping | None = None, sizes: ModelSizes | None = None, seed: int = 0
+) -> None:
+    """Shapes, finite outputs, permutation equivariance and gradient flow of a processor.
+
+    Permutation equivariance: renaming the nodes (and reordering the edges) renames
+    the outputs the same way.
+    """
+    _expect(inspect.isclass(cls) and issubclass(cls, Processor), f"{cls!r} is not a Processor subclass")
+    sizes = sizes or small_sizes()
+    generator = torch.Generator().manual_seed(seed)
+    torch.manual_seed(seed)
+    processor = cls(cls.Params.model_validate(dict(params or {})), sizes).double()
+    graph = _random_graph(12, sizes.dim, generator)
+    graph = Graph(graph.senders, graph.receivers, graph.displacement.double() * sizes.connectivity_radius, graph.num_nodes)
+    x = torch.randn(graph.num_nodes, sizes.latent, generator=generator, dtype=torch.float64, requires_grad=True)
+    e = torch.randn(graph.num_edges, sizes.latent, generator=generator, dtype=torch.float64, requires_grad=True)
+    x_out, e_out = processor(x, e, graph)
+    _expect(x_out.shape == x.shape, f"{cls.name}: node latent shape {tuple(x_out.shape)}, expected {tuple(x.shape)}")
+    _expect(e_out.shape == e.shape, f"{cls.name}: edge latent shape {tuple(e_out.shape)}, expected {tuple(e.shape)}")
+    _expect(bool(torch.isfinite(x_out).all() and torch.isfinite(e_out).all()), f"{cls.name}: non-finite outputs")
+
+    perm = torch.randperm(graph.num_nodes, generator=generator)
+    permuted, edge_order = _permuted_graph(graph, perm)
+    x_perm, e_perm = processor(x[perm], e[edge_order], permuted)
+    _expect(_close(x_perm, x_out[perm], 1e-9), f"{cls.name}: node outputs are not permutation-equivariant")
+    _expect(_close(e_perm, e_out[edge_order], 1e-9), f"{cls.name}: edge outputs do not follow the edge reordering")
+
+    (x_out.square().sum() + e_out.square().sum()).backward()
+    _expect(x.grad is not None and bool(x.grad.abs().sum() > 0), f"{cls.name}: no gradient reaches the node latents")
+    trained = [p for p in processor.parameters() if p.requires_grad]
+    _expect(bool(trained), f"{cls.name}: has no trainable parameters")
+    no_grad = [name for name, p in processor.named_parameters() if p.requires_grad and p.grad is None]
+    _expect(not no_grad, f"{cls.name}: parameters receive no gradient: {no_grad}")
+
+
+def check_encoder(cls: type[Encoder], params: Mapping | None = None, sizes: ModelSizes | None = None) -> None:
+    """Output shapes and finiteness of an encoder."""
+    _expect(inspect.isclass(cls) and issubclass(cls, Encoder), f"{cls!r} is not an Encoder subclass")
+    sizes = sizes or small_sizes()
+    encoder = cls(cls.Params.model_validate(dict(params or {})), sizes)
+    nodes, edges = encoder(torch.randn(7, sizes.node_in), torch.randn(11, sizes.edge_in))
+    _expect(tuple(nodes.shape) == (7, sizes.latent), f"{cls.name}: node latent shape {tuple(nodes.shape)}")
+    _expect(tuple(edges.shape) == (11, sizes.latent), f"{cls.name}: edge latent shape {tuple(edges.shape)}")
+    _expect(bool(torch.isfinite(nodes).all() and torch.isfinite(edges).all()), f"{cls.name}: non-finite outputs")
+
+
+def check_decoder(cls: type[Decoder], params: Mapping | None = None, sizes: ModelSizes | None = None) -> None:
+    """Output shape, finiteness and row independence of a decoder (it acts per particle)."""
+    _expect(inspect.isclass(cls) and issubclass(cls, Decoder), f"{cls!r} is not a Decoder subclass")
+    sizes = sizes or small_sizes()
+    decoder = cls(cls.Params.model_validate(dict(params or {})), sizes).double()
+    latent = torch.randn(9, sizes.latent, dtype=torch.float64)
+    out = decoder(latent)
+    _expect(tuple(out.shape) == (9, sizes.output), f"{cls.name}: output shape {tuple(out.shape)}")
+    _expect(bool(torch.isfinite(out).all()), f"{cls.name}: non-finite outputs")
+    _expect(_close(decoder(latent[3:5]), out[3:5], 1e-12), f"{cls.name}: a row's output depends on other rows")
+
+
+def check_integrator(cls: type[Integrator], params: Mapping | None = None, seed: int = 0) -> None:
+    """``target`` inverts ``next_position``; both act per particle; ``predicts`` is valid."""
+    _expect(inspect.isclass(cls) and issubclass(cls, Integrator), f"{cls!r} is not an Integrator subclass")
+    _expect(cls.predicts in ("acceleration", "velocity"), f"{cls.name}: predicts = {cls.predicts!r}")
+    integrator = cls(cls.Params.model_validate(dict(params or {})))
+    generator = torch.Generator().manual_seed(seed)
+    for dim in (2, 3):
+        sequence = torch.randn(10, 6, dim, generator=generator, dtype=torch.float64)
+        prediction = torch.randn(10, dim, generator=generator, dtype=torch.float64)
+        next_position = integrator.next_position(sequence, prediction)
+        _expect(tuple(next_position.shape) == (10, dim), f"{cls.name}: next_position shape {tuple(next_position.shape)}")
+        recovered = integrator.target(sequence, next_position)
+        _expect(_close(recovered, prediction, 1e-10, 1e-10), f"{cls.name}: target(next_position(p)) != p")
+        again = integrator.next_position(sequence, integrator.target(sequence, next_position))
+        _expect(_close(again, next_position, 1e-10, 1e-10), f"{cls.name}: next_position(target(x)) != x")
+        part = integrator.next_position(sequence[2:5], prediction[2:5])
+        _expect(_close(part, next_position[2:5], 1e-12), f"{cls.name}: a particle's update depends on other particles")
+
+
+def _canonical_edges(graph: Graph) -> set[tuple[int, int]]:
+    return set(zip(graph.senders.tolist(), graph.receivers.tolist()))
+
+
+def check_graph_builder(
+    cls: type[GraphBuilder], params: Mapping | None = None, scene: Scene | None = None, seed: int = 0
+) -> None:
+    """Edge invariants of a graph builder on random scenes of two examples.
+
+    Checks: int64 indices in range, displacements equal ``p_sender - p_receiver``
+    (minimum image on periodic dimensions), no edge between examples, edges
+    sorted by (receiver, sender) without duplicates, the same edges after a
+    translation (by whole box lengths along periodic dimensions) and after
+    renaming the particles.
+    """
+    _expect(inspect.isclass(cls) and issubclass(cls, GraphBuilder), f"{cls!r} is not a GraphBuilder subclass")
+    scene = scene or small_scene()
+    builder = cls(cls.Params.model_validate(dict(params or {})), scene)
+    generator = torch.Generator().manual_seed(seed)
+    lower = torch.tensor([b[0] for b in scene.bounds], dtype=torch.float64)
+    upper = torch.tensor([b[1] for b in scene.bounds], dtype=torch.float64)
+    counts = (30, 25)
+    position = lower + (upper - lower) * torch.rand(sum(counts), scene.dim, generator=generator, dtype=torch.float64)
+    batch = torch.repeat_interleave(torch.arange(len(counts)), torch.tensor(counts))
+    graph = builder.build(position, batch, len(counts))
+    n = position.shape[0]
+    name = cls.name
+
+    _expect(graph.num_nodes == n, f"{name}: num_nodes {graph.num_nodes}, expected {n}")
+    _expect(graph.senders.dtype == torch.long and graph.receivers.dtype == torch.long, f"{name}: indices must be int64")
+    _expect(graph.num_edges > 0, f"{name}: built no edges on a random scene")
+    _expect(
+        bool(((graph.senders >= 0) & (graph.senders < n) & (graph.receivers >= 0) & (graph.receivers < n)).all()),
+        f"{name}: edge index out of range",
+    )
+    _expect(bool((batch[graph.senders] == batch[graph.receivers]).all()), f"{name}: an edge connects two examples")
+    key = graph.receivers * n + graph.senders
+    _expect(bool((key[1:] > key[:-1]).all()), f"{name}: edges not sorted by (receiver, sender) or duplicated")
+    box = PeriodicBox(scene)
+    expected = box.minimum_image(position[graph.senders] - position[graph.receivers])
+    _expect(_close(graph.displacement, expected, 1e-9), f"{name}: displacement != p_sender - p_receiver")
+
+    shift = torch.rand(scene.dim, generator=generator, dtype=torch.float64) * 0.37
+    if box.active:
+        # Along periodic dimensions a translation is a relabelling of the box only by whole lengths.
+        shift[box.dims] = torch.round(shift[box.dims]) * box.length + box.length
+    moved = builder.build(position + shift, batch, len(counts))
+    _expect(_canonical_edges(moved) == _canonical_edges(graph), f"{name}: edges change under translation")
+
+    perm = torch.cat([torch.randperm(c, generator=generator) + o for c, o in zip(counts, (0, counts[0]))])
+    renamed = builder.build(position[perm], batch, len(counts))
+    back = {(int(perm[s]), int(perm[r])) for s, r in _canonical_edges(renamed)}
+    _expect(back == _canonical_edges(graph), f"{name}: edges are not permutation-equivariant")
+
+
+def check_material(cls: type[Material]) -> None:
+    """Declared fields of a material: name, integer type id, kinematic flag, properties."""
+    _expect(inspect.isclass(cls) and issubclass(cls, Material), f"{cls!r} is not a Material subclass")
+    _expect(isinstance(getattr(cls, "name", None), str) and cls.name, f"{cls!r}: needs a non-empty string name")
+    _expect(
+        isinstance(getattr(cls, "particle_type", None), int) and not isinstance(cls.particle_type, bool)
+        and cls.particle_type >= 0,
+        f"{cls.name}: particle_type must be a non-negative int",
+    )
+    _expect(isinstance(cls.kinematic, bool), f"{cls.name}: kinematic must be a bool")
+    _expect(isinstance(cls.properties, tuple), f"{cls.name}: properties must be a tuple of MaterialProperty")
+    names = [p.name for p in cls.properties]
+    _expect(len(set(names)) == len(names), f"{cls.name}: duplicate property names {names}")
+    for prop in cls.properties:
+        _expect(isinstance(prop, MaterialProperty), f"{cls.name}: property {prop!r} is not a MaterialProperty")
+        _expect(bool(prop.name) and bool(prop.description), f"{cls.name}: property {prop!r} needs a name and description")

@@ -1,0 +1,32 @@
+"""One interaction-network step applied M times with the same weights."""
+
+from __future__ import annotations
+
+from pydantic import Field
+from torch import Tensor
+
+from gns_framework.contracts import Graph, ModelSizes, Params, Processor
+
+from .interaction_network import InteractionStep
+
+
+class SharedInteractionNetwork(Processor):
+    """The reference step (see ``interaction_network``) repeated M times, weights shared.
+
+    M times fewer processor parameters than the unshared network for the same
+    receptive field (M hops); the cost per step is unchanged.
+    """
+
+    name = "shared_interaction_network"
+
+    class Params(Params):
+        message_passing_steps: int = Field(10, ge=1, description="M, times the one step is applied")
+
+    def __init__(self, params: Params, sizes: ModelSizes):
+        super().__init__(params, sizes)
+        self.step = InteractionStep(sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers)
+
+    def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:
+        for _ in range(self.params.message_passing_steps):
+            node_latent, edge_latent = self.step(node_latent, edge_latent, graph.senders, graph.receivers)
+        return node_latent, edge_latent

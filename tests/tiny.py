@@ -1,0 +1,41 @@
+"""Tiny recipes and trainers for fast tests (latent 16, 2 message-passing steps)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from gns_framework.plugins import Registry, load_registry
+from gns_framework.recipe import Recipe, validate_recipe
+from gns_framework.training.trainer import Trainer
+
+
+def tiny_recipe(dataset: Path, registry: Registry | None = None, lr: float = 1e-3, **model) -> Recipe:
+    """A validated recipe of a tiny model on ``dataset``; ``model`` keys override the model section."""
+    raw = {
+        "name": "tiny",
+        "dataset": {"name": "safe", "path": str(dataset)},
+        "model": {
+            "latent_size": 16,
+            "mlp_hidden_size": 16,
+            "mlp_hidden_layers": 1,
+            "type_embedding_size": 4,
+            "processor": {"name": "interaction_network", "message_passing_steps": 2},
+            **model,
+        },
+        "training": {
+            "steps": 3,
+            "batch_size": 2,
+            "optimizer": {"lr_init": lr, "lr_min": lr, "lr_decay_steps": 1e9},
+            "log_every": 1000,
+            "validate_every": 100000,
+            "checkpoint_every": 100000,
+            "validation_windows": 16,
+            "device": "cpu",
+            "threads": 1,
+        },
+    }
+    return validate_recipe(raw, registry or load_registry())
+
+
+def tiny_trainer(recipe: Recipe, run_dir: Path, registry: Registry | None = None) -> Trainer:
+    return Trainer(recipe, registry or load_registry(), run_dir=run_dir, progress=False)
