@@ -7,3 +7,4 @@ python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q torch==2.13.0
 .venv/bin/python -m pip install -q -e '.[all]'
+.venv/bin/python -m pip install -q -e plugins/examples/gns-clay
