@@ -213,7 +213,7 @@ def _training(case: ReferenceCase, imported: ImportedCheckpoint) -> list[Deviati
             max_abs(prediction.detach(), case.tensor("canon/train/pred_normalized_acceleration")),
             tol.NORMALIZED_ACCELERATION,
         ),
-        Deviation("training loss (relative)", abs(float(loss) - reference_loss) / abs(reference_loss), tol.LOSS_RELATIVE),
+        Deviation("training loss (relative)", abs(float(loss.detach()) - reference_loss) / abs(reference_loss), tol.LOSS_RELATIVE),
     ]
     found += _gradients(case, imported)
     found += _adam_step(case, imported)
