@@ -296,8 +296,10 @@ def _train_state(
         name = parameter_map.name(key)
         if name is None or index not in optimizer["state"]:
             continue
+        # Cloned, so the imported optimizer never shares (and steps) the source's tensors.
         state[position[name]] = {
-            field: parameter_map.tensor(key, value) if _is_moment(value) else value
+            field: (parameter_map.tensor(key, value) if _is_moment(value) else value).clone()
+            if isinstance(value, Tensor) else value
             for field, value in optimizer["state"][index].items()
         }
     group = {**groups[0], "params": list(range(len(ours)))}
