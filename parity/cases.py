@@ -104,10 +104,15 @@ class ReferenceCase:
 
     def import_model(self) -> ImportedCheckpoint:
         """The reference parameters in the built-in components, through the user-facing importer."""
+        types: list[int] | None = self.particle_types
+        if self.meta["model"]["nparticle_types"] > 1 and len(types) == 1:
+            # One type would be folded into the encoder bias, leaving the embedding's gradient
+            # without a counterpart; keeping every row keeps every gradient comparable.
+            types = None
         return import_geoelements_checkpoint(
             self.parameters,
             self.meta["metadata"],
-            particle_types=self.particle_types,
+            particle_types=types,
             noise_std=self.meta["noise_std"],
         )
 
