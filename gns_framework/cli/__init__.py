@@ -20,6 +20,7 @@ COMMANDS: dict[str, str] = {
     "train": "train a learned simulator from a recipe",
     "rollout": "roll a trained simulator out on a dataset split",
     "render": "write VTK frames and a prediction-vs-truth GIF of a rollout file",
+    "import-geoelements": "convert a geoelements/gns checkpoint (model-<step>.pt) into a gns-framework checkpoint",
 }
 """Subcommand name -> one-line help. The module is ``gns_framework.cli.<name>``."""
 
