@@ -71,7 +71,7 @@ def test_std_not_combined_with_noise_fails(smallest_case, monkeypatch):
     """Normalising with the data's std alone instead of sqrt(std^2 + noise^2)."""
     monkeypatch.setattr(normalization, "noise_combined_std", lambda std, noise_std: torch.tensor(std))
     failed = failed_quantities(smallest_case)
-    assert "node features" in failed and "next position" in failed
+    assert "node features" in failed and "next position (moving particles)" in failed
 
 
 def test_missing_self_edges_fail(smallest_case, monkeypatch):
