@@ -34,21 +34,3 @@ def dataset_multimaterial(tmp_path_factory) -> Path:
         with_property=True,
         frames=20,
     )
-
-
-@pytest.fixture(scope="session")
-def small_recipe():
-    """Builds a fast recipe mapping (tiny model) for tests that only need the machinery."""
-    return _small_recipe
-
-
-def _small_recipe(dataset: Path, run_dir: Path, **model) -> dict:
-    return {
-        "name": "test",
-        "seed": 0,
-        "output_dir": str(run_dir),
-        "dataset": {"name": "safe", "path": str(dataset)},
-        "model": {"latent_size": 16, "mlp_hidden_size": 16, "type_embedding_size": 4,
-                  "processor": {"name": "interaction_network", "message_passing_steps": 2}, **model},
-        "training": {"steps": 6, "log_every": 2, "validate_every": 3, "checkpoint_every": 3, "validation_windows": 4},
-    }

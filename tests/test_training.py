@@ -17,6 +17,7 @@ from gns_framework.plugins import load_registry
 from gns_framework.recipe import load_recipe, validate_recipe
 from gns_framework.rollout import rollout, write_rollout
 from gns_framework.training.trainer import Trainer
+from tiny import tiny_recipe_mapping
 
 
 REPO = Path(__file__).resolve().parents[1]
@@ -43,18 +44,18 @@ def _train(recipe_raw, registry, steps, resume=False):
     return losses, trainer
 
 
-def test_resumed_run_continues_identically(dataset_multimaterial, tmp_path, registry, small_recipe):
-    straight, straight_trainer = _train(small_recipe(dataset_multimaterial, tmp_path / "a"), registry, 6)
-    first, _ = _train(small_recipe(dataset_multimaterial, tmp_path / "b"), registry, 3)
-    second, resumed = _train(small_recipe(dataset_multimaterial, tmp_path / "b"), registry, 6, resume=True)
+def test_resumed_run_continues_identically(dataset_multimaterial, tmp_path, registry):
+    straight, straight_trainer = _train(tiny_recipe_mapping(dataset_multimaterial, tmp_path / "a"), registry, 6)
+    first, _ = _train(tiny_recipe_mapping(dataset_multimaterial, tmp_path / "b"), registry, 3)
+    second, resumed = _train(tiny_recipe_mapping(dataset_multimaterial, tmp_path / "b"), registry, 6, resume=True)
     assert first + second == straight
     for (name, a), (_, b) in zip(straight_trainer.simulator.state_dict().items(), resumed.simulator.state_dict().items()):
         assert torch.equal(a, b), name
 
 
-def test_checkpoint_of_another_model_is_refused(dataset_multimaterial, tmp_path, registry, small_recipe):
-    _train(small_recipe(dataset_multimaterial, tmp_path), registry, 3)
-    other = small_recipe(dataset_multimaterial, tmp_path, latent_size=32)
+def test_checkpoint_of_another_model_is_refused(dataset_multimaterial, tmp_path, registry):
+    _train(tiny_recipe_mapping(dataset_multimaterial, tmp_path), registry, 3)
+    other = tiny_recipe_mapping(dataset_multimaterial, tmp_path, latent_size=32)
     trainer = Trainer(validate_recipe(other, registry), registry, progress=False)
     with pytest.raises(CheckpointError, match="different model: model.latent_size: checkpoint 16, recipe 32"):
         trainer.resume()
@@ -85,9 +86,9 @@ class _TestProcessors:
         return [_MeanFieldProcessor]
 
 
-def test_processor_swapped_by_one_recipe_line(dataset_2d, tmp_path, small_recipe):
+def test_processor_swapped_by_one_recipe_line(dataset_2d, tmp_path):
     registry = load_registry(plugins=[("test-processors", _TestProcessors)])
-    raw = small_recipe(dataset_2d, tmp_path)
+    raw = tiny_recipe_mapping(dataset_2d, tmp_path)
     raw["model"]["processor"] = {"name": "mean_field"}
     recipe = validate_recipe(raw, registry)
     trainer = Trainer(recipe, registry, progress=False)
@@ -98,8 +99,8 @@ def test_processor_swapped_by_one_recipe_line(dataset_2d, tmp_path, small_recipe
     assert load_checkpoint(trainer.checkpoint_dir / "checkpoint-000000004.pt")["plugins"]["processor/mean_field"]
 
 
-def test_rollout_keeps_kinematic_particles_on_ground_truth(dataset_multimaterial, tmp_path, registry, small_recipe):
-    _train(small_recipe(dataset_multimaterial, tmp_path), registry, 3)
+def test_rollout_keeps_kinematic_particles_on_ground_truth(dataset_multimaterial, tmp_path, registry):
+    _train(tiny_recipe_mapping(dataset_multimaterial, tmp_path), registry, 3)
     loaded = load_trained(list_checkpoints(tmp_path / "checkpoints")[-1][1], registry)
     scene = loaded.simulator.scene
     assert scene.particle_types == (3, 5, 6) and scene.kinematic_types == (3,)
@@ -118,8 +119,8 @@ def test_rollout_keeps_kinematic_particles_on_ground_truth(dataset_multimaterial
         assert "material_property" in z.files
 
 
-def test_checkpoints_are_pruned_to_keep(dataset_2d, tmp_path, registry, small_recipe):
-    raw = small_recipe(dataset_2d, tmp_path)
+def test_checkpoints_are_pruned_to_keep(dataset_2d, tmp_path, registry):
+    raw = tiny_recipe_mapping(dataset_2d, tmp_path)
     raw["training"].update(checkpoint_every=1, keep_checkpoints=2)
     _train(raw, registry, 5)
     assert [step for step, _ in list_checkpoints(Path(tmp_path) / "checkpoints")] == [4, 5]

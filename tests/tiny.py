@@ -11,6 +11,11 @@ from gns_framework.training.trainer import Trainer
 
 def tiny_recipe(dataset: Path, registry: Registry | None = None, lr: float = 1e-3, **model) -> Recipe:
     """A validated recipe of a tiny model on ``dataset``; ``model`` keys override the model section."""
+    return validate_recipe(tiny_recipe_mapping(dataset, lr=lr, **model), registry or load_registry())
+
+
+def tiny_recipe_mapping(dataset: Path, run_dir: Path | None = None, lr: float = 1e-3, **model) -> dict:
+    """The recipe mapping behind :func:`tiny_recipe`, for tests that edit it before validation."""
     raw = {
         "name": "tiny",
         "dataset": {"name": "safe", "path": str(dataset)},
@@ -34,7 +39,9 @@ def tiny_recipe(dataset: Path, registry: Registry | None = None, lr: float = 1e-
             "threads": 1,
         },
     }
-    return validate_recipe(raw, registry or load_registry())
+    if run_dir is not None:
+        raw["output_dir"] = str(run_dir)
+    return raw
 
 
 def tiny_trainer(recipe: Recipe, run_dir: Path, registry: Registry | None = None) -> Trainer:

@@ -1,0 +1,88 @@
+"""End-to-end: the ``gns`` command as a user runs it, in subprocesses."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import yaml
+from tiny import tiny_recipe_mapping
+
+
+def gns(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "gns_framework.cli", *args], capture_output=True, text=True, cwd=cwd, timeout=600
+    )
+
+
+def test_help_lists_every_command():
+    result = gns("--help")
+    assert result.returncode == 0
+    for command in ("demo", "plugins", "check", "train", "rollout", "render", "import-geoelements"):
+        assert command in result.stdout
+    for command in ("train", "rollout", "check", "plugins"):
+        sub = gns(command, "--help")
+        assert sub.returncode == 0 and "usage: gns " + command in sub.stdout
+
+
+def test_plugins_lists_builtins_with_source():
+    rows = json.loads(gns("plugins", "--json").stdout)
+    found = {(r["kind"], r["name"]) for r in rows}
+    assert {("processor", "interaction_network"), ("material", "water"), ("dataset", "safe")} <= found
+    assert all(r["source"].endswith(".py") and r["distribution"] for r in rows)
+    table = gns("plugins", "--kind", "integrator").stdout
+    assert "semi_implicit_euler" in table and "interaction_network" not in table
+
+
+def test_check_reports_each_problem_and_fails(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\ndataset: {path: d}\nmodel: {latent_size: 0, procesor: {name: interaction_network}}\ntraning: {}\n")
+    result = gns("check", str(bad), "recipes")
+    assert result.returncode == 1
+    assert "3 problem(s)" in result.stderr
+    for location in ("model.latent_size", "model.procesor", "traning"):
+        assert location in result.stderr
+    assert "recipes/water2d.yaml: ok" in result.stdout
+
+
+def test_bad_arguments_exit_2_with_a_message(tmp_path):
+    result = gns("train", "recipes/water2d.yaml", "--steps", "many")
+    assert result.returncode == 2 and "invalid int value" in result.stderr
+    missing = gns("train", str(tmp_path / "nope.yaml"))
+    assert missing.returncode == 2 and "nope.yaml" in missing.stderr and "file not found" in missing.stderr
+
+
+def test_train_resume_rollout_render(dataset_multimaterial, tmp_path):
+    recipe = tmp_path / "tiny.yaml"
+    recipe.write_text(yaml.safe_dump(tiny_recipe_mapping(dataset_multimaterial, tmp_path / "run")))
+    first = gns("train", str(recipe), "--steps", "3", "--no-progress")
+    assert first.returncode == 0, first.stderr
+    resumed = gns("train", str(recipe), "--steps", "5", "--resume", "--no-progress")
+    assert resumed.returncode == 0, resumed.stderr
+    assert "resumed from" in resumed.stdout and "to step 5" in resumed.stdout
+    checkpoint = tmp_path / "run" / "checkpoints" / "checkpoint-000000005.pt"
+    rolled = gns("rollout", str(checkpoint), "--steps", "4", "--out", str(tmp_path / "rollouts"), "--no-progress")
+    assert rolled.returncode == 0, rolled.stderr
+    rollout_file = tmp_path / "rollouts" / "test_0000.npz"
+    with np.load(rollout_file, allow_pickle=False) as z:
+        assert z["predicted_rollout"].shape[0] == 4
+    rendered = gns("render", str(rollout_file), "--gif", str(tmp_path / "r.gif"))
+    assert rendered.returncode == 0 and (tmp_path / "r.gif").stat().st_size > 0
+
+
+def test_corrupt_checkpoint_is_a_clear_error(tmp_path):
+    bad = tmp_path / "checkpoint-000000001.pt"
+    bad.write_bytes(b"not a checkpoint")
+    result = gns("rollout", str(bad))
+    assert result.returncode == 2
+    assert str(bad) in result.stderr and "unreadable checkpoint" in result.stderr
+
+
+def test_demo_runs_end_to_end(tmp_path):
+    result = gns("demo", "--steps", "2", "--no-progress", "--out", str(tmp_path / "demo"))
+    assert result.returncode == 0, result.stderr
+    assert "validation one-step loss" in result.stdout
+    assert (tmp_path / "demo" / "rollout.gif").is_file()
