@@ -246,7 +246,7 @@ class Material(ABC):
     description: ClassVar[str] = ""
     constitutive_model: ClassVar[str | None] = None
     """How a ground-truth simulator moves this material (e.g. ``"drucker_prager"``,
-    ``"weakly_compressible"``, ``"corotated_plastic"``, ``"rigid"``); None: no
+    ``"weakly_compressible"``, ``"von_mises"``, ``"rigid"``); None: no
     simulator can generate it. Each simulator lists the models it supports."""
     physical_parameters: ClassVar[dict[str, float]] = {}
     """Default values (SI units) of the constitutive model's parameters, e.g.

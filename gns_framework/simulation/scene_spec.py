@@ -14,14 +14,15 @@ given as a coefficient, tan of the friction angle).
 
 from __future__ import annotations
 
-import difflib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import yaml
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 
 from ..errors import RecipeError
+from ..recipe import ComponentSpec
+from ..validation import problems_from
+from ..yaml_loading import load_yaml_mapping
 
 
 class Spec(BaseModel):
@@ -121,13 +122,6 @@ class Obstacle(Spec):
     friction: Value = Field(default_factory=lambda: Range(range=(0.3, 0.3)), description="Coulomb coefficient")
 
 
-class ComponentRef(Spec):
-    """A registered component by name, with its parameters."""
-
-    name: str
-    params: dict[str, Any] = Field(default_factory=dict)
-
-
 class SceneSpec(Spec):
     """Everything a ground-truth simulator needs to generate one family of trajectories."""
 
@@ -139,7 +133,9 @@ class SceneSpec(Spec):
     particles_per_cell: int = Field(default=2, ge=1, le=4, description="particles per cell along each axis")
     jitter: float = Field(default=0.2, ge=0, le=0.5, description="random offset of particles, in particle spacings")
     seed: int = Field(default=0, ge=0, description="trajectory seeds derive from it")
-    simulator: ComponentRef = Field(default_factory=lambda: ComponentRef(name="mls_mpm"))
+    simulator: ComponentSpec = Field(
+        default_factory=lambda: ComponentSpec(name="mls_mpm"), description="simulator name and its parameters"
+    )
     blocks: list[Block] = Field(min_length=1)
     obstacles: list[Obstacle] = Field(default_factory=list)
 
@@ -218,53 +214,6 @@ class SceneSpec(Spec):
         return found
 
 
-def _location(loc: tuple) -> str:
-    text = ""
-    for part in loc:
-        if isinstance(part, int):
-            text += f"[{part}]"
-        else:
-            text += f".{part}" if text else str(part)
-    return text
-
-
-def _allowed_keys(model: type[BaseModel], loc: tuple) -> list[str]:
-    """Field names of the model found at ``loc`` (the parent of an unknown key)."""
-    for part in loc:
-        if isinstance(part, int):
-            continue
-        field = model.model_fields.get(part)
-        if field is None:
-            return []
-        annotation = field.annotation
-        candidates = [annotation, *getattr(annotation, "__args__", ())]
-        nested = [
-            inner
-            for c in candidates
-            for inner in (c, *getattr(c, "__args__", ()))
-            if isinstance(inner, type) and issubclass(inner, BaseModel)
-        ]
-        if not nested:
-            return []
-        model = nested[0]
-    return list(model.model_fields)
-
-
-def _pydantic_problems(exc: ValidationError) -> list[tuple[str, str]]:
-    problems = []
-    for err in exc.errors():
-        loc = tuple(err["loc"])
-        message = err["msg"].removeprefix("Value error, ")
-        if err["type"] == "extra_forbidden":
-            allowed = _allowed_keys(SceneSpec, loc[:-1])
-            close = difflib.get_close_matches(str(loc[-1]), allowed, n=1)
-            message = "unknown key" + (f"; did you mean {close[0]!r}?" if close else "")
-            if allowed:
-                message += f" (allowed: {', '.join(allowed)})"
-        problems.append((_location(loc), message))
-    return problems
-
-
 def parse_scene(raw: Any, source: str | Path = "<scene>") -> SceneSpec:
     """Validate a scene mapping; every problem is reported at once in a RecipeError."""
     if not isinstance(raw, dict):
@@ -272,7 +221,7 @@ def parse_scene(raw: Any, source: str | Path = "<scene>") -> SceneSpec:
     try:
         scene = SceneSpec.model_validate(raw)
     except ValidationError as exc:
-        raise RecipeError(source, _pydantic_problems(exc)) from None
+        raise RecipeError(source, problems_from(exc, SceneSpec)) from None
     problems = scene.problems()
     if problems:
         raise RecipeError(source, problems)
@@ -280,14 +229,5 @@ def parse_scene(raw: Any, source: str | Path = "<scene>") -> SceneSpec:
 
 
 def load_scene(path: str | Path) -> SceneSpec:
-    """Read and validate a scene YAML file."""
-    path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise RecipeError(path, [("", "scene file not found")]) from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        raise RecipeError(path, [(where, f"not valid YAML: {getattr(exc, 'problem', exc)}")]) from None
-    return parse_scene(raw, path)
+    """Read and validate a scene YAML file (duplicate keys are errors too)."""
+    return parse_scene(load_yaml_mapping(path), path)

@@ -75,7 +75,7 @@ def kernels(dim: int) -> Kernels:
     stencil = 3**dim
 
     @wp.func
-    def log_strain_projection(eps: Any, mu: float, lam: float, alpha: float):
+    def drucker_prager_projection(eps: Any, mu: float, lam: float, alpha: float):
         """Drucker-Prager return mapping of Hencky strain ``eps`` = log(singular values) (Klar et al. 2016).
 
         Tension returns to the cone tip (no cohesion); a deviatoric strain outside
@@ -103,13 +103,35 @@ def kernels(dim: int) -> Kernels:
             return wp.svd3(F)
 
     @wp.func
-    def sand_stress(F: Any, mu: float, lam: float, alpha: float, F_out: wp.array(dtype=mat), p: int):
-        """Kirchhoff stress of Hencky elasticity after the Drucker-Prager projection; stores the elastic F."""
+    def von_mises_projection(eps: Any, yield_strain: float):
+        """Scale the deviatoric Hencky strain back to the von Mises radius; volume is untouched."""
+        tr = float(0.0)
+        for a in range(wp.static(dim)):
+            tr += eps[a]
+        mean = vec(tr / float(dim))
+        dev = eps - mean
+        dev_norm = wp.length(dev)
+        if dev_norm <= yield_strain:
+            return eps
+        return mean + dev * (yield_strain / dev_norm)
+
+    @wp.func
+    def hencky_stress(
+        F: Any, mu: float, lam: float, plastic: int, yield_param: float, F_out: wp.array(dtype=mat), p: int
+    ):
+        """Kirchhoff stress of Hencky elasticity after the plastic return mapping; stores the elastic F.
+
+        ``plastic`` picks the yield surface: Drucker-Prager (sand, ``yield_param`` =
+        cone slope alpha) or von Mises (goop, ``yield_param`` = yield strain).
+        """
         U, sig, V = svd(F)
         eps = vec()
         for a in range(wp.static(dim)):
             eps[a] = wp.log(wp.max(sig[a], 1.0e-6))
-        eps = log_strain_projection(eps, mu, lam, alpha)
+        if plastic == SAND:
+            eps = drucker_prager_projection(eps, mu, lam, yield_param)
+        else:
+            eps = von_mises_projection(eps, yield_param)
         sig_new = vec()
         tr = float(0.0)
         for a in range(wp.static(dim)):
@@ -117,23 +139,6 @@ def kernels(dim: int) -> Kernels:
             tr += eps[a]
         F_out[p] = U @ wp.diag(sig_new) @ wp.transpose(V)
         return U @ wp.diag(2.0 * mu * eps + vec(lam * tr)) @ wp.transpose(U)
-
-    @wp.func
-    def goop_stress(
-        F: Any, mu: float, lam: float, compression: float, stretch: float, F_out: wp.array(dtype=mat), p: int
-    ):
-        """Kirchhoff stress of fixed-corotated elasticity with singular values clamped (plastic flow)."""
-        U, sig, V = svd(F)
-        J = float(1.0)
-        for a in range(wp.static(dim)):
-            sig[a] = wp.clamp(sig[a], 1.0 - compression, 1.0 + stretch)
-            J *= sig[a]
-        F_e = U @ wp.diag(sig) @ wp.transpose(V)
-        F_out[p] = F_e
-        R = U @ wp.transpose(V)
-        return 2.0 * mu * (F_e - R) @ wp.transpose(F_e) + wp.identity(n=wp.static(dim), dtype=float) * (
-            lam * J * (J - 1.0)
-        )
 
     @wp.func
     def stencil_offset(n: int):
@@ -197,7 +202,7 @@ def kernels(dim: int) -> Kernels:
 
         Per-model parameters: sand (param_a = Drucker-Prager alpha), fluid
         (param_a = bulk modulus K, param_b = Tait exponent gamma), goop
-        (param_a, param_b = critical compression and stretch).
+        (param_a = von Mises yield strain).
         """
         p = wp.tid()
         rel = (x[p] - origin) * inv_dx
@@ -210,16 +215,14 @@ def kernels(dim: int) -> Kernels:
         grad = wp.identity(n=wp.static(dim), dtype=float) + dt * Cp
         kind = model[p]
         tau = mat()
-        if kind == SAND:
-            tau = sand_stress(grad @ F[p], mu[p], lam[p], param_a[p], F, p)
-        elif kind == FLUID:
+        if kind == FLUID:
             Jp = J[p] * (1.0 + dt * wp.trace(Cp))
             J[p] = Jp
             # Tait equation of state; a free surface cannot pull, so no tension.
             pressure = wp.max(param_a[p] / param_b[p] * (wp.pow(Jp, -param_b[p]) - 1.0), 0.0)
             tau = wp.identity(n=wp.static(dim), dtype=float) * (-pressure * Jp)
         else:
-            tau = goop_stress(grad @ F[p], mu[p], lam[p], param_a[p], param_b[p], F, p)
+            tau = hencky_stress(grad @ F[p], mu[p], lam[p], kind, param_a[p], F, p)
         affine = (-dt * volume[p] * 4.0 * inv_dx * inv_dx) * tau + mass[p] * Cp
         momentum = mass[p] * v[p]
         weights = bspline_weights(fx)

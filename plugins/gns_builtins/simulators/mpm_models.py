@@ -96,22 +96,23 @@ class WeaklyCompressibleFluid(ConstitutiveModel):
         return {"mu": zeros, "lam": zeros, "param_a": values["bulk_modulus"], "param_b": values["eos_exponent"]}
 
 
-class CorotatedPlastic(_Elastic):
-    """Goop: fixed-corotated elasticity whose singular values are clamped to
-    [1 - critical_compression, 1 + critical_stretch]; beyond them it flows plastically."""
+class VonMisesGoop(_Elastic):
+    """Goop: Hencky elasticity with von Mises plasticity; flows where the deviatoric stress
+    exceeds ``yield_stress`` and keeps its volume while it flows (a Bingham-like paste)."""
 
-    name: ClassVar[str] = "corotated_plastic"
+    name: ClassVar[str] = "von_mises"
     kernel_id: ClassVar[int] = 2
     density: float = Field(default=1000.0, gt=0)
     youngs_modulus: float = Field(default=2.0e4, gt=0)
     poisson_ratio: float = Field(default=0.3, ge=0, lt=0.5)
-    critical_compression: float = Field(default=2.5e-2, gt=0, lt=1)
-    critical_stretch: float = Field(default=7.5e-3, gt=0)
+    yield_stress: float = Field(default=300.0, gt=0, description="Pa, uniaxial (von Mises)")
 
     @staticmethod
     def kernel_parameters(values: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         mu, lam = _lame(values["youngs_modulus"], values["poisson_ratio"])
-        return {"mu": mu, "lam": lam, "param_a": values["critical_compression"], "param_b": values["critical_stretch"]}
+        # Largest deviatoric Hencky strain norm: |dev tau| = 2 mu |dev eps| <= sqrt(2/3) sigma_y.
+        yield_strain = math.sqrt(2 / 3) * values["yield_stress"] / (2 * mu)
+        return {"mu": mu, "lam": lam, "param_a": yield_strain, "param_b": np.zeros_like(mu)}
 
 
 RIGID = "rigid"
@@ -120,6 +121,6 @@ They are grid boundary conditions, not MPM particles, so they have no parameters
 
 
 MODELS: dict[str, type[ConstitutiveModel]] = {
-    m.name: m for m in (DruckerPragerSand, WeaklyCompressibleFluid, CorotatedPlastic)
+    m.name: m for m in (DruckerPragerSand, WeaklyCompressibleFluid, VonMisesGoop)
 }
 """Constitutive models of MPM particles, by the name materials give in ``constitutive_model``."""

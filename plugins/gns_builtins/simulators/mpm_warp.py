@@ -1,6 +1,6 @@
 """The default ground-truth simulator: MLS-MPM (Hu et al. 2018) in NVIDIA Warp, 2D and 3D.
 
-Sand (Drucker-Prager), water (weakly compressible), goop (corotated
+Sand (Drucker-Prager), water (weakly compressible), goop (von Mises
 plasticity) and kinematic rigid obstacles with Coulomb friction. Warp is
 imported only when a scene is simulated, never on import of this plugin.
 """
@@ -15,7 +15,6 @@ from pydantic import Field, ValidationError
 
 from gns_framework.contracts import GroundTruthSimulator, Params
 from gns_framework.data.trajectory import Trajectory
-from gns_framework.hookspecs import hookimpl
 from gns_framework.simulation.sampling import BodySample, SceneSample, sample_scene
 from gns_framework.simulation.scene_spec import SceneSpec
 
@@ -137,8 +136,3 @@ def _kinematic_positions(obstacles: list[BodySample], scene: SceneSpec) -> np.nd
     return np.concatenate(
         [o.position[None] + times[:, None, None] * o.velocity[None, None] for o in obstacles], axis=1
     )
-
-
-@hookimpl
-def gns_simulators() -> list[type]:
-    return [MlsMpm]
