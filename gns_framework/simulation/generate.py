@@ -73,13 +73,13 @@ def simulate_splits(
 def dataset_metadata(scene: SceneSpec, train: list[Trajectory], extras: dict | None = None) -> DatasetMetadata:
     """metadata.json of a generated dataset: the scene's domain and time step, statistics of ``train``.
 
-    ``sequence_length`` counts steps after the first frame (T - 1), as in the
-    DeepMind and geoelements metadata.
+    ``sequence_length`` counts frames (T); DeepMind's files store T - 1, and
+    their layout converts.
     """
     return DatasetMetadata.model_validate(
         {
             "bounds": [list(b) for b in scene.domain.bounds],
-            "sequence_length": scene.time.frames - 1,
+            "sequence_length": scene.time.frames,
             "default_connectivity_radius": suggest_connectivity_radius(train),
             "dim": scene.dim,
             "dt": scene.time.frame_dt,
