@@ -34,12 +34,13 @@ class MlsMpm(GroundTruthSimulator):
     def check(self, scene: SceneSpec) -> list[tuple[str, str]]:
         """Adds constitutive-parameter validation and the elastic-wave CFL limit to the generic checks."""
         problems = super().check(scene)
-        if problems:
-            return problems
         fastest, fastest_where = 0.0, ""
         for i, block in enumerate(scene.blocks):
             where = f"blocks[{i}]"
-            model = MODELS[self.materials[block.material].constitutive_model]
+            material = self.materials.get(block.material)
+            if material is None or material.constitutive_model not in MODELS:
+                continue  # already reported by the generic checks
+            model = MODELS[material.constitutive_model]
             for name in block.parameters:
                 if name not in model.model_fields:
                     problems.append(
@@ -56,7 +57,7 @@ class MlsMpm(GroundTruthSimulator):
             # Every constraint and the wave speed are monotone in each parameter: the corners bound them.
             for corner in itertools.product(*ranged.values()):
                 try:
-                    params = model(**{**self.materials[block.material].physical_parameters, **dict(zip(ranged, corner))})
+                    params = model(**{**material.physical_parameters, **dict(zip(ranged, corner))})
                 except ValidationError as exc:
                     problems += [
                         (f"{where}.{'.'.join(str(p) for p in err['loc'])}", err["msg"]) for err in exc.errors()
