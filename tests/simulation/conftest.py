@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-import sim_materials
+from simulation import sim_materials
 
 from gns_framework.plugins import DISABLE_ENV, load_registry
 

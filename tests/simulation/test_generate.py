@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 import yaml
-from scenes import column_collapse, mixed
+from simulation.scenes import column_collapse, mixed
 
 from gns_framework.cli import generate as generate_command
 from gns_framework.cli import main

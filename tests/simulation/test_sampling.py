@@ -8,7 +8,7 @@ import sys
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scenes import mixed
+from simulation.scenes import mixed
 
 from gns_framework.simulation.sampling import fill, sample_scene
 from gns_framework.simulation.scene_spec import parse_scene

@@ -6,7 +6,7 @@ import copy
 from pathlib import Path
 
 import pytest
-from scenes import mixed
+from simulation.scenes import mixed
 
 from gns_framework.errors import RecipeError
 from gns_framework.simulation.build import build_simulator
