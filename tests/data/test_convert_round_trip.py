@@ -7,7 +7,7 @@ import json
 import h5py
 import numpy as np
 import pytest
-from synthetic import soft_sphere_trajectory, synthetic_metadata
+from gns_framework.demo.soft_spheres import soft_sphere_trajectory, synthetic_metadata
 
 from gns_framework.cli import main
 from gns_framework.data.trajectory import Trajectory
