@@ -7,10 +7,10 @@ import json
 import h5py
 import numpy as np
 import pytest
-from gns_framework.demo.soft_spheres import soft_sphere_trajectory, synthetic_metadata
 
 from gns_framework.cli import main
 from gns_framework.data.trajectory import Trajectory
+from gns_framework.demo.soft_spheres import soft_sphere_trajectory, synthetic_metadata
 from gns_framework.errors import DatasetError
 
 LAYOUTS = ["safe", "npz", "tfrecord", "lagrangebench"]
@@ -25,7 +25,9 @@ def write_source(path, registry, with_context: bool):
             traj = soft_sphere_trajectory(seed, frames=8, block=3, particle_types=(5, 6), kinematic_floor=True,
                                           with_property=True, key=f"{split}_{seed}")
             context = np.linspace(0, 1, traj.num_steps, dtype=np.float32)[:, None] if with_context else None
-            splits[split].append(Trajectory(traj.position, traj.particle_type, traj.material_property, context, traj.key))
+            splits[split].append(
+                Trajectory(traj.position, traj.particle_type, traj.material_property, context, traj.key)
+            )
     registry.get("dataset", "safe").write(path, synthetic_metadata(splits["train"], 2), splits)
     return path, splits
 

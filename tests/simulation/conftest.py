@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import pytest
-from simulation import sim_materials
 
 from gns_framework.plugins import DISABLE_ENV, load_registry
+from simulation import sim_materials
 
 
 @pytest.fixture(scope="session")

@@ -7,7 +7,6 @@ import json
 import numpy as np
 import pytest
 import yaml
-from simulation.scenes import column_collapse, mixed
 
 from gns_framework.cli import generate as generate_command
 from gns_framework.cli import main
@@ -16,6 +15,7 @@ from gns_framework.data.radius import suggest_connectivity_radius
 from gns_framework.simulation.build import build_simulator
 from gns_framework.simulation.generate import generate_dataset, trajectory_seeds
 from gns_framework.simulation.scene_spec import parse_scene
+from simulation.scenes import column_collapse, mixed
 
 
 def test_trajectory_seeds_do_not_depend_on_how_many_are_drawn():

@@ -11,10 +11,10 @@ import math
 
 import numpy as np
 import pytest
-from simulation.scenes import column_collapse, column_collapse_3d, dam_break, mixed
 
 from gns_framework.simulation.build import build_simulator
 from gns_framework.simulation.scene_spec import parse_scene
+from simulation.scenes import column_collapse, column_collapse_3d, dam_break, mixed
 
 G = 9.81
 

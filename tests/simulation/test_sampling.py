@@ -8,10 +8,10 @@ import sys
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from simulation.scenes import mixed
 
 from gns_framework.simulation.sampling import fill, sample_scene
 from gns_framework.simulation.scene_spec import parse_scene
+from simulation.scenes import mixed
 
 
 @given(

@@ -6,11 +6,11 @@ import copy
 from pathlib import Path
 
 import pytest
-from simulation.scenes import mixed
 
 from gns_framework.errors import RecipeError
 from gns_framework.simulation.build import build_simulator
 from gns_framework.simulation.scene_spec import load_scene, parse_scene
+from simulation.scenes import mixed
 
 SCENES = sorted((Path(__file__).resolve().parents[2] / "scenes").rglob("*.yaml"))
 
@@ -23,7 +23,8 @@ def problems(raw, registry=None) -> dict[str, str]:
 
 
 def test_example_scenes_exist():
-    assert {p.stem for p in SCENES} >= {"sand_collapse_2d", "water_dam_break_2d", "sand_collapse_3d", "multi_material_2d"}
+    expected = {"sand_collapse_2d", "water_dam_break_2d", "sand_collapse_3d", "multi_material_2d"}
+    assert {p.stem for p in SCENES} >= expected
 
 
 @pytest.mark.parametrize("path", SCENES, ids=lambda p: p.stem)

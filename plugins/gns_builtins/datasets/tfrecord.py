@@ -99,12 +99,12 @@ def _decode(example: SequenceExample, dim: int, where: str) -> Trajectory:
     position = np.stack(frames).reshape(len(frames), n, dim)
     step_context = None
     if "step_context" in example.feature_lists:
-        step_context = np.stack(
-            [np.frombuffer(_single_bytes(f, f"{where}: step_context"), "<f4") for f in example.feature_lists["step_context"]]
-        )
+        rows = example.feature_lists["step_context"]
+        step_context = np.stack([np.frombuffer(_single_bytes(f, f"{where}: step_context"), "<f4") for f in rows])
     material_property = None
     if "material_property" in example.context:
-        values = np.frombuffer(_single_bytes(example.context["material_property"], f"{where}: material_property"), "<f4")
+        raw = _single_bytes(example.context["material_property"], f"{where}: material_property")
+        values = np.frombuffer(raw, "<f4")
         if n == 0 or values.size % n:
             raise DatasetError(f"{where}: material_property: {values.size} floats do not split over {n} particles")
         material_property = values.reshape(n, -1)

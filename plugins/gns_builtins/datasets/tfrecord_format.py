@@ -13,7 +13,9 @@ needed here are decoded from the protobuf wire format directly::
     FeatureLists    { map<string, FeatureList> feature_list = 1; }
     FeatureList     { repeated Feature feature = 1; }
     Feature         { oneof { BytesList bytes_list = 1; FloatList float_list = 2; Int64List int64_list = 3; } }
-    BytesList { repeated bytes value = 1; }  FloatList { repeated float value = 1; }  Int64List { repeated int64 value = 1; }
+    BytesList { repeated bytes value = 1; }
+    FloatList { repeated float value = 1; }
+    Int64List { repeated int64 value = 1; }
 
 A map is a repeated message ``{ key = 1; value = 2; }``.
 """

@@ -20,6 +20,7 @@ from gns_framework.simulation.scene_spec import SceneSpec
 
 from .mpm_models import MODELS, RIGID, ConstitutiveModel
 
+
 class MlsMpm(GroundTruthSimulator):
     """Moving least squares material point method with APIC transfers, explicit in time."""
 
