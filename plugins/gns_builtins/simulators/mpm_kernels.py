@@ -20,7 +20,7 @@ from typing import Any
 
 import warp as wp
 
-wp.config.quiet = True
+wp.config.log_level = wp.LOG_WARNING  # no greeting or per-module compile lines
 
 SAND = wp.constant(0)
 FLUID = wp.constant(1)
