@@ -23,6 +23,7 @@ from torch import Tensor, nn
 if TYPE_CHECKING:
     from .data.metadata import DatasetMetadata
     from .data.trajectory import Trajectory
+    from .simulation.scene_spec import SceneSpec
 
 
 class Params(BaseModel):
@@ -243,6 +244,14 @@ class Material(ABC):
     kinematic: ClassVar[bool] = False
     properties: ClassVar[tuple[MaterialProperty, ...]] = ()
     description: ClassVar[str] = ""
+    constitutive_model: ClassVar[str | None] = None
+    """How a ground-truth simulator moves this material (e.g. ``"drucker_prager"``,
+    ``"weakly_compressible"``, ``"von_mises"``, ``"rigid"``); None: no
+    simulator can generate it. Each simulator lists the models it supports."""
+    physical_parameters: ClassVar[dict[str, float]] = {}
+    """Default values (SI units) of the constitutive model's parameters, e.g.
+    ``{"density": 1000.0, "bulk_modulus": 2e5}``; a scene's per-block
+    ``properties`` override those named like a :class:`MaterialProperty`."""
 
 
 class Dataset(ABC):
@@ -279,6 +288,75 @@ class Dataset(ABC):
         raise NotImplementedError(f"dataset layout {cls.name!r} is read-only")
 
 
+class GroundTruthSimulator(ABC):
+    """A particle solver that generates ground-truth trajectories from a scene spec.
+
+    The default is MLS-MPM; a user's own solver (or a converter of its output
+    files) plugs in the same way and feeds ``gns generate``.
+    """
+
+    name: ClassVar[str]
+    Params: ClassVar[type[Params]] = Params
+    dims: ClassVar[tuple[int, ...]] = (2, 3)
+    constitutive_models: ClassVar[tuple[str, ...]] = ()
+    """The :attr:`Material.constitutive_model` values this simulator can move."""
+
+    def __init__(self, params: Params, materials: dict[str, type[Material]]):
+        self.params = params
+        self.materials = materials
+
+    def check(self, scene: "SceneSpec") -> list[tuple[str, str]]:
+        """Problems (location, message) that stop this simulator from running ``scene``.
+
+        The default checks dimension and constitutive models; simulators add
+        stability limits (time step versus wave speed) and the like.
+        """
+        problems = []
+        if scene.dim not in self.dims:
+            problems.append(("dim", f"simulator {self.name!r} supports dim {self.dims}, got {scene.dim}"))
+        for where, material in scene.material_uses():
+            cls = self.materials.get(material)
+            if cls is None:
+                choices = ", ".join(sorted(self.materials)) or "none installed"
+                problems.append((f"{where}.material", f"unknown material {material!r} (installed: {choices})"))
+            elif cls.constitutive_model not in self.constitutive_models:
+                problems.append(
+                    (
+                        f"{where}.material",
+                        f"material {material!r} has constitutive model {cls.constitutive_model!r}; simulator "
+                        f"{self.name!r} supports {', '.join(self.constitutive_models)}",
+                    )
+                )
+            elif cls.kinematic != where.startswith("obstacles"):
+                kind = "kinematic" if cls.kinematic else "not kinematic"
+                problems.append(
+                    (f"{where}.material", f"material {material!r} is {kind}: obstacles take kinematic materials")
+                )
+        for i, block in enumerate(scene.blocks):
+            if block.material not in self.materials:
+                continue
+            declared = [p.name for p in self.materials[block.material].properties]
+            for name in block.properties:
+                if name not in declared:
+                    problems.append(
+                        (
+                            f"blocks[{i}].properties.{name}",
+                            f"material {block.material!r} has no property {name!r} "
+                            f"(it has: {', '.join(declared) or 'none'})",
+                        )
+                    )
+        return problems
+
+    @abstractmethod
+    def simulate(self, scene: "SceneSpec", seed: int) -> "Trajectory":
+        """Run ``scene`` with randomness drawn from ``seed``; the same seed gives the same bits.
+
+        Returns a trajectory of ``scene.time.frames`` frames: position (T, N, d)
+        float32 inside the scene's bounds, particle_type (N,), material_property
+        (N, P) only when the scene sets properties.
+        """
+
+
 COMPONENT_KINDS: dict[str, type] = {
     "graph_builder": GraphBuilder,
     "encoder": Encoder,
@@ -287,5 +365,6 @@ COMPONENT_KINDS: dict[str, type] = {
     "integrator": Integrator,
     "dataset": Dataset,
     "material": Material,
+    "simulator": GroundTruthSimulator,
 }
 """Every component kind, by its recipe key, with its contract."""

@@ -50,6 +50,11 @@ def gns_materials() -> list[type]:
     """Return :class:`~gns_framework.contracts.Material` subclasses."""
 
 
+@hookspec
+def gns_simulators() -> list[type]:
+    """Return :class:`~gns_framework.contracts.GroundTruthSimulator` subclasses."""
+
+
 HOOK_OF_KIND = {
     "graph_builder": "gns_graph_builders",
     "encoder": "gns_encoders",
@@ -58,4 +63,5 @@ HOOK_OF_KIND = {
     "integrator": "gns_integrators",
     "dataset": "gns_datasets",
     "material": "gns_materials",
+    "simulator": "gns_simulators",
 }

@@ -21,6 +21,8 @@ COMMANDS: dict[str, str] = {
     "rollout": "roll a trained simulator out on a dataset split",
     "render": "write VTK frames and a prediction-vs-truth GIF of a rollout file",
     "import-geoelements": "convert a geoelements/gns checkpoint (model-<step>.pt) into a gns-framework checkpoint",
+    "generate": "simulate a scene spec into a dataset of train/valid/test trajectories",
+    "convert": "convert a dataset between layouts (safe, npz, tfrecord, lagrangebench)",
 }
 """Subcommand name -> one-line help. The module is ``gns_framework.cli.<name>``."""
 

@@ -1,0 +1,49 @@
+"""``gns convert``: read a dataset in one layout and write it in another, validating every trajectory."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from ..errors import GnsError, RecipeError
+from ..plugins import load_registry
+from ..validation import problems_from
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("source", type=Path, help="dataset folder to read")
+    parser.add_argument("--from", dest="source_layout", required=True, help="layout of SOURCE (a dataset plugin)")
+    parser.add_argument("--to", dest="target_layout", required=True, help="layout to write (a writable dataset plugin)")
+    parser.add_argument("--out", type=Path, required=True, help="dataset folder to write")
+    parser.add_argument(
+        "--allow-pickle",
+        action="store_true",
+        help="let the npz reader unpickle objects: only for files you trust (unpickling can run code)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    registry = load_registry()
+    source_cls = registry.get("dataset", args.source_layout)
+    target_cls = registry.get("dataset", args.target_layout)
+    if not target_cls.writable:
+        writable = [n for n in registry.names("dataset") if registry.get("dataset", n).writable]
+        raise GnsError(f"dataset layout {args.target_layout!r} is read-only; writable: {', '.join(writable)}")
+    if args.source.resolve() == args.out.resolve():
+        raise GnsError("--out must differ from SOURCE: converting in place could overwrite the files being read")
+    options = {"allow_pickle": True} if args.allow_pickle else {}
+    try:
+        params = source_cls.Params.model_validate(options)
+    except ValidationError as exc:
+        raise RecipeError(f"--from {args.source_layout}", problems_from(exc, source_cls.Params)) from None
+    source = source_cls(params, args.source)
+    metadata = source.metadata()
+    splits = {name: list(source.split(name)) for name in source.splits()}
+    if not splits:
+        raise GnsError(f"{args.source}: no train, valid or test split in layout {args.source_layout!r}")
+    target_cls.write(args.out, metadata, splits)
+    counts = ", ".join(f"{name} {len(trajectories)}" for name, trajectories in splits.items())
+    print(f"converted {args.source} ({args.source_layout}) to {args.out} ({args.target_layout}): {counts}")
+    return 0

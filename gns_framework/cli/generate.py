@@ -1,0 +1,61 @@
+"""``gns generate``: simulate a scene spec into a dataset (train/valid/test splits and metadata.json)."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from ..errors import GnsError
+from ..plugins import load_registry
+from ..recipe import ComponentSpec
+from ..simulation.build import build_simulator
+from ..simulation.generate import generate_dataset, is_up_to_date, provenance
+from ..simulation.scene_spec import load_scene
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scene", type=Path, help="scene spec YAML (see scenes/)")
+    parser.add_argument("--trajectories", type=int, required=True, help="trajectories in all splits together")
+    parser.add_argument("--out", type=Path, required=True, help="dataset folder to write")
+    parser.add_argument("--valid", type=int, help="validation trajectories (default: 10%%, at least 1 when N >= 3)")
+    parser.add_argument("--test", type=int, help="test trajectories (default: 10%%, at least 1 when N >= 3)")
+    parser.add_argument("--layout", default="safe", help="dataset plugin to write with (default: safe)")
+    parser.add_argument("--device", help="simulator device, e.g. cpu or cuda (overrides simulator.device)")
+    parser.add_argument("--force", action="store_true", help="regenerate even if DIR already holds this dataset")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def split_counts(total: int, valid: int | None, test: int | None) -> dict[str, int]:
+    """Trajectories per split; the rest of ``total`` trains."""
+    default = max(1, round(0.1 * total)) if total >= 3 else 0
+    valid = default if valid is None else valid
+    test = default if test is None else test
+    if min(total, valid, test) < 0 or total - valid - test < 1:
+        raise GnsError(f"--trajectories {total} leaves no training trajectory after {valid} valid and {test} test")
+    return {"train": total - valid - test, "valid": valid, "test": test}
+
+
+def run(args: argparse.Namespace) -> int:
+    registry = load_registry()
+    scene = load_scene(args.scene)
+    if args.device is not None:
+        chosen = ComponentSpec(name=scene.simulator.name, **{**scene.simulator.params, "device": args.device})
+        scene = scene.model_copy(update={"simulator": chosen})
+    simulator = build_simulator(scene, registry, args.scene)
+    layout = registry.get("dataset", args.layout)
+    if not layout.writable:
+        writable = [n for n in registry.names("dataset") if registry.get("dataset", n).writable]
+        raise GnsError(f"dataset layout {args.layout!r} is read-only; writable: {', '.join(writable)}")
+    counts = split_counts(args.trajectories, args.valid, args.test)
+    if not args.force and is_up_to_date(args.out, provenance(scene, simulator, counts)):
+        print(f"{args.out} already holds this dataset (same scene, simulator and counts); --force regenerates it")
+        return 0
+    start = time.perf_counter()
+    metadata = generate_dataset(scene, simulator, args.out, layout, counts, progress=not args.no_progress)
+    print(
+        f"wrote {sum(counts.values())} trajectories ({', '.join(f'{k} {v}' for k, v in counts.items())}) "
+        f"of {scene.name} to {args.out} in {time.perf_counter() - start:.1f} s; "
+        f"suggested connectivity radius {metadata.default_connectivity_radius}"
+    )
+    return 0

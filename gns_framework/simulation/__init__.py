@@ -1,0 +1,1 @@
+"""Ground truth: scene specs, simulators and dataset generation."""

@@ -1,0 +1,233 @@
+"""Scene specs: the YAML a ground-truth simulator turns into trajectories.
+
+A scene names its domain, grid, time stepping, material blocks and kinematic
+obstacles. Any number in a block or obstacle may instead be a random range
+``{range: [low, high]}`` drawn once per trajectory (``per: particle`` draws one
+value per particle, for material properties), which gives a dataset its variety.
+
+Validation reports every problem at once, each with its location
+(``blocks[1].size: ...``) and a "did you mean" for misspelt keys.
+
+Units are SI: metres, seconds, kilograms; angles never appear (friction is
+given as a coefficient, tan of the friction angle).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
+
+from ..errors import RecipeError
+from ..recipe import ComponentSpec
+from ..validation import problems_from
+from ..yaml_loading import load_yaml_mapping
+
+
+class Spec(BaseModel):
+    """Base of every scene-spec section: unknown keys are errors."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Range(Spec):
+    """A value drawn uniformly from ``[low, high]``; a plain number is a range of width 0."""
+
+    range: tuple[float, float]
+    per: Literal["trajectory", "particle"] = "trajectory"
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "Range":
+        if self.range[0] > self.range[1]:
+            raise ValueError(f"range must be [low, high] with low <= high, got {list(self.range)}")
+        return self
+
+    @property
+    def low(self) -> float:
+        return self.range[0]
+
+    @property
+    def high(self) -> float:
+        return self.range[1]
+
+    @property
+    def is_fixed(self) -> bool:
+        return self.range[0] == self.range[1]
+
+
+def _number_or_range(value: Any) -> Any:
+    if isinstance(value, bool):
+        raise ValueError(f"expected a number or {{range: [low, high]}}, got {value!r}")
+    if isinstance(value, (int, float)):
+        return {"range": (value, value)}
+    if isinstance(value, (dict, Range)):
+        return value
+    raise ValueError(f"expected a number or {{range: [low, high]}}, got {value!r}")
+
+
+Value = Annotated[Range, BeforeValidator(_number_or_range)]
+"""A number, or ``{range: [low, high], per: trajectory|particle}``."""
+
+
+class Domain(Spec):
+    """The box particles live in and the background grid that covers it."""
+
+    bounds: list[tuple[float, float]] = Field(description="(d, 2) lower and upper wall per axis, metres")
+    grid: int = Field(ge=4, le=4096, description="grid cells along the longest axis (cell size dx = longest / grid)")
+    wall_friction: float = Field(default=0.5, ge=0, description="Coulomb friction coefficient of the domain walls")
+
+    @property
+    def cell_size(self) -> float:
+        """dx in metres."""
+        return max(hi - lo for lo, hi in self.bounds) / self.grid
+
+
+class Time(Spec):
+    """Stored frames and the solver substeps between them."""
+
+    frame_dt: float = Field(gt=0, description="seconds between stored frames")
+    substeps: int = Field(ge=1, description="solver steps per stored frame")
+    frames: int = Field(ge=3, description="stored frames per trajectory, the initial one included")
+
+    @property
+    def substep_dt(self) -> float:
+        return self.frame_dt / self.substeps
+
+
+class Block(Spec):
+    """A body of one material, filled with particles at the start."""
+
+    material: str = Field(description="registered material name")
+    shape: Literal["box", "ellipsoid"] = Field(default="box", description="ellipsoid: inscribed in the box")
+    position: list[Value] = Field(description="(d,) lower corner of the bounding box, metres")
+    size: list[Value] = Field(description="(d,) edge lengths of the bounding box, metres")
+    velocity: list[Value] | None = Field(default=None, description="(d,) initial velocity, m/s")
+    properties: dict[str, Value] = Field(
+        default_factory=dict, description="material properties, recorded per particle as model inputs"
+    )
+    parameters: dict[str, Value] = Field(
+        default_factory=dict, description="constitutive-parameter overrides for this block, not recorded"
+    )
+
+
+class Obstacle(Spec):
+    """A kinematic rigid body: prescribed motion, Coulomb friction, recorded as kinematic particles."""
+
+    material: str = Field(description="registered kinematic material name")
+    shape: Literal["box", "ellipsoid"] = "box"
+    position: list[Value] = Field(description="(d,) lower corner of the bounding box at t = 0, metres")
+    size: list[Value] = Field(description="(d,) edge lengths of the bounding box, metres")
+    velocity: list[Value] | None = Field(default=None, description="(d,) constant velocity, m/s")
+    friction: Value = Field(default_factory=lambda: Range(range=(0.3, 0.3)), description="Coulomb coefficient")
+
+
+class SceneSpec(Spec):
+    """Everything a ground-truth simulator needs to generate one family of trajectories."""
+
+    name: str = Field(default="scene", description="label written to the dataset metadata")
+    dim: Literal[2, 3]
+    domain: Domain
+    time: Time
+    gravity: list[float] | None = Field(default=None, description="(d,) m/s^2; default -9.81 along axis 1 (y up)")
+    particles_per_cell: int = Field(default=2, ge=1, le=4, description="particles per cell along each axis")
+    jitter: float = Field(default=0.2, ge=0, le=0.5, description="random offset of particles, in particle spacings")
+    seed: int = Field(default=0, ge=0, description="trajectory seeds derive from it")
+    simulator: ComponentSpec = Field(
+        default_factory=lambda: ComponentSpec(name="mls_mpm"), description="simulator name and its parameters"
+    )
+    blocks: list[Block] = Field(min_length=1)
+    obstacles: list[Obstacle] = Field(default_factory=list)
+
+    @property
+    def gravity_vector(self) -> tuple[float, ...]:
+        if self.gravity is not None:
+            return tuple(self.gravity)
+        return tuple(-9.81 if axis == 1 else 0.0 for axis in range(self.dim))
+
+    @property
+    def particle_spacing(self) -> float:
+        """Distance between neighbouring particles at rest, metres."""
+        return self.domain.cell_size / self.particles_per_cell
+
+    @property
+    def property_names(self) -> tuple[str, ...]:
+        """Material properties the scene sets, in first-use order (the material_property columns)."""
+        names: dict[str, None] = {}
+        for block in self.blocks:
+            names.update(dict.fromkeys(block.properties))
+        return tuple(names)
+
+    def material_uses(self) -> list[tuple[str, str]]:
+        """(location, material name) of every block and obstacle."""
+        uses = [(f"blocks[{i}]", b.material) for i, b in enumerate(self.blocks)]
+        return uses + [(f"obstacles[{i}]", o.material) for i, o in enumerate(self.obstacles)]
+
+    def problems(self) -> list[tuple[str, str]]:
+        """Consistency problems the field types cannot express (dimensions, placement)."""
+        found: list[tuple[str, str]] = []
+        d = self.dim
+
+        def need_dim(where: str, values: list | None) -> bool:
+            if values is not None and len(values) != d:
+                found.append((where, f"expected {d} values (dim = {d}), got {len(values)}"))
+                return False
+            return True
+
+        bounds_ok = need_dim("domain.bounds", self.domain.bounds)
+        for axis, (lo, hi) in enumerate(self.domain.bounds):
+            if not lo < hi:
+                found.append((f"domain.bounds[{axis}]", f"lower must be below upper, got {[lo, hi]}"))
+                bounds_ok = False
+        need_dim("gravity", self.gravity)
+        for where, body in [(f"blocks[{i}]", b) for i, b in enumerate(self.blocks)] + [
+            (f"obstacles[{i}]", o) for i, o in enumerate(self.obstacles)
+        ]:
+            shaped = need_dim(f"{where}.position", body.position) & need_dim(f"{where}.size", body.size)
+            shaped &= need_dim(f"{where}.velocity", body.velocity)
+            for field in ("position", "size", "velocity"):
+                for axis, value in enumerate(getattr(body, field) or []):
+                    if value.per == "particle":
+                        found.append((f"{where}.{field}[{axis}]", "per: particle applies to properties only"))
+            for axis, size in enumerate(body.size):
+                if size.low <= 0:
+                    found.append((f"{where}.size[{axis}]", f"must be > 0, got {size.low}"))
+            if shaped and bounds_ok:
+                # Obstacles move at constant velocity: their swept box must stay inside too.
+                duration = (self.time.frames - 1) * self.time.frame_dt
+                velocity = body.velocity or [Range(range=(0.0, 0.0))] * d
+                for axis, ((lo, hi), pos, size, vel) in enumerate(
+                    zip(self.domain.bounds, body.position, body.size, velocity)
+                ):
+                    sweep = (0.0, 0.0) if isinstance(body, Block) else (vel.low * duration, vel.high * duration)
+                    low, high = pos.low + min(0.0, sweep[0]), pos.high + size.high + max(0.0, sweep[1])
+                    if low < lo or high > hi:
+                        found.append(
+                            (
+                                f"{where}.position[{axis}]",
+                                f"spans [{low:g}, {high:g}] on axis {axis}, outside the domain [{lo:g}, {hi:g}]",
+                            )
+                        )
+        for i, obstacle in enumerate(self.obstacles):
+            if obstacle.friction.per == "particle":
+                found.append((f"obstacles[{i}].friction", "per: particle applies to properties only"))
+        return found
+
+
+def parse_scene(raw: Any, source: str | Path = "<scene>") -> SceneSpec:
+    """Validate a scene mapping; every problem is reported at once in a RecipeError."""
+    if not isinstance(raw, dict):
+        raise RecipeError(source, [("", f"expected a mapping at the top level, got {type(raw).__name__}")])
+    try:
+        scene = SceneSpec.model_validate(raw)
+    except ValidationError as exc:
+        raise RecipeError(source, problems_from(exc, SceneSpec)) from None
+    problems = scene.problems()
+    if problems:
+        raise RecipeError(source, problems)
+    return scene
+
+
+def load_scene(path: str | Path) -> SceneSpec:
+    """Read and validate a scene YAML file (duplicate keys are errors too)."""
+    return parse_scene(load_yaml_mapping(path), path)

@@ -1,0 +1,129 @@
+"""DeepMind's layout (Learning to Simulate): ``<split>.tfrecord`` of SequenceExamples plus ``metadata.json``.
+
+Each record is one trajectory::
+
+    context        key                int64          trajectory index
+                   particle_type      bytes          (N,) int64
+    feature_lists  position           T x bytes      (N * d,) float32 per frame
+                   step_context       T x bytes      (C,) float32 per frame, optional
+
+DeepMind's ``metadata.json`` gives ``sequence_length`` = T - 1 (steps), where
+gns-framework counts frames (T): the layout converts both ways. Read and written without
+TensorFlow. Two optional context features carry what DeepMind's files lack and
+its reader ignores: ``material_property`` ((N * P,) float32 bytes) and
+``trajectory_key`` (the trajectory's name, utf-8).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from pydantic import Field
+
+from gns_framework.contracts import Dataset, Params
+from gns_framework.data.atomic import atomic_path, write_text_atomic
+from gns_framework.data.consistency import checked
+from gns_framework.data.lazy import TrajectorySequence
+from gns_framework.data.metadata import DatasetMetadata, load_metadata
+from gns_framework.data.trajectory import Trajectory
+from gns_framework.errors import DatasetError
+
+from .tfrecord_format import Feature, SequenceExample, read_records, write_records
+
+
+class TfRecordDataset(Dataset):
+    """The DeepMind TFRecord layout (WaterDrop, Sand, Goop, MultiMaterial, ...)."""
+
+    name = "tfrecord"
+    writable = True
+
+    class Params(Params):
+        verify_checksums: bool = Field(True, description="check every record's CRC-32C (slow without google-crc32c)")
+        num_particle_types: int = Field(9, ge=1, description="particle-type ids must lie in [0, this)")
+
+    def metadata(self) -> DatasetMetadata:
+        stored = load_metadata(self.path)
+        return stored.model_copy(update={"sequence_length": stored.sequence_length + 1})
+
+    def has_split(self, name: str) -> bool:
+        return (self.path / f"{name}.tfrecord").is_file()
+
+    def split(self, name: str) -> Sequence[Trajectory]:
+        file = self.path / f"{name}.tfrecord"
+        if not file.is_file():
+            raise DatasetError(f"{file}: split file not found")
+        metadata = self.metadata()
+        records = list(read_records(file, verify=self.params.verify_checksums))
+
+        def load(key: str) -> Trajectory:
+            index = int(key)
+            try:
+                example = SequenceExample.parse(records[index])
+            except (ValueError, UnicodeDecodeError) as exc:
+                raise DatasetError(f"{file}: trajectory {index}: not a SequenceExample: {exc}") from None
+            trajectory = _decode(example, metadata.dim, f"{file}: trajectory {index}")
+            return checked(trajectory, metadata, str(file), self.params.num_particle_types)
+
+        return TrajectorySequence([str(i) for i in range(len(records))], load, str(file), metadata.dim)
+
+    @classmethod
+    def write(cls, path: Path, metadata: DatasetMetadata, splits: dict[str, Sequence[Trajectory]]) -> None:
+        path = Path(path)
+        for split, trajectories in splits.items():
+            records = [_encode(index, traj).serialize() for index, traj in enumerate(trajectories)]
+            with atomic_path(path / f"{split}.tfrecord") as tmp:
+                write_records(tmp, records)
+        document = {**metadata.to_json_dict(), "sequence_length": metadata.sequence_length - 1}
+        write_text_atomic(path / "metadata.json", json.dumps(document, indent=2) + "\n")
+
+
+def _single_bytes(feature: Feature, where: str) -> bytes:
+    if feature.kind != "bytes" or len(feature.values) != 1:
+        raise DatasetError(f"{where}: expected one bytes value, got {feature.kind} x {len(feature.values)}")
+    return feature.values[0]
+
+
+def _decode(example: SequenceExample, dim: int, where: str) -> Trajectory:
+    for name, present in (("particle_type", example.context), ("position", example.feature_lists)):
+        if name not in present:
+            raise DatasetError(f"{where}: {name}: missing")
+    particle_type = np.frombuffer(_single_bytes(example.context["particle_type"], f"{where}: particle_type"), "<i8")
+    n = particle_type.shape[0]
+    frames = [np.frombuffer(_single_bytes(f, f"{where}: position"), "<f4") for f in example.feature_lists["position"]]
+    if not frames or any(frame.size != n * dim for frame in frames):
+        sizes = sorted({frame.size for frame in frames})
+        raise DatasetError(f"{where}: position: expected {n} x {dim} = {n * dim} floats per frame, got {sizes}")
+    position = np.stack(frames).reshape(len(frames), n, dim)
+    step_context = None
+    if "step_context" in example.feature_lists:
+        rows = example.feature_lists["step_context"]
+        step_context = np.stack([np.frombuffer(_single_bytes(f, f"{where}: step_context"), "<f4") for f in rows])
+    material_property = None
+    if "material_property" in example.context:
+        raw = _single_bytes(example.context["material_property"], f"{where}: material_property")
+        values = np.frombuffer(raw, "<f4")
+        if n == 0 or values.size % n:
+            raise DatasetError(f"{where}: material_property: {values.size} floats do not split over {n} particles")
+        material_property = values.reshape(n, -1)
+    key = str(int(example.context["key"].values[0])) if "key" in example.context else ""
+    if "trajectory_key" in example.context:
+        key = _single_bytes(example.context["trajectory_key"], f"{where}: trajectory_key").decode()
+    return Trajectory(position, particle_type, material_property, step_context, key)
+
+
+def _encode(index: int, traj: Trajectory) -> SequenceExample:
+    context = {
+        "key": Feature("int64", np.array([index])),
+        "particle_type": Feature("bytes", [np.asarray(traj.particle_type, "<i8").tobytes()]),
+    }
+    if traj.material_property is not None:
+        context["material_property"] = Feature("bytes", [np.asarray(traj.material_property, "<f4").tobytes()])
+    if traj.key:
+        context["trajectory_key"] = Feature("bytes", [traj.key.encode()])
+    lists = {"position": [Feature("bytes", [np.asarray(frame, "<f4").tobytes()]) for frame in traj.position]}
+    if traj.step_context is not None:
+        lists["step_context"] = [Feature("bytes", [np.asarray(row, "<f4").tobytes()]) for row in traj.step_context]
+    return SequenceExample(context, lists)

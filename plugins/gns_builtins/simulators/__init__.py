@@ -1,0 +1,10 @@
+"""Built-in ground-truth simulators (Warp is imported only when one runs)."""
+
+from gns_framework.hookspecs import hookimpl
+
+from .mpm_warp import MlsMpm
+
+
+@hookimpl
+def gns_simulators():
+    return [MlsMpm]

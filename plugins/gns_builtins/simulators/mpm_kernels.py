@@ -1,0 +1,362 @@
+"""MLS-MPM substep kernels in Warp (Hu et al. 2018), built for 2D or 3D.
+
+One substep is: clear the grid, particle-to-grid transfer of APIC momentum and
+stress (P2G), grid velocity update with gravity, walls and obstacles, and
+grid-to-particle transfer with advection (G2P). Quadratic B-spline weights, so
+every particle touches a 3^d stencil of nodes.
+
+Importing this module imports Warp: only a running simulator does.
+
+Reproducibility: P2G scatters with atomic adds. Warp runs CPU kernels serially,
+so their order is fixed; on CUDA the kernels are compiled in Warp's
+deterministic mode (sort-and-reduce of the atomics), so a seed gives the same
+bits run after run on the same device.
+"""
+
+
+from dataclasses import dataclass
+from functools import cache
+from typing import Any
+
+import warp as wp
+
+wp.config.log_level = wp.LOG_WARNING  # no greeting or per-module compile lines
+
+SAND = wp.constant(0)
+FLUID = wp.constant(1)
+GOOP = wp.constant(2)
+"""Constitutive-model ids of MPM particles (kinematic bodies are grid boundaries, not particles)."""
+
+BOX = wp.constant(0)
+ELLIPSOID = wp.constant(1)
+"""Obstacle shape ids."""
+
+_OPTIONS = {"enable_backward": False, "deterministic": wp.DeterministicMode.RUN_TO_RUN, "max_unroll": 27}
+"""Unrolling the 3^d stencil loop lets the compiler fold every offset into a constant."""
+
+
+@dataclass(frozen=True)
+class Kernels:
+    """The kernels of one spatial dimension, and the Warp types they take."""
+
+    dim: int
+    vec: Any
+    mat: Any
+    ivec: Any
+    p2g: Any
+    grid_update: Any
+    g2p: Any
+
+
+@wp.func
+def coulomb_contact(v_rel: Any, normal: Any, mu: float):
+    """Velocity relative to a rigid surface after a contact with Coulomb friction.
+
+    Separating motion is free; approaching motion loses its normal part, and the
+    tangential part loses ``mu`` times the removed normal speed (sticking when
+    that exceeds it).
+    """
+    vn = wp.dot(v_rel, normal)
+    if vn >= 0.0:
+        return v_rel
+    vt = v_rel - vn * normal
+    vt_norm = wp.length(vt)
+    if vt_norm <= -mu * vn:
+        return vt * 0.0
+    return vt * (1.0 + mu * vn / vt_norm)
+
+
+@cache
+def kernels(dim: int) -> Kernels:
+    """Compile-once kernels for ``dim`` = 2 or 3."""
+    vec = wp.types.vector(dim, float)
+    mat = wp.types.matrix((dim, dim), float)
+    ivec = wp.types.vector(dim, int)
+    stencil = 3**dim
+
+    @wp.func
+    def drucker_prager_projection(eps: Any, mu: float, lam: float, alpha: float):
+        """Drucker-Prager return mapping of Hencky strain ``eps`` = log(singular values) (Klar et al. 2016).
+
+        Tension returns to the cone tip (no cohesion); a deviatoric strain outside
+        the cone of slope ``alpha`` shrinks back onto it.
+        """
+        tr = float(0.0)
+        for a in range(wp.static(dim)):
+            tr += eps[a]
+        if tr > 0.0:
+            return eps * 0.0
+        dev = eps - vec(tr / float(dim))
+        dev_norm = wp.length(dev)
+        if dev_norm <= 0.0:
+            return eps
+        plastic = dev_norm + (float(dim) * lam + 2.0 * mu) / (2.0 * mu) * tr * alpha
+        if plastic <= 0.0:
+            return eps
+        return eps - plastic / dev_norm * dev
+
+    @wp.func
+    def svd(F: Any):
+        if wp.static(dim == 2):
+            return wp.svd2(F)
+        else:
+            return wp.svd3(F)
+
+    @wp.func
+    def von_mises_projection(eps: Any, yield_strain: float):
+        """Scale the deviatoric Hencky strain back to the von Mises radius; volume is untouched."""
+        tr = float(0.0)
+        for a in range(wp.static(dim)):
+            tr += eps[a]
+        mean = vec(tr / float(dim))
+        dev = eps - mean
+        dev_norm = wp.length(dev)
+        if dev_norm <= yield_strain:
+            return eps
+        return mean + dev * (yield_strain / dev_norm)
+
+    @wp.func
+    def hencky_stress(
+        F: Any, mu: float, lam: float, plastic: int, yield_param: float, F_out: wp.array(dtype=mat), p: int
+    ):
+        """Kirchhoff stress of Hencky elasticity after the plastic return mapping; stores the elastic F.
+
+        ``plastic`` picks the yield surface: Drucker-Prager (sand, ``yield_param`` =
+        cone slope alpha) or von Mises (goop, ``yield_param`` = yield strain).
+        """
+        U, sig, V = svd(F)
+        eps = vec()
+        for a in range(wp.static(dim)):
+            eps[a] = wp.log(wp.max(sig[a], 1.0e-6))
+        if plastic == SAND:
+            eps = drucker_prager_projection(eps, mu, lam, yield_param)
+        else:
+            eps = von_mises_projection(eps, yield_param)
+        sig_new = vec()
+        tr = float(0.0)
+        for a in range(wp.static(dim)):
+            sig_new[a] = wp.exp(eps[a])
+            tr += eps[a]
+        F_out[p] = U @ wp.diag(sig_new) @ wp.transpose(V)
+        return U @ wp.diag(2.0 * mu * eps + vec(lam * tr)) @ wp.transpose(U)
+
+    @wp.func
+    def stencil_offset(n: int):
+        offset = ivec()
+        r = n
+        for a in range(wp.static(dim)):
+            offset[a] = r % 3
+            r = r // 3
+        return offset
+
+    @wp.func
+    def flat_index(node: Any, res: Any):
+        """Row-major index of a grid node; ``res`` holds nodes per axis."""
+        idx = int(0)
+        for a in range(wp.static(dim)):
+            idx = idx * res[a] + node[a]
+        return idx
+
+    weights_t = wp.types.matrix((3, dim), float)
+
+    @wp.func
+    def bspline_weights(fx: Any):
+        """Quadratic B-spline weights of the 3 nodes along each axis; ``fx`` is in [0.5, 1.5) cells."""
+        w = weights_t()
+        for a in range(wp.static(dim)):
+            f = fx[a]
+            w[0, a] = 0.5 * (1.5 - f) * (1.5 - f)
+            w[1, a] = 0.75 - (f - 1.0) * (f - 1.0)
+            w[2, a] = 0.5 * (f - 0.5) * (f - 0.5)
+        return w
+
+    @wp.func
+    def stencil_weight(w: Any, offset: Any):
+        weight = float(1.0)
+        for a in range(wp.static(dim)):
+            weight *= w[offset[a], a]
+        return weight
+
+    @wp.kernel(module="unique", module_options=_OPTIONS)
+    def p2g(
+        x: wp.array(dtype=vec),
+        v: wp.array(dtype=vec),
+        C: wp.array(dtype=mat),
+        F: wp.array(dtype=mat),
+        J: wp.array(dtype=float),
+        model: wp.array(dtype=int),
+        mass: wp.array(dtype=float),
+        volume: wp.array(dtype=float),
+        mu: wp.array(dtype=float),
+        lam: wp.array(dtype=float),
+        param_a: wp.array(dtype=float),
+        param_b: wp.array(dtype=float),
+        origin: vec,
+        inv_dx: float,
+        dt: float,
+        res: ivec,
+        grid_momentum: wp.array(dtype=vec),
+        grid_mass: wp.array(dtype=float),
+    ):
+        """Scatter APIC momentum and the stress impulse -dt V0 (4/dx^2) tau of each particle to its stencil.
+
+        Per-model parameters: sand (param_a = Drucker-Prager alpha), fluid
+        (param_a = bulk modulus K, param_b = Tait exponent gamma), goop
+        (param_a = von Mises yield strain).
+        """
+        p = wp.tid()
+        rel = (x[p] - origin) * inv_dx
+        base = ivec()
+        fx = vec()
+        for a in range(wp.static(dim)):
+            base[a] = int(wp.floor(rel[a] - 0.5))
+            fx[a] = rel[a] - float(base[a])
+        Cp = C[p]
+        grad = wp.identity(n=wp.static(dim), dtype=float) + dt * Cp
+        kind = model[p]
+        tau = mat()
+        if kind == FLUID:
+            Jp = J[p] * (1.0 + dt * wp.trace(Cp))
+            J[p] = Jp
+            # Tait equation of state; a free surface cannot pull, so no tension.
+            pressure = wp.max(param_a[p] / param_b[p] * (wp.pow(Jp, -param_b[p]) - 1.0), 0.0)
+            tau = wp.identity(n=wp.static(dim), dtype=float) * (-pressure * Jp)
+        else:
+            tau = hencky_stress(grad @ F[p], mu[p], lam[p], kind, param_a[p], F, p)
+        affine = (-dt * volume[p] * 4.0 * inv_dx * inv_dx) * tau + mass[p] * Cp
+        momentum = mass[p] * v[p]
+        weights = bspline_weights(fx)
+        for n in range(wp.static(stencil)):
+            offset = stencil_offset(n)
+            w = stencil_weight(weights, offset)
+            dpos = vec()
+            for a in range(wp.static(dim)):
+                dpos[a] = (float(offset[a]) - fx[a]) / inv_dx
+            idx = flat_index(base + offset, res)
+            wp.atomic_add(grid_momentum, idx, w * (momentum + affine @ dpos))
+            wp.atomic_add(grid_mass, idx, w * mass[p])
+
+    @wp.kernel(module="unique", module_options=_OPTIONS)
+    def grid_update(
+        grid_momentum: wp.array(dtype=vec),
+        grid_mass: wp.array(dtype=float),
+        origin: vec,
+        dx: float,
+        res: ivec,
+        dt: float,
+        time: float,
+        gravity: vec,
+        lower: vec,
+        upper: vec,
+        wall_friction: float,
+        obstacle_shape: wp.array(dtype=int),
+        obstacle_lower: wp.array(dtype=vec),
+        obstacle_size: wp.array(dtype=vec),
+        obstacle_velocity: wp.array(dtype=vec),
+        obstacle_friction: wp.array(dtype=float),
+        grid_velocity: wp.array(dtype=vec),
+    ):
+        """Node velocity = momentum / mass + dt g, then frictional contact with walls and obstacles at ``time``.
+
+        Clears momentum and mass behind itself, ready for the next P2G.
+        """
+        n = wp.tid()
+        m = grid_mass[n]
+        momentum = grid_momentum[n]
+        grid_mass[n] = 0.0
+        grid_momentum[n] = vec()
+        if m <= 0.0:
+            grid_velocity[n] = vec()
+            return
+        vel = momentum / m + dt * gravity
+        node = ivec()
+        r = n
+        for k in range(wp.static(dim)):
+            a = wp.static(dim) - 1 - k
+            node[a] = r % res[a]
+            r = r // res[a]
+        pos = vec()
+        for a in range(wp.static(dim)):
+            pos[a] = origin[a] + float(node[a]) * dx
+        for a in range(wp.static(dim)):
+            normal = vec()
+            if pos[a] <= lower[a]:
+                normal[a] = 1.0
+                vel = coulomb_contact(vel, normal, wall_friction)
+            elif pos[a] >= upper[a]:
+                normal[a] = -1.0
+                vel = coulomb_contact(vel, normal, wall_friction)
+        for k in range(obstacle_shape.shape[0]):
+            half = 0.5 * obstacle_size[k]
+            body_velocity = obstacle_velocity[k]
+            rel = pos - (obstacle_lower[k] + half + time * body_velocity)
+            distance = float(0.0)
+            normal = vec()
+            if obstacle_shape[k] == BOX:
+                # Signed distance to a box; inside, the nearest face gives the normal.
+                q = vec()
+                for a in range(wp.static(dim)):
+                    q[a] = wp.abs(rel[a]) - half[a]
+                distance = q[0]
+                face = int(0)
+                for a in range(wp.static(dim)):
+                    if q[a] > distance:
+                        distance = q[a]
+                        face = a
+                normal[face] = wp.sign(rel[face])
+            else:
+                # Distance to an ellipsoid, first order: scale to the unit sphere.
+                scaled = vec()
+                smallest = half[0]
+                for a in range(wp.static(dim)):
+                    scaled[a] = rel[a] / half[a]
+                    smallest = wp.min(smallest, half[a])
+                distance = (wp.length(scaled) - 1.0) * smallest
+                for a in range(wp.static(dim)):
+                    normal[a] = scaled[a] / half[a]
+                normal = wp.normalize(normal)
+            if distance < 0.0:
+                vel = body_velocity + coulomb_contact(vel - body_velocity, normal, obstacle_friction[k])
+        grid_velocity[n] = vel
+
+    @wp.kernel(module="unique", module_options=_OPTIONS)
+    def g2p(
+        grid_velocity: wp.array(dtype=vec),
+        origin: vec,
+        inv_dx: float,
+        res: ivec,
+        dt: float,
+        lower: vec,
+        upper: vec,
+        x: wp.array(dtype=vec),
+        v: wp.array(dtype=vec),
+        C: wp.array(dtype=mat),
+    ):
+        """Gather velocity and its affine part C = (4/dx^2) sum w v (x_i - x_p)^T, then advect; clamp to the domain."""
+        p = wp.tid()
+        rel = (x[p] - origin) * inv_dx
+        base = ivec()
+        fx = vec()
+        for a in range(wp.static(dim)):
+            base[a] = int(wp.floor(rel[a] - 0.5))
+            fx[a] = rel[a] - float(base[a])
+        new_v = vec()
+        new_C = mat()
+        weights = bspline_weights(fx)
+        for n in range(wp.static(stencil)):
+            offset = stencil_offset(n)
+            w = stencil_weight(weights, offset)
+            dpos = vec()
+            for a in range(wp.static(dim)):
+                dpos[a] = float(offset[a]) - fx[a]
+            g = grid_velocity[flat_index(base + offset, res)]
+            new_v += w * g
+            new_C += (4.0 * inv_dx * w) * wp.outer(g, dpos)
+        v[p] = new_v
+        C[p] = new_C
+        moved = x[p] + dt * new_v
+        for a in range(wp.static(dim)):
+            moved[a] = wp.clamp(moved[a], lower[a], upper[a])
+        x[p] = moved
+
+    return Kernels(dim, vec, mat, ivec, p2g, grid_update, g2p)

@@ -1,0 +1,161 @@
+"""Every layout round-trips through ``gns convert``; loading validates and names file, trajectory, field."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from gns_framework.cli import main
+from gns_framework.data.trajectory import Trajectory
+from gns_framework.demo.soft_spheres import soft_sphere_trajectory, synthetic_metadata
+from gns_framework.errors import DatasetError
+
+LAYOUTS = ["safe", "npz", "tfrecord", "lagrangebench"]
+
+
+def write_source(path, registry, with_context: bool):
+    """A small safe dataset with kinematic particles, a material property and (optionally) a step context."""
+    splits = {}
+    for split, seeds in {"train": (0, 1), "valid": (2,), "test": (3,)}.items():
+        splits[split] = []
+        for seed in seeds:
+            traj = soft_sphere_trajectory(seed, frames=8, block=3, particle_types=(5, 6), kinematic_floor=True,
+                                          with_property=True, key=f"{split}_{seed}")
+            context = np.linspace(0, 1, traj.num_steps, dtype=np.float32)[:, None] if with_context else None
+            splits[split].append(
+                Trajectory(traj.position, traj.particle_type, traj.material_property, context, traj.key)
+            )
+    registry.get("dataset", "safe").write(path, synthetic_metadata(splits["train"], 2), splits)
+    return path, splits
+
+
+@pytest.fixture(scope="module")
+def source(tmp_path_factory, registry):
+    return write_source(tmp_path_factory.mktemp("source"), registry, with_context=True)
+
+
+@pytest.fixture(scope="module")
+def source_without_context(tmp_path_factory, registry):
+    """geoelements' tuples have no place for a step context."""
+    return write_source(tmp_path_factory.mktemp("source"), registry, with_context=False)
+
+
+def convert(src, source_layout, target_layout, out, *extra) -> None:
+    assert main(["convert", str(src), "--from", source_layout, "--to", target_layout, "--out", str(out), *extra]) == 0
+
+
+def load(registry, layout, path):
+    cls = registry.get("dataset", layout)
+    dataset = cls(cls.Params(allow_pickle=True) if layout == "npz" else cls.Params(), path)
+    return dataset.metadata(), {name: list(dataset.split(name)) for name in dataset.splits()}
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_round_trip_through_every_layout(layout, source, source_without_context, registry, tmp_path):
+    src, original = source_without_context if layout == "npz" else source
+    convert(src, "safe", layout, tmp_path / layout)
+    convert(tmp_path / layout, layout, "safe", tmp_path / "back", *(["--allow-pickle"] if layout == "npz" else []))
+    metadata, splits = load(registry, "safe", tmp_path / "back")
+    expected_metadata, _ = load(registry, "safe", src)
+    for field in ("bounds", "sequence_length", "default_connectivity_radius", "dim", "dt",
+                  "vel_mean", "vel_std", "acc_mean", "acc_std"):
+        assert getattr(metadata, field) == getattr(expected_metadata, field), field
+    assert {k: len(v) for k, v in splits.items()} == {"train": 2, "valid": 1, "test": 1}
+    for name, trajectories in original.items():
+        for before, after in zip(trajectories, splits[name]):
+            np.testing.assert_array_equal(before.position, after.position)
+            np.testing.assert_array_equal(before.particle_type, after.particle_type)
+            np.testing.assert_array_equal(before.material_property, after.material_property)
+            np.testing.assert_array_equal(before.step_context, after.step_context)
+
+
+def test_tfrecord_metadata_counts_steps_like_deepmind(source, tmp_path):
+    src, original = source
+    convert(src, "safe", "tfrecord", tmp_path / "tf")
+    stored = json.loads((tmp_path / "tf" / "metadata.json").read_text())
+    assert stored["sequence_length"] == original["train"][0].num_steps - 1
+
+
+def test_lagrangebench_files_look_like_lagrangebench(source, tmp_path):
+    src, original = source
+    convert(src, "safe", "lagrangebench", tmp_path / "lb")
+    stored = json.loads((tmp_path / "lb" / "metadata.json").read_text())
+    assert stored["periodic_boundary_conditions"] == [False, False]
+    assert stored["sequence_length_train"] == original["train"][0].num_steps
+    assert stored["num_particles_max"] == max(t.num_particles for t in original["train"])
+    with h5py.File(tmp_path / "lb" / "train.h5", "r") as handle:
+        assert sorted(handle) == ["00000", "00001"]
+        assert handle["00000/position"].shape == original["train"][0].position.shape
+
+
+def test_lagrangebench_solver_dt_and_write_every_give_the_frame_dt(registry, tmp_path):
+    traj = soft_sphere_trajectory(0, frames=6, block=2)
+    with h5py.File(tmp_path / "train.h5", "w") as handle:
+        handle["00000/position"] = traj.position.astype(np.float64)
+        handle["00000/particle_type"] = np.zeros(traj.num_particles, dtype=np.int32)
+    raw = {"dim": 2, "dt": 0.0005, "write_every": 100, "bounds": [[0, 1], [0, 1]],
+           "default_connectivity_radius": 0.029, "vel_mean": [0, 0], "vel_std": [1, 1],
+           "acc_mean": [0, 0], "acc_std": [1, 1], "periodic_boundary_conditions": [True, True]}
+    (tmp_path / "metadata.json").write_text(json.dumps(raw))
+    metadata, splits = load(registry, "lagrangebench", tmp_path)
+    assert metadata.dt == pytest.approx(0.05)
+    assert metadata.sequence_length == 6
+    assert splits["train"][0].position.dtype == np.float32
+
+
+def test_sequence_length_disagreeing_with_metadata_names_file_trajectory_and_field(source, registry, tmp_path):
+    src, _ = source
+    convert(src, "safe", "tfrecord", tmp_path / "tf")
+    stored = json.loads((tmp_path / "tf" / "metadata.json").read_text())
+    stored["sequence_length"] += 3
+    (tmp_path / "tf" / "metadata.json").write_text(json.dumps(stored))
+    with pytest.raises(DatasetError, match=r"train\.tfrecord: trajectory 'train_0': position: has 8 frames"):
+        load(registry, "tfrecord", tmp_path / "tf")
+
+
+def test_particle_type_out_of_range_is_located(registry, tmp_path):
+    traj = soft_sphere_trajectory(0, frames=5, block=2)
+    bad = Trajectory(traj.position, np.full(traj.num_particles, 12), key="odd")
+    registry.get("dataset", "lagrangebench").write(tmp_path, synthetic_metadata([traj], 2), {"train": [bad]})
+    with pytest.raises(DatasetError, match=r"train\.h5: trajectory 'odd': particle_type: ids must lie in \[0, 9\)"):
+        load(registry, "lagrangebench", tmp_path)
+
+
+def test_non_finite_positions_are_located(registry, tmp_path):
+    traj = soft_sphere_trajectory(0, frames=5, block=2)
+    position = traj.position.copy()
+    position[3, 1, 0] = np.inf
+    registry.get("dataset", "tfrecord").write(
+        tmp_path, synthetic_metadata([traj], 2), {"valid": [Trajectory(position, traj.particle_type, key="v")]}
+    )
+    with pytest.raises(DatasetError, match=r"valid\.tfrecord: trajectory 'v': position: non-finite value at frame 3"):
+        load(registry, "tfrecord", tmp_path)
+
+
+def test_dimension_disagreeing_with_metadata_is_located(registry, tmp_path):
+    flat = soft_sphere_trajectory(0, frames=5, block=2)
+    metadata = synthetic_metadata([soft_sphere_trajectory(0, dim=3, frames=5, block=2)], 3)
+    registry.get("dataset", "lagrangebench").write(tmp_path, metadata, {"train": [flat]})
+    with pytest.raises(DatasetError, match=r"position: has d = 2 but metadata says dim = 3"):
+        load(registry, "lagrangebench", tmp_path)
+
+
+def test_a_record_that_is_not_a_trajectory_is_located(registry, tmp_path):
+    from gns_builtins.datasets.tfrecord_format import Feature, SequenceExample, write_records
+
+    traj = soft_sphere_trajectory(0, frames=5, block=2)
+    registry.get("dataset", "tfrecord").write(tmp_path, synthetic_metadata([traj], 2), {"train": [traj]})
+    example = SequenceExample({"particle_type": Feature("bytes", [np.zeros(3, "<i8").tobytes()])},
+                              {"position": [Feature("bytes", [np.zeros(5, "<f4").tobytes()])] * 5})
+    write_records(tmp_path / "train.tfrecord", [example.serialize()])
+    with pytest.raises(DatasetError, match=r"trajectory 0: position: expected 3 x 2 = 6 floats per frame, got \[5\]"):
+        load(registry, "tfrecord", tmp_path)
+
+
+def test_convert_refuses_a_read_only_or_unknown_layout(source, tmp_path, capsys):
+    src, _ = source
+    assert main(["convert", str(src), "--from", "safe", "--to", "nope", "--out", str(tmp_path / "x")]) == 2
+    assert "unknown dataset 'nope'" in capsys.readouterr().err

@@ -1,0 +1,113 @@
+"""``gns generate``: seeded splits, metadata from the data, reproducible, cached."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from gns_framework.cli import generate as generate_command
+from gns_framework.cli import main
+from gns_framework.data.metadata import compute_statistics, load_metadata
+from gns_framework.data.radius import suggest_connectivity_radius
+from gns_framework.simulation.build import build_simulator
+from gns_framework.simulation.generate import generate_dataset, trajectory_seeds
+from gns_framework.simulation.scene_spec import parse_scene
+from simulation.scenes import column_collapse, mixed
+
+
+def test_trajectory_seeds_do_not_depend_on_how_many_are_drawn():
+    assert trajectory_seeds(7, 5)[:3] == trajectory_seeds(7, 3)
+    assert len(set(trajectory_seeds(7, 50))) == 50
+    assert trajectory_seeds(7, 3) != trajectory_seeds(8, 3)
+
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory, sim_registry):
+    scene = parse_scene(mixed(frames=12))
+    simulator = build_simulator(scene, sim_registry)
+    out = tmp_path_factory.mktemp("generated")
+    metadata = generate_dataset(scene, simulator, out, sim_registry.get("dataset", "safe"),
+                                {"train": 2, "valid": 1, "test": 1}, progress=False)
+    return scene, simulator, out, metadata
+
+
+def load_split(registry, path, split):
+    cls = registry.get("dataset", "safe")
+    return list(cls(cls.Params(), path).split(split))
+
+
+def test_dataset_has_splits_and_metadata_from_its_train_split(generated, sim_registry):
+    scene, _, out, metadata = generated
+    train = load_split(sim_registry, out, "train")
+    assert [len(load_split(sim_registry, out, s)) for s in ("train", "valid", "test")] == [2, 1, 1]
+    assert load_metadata(out) == metadata
+    stats = compute_statistics(train)
+    for key, values in stats.items():
+        assert getattr(metadata, key) == pytest.approx(values)
+    assert metadata.sequence_length == scene.time.frames == train[0].num_steps
+    assert metadata.dt == scene.time.frame_dt
+    assert metadata.bounds == [tuple(b) for b in scene.domain.bounds]
+    assert metadata.default_connectivity_radius == suggest_connectivity_radius(train)
+    assert metadata.model_extra["material_properties"] == ["friction"]
+
+
+def test_generation_is_reproducible_and_splits_differ(generated, sim_registry, tmp_path):
+    scene, simulator, out, _ = generated
+    again = tmp_path / "again"
+    generate_dataset(scene, simulator, again, sim_registry.get("dataset", "safe"),
+                     {"train": 2, "valid": 1, "test": 1}, progress=False)
+    for split in ("train", "valid", "test"):
+        for a, b in zip(load_split(sim_registry, out, split), load_split(sim_registry, again, split)):
+            assert a.position.tobytes() == b.position.tobytes()
+    train = load_split(sim_registry, out, "train")
+    assert train[0].key != train[1].key
+    assert train[0].position.shape != train[1].position.shape or not np.array_equal(
+        train[0].position, train[1].position
+    )
+
+
+def test_scene_without_properties_writes_none(sim_registry, tmp_path):
+    scene = parse_scene(column_collapse(0.05, 0.05, 0.6, frames=4))
+    metadata = generate_dataset(scene, build_simulator(scene, sim_registry), tmp_path,
+                                sim_registry.get("dataset", "safe"), {"train": 1}, progress=False)
+    assert load_split(sim_registry, tmp_path, "train")[0].material_property is None
+    assert "material_properties" not in metadata.model_extra
+
+
+@pytest.fixture
+def cli_registry(sim_registry, monkeypatch):
+    monkeypatch.setattr(generate_command, "load_registry", lambda: sim_registry)
+
+
+def test_gns_generate_writes_then_reuses_a_dataset(cli_registry, tmp_path, capsys):
+    scene_file = tmp_path / "scene.yaml"
+    scene_file.write_text(yaml.safe_dump(mixed(frames=6)))
+    out = tmp_path / "data"
+    args = ["generate", str(scene_file), "--trajectories", "3", "--out", str(out), "--no-progress"]
+    assert main(args) == 0
+    assert "wrote 3 trajectories (train 1, valid 1, test 1)" in capsys.readouterr().out
+    written = (out / "train.npz").stat().st_mtime_ns
+    assert main(args) == 0
+    assert "already holds this dataset" in capsys.readouterr().out
+    assert (out / "train.npz").stat().st_mtime_ns == written
+    assert main([*args, "--valid", "0", "--test", "0"]) == 0
+    assert json.loads((out / "metadata.json").read_text())["generated_from"]["trajectories"]["train"] == 3
+
+
+def test_gns_generate_reports_scene_problems(cli_registry, tmp_path, capsys):
+    raw = mixed()
+    raw["blocks"][0]["material"] = "lava"
+    (tmp_path / "scene.yaml").write_text(yaml.safe_dump(raw))
+    args = ["generate", str(tmp_path / "scene.yaml"), "--trajectories", "1", "--out", str(tmp_path / "d")]
+    assert main(args) == 2
+    assert "blocks[0].material: unknown material 'lava'" in capsys.readouterr().err
+
+
+def test_split_counts_need_a_training_trajectory():
+    assert generate_command.split_counts(10, None, None) == {"train": 8, "valid": 1, "test": 1}
+    assert generate_command.split_counts(2, None, None) == {"train": 2, "valid": 0, "test": 0}
+    with pytest.raises(Exception, match="leaves no training trajectory"):
+        generate_command.split_counts(3, 2, 1)
