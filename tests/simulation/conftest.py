@@ -1,18 +1,15 @@
-"""A registry whose materials carry the simulator attributes, and small scenes that run in well under a second."""
+"""The registry of installed components, and small scenes that run in well under a second."""
 
 from __future__ import annotations
 
 import pytest
 
-from gns_framework.plugins import DISABLE_ENV, load_registry
-from simulation import sim_materials
+from gns_framework.plugins import load_registry
 
 
 @pytest.fixture(scope="session")
 def sim_registry():
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv(DISABLE_ENV, "builtin-materials")
-        return load_registry(plugins=[("simulation-test-materials", sim_materials)])
+    return load_registry()
 
 
 @pytest.fixture(scope="session")
