@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from gns_framework.demo.soft_spheres import write_synthetic_dataset
+from synthetic import write_synthetic_dataset
 from gns_framework.plugins import load_registry
 
 REPO = Path(__file__).resolve().parents[1]

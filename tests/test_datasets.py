@@ -10,7 +10,7 @@ import pytest
 from gns_framework.data.metadata import compute_statistics, load_metadata
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
-from gns_framework.demo.soft_spheres import soft_sphere_trajectory, synthetic_metadata
+from synthetic import soft_sphere_trajectory, synthetic_metadata
 
 
 @pytest.fixture(scope="module")

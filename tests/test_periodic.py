@@ -15,7 +15,7 @@ from gns_framework.periodic import PeriodicBox
 from gns_framework.plugins import load_registry
 from gns_framework.rollout import rollout
 from gns_framework.testing import small_scene
-from gns_framework.demo.soft_spheres import soft_sphere_trajectory, synthetic_metadata
+from synthetic import soft_sphere_trajectory, synthetic_metadata
 from tiny import tiny_recipe, tiny_trainer
 
 BOX = PeriodicBox(small_scene(2, periodic=(True, False)))
@@ -70,7 +70,7 @@ def test_a_periodic_scene_refuses_a_builder_that_ignores_periodicity(tmp_path):
     import pytest
 
     from gns_framework.errors import RecipeError
-    from gns_framework.demo.soft_spheres import write_synthetic_dataset
+    from synthetic import write_synthetic_dataset
 
     data = write_synthetic_dataset(tmp_path / "data", train=1, valid=0, test=0, frames=12)
     with pytest.raises(RecipeError, match="periodic_radius"):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gns_framework.plugins import load_registry
-from gns_framework.demo.soft_spheres import write_synthetic_dataset
+from synthetic import write_synthetic_dataset
 from tiny import tiny_recipe, tiny_trainer
 
 REGISTRY = load_registry()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gns_framework.demo.soft_spheres import write_synthetic_dataset
+from synthetic import write_synthetic_dataset
 from tiny import tiny_recipe, tiny_trainer
 
 pytest.importorskip("gns_example_clay", reason="install it: pip install -e plugins/examples/gns-clay")

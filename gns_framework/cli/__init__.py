@@ -14,11 +14,12 @@ import sys
 from ..errors import GnsError
 
 COMMANDS: dict[str, str] = {
-    "demo": "generate a small dataset, train the reference recipe briefly, roll out and animate",
+    "demo": "simulate a small sand dataset, train the reference recipe briefly, roll out and animate",
     "plugins": "list installed components by kind, with their source and distribution",
     "check": "validate recipes and report every problem at once",
     "train": "train a learned simulator from a recipe",
     "rollout": "roll a trained simulator out on a dataset split",
+    "evaluate": "report error against run time of trained models and the ground-truth simulator",
     "render": "write VTK frames and a prediction-vs-truth GIF of a rollout file",
     "import-geoelements": "convert a geoelements/gns checkpoint (model-<step>.pt) into a gns-framework checkpoint",
     "generate": "simulate a scene spec into a dataset of train/valid/test trajectories",

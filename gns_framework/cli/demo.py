@@ -1,7 +1,8 @@
-"""``gns demo``: generate a small dataset, train the reference recipe briefly, roll out and render.
+"""``gns demo``: simulate a small sand dataset, train the reference recipe briefly, roll out and animate.
 
-Runs on the embedded default scene (soft spheres falling in a box, simulated
-in-process), with no network. The dataset is cached in the output folder.
+Everything runs locally with no network: the MLS-MPM ground-truth simulator
+generates granular column collapses (cached in the output folder after the
+first run), the reference GNS learns them, and the test collapse is rolled out.
 """
 
 from __future__ import annotations
@@ -10,36 +11,41 @@ import argparse
 from pathlib import Path
 
 from ..checkpoint import list_checkpoints
-from ..data.metadata import load_metadata
-from ..demo.soft_spheres import write_synthetic_dataset
-from ..errors import DatasetError
 from ..loading import load_trained
 from ..plugins import load_registry
 from ..recipe import load_recipe
 from ..rollout import rollout, write_rollout
+from ..simulation.build import build_simulator
+from ..simulation.generate import generate_dataset, is_up_to_date, provenance
+from ..simulation.scene_spec import load_scene
 from ..training.trainer import Trainer
 
-RECIPE = Path(__file__).resolve().parents[2] / "recipes" / "water2d.yaml"
+REPO = Path(__file__).resolve().parents[2]
+COUNTS = {"train": 10, "valid": 1, "test": 1}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/demo"), help="demo folder (default runs/demo)")
-    parser.add_argument("--steps", type=int, default=1000, help="training steps (default 1000)")
-    parser.add_argument("--recipe", type=Path, default=RECIPE, help="recipe to train (default recipes/water2d.yaml)")
+    parser.add_argument("--steps", type=int, default=1500, help="training steps (default 1500)")
+    parser.add_argument("--scene", type=Path, default=REPO / "scenes" / "demo_sand_2d.yaml", help="scene spec to simulate")
+    parser.add_argument("--recipe", type=Path, default=REPO / "recipes" / "sand2d.yaml", help="recipe to train")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
 def run(args: argparse.Namespace) -> int:
     registry = load_registry()
+    progress = not args.no_progress
     data = args.out / "data"
-    try:
-        load_metadata(data)
-        print(f"using cached dataset {data}")
-    except DatasetError:
-        print(f"generating the demo dataset in {data} ...")
-        write_synthetic_dataset(data, train=8, valid=2, test=1, frames=60)
-    recipe = load_recipe(args.recipe, registry, {"training": {"steps": args.steps, "validate_every": max(args.steps // 4, 1)}})
-    trainer = Trainer(recipe, registry, run_dir=args.out / "run", dataset_path=data, progress=not args.no_progress)
+    scene = load_scene(args.scene)
+    simulator = build_simulator(scene, registry, args.scene)
+    if is_up_to_date(data, provenance(scene, simulator, COUNTS)):
+        print(f"using the cached dataset {data}")
+    else:
+        print(f"simulating {sum(COUNTS.values())} trajectories of {scene.name} with {simulator.name} into {data} ...")
+        generate_dataset(scene, simulator, data, registry.get("dataset", "safe"), COUNTS, progress)
+
+    recipe = load_recipe(args.recipe, registry, {"training": {"steps": args.steps, "validate_every": max(args.steps // 5, 1)}})
+    trainer = Trainer(recipe, registry, run_dir=args.out / "run", dataset_path=data, progress=progress)
     try:
         trainer.resume()
         before = trainer.validate()
@@ -48,13 +54,14 @@ def run(args: argparse.Namespace) -> int:
     finally:
         trainer.close()
     print(f"validation one-step loss: {before['valid_one_step_loss']:.4g} -> {after['valid_one_step_loss']:.4g}")
+
     loaded = load_trained(list_checkpoints(trainer.checkpoint_dir)[-1][1], registry)
-    trajectory = trainer.data.dataset.split("test")[0]
-    result = rollout(loaded.simulator, trajectory, progress=not args.no_progress)
+    result = rollout(loaded.simulator, trainer.data.dataset.split("test")[0], progress=progress)
     path = write_rollout(args.out / "rollout_test_0000.npz", result, loaded.metadata)
     print(f"rollout of {result.predicted.shape[0]} steps written to {path}; position MSE {result.position_mse:.4g}")
     from ..evaluation.rollout_file import load_rollout
     from ..viz.animation import animate_rollout
 
-    print(f"animation (prediction | ground truth): {animate_rollout(load_rollout(path), args.out / 'rollout.gif', every=2)}")
+    gif = animate_rollout(load_rollout(path), args.out / "rollout.gif", every=2)
+    print(f"animation (prediction | ground truth): {gif}")
     return 0

@@ -10,7 +10,7 @@ import pytest
 
 from gns_framework.cli import main
 from gns_framework.data.trajectory import Trajectory
-from gns_framework.demo.soft_spheres import soft_sphere_trajectory, synthetic_metadata
+from synthetic import soft_sphere_trajectory, synthetic_metadata
 from gns_framework.errors import DatasetError
 
 LAYOUTS = ["safe", "npz", "tfrecord", "lagrangebench"]

@@ -1,4 +1,4 @@
-"""Small physical scenes made in-process (demo and tests): soft spheres under gravity in a box.
+"""Small physical scenes made in-process for tests: soft spheres under gravity in a box.
 
 Discrete-element dynamics (linear repulsion between overlapping spheres, viscous
 damping, inelastic walls), integrated with many substeps per stored frame. Small
@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data.metadata import DatasetMetadata, compute_statistics
-from ..data.trajectory import Trajectory
+from gns_framework.data.metadata import DatasetMetadata, compute_statistics
+from gns_framework.data.trajectory import Trajectory
 
 RADIUS = 0.02
 SPACING = 0.04
@@ -88,7 +88,7 @@ def write_synthetic_dataset(
     path: Path, train: int = 4, valid: int = 2, test: int = 2, dim: int = 2, layout: str = "safe", **scene
 ) -> Path:
     """Generate and write a small dataset (train/valid/test + metadata.json)."""
-    from ..plugins import load_registry
+    from gns_framework.plugins import load_registry
 
     counts = {"train": train, "valid": valid, "test": test}
     splits, seed = {}, 0

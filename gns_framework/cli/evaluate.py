@@ -1,0 +1,106 @@
+"""``gns evaluate``: error against run time of trained models and of the ground-truth simulator."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..errors import GnsError
+
+
+def _scales(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers, got {text!r}") from None
+    if not values or any(v <= 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers, got {text!r}")
+    return values
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text}")
+    return value
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("checkpoints", nargs="+", type=Path, metavar="CHECKPOINT", help="trained models to compare")
+    parser.add_argument("--dataset", type=Path, help="dataset folder (default: the first model's)")
+    parser.add_argument("--split", default="test", help="split to evaluate on (default test)")
+    parser.add_argument("--trajectories", type=_positive, help="use only the first K trajectories")
+    parser.add_argument("--out", type=Path, default=Path("runs/evaluation"), help="report folder")
+    parser.add_argument("--grid-scales", type=_scales, default=[0.5, 1.0], help="simulator grid resolutions relative to the data's (default 0.5,1)")
+    parser.add_argument("--substep-scales", type=_scales, default=[1.0], help="simulator substeps relative to the data's (default 1)")
+    parser.add_argument("--no-simulator", action="store_true", help="compare learned models only")
+    parser.add_argument("--repeats", type=_positive, default=3, help="timed runs per case; the median counts (default 3)")
+    parser.add_argument("--warmup", type=int, default=1, help="untimed runs first (default 1)")
+    parser.add_argument("--error-metric", default="sinkhorn_final_pct", help="metric plotted against run time")
+    parser.add_argument("--device", default="auto", help="device of the learned models")
+    parser.add_argument("--vtk", action="store_true", help="also write VTK frames of each model's first rollout")
+    parser.add_argument("--gif", action="store_true", help="also write a prediction-vs-truth GIF of each model's first rollout")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..evaluation.candidates import cases_from_split, learned_candidate, simulator_candidates
+    from ..evaluation.report import evaluate, write_report
+    from ..loading import load_trained
+    from ..plugins import load_registry
+    from ..training.setup import open_dataset
+    from ..training.trainer import resolve_device
+
+    registry = load_registry()
+    device = resolve_device(args.device)
+    models = [load_trained(path, registry, device) for path in args.checkpoints]
+    histories = {m.simulator.scene.history for m in models}
+    if len(histories) > 1:
+        raise GnsError(f"the models need different input histories {sorted(histories)}; evaluate them separately")
+    dataset = open_dataset(models[0].recipe.dataset, registry, args.dataset)
+    metadata = dataset.metadata()
+    trajectories = dataset.split(args.split)
+    if args.trajectories:
+        trajectories = trajectories[: args.trajectories]
+    cases = cases_from_split(trajectories, metadata, histories.pop())
+
+    names = [f"{m.recipe.name} ({p.parent.parent.name}/{p.name})" if len(models) > 1 else m.recipe.name for m, p in zip(models, args.checkpoints)]
+    candidates = [learned_candidate(m, name, device) for m, name in zip(models, names)]
+    if not args.no_simulator:
+        candidates += simulator_candidates(metadata, registry, cases, args.grid_scales, args.substep_scales)
+
+    scene = models[0].simulator.scene
+    granular = [t for t in scene.particle_types if registry.material_by_type(t).cls.constitutive_model == "drucker_prager"]
+    names_of_types = {t: registry.material_by_type(t).name for t in scene.particle_types}
+    report = evaluate(
+        candidates,
+        cases,
+        repeats=args.repeats,
+        warmup=args.warmup,
+        error_metric=args.error_metric,
+        granular_types=granular,
+        material_names=names_of_types,
+        rollout_dir=args.out / "rollouts" if (args.vtk or args.gif) else None,
+    )
+    paths = write_report(report, args.out)
+    print(paths["markdown"].read_text())
+    for kind, path in paths.items():
+        print(f"{kind}: {path}")
+    if args.vtk or args.gif:
+        _render_first_rollouts(args, [c.name for c in candidates if c.kind == "learned"], cases[0].key)
+    return 0
+
+
+def _render_first_rollouts(args: argparse.Namespace, names: list[str], case_key: str) -> None:
+    from ..evaluation.rollout_file import load_rollout
+
+    for name in names:
+        rollout = load_rollout(args.out / "rollouts" / name / f"{case_key}.npz")
+        if args.vtk:
+            from ..io.vtk import write_rollout_vtk
+
+            for part, pvd in write_rollout_vtk(rollout, args.out / "vtk" / name).items():
+                print(f"vtk {name} {part}: {pvd}")
+        if args.gif:
+            from ..viz.animation import animate_rollout
+
+            print(f"animation {name}: {animate_rollout(rollout, args.out / f'{name}.gif', every=2)}")

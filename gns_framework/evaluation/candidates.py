@@ -1,0 +1,94 @@
+"""What ``gns evaluate`` compares: test cases, learned models and the ground-truth simulator's settings."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from ..data.metadata import DatasetMetadata
+from ..data.trajectory import Trajectory
+from ..errors import DatasetError
+from ..loading import LoadedModel
+from ..plugins import Registry
+from ..rollout import rollout
+from .report import Candidate, Case, Prediction
+
+
+def cases_from_split(trajectories: Sequence[Trajectory], metadata: DatasetMetadata, history: int) -> list[Case]:
+    """Each test trajectory as a case: its first ``history`` frames in, the rest to predict."""
+    return [
+        Case(t.position[:history], t.position[history:], t.particle_type, metadata, t.material_property, t.key or f"case_{i}")
+        for i, t in enumerate(trajectories)
+    ]
+
+
+def learned_candidate(model: LoadedModel, name: str, device: torch.device) -> Candidate:
+    """A trained simulator rolled out from each case's input frames (kinematic particles prescribed)."""
+
+    def simulate(case: Case) -> Prediction:
+        trajectory = Trajectory(
+            np.concatenate([case.initial_positions, case.ground_truth]), case.particle_type, case.material_property, key=case.key
+        )
+        return Prediction(rollout(model.simulator, trajectory, device=device).predicted)
+
+    return Candidate(name, "learned", simulate, settings=f"{model.path.name} (step {model.step})", device=str(device))
+
+
+def simulator_candidates(
+    metadata: DatasetMetadata,
+    registry: Registry,
+    cases: Sequence[Case],
+    grid_scales: Sequence[float],
+    substep_scales: Sequence[float],
+) -> list[Candidate]:
+    """The simulator that generated the data, re-run on each case's seed at other grids and time steps.
+
+    The unscaled setting is the reference (it reproduces the ground truth). Needs
+    the provenance ``gns generate`` stores in metadata.json.
+    """
+    from ..simulation.build import build_simulator
+    from ..simulation.generate import trajectory_seeds
+    from ..simulation.scene_spec import SceneSpec
+
+    provenance = getattr(metadata, "generated_from", None)
+    if not isinstance(provenance, dict):
+        raise DatasetError(
+            "metadata.json: generated_from: missing; only datasets written by `gns generate` can be re-simulated "
+            "(use --no-simulator for others)"
+        )
+    scene = SceneSpec.model_validate(provenance["scene"])
+    counts = provenance["trajectories"]
+    seeds = trajectory_seeds(scene.seed, counts["train"] + counts["valid"] + counts["test"])[-counts["test"] :]
+    seed_of = {case.key: seed for case, seed in zip(cases, seeds)}
+    history = len(cases[0].initial_positions)
+
+    candidates = []
+    for grid_scale in grid_scales:
+        for substep_scale in substep_scales:
+            grid = max(4, round(scene.domain.grid * grid_scale))
+            substeps = max(1, round(scene.time.substeps * substep_scale))
+            variant = scene.model_copy(
+                update={
+                    "domain": scene.domain.model_copy(update={"grid": grid}),
+                    "time": scene.time.model_copy(update={"substeps": substeps}),
+                }
+            )
+            simulator = build_simulator(variant, registry, "metadata.json: generated_from")
+
+            def simulate(case: Case, simulator=simulator, variant=variant) -> Prediction:
+                trajectory = simulator.simulate(variant, seed_of[case.key])
+                return Prediction(trajectory.position[history:], trajectory.particle_type, trajectory.position[history - 1])
+
+            reference = grid == scene.domain.grid and substeps == scene.time.substeps
+            candidates.append(
+                Candidate(
+                    f"{simulator.name} grid {grid} x {substeps} substeps",
+                    "simulator",
+                    simulate,
+                    reference=reference,
+                    settings=f"grid {grid}, dt {variant.time.frame_dt / substeps:.3g} s",
+                )
+            )
+    return candidates
