@@ -14,7 +14,7 @@ import sys
 from ..errors import GnsError
 
 COMMANDS: dict[str, str] = {
-    "demo": "simulate a small sand dataset, train the reference recipe briefly, roll out and animate",
+    "demo": "simulate a small sand dataset, train the reference recipe briefly, roll out, report error vs run time",
     "plugins": "list installed components by kind, with their source and distribution",
     "check": "validate recipes and report every problem at once",
     "train": "train a learned simulator from a recipe",

@@ -1,14 +1,17 @@
-"""``gns demo``: simulate a small sand dataset, train the reference recipe briefly, roll out and animate.
+"""``gns demo``: simulate a small sand dataset, train the reference recipe briefly, roll out, report.
 
 Everything runs locally with no network: the MLS-MPM ground-truth simulator
 generates granular column collapses (cached in the output folder after the
-first run), the reference GNS learns them, and the test collapse is rolled out.
+first run), the reference GNS learns them, the test collapse is rolled out and
+animated, and the error-against-run-time report compares it with the simulator.
 """
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+
+import torch
 
 from ..checkpoint import list_checkpoints
 from ..loading import load_trained
@@ -56,12 +59,20 @@ def run(args: argparse.Namespace) -> int:
     print(f"validation one-step loss: {before['valid_one_step_loss']:.4g} -> {after['valid_one_step_loss']:.4g}")
 
     loaded = load_trained(list_checkpoints(trainer.checkpoint_dir)[-1][1], registry)
-    result = rollout(loaded.simulator, trainer.data.dataset.split("test")[0], progress=progress)
+    test = trainer.data.dataset.split("test")
+    result = rollout(loaded.simulator, test[0], progress=progress)
     path = write_rollout(args.out / "rollout_test_0000.npz", result, loaded.metadata)
     print(f"rollout of {result.predicted.shape[0]} steps written to {path}; position MSE {result.position_mse:.4g}")
+    from ..evaluation.candidates import cases_from_split, compare
+    from ..evaluation.report import write_report
     from ..evaluation.rollout_file import load_rollout
     from ..viz.animation import animate_rollout
 
     gif = animate_rollout(load_rollout(path), args.out / "rollout.gif", every=2)
     print(f"animation (prediction | ground truth): {gif}")
+    cases = cases_from_split(test, loaded.metadata, loaded.simulator.scene.history)
+    report = compare([(recipe.name, loaded)], cases, loaded.metadata, registry, torch.device("cpu"))
+    paths = write_report(report, args.out / "report")
+    print(paths["markdown"].read_text())
+    print(f"error against run time: {paths['error_vs_time']}")
     return 0

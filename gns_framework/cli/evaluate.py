@@ -43,8 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..evaluation.candidates import cases_from_split, learned_candidate, simulator_candidates
-    from ..evaluation.report import evaluate, write_report
+    from ..evaluation.candidates import cases_from_split, compare
+    from ..evaluation.report import write_report
     from ..loading import load_trained
     from ..plugins import load_registry
     from ..training.setup import open_dataset
@@ -64,21 +64,18 @@ def run(args: argparse.Namespace) -> int:
     cases = cases_from_split(trajectories, metadata, histories.pop())
 
     names = [f"{m.recipe.name} ({p.parent.parent.name}/{p.name})" if len(models) > 1 else m.recipe.name for m, p in zip(models, args.checkpoints)]
-    candidates = [learned_candidate(m, name, device) for m, name in zip(models, names)]
-    if not args.no_simulator:
-        candidates += simulator_candidates(metadata, registry, cases, args.grid_scales, args.substep_scales)
-
-    scene = models[0].simulator.scene
-    granular = [t for t in scene.particle_types if registry.material_by_type(t).cls.constitutive_model == "drucker_prager"]
-    names_of_types = {t: registry.material_by_type(t).name for t in scene.particle_types}
-    report = evaluate(
-        candidates,
+    report = compare(
+        list(zip(names, models)),
         cases,
+        metadata,
+        registry,
+        device,
+        grid_scales=args.grid_scales,
+        substep_scales=args.substep_scales,
+        with_simulator=not args.no_simulator,
         repeats=args.repeats,
         warmup=args.warmup,
         error_metric=args.error_metric,
-        granular_types=granular,
-        material_names=names_of_types,
         rollout_dir=args.out / "rollouts" if (args.vtk or args.gif) else None,
     )
     paths = write_report(report, args.out)
@@ -86,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     for kind, path in paths.items():
         print(f"{kind}: {path}")
     if args.vtk or args.gif:
-        _render_first_rollouts(args, [c.name for c in candidates if c.kind == "learned"], cases[0].key)
+        _render_first_rollouts(args, names, cases[0].key)
     return 0
 
 

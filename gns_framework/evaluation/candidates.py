@@ -13,7 +13,7 @@ from ..errors import DatasetError
 from ..loading import LoadedModel
 from ..plugins import Registry
 from ..rollout import rollout
-from .report import Candidate, Case, Prediction
+from .report import Candidate, Case, Prediction, Report, evaluate
 
 
 def cases_from_split(trajectories: Sequence[Trajectory], metadata: DatasetMetadata, history: int) -> list[Case]:
@@ -92,3 +92,36 @@ def simulator_candidates(
                 )
             )
     return candidates
+
+
+def compare(
+    models: Sequence[tuple[str, LoadedModel]],
+    cases: Sequence[Case],
+    metadata: DatasetMetadata,
+    registry: Registry,
+    device: torch.device,
+    *,
+    grid_scales: Sequence[float] = (0.5, 1.0),
+    substep_scales: Sequence[float] = (1.0,),
+    with_simulator: bool = True,
+    repeats: int = 3,
+    warmup: int = 1,
+    error_metric: str = "sinkhorn_final_pct",
+    rollout_dir=None,
+) -> Report:
+    """Error against run time of named trained models (and the ground-truth simulator) on ``cases``."""
+    candidates = [learned_candidate(model, name, device) for name, model in models]
+    if with_simulator:
+        candidates += simulator_candidates(metadata, registry, cases, grid_scales, substep_scales)
+    scene = models[0][1].simulator.scene
+    materials = {t: registry.material_by_type(t).cls for t in scene.particle_types}
+    return evaluate(
+        candidates,
+        cases,
+        repeats=repeats,
+        warmup=warmup,
+        error_metric=error_metric,
+        granular_types=[t for t, m in materials.items() if m.constitutive_model == "drucker_prager"],
+        material_names={t: m.name for t, m in materials.items()},
+        rollout_dir=rollout_dir,
+    )
