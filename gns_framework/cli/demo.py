@@ -17,14 +17,16 @@ from ..loading import load_trained
 from ..plugins import load_registry
 from ..recipe import load_recipe
 from ..rollout import rollout, write_rollout
+from ..rollout_guard import RolloutGuard
 from ..training.trainer import Trainer
+from .arguments import positive_int
 
 RECIPE = Path(__file__).resolve().parents[2] / "recipes" / "water2d.yaml"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/demo"), help="demo folder (default runs/demo)")
-    parser.add_argument("--steps", type=int, default=1000, help="training steps (default 1000)")
+    parser.add_argument("--steps", type=positive_int, default=1000, help="training steps (default 1000)")
     parser.add_argument("--recipe", type=Path, default=RECIPE, help="recipe to train (default recipes/water2d.yaml)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 
@@ -50,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"validation one-step loss: {before['valid_one_step_loss']:.4g} -> {after['valid_one_step_loss']:.4g}")
     loaded = load_trained(list_checkpoints(trainer.checkpoint_dir)[-1][1], registry)
     trajectory = trainer.data.dataset.split("test")[0]
-    result = rollout(loaded.simulator, trajectory, progress=not args.no_progress)
+    guard = RolloutGuard.from_spec(loaded.simulator.scene, loaded.recipe.rollout.guard)
+    result = rollout(loaded.simulator, trajectory, progress=not args.no_progress, guard=guard)
     path = write_rollout(args.out / "rollout_test_0000.npz", result, loaded.metadata)
     print(f"rollout of {result.predicted.shape[0]} steps written to {path}; position MSE {result.position_mse:.4g}")
     from ..evaluation.rollout_file import load_rollout
