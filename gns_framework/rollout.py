@@ -18,7 +18,7 @@ from tqdm import tqdm
 from .data.batch import window
 from .data.metadata import DatasetMetadata
 from .data.trajectory import Trajectory
-from .errors import RolloutDiverged
+from .errors import DatasetError, RolloutDiverged
 from .rollout_guard import GuardViolation, RolloutGuard
 from .simulator import LearnedSimulator
 
@@ -56,6 +56,7 @@ def rollout(
     frame (default: stop on non-finite positions or on particles beyond the domain's
     widest side); it raises RolloutDiverged, or clamps and records the violations.
     """
+    _check_simulates(simulator, trajectory)
     guard = guard if guard is not None else RolloutGuard(simulator.scene)
     history = simulator.scene.history
     available = trajectory.num_steps - history
@@ -85,6 +86,17 @@ def rollout(
         predicted_particles=(~kinematic[:, 0]).cpu().numpy(),
         guard_violations=tuple(violations),
     )
+
+
+def _check_simulates(simulator: LearnedSimulator, trajectory: Trajectory) -> None:
+    """Refuse a trajectory of another dimension or with particle types the model was not built for."""
+    scene = simulator.scene
+    where = f"trajectory {trajectory.key!r}"
+    if trajectory.dim != scene.dim:
+        raise DatasetError(f"{where}: position: has d = {trajectory.dim} but the model simulates dim = {scene.dim}")
+    unknown = sorted(set(np.unique(trajectory.particle_type).tolist()) - set(scene.particle_types))
+    if unknown:
+        raise DatasetError(f"{where}: particle_type: ids {unknown} are not among the model's {list(scene.particle_types)}")
 
 
 def write_rollout(

@@ -13,7 +13,7 @@ from gns_framework.checkpoint import load_checkpoint, save_checkpoint
 from gns_framework.cli import main
 from gns_framework.contracts import Scene
 from gns_framework.data.trajectory import Trajectory
-from gns_framework.errors import RecipeError, RolloutDiverged
+from gns_framework.errors import DatasetError, RecipeError, RolloutDiverged
 from gns_framework.evaluation.rollout_file import load_rollout
 from gns_framework.plugins import load_registry
 from gns_framework.recipe import validate_recipe
@@ -156,3 +156,13 @@ def test_gns_rollout_with_clamp_writes_the_clamped_rollout_and_says_so(nan_check
     assert "clamped at 3 check(s)" in captured.out
     assert "warning:" in captured.err and "step 2 (frame 8)" in captured.err
     assert np.isfinite(load_rollout(tmp_path / "test_0000.npz").predicted_rollout).all()
+
+
+def test_rollout_refuses_trajectories_the_model_was_not_built_for():
+    simulator = tiny_simulator(REGISTRY, 2)
+    flat = resting()
+    with pytest.raises(DatasetError, match=r"trajectory 'resting': particle_type: ids \[9\] are not among"):
+        rollout(simulator, replace(flat, particle_type=np.full(9, 9)), steps=2)
+    deep = replace(flat, position=np.zeros((12, 9, 3), np.float32))
+    with pytest.raises(DatasetError, match=r"trajectory 'resting': position: has d = 3 but the model simulates dim = 2"):
+        rollout(simulator, deep, steps=2)

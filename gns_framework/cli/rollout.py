@@ -12,6 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..errors import DatasetError
 from ..loading import load_trained
 from ..plugins import load_registry
 from ..rollout import rollout, write_rollout
@@ -46,6 +47,12 @@ def run(args: argparse.Namespace) -> int:
     loaded = load_trained(args.checkpoint, registry, device)
     spec = loaded.recipe.rollout
     dataset = open_dataset(loaded.recipe.dataset, registry, args.dataset)
+    dim = dataset.metadata().dim
+    if dim != loaded.simulator.scene.dim:
+        raise DatasetError(
+            f"{dataset.path / 'metadata.json'}: dim: the dataset has dim = {dim} but the model simulates "
+            f"dim = {loaded.simulator.scene.dim} ({args.checkpoint})"
+        )
     split_name = args.split or spec.split
     trajectories = dataset.split(split_name)
     count = min(len(trajectories), args.trajectories or spec.trajectories or len(trajectories))
