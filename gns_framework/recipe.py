@@ -89,7 +89,7 @@ class RolloutGuardSpec(_Strict):
     """What a rollout does when a prediction is not finite or a particle leaves the domain."""
 
     margin: float | None = Field(
-        None, ge=0, description="how far (dataset length units) a particle may pass a wall; default: the domain's widest side"
+        None, ge=0, description="how far (dataset length units) a particle may pass a wall; default: no domain check"
     )
     on_violation: Literal["stop", "clamp"] = Field(
         "stop", description="stop: raise naming step, particles and cause; clamp: put the particles back and report it"

@@ -53,8 +53,8 @@ def rollout(
 
     Kinematic particles follow their prescribed (ground-truth) positions; every other
     particle only ever sees its own predictions. ``guard`` checks every predicted
-    frame (default: stop on non-finite positions or on particles beyond the domain's
-    widest side); it raises RolloutDiverged, or clamps and records the violations.
+    frame (default: stop on non-finite positions, no domain check); it raises
+    RolloutDiverged, or clamps and records the violations.
     """
     _check_simulates(simulator, trajectory)
     guard = guard if guard is not None else RolloutGuard(simulator.scene)

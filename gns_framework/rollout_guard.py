@@ -10,6 +10,7 @@ particles back and records what it did.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,7 +45,9 @@ class RolloutGuard:
 
     Args:
         scene: bounds (the walls) and periodic dimensions (no walls there: wrapped positions never leave).
-        margin: distance (dataset length units) a particle may pass a wall; None: the widest side of the domain.
+        margin: distance (dataset length units) a particle may pass a wall; None: no domain check, only
+            non-finite positions are caught (an untrained or early model may fling particles far out,
+            and that is a result to evaluate, not an error).
         on_violation: ``stop`` raises RolloutDiverged; ``clamp`` replaces non-finite positions by the
             particle's previous position and puts escaped particles back onto the wall they passed.
     """
@@ -56,7 +59,7 @@ class RolloutGuard:
         self.walled = [k for k in range(scene.dim) if k not in scene.periodic_dims]
         self.lower = bounds[self.walled, 0]
         self.upper = bounds[self.walled, 1]
-        self.margin = float((bounds[:, 1] - bounds[:, 0]).max()) if margin is None else float(margin)
+        self.margin = math.inf if margin is None else float(margin)
         self.on_violation = on_violation
         self.history = scene.history
 

@@ -77,8 +77,9 @@ def test_periodic_dimensions_have_no_walls_to_leave():
         RolloutGuard(periodic, margin=0.0).check(0, torch.tensor([[0.5, 7.0]]), position)
 
 
-def test_default_margin_is_the_widest_side():
-    assert RolloutGuard(BOX).margin == 2.0
+def test_by_default_only_non_finite_positions_are_caught():
+    far = torch.tensor([[1e30, -1e30]])
+    assert RolloutGuard(BOX).check(0, far, far)[1] == []
 
 
 def _sabotaged(value: float):
