@@ -36,6 +36,24 @@ class CheckpointError(GnsError):
     """A checkpoint is missing, truncated, corrupt or belongs to another recipe."""
 
 
+class RolloutDiverged(GnsError):
+    """A rollout produced non-finite positions, or particles left the domain by more than the margin.
+
+    Attributes:
+        trajectory: key of the trajectory rolled out.
+        step: 0-based rolled-out step (the frame is ``step + C``).
+        particles: indices of the offending particles.
+        cause: what went wrong, in words.
+    """
+
+    def __init__(self, message: str, trajectory: str = "", step: int = -1, particles=(), cause: str = ""):
+        self.trajectory = trajectory
+        self.step = step
+        self.particles = list(particles)
+        self.cause = cause
+        super().__init__(message)
+
+
 def located(path: str | Path, field: str | None, message: str) -> str:
     """Format ``file: field: message`` the same way everywhere."""
     return f"{path}: {field}: {message}" if field else f"{path}: {message}"

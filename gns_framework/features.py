@@ -7,6 +7,8 @@ Node features, in column order (N rows):
     4. per-particle material properties                                  P    (scenes with properties)
     5. normalised global context of the frame                            c    (scenes with context)
 Edge features (E rows): ``(p_sender - p_receiver) / R`` and its norm, d + 1 columns.
+The norm is :func:`safe_norm`: every self-edge has length 0, where the Euclidean
+norm is not differentiable twice.
 
 Dimensions that wrap around (periodic) have no walls; the history passed in must
 already be continuous there (see :class:`~gns_framework.periodic.PeriodicBox`).
@@ -19,6 +21,24 @@ from torch import Tensor, nn
 
 from .contracts import Graph, Scene
 from .normalization import Stats
+
+
+def safe_norm(vector: Tensor) -> Tensor:
+    """``torch.linalg.vector_norm(vector, dim=-1, keepdim=True)`` with finite derivatives of every order at 0.
+
+    The values are bitwise those of ``vector_norm``. Its first derivative at the zero
+    vector is already 0, but its second is NaN (``x / |x|`` differentiated at 0), and
+    a NaN in any self-edge poisons gradient penalties, Hessian-vector products and
+    optimisers that differentiate through a rollout. Zero rows are evaluated at a
+    stand-in vector of ones instead and their result replaced by 0, so no branch
+    that autograd visits ever divides by a zero length; the gradient there is 0.
+
+    Shapes: (..., d) -> (..., 1).
+    """
+    nonzero = (vector != 0).any(dim=-1, keepdim=True)
+    stand_in = torch.where(nonzero, vector, torch.ones_like(vector))
+    norm = torch.linalg.vector_norm(stand_in, dim=-1, keepdim=True)
+    return torch.where(nonzero, norm, torch.zeros_like(norm))
 
 
 def node_feature_size(scene: Scene, type_embedding_size: int) -> int:
@@ -85,4 +105,4 @@ class FeatureBuilder(nn.Module):
     def edge_features(self, graph: Graph) -> Tensor:
         """(E, d + 1): relative displacement over R, and its length."""
         relative = graph.displacement / self.scene.connectivity_radius
-        return torch.cat([relative, torch.linalg.vector_norm(relative, dim=-1, keepdim=True)], dim=-1)
+        return torch.cat([relative, safe_norm(relative)], dim=-1)

@@ -8,7 +8,7 @@ Every problem is reported at once with its location.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -85,10 +85,22 @@ class TrainingSpec(_Strict):
     threads: int | None = Field(None, ge=1, description="torch intra-op threads (default: torch's)")
 
 
+class RolloutGuardSpec(_Strict):
+    """What a rollout does when a prediction is not finite or a particle leaves the domain."""
+
+    margin: float | None = Field(
+        None, ge=0, description="how far (dataset length units) a particle may pass a wall; default: no domain check"
+    )
+    on_violation: Literal["stop", "clamp"] = Field(
+        "stop", description="stop: raise naming step, particles and cause; clamp: put the particles back and report it"
+    )
+
+
 class RolloutSpec(_Strict):
     split: str = "test"
     steps: int | None = Field(None, ge=1, description="default: to the end of each trajectory")
     trajectories: int | None = Field(None, ge=1, description="default: all of the split")
+    guard: RolloutGuardSpec = RolloutGuardSpec()
 
 
 class Recipe(_Strict):

@@ -1,6 +1,9 @@
-"""Autoregressive rollouts, saved with their ground truth in the pickle-free rollout file.
+"""Autoregressive rollouts, guarded, saved with their ground truth in the pickle-free rollout file.
 
-The file format is documented in :mod:`gns_framework.evaluation.rollout_file`.
+Every predicted frame passes a :class:`~gns_framework.rollout_guard.RolloutGuard`,
+and :func:`write_rollout` refuses non-finite predictions unless told otherwise, so
+no NaN reaches a file silently. The file format is documented in
+:mod:`gns_framework.evaluation.rollout_file`.
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ from tqdm import tqdm
 from .data.batch import window
 from .data.metadata import DatasetMetadata
 from .data.trajectory import Trajectory
+from .errors import DatasetError, RolloutDiverged
+from .rollout_guard import GuardViolation, RolloutGuard
 from .simulator import LearnedSimulator
 
 
@@ -25,6 +30,8 @@ class RolloutResult:
     ground_truth: np.ndarray
     trajectory: Trajectory
     predicted_particles: np.ndarray
+    guard_violations: tuple[GuardViolation, ...] = ()
+    """What the guard clamped (empty when nothing was, or when it stops instead)."""
 
     @property
     def position_mse(self) -> float:
@@ -40,12 +47,17 @@ def rollout(
     steps: int | None = None,
     device: torch.device | str = "cpu",
     progress: bool = False,
+    guard: RolloutGuard | None = None,
 ) -> RolloutResult:
     """Predict ``steps`` frames from the first C of ``trajectory``.
 
     Kinematic particles follow their prescribed (ground-truth) positions; every other
-    particle only ever sees its own predictions.
+    particle only ever sees its own predictions. ``guard`` checks every predicted
+    frame (default: stop on non-finite positions, no domain check); it raises
+    RolloutDiverged, or clamps and records the violations.
     """
+    _check_simulates(simulator, trajectory)
+    guard = guard if guard is not None else RolloutGuard(simulator.scene)
     history = simulator.scene.history
     available = trajectory.num_steps - history
     steps = available if steps is None else min(steps, available)
@@ -57,10 +69,13 @@ def rollout(
     sequence = state.position_sequence
     predicted = torch.empty_like(truth)
     context = None if trajectory.step_context is None else torch.from_numpy(trajectory.step_context).to(device)
+    violations: list[GuardViolation] = []
     for step in tqdm(range(steps), desc=f"rollout {trajectory.key}", unit="step", disable=not progress):
         frame_context = None if context is None else context[history - 1 + step][None]
         current = replace(state, position_sequence=sequence, context=frame_context)
         next_position = simulator.predict_next_position(current, prescribed=truth[step])
+        next_position, found = guard.check(step, next_position, sequence[:, -1], trajectory.key)
+        violations += found
         predicted[step] = next_position
         sequence = torch.cat([sequence[:, 1:], next_position[:, None]], dim=1)
     return RolloutResult(
@@ -69,12 +84,41 @@ def rollout(
         ground_truth=truth.cpu().numpy(),
         trajectory=trajectory,
         predicted_particles=(~kinematic[:, 0]).cpu().numpy(),
+        guard_violations=tuple(violations),
     )
 
 
-def write_rollout(path: str | Path, result: RolloutResult, metadata: DatasetMetadata) -> Path:
-    """Save a rollout with its ground truth, atomically."""
+def _check_simulates(simulator: LearnedSimulator, trajectory: Trajectory) -> None:
+    """Refuse a trajectory of another dimension or with particle types the model was not built for."""
+    scene = simulator.scene
+    where = f"trajectory {trajectory.key!r}"
+    if trajectory.dim != scene.dim:
+        raise DatasetError(f"{where}: position: has d = {trajectory.dim} but the model simulates dim = {scene.dim}")
+    unknown = sorted(set(np.unique(trajectory.particle_type).tolist()) - set(scene.particle_types))
+    if unknown:
+        raise DatasetError(f"{where}: particle_type: ids {unknown} are not among the model's {list(scene.particle_types)}")
+
+
+def write_rollout(
+    path: str | Path, result: RolloutResult, metadata: DatasetMetadata, allow_non_finite: bool = False
+) -> Path:
+    """Save a rollout with its ground truth, atomically; an existing file is replaced only on success.
+
+    Non-finite predictions (from a rollout made without a guard) are refused unless
+    ``allow_non_finite`` says a diverged rollout is to be kept as a result.
+    """
     from .evaluation.rollout_file import Rollout, save_rollout
+
+    finite = np.isfinite(result.predicted).all(axis=(1, 2))
+    if not allow_non_finite and not finite.all():
+        step = int(np.argmin(finite))
+        particles = np.flatnonzero(~np.isfinite(result.predicted[step]).all(axis=-1))
+        raise RolloutDiverged(
+            f"{path}: predicted_rollout: non-finite positions from step {step} on "
+            f"(particles {particles[:5].tolist()}{', ...' if len(particles) > 5 else ''}, {len(particles)} in all); "
+            "not written (pass allow_non_finite=True to keep a diverged rollout)",
+            trajectory=result.trajectory.key, step=step, particles=particles.tolist(), cause="non-finite positions",
+        )
 
     return save_rollout(
         path,

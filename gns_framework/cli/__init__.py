@@ -24,6 +24,7 @@ COMMANDS: dict[str, str] = {
     "import-geoelements": "convert a geoelements/gns checkpoint (model-<step>.pt) into a gns-framework checkpoint",
     "generate": "simulate a scene spec into a dataset of train/valid/test trajectories",
     "convert": "convert a dataset between layouts (safe, npz, tfrecord, lagrangebench)",
+    "stability": "run the stiff-integrator and extreme-input cases and print each outcome with its figures",
 }
 """Subcommand name -> one-line help. The module is ``gns_framework.cli.<name>``."""
 

@@ -18,10 +18,12 @@ from ..loading import load_trained
 from ..plugins import load_registry
 from ..recipe import load_recipe
 from ..rollout import rollout, write_rollout
+from ..rollout_guard import RolloutGuard
 from ..simulation.build import build_simulator
 from ..simulation.generate import generate_dataset, is_up_to_date, provenance
 from ..simulation.scene_spec import load_scene
 from ..training.trainer import Trainer
+from .arguments import positive_int
 
 REPO = Path(__file__).resolve().parents[2]
 COUNTS = {"train": 10, "valid": 1, "test": 1}
@@ -29,7 +31,7 @@ COUNTS = {"train": 10, "valid": 1, "test": 1}
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/demo"), help="demo folder (default runs/demo)")
-    parser.add_argument("--steps", type=int, default=1500, help="training steps (default 1500)")
+    parser.add_argument("--steps", type=positive_int, default=1500, help="training steps (default 1500)")
     parser.add_argument("--scene", type=Path, default=REPO / "scenes" / "demo_sand_2d.yaml", help="scene spec to simulate")
     parser.add_argument("--recipe", type=Path, default=REPO / "recipes" / "sand2d.yaml", help="recipe to train")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -60,7 +62,8 @@ def run(args: argparse.Namespace) -> int:
 
     loaded = load_trained(list_checkpoints(trainer.checkpoint_dir)[-1][1], registry)
     test = trainer.data.dataset.split("test")
-    result = rollout(loaded.simulator, test[0], progress=progress)
+    guard = RolloutGuard.from_spec(loaded.simulator.scene, loaded.recipe.rollout.guard)
+    result = rollout(loaded.simulator, test[0], progress=progress, guard=guard)
     path = write_rollout(args.out / "rollout_test_0000.npz", result, loaded.metadata)
     print(f"rollout of {result.predicted.shape[0]} steps written to {path}; position MSE {result.position_mse:.4g}")
     from ..evaluation.candidates import cases_from_split, compare

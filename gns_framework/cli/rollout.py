@@ -1,25 +1,43 @@
-"""``gns rollout``: roll a trained simulator out on a dataset split and save it with the ground truth."""
+"""``gns rollout``: roll a trained simulator out on a dataset split and save it with the ground truth.
+
+Every rollout is guarded (recipe ``rollout.guard``, or ``--on-violation`` and
+``--guard-margin``): a diverging one stops with an error naming the step, the
+particles and the cause, and nothing is written for it; under ``clamp`` the clamped
+rollout is written and every clamp is reported on stderr.
+"""
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
+from ..errors import DatasetError
 from ..loading import load_trained
 from ..plugins import load_registry
 from ..rollout import rollout, write_rollout
+from ..rollout_guard import RolloutGuard
 from ..training.setup import open_dataset
 from ..training.trainer import resolve_device
+from .arguments import non_negative_float, positive_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", type=Path, help="checkpoint file written by gns train")
     parser.add_argument("--dataset", type=Path, help="dataset folder (default: the one the model was trained on)")
     parser.add_argument("--split", help="split to roll out (default: the recipe's rollout.split)")
-    parser.add_argument("--steps", type=int, help="steps per rollout (default: to the end of each trajectory)")
-    parser.add_argument("--trajectories", type=int, help="how many trajectories (default: all)")
+    parser.add_argument("--steps", type=positive_int, help="steps per rollout (default: to the end of each trajectory)")
+    parser.add_argument("--trajectories", type=positive_int, help="how many trajectories (default: all)")
     parser.add_argument("--out", type=Path, help="output folder (default: <run>/rollouts)")
     parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
+    parser.add_argument(
+        "--on-violation", choices=("stop", "clamp"),
+        help="on NaN/Inf or particles beyond the margin: stop, or clamp and report (default: rollout.guard.on_violation)",
+    )
+    parser.add_argument(
+        "--guard-margin", type=non_negative_float, metavar="DISTANCE",
+        help="how far a particle may pass a wall, dataset length units (default: rollout.guard.margin)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -29,13 +47,29 @@ def run(args: argparse.Namespace) -> int:
     loaded = load_trained(args.checkpoint, registry, device)
     spec = loaded.recipe.rollout
     dataset = open_dataset(loaded.recipe.dataset, registry, args.dataset)
+    dim = dataset.metadata().dim
+    if dim != loaded.simulator.scene.dim:
+        raise DatasetError(
+            f"{dataset.path / 'metadata.json'}: dim: the dataset has dim = {dim} but the model simulates "
+            f"dim = {loaded.simulator.scene.dim} ({args.checkpoint})"
+        )
     split_name = args.split or spec.split
     trajectories = dataset.split(split_name)
     count = min(len(trajectories), args.trajectories or spec.trajectories or len(trajectories))
     out = args.out or args.checkpoint.parent.parent / "rollouts"
+    guard = RolloutGuard(
+        loaded.simulator.scene,
+        args.guard_margin if args.guard_margin is not None else spec.guard.margin,
+        args.on_violation or spec.guard.on_violation,
+    )
     for index in range(count):
         trajectory = trajectories[index]
-        result = rollout(loaded.simulator, trajectory, args.steps or spec.steps, device, progress=not args.no_progress)
+        result = rollout(
+            loaded.simulator, trajectory, args.steps or spec.steps, device, progress=not args.no_progress, guard=guard
+        )
         path = write_rollout(out / f"{split_name}_{index:04d}.npz", result, loaded.metadata)
-        print(f"{path}: {result.predicted.shape[0]} steps, position MSE {result.position_mse:.4g}")
+        clamped = f", clamped at {len(result.guard_violations)} check(s)" if result.guard_violations else ""
+        print(f"{path}: {result.predicted.shape[0]} steps, position MSE {result.position_mse:.4g}{clamped}")
+        for violation in result.guard_violations:
+            print(f"gns rollout: warning: {path}: clamped {violation.describe()}", file=sys.stderr)
     return 0

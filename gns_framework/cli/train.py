@@ -8,11 +8,12 @@ from pathlib import Path
 from ..plugins import load_registry
 from ..recipe import load_recipe
 from ..training.trainer import Trainer
+from .arguments import positive_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recipe", type=Path, help="recipe YAML file")
-    parser.add_argument("--steps", type=int, help="total training steps (overrides training.steps)")
+    parser.add_argument("--steps", type=positive_int, help="total training steps (overrides training.steps)")
     parser.add_argument("--dataset", type=Path, help="dataset folder (overrides dataset.path)")
     parser.add_argument("--out", type=Path, help="run folder (overrides output_dir; default runs/<name>)")
     parser.add_argument(

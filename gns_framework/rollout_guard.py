@@ -1,0 +1,121 @@
+"""Guarding rollouts: non-finite positions and particles lost beyond the walls are caught at the step they occur.
+
+A learned simulator that diverges produces NaN, Inf or particles flung far out of
+the domain; continuing feeds them back into the model and the rollout file would
+hold them without a word. The guard checks every predicted frame and either stops
+(:class:`~gns_framework.errors.RolloutDiverged`, naming the step, the particles and
+the cause) or, when the recipe says ``rollout.guard.on_violation: clamp``, puts the
+particles back and records what it did.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .contracts import Scene
+from .errors import RolloutDiverged
+from .recipe import RolloutGuardSpec
+
+SHOWN_PARTICLES = 5
+"""Particle indices listed in a message before the count takes over."""
+
+
+@dataclass(frozen=True)
+class GuardViolation:
+    """What one check found: the step (0-based, frame ``step + C``), the particles and the cause."""
+
+    step: int
+    frame: int
+    particles: np.ndarray
+    cause: str
+
+    def describe(self) -> str:
+        shown = ", ".join(str(int(i)) for i in self.particles[:SHOWN_PARTICLES])
+        more = f", ... ({len(self.particles)} in all)" if len(self.particles) > SHOWN_PARTICLES else ""
+        return f"step {self.step} (frame {self.frame}): {len(self.particles)} particle(s) [{shown}{more}] {self.cause}"
+
+
+class RolloutGuard:
+    """Checks each predicted frame of a rollout.
+
+    Args:
+        scene: bounds (the walls) and periodic dimensions (no walls there: wrapped positions never leave).
+        margin: distance (dataset length units) a particle may pass a wall; None: no domain check, only
+            non-finite positions are caught (an untrained or early model may fling particles far out,
+            and that is a result to evaluate, not an error).
+        on_violation: ``stop`` raises RolloutDiverged; ``clamp`` replaces non-finite positions by the
+            particle's previous position and puts escaped particles back onto the wall they passed.
+    """
+
+    def __init__(self, scene: Scene, margin: float | None = None, on_violation: str = "stop"):
+        if on_violation not in ("stop", "clamp"):
+            raise ValueError(f"on_violation must be 'stop' or 'clamp', got {on_violation!r}")
+        bounds = torch.tensor(scene.bounds, dtype=torch.float64)
+        self.walled = [k for k in range(scene.dim) if k not in scene.periodic_dims]
+        self.lower = bounds[self.walled, 0]
+        self.upper = bounds[self.walled, 1]
+        self.margin = math.inf if margin is None else float(margin)
+        self.on_violation = on_violation
+        self.history = scene.history
+
+    @classmethod
+    def from_spec(cls, scene: Scene, spec: RolloutGuardSpec) -> "RolloutGuard":
+        return cls(scene, spec.margin, spec.on_violation)
+
+    def check(self, step: int, position: Tensor, previous: Tensor, trajectory: str = "") -> tuple[Tensor, list[GuardViolation]]:
+        """Check the predicted frame ``position`` (N, d); ``previous`` (N, d) is the frame before it.
+
+        Returns the frame to continue from (``position`` itself when nothing was wrong)
+        and the violations found (empty when none). Raises RolloutDiverged under ``stop``.
+        """
+        non_finite = ~torch.isfinite(position).all(dim=-1)
+        excess = self._beyond_walls(position)
+        # NaN compares False: a non-finite particle is reported once, as non-finite.
+        escaped = (excess > self.margin) & ~non_finite
+        if not bool(non_finite.any() or escaped.any()):
+            return position, []
+        frame = step + self.history
+        violations = []
+        if non_finite.any():
+            violations.append(GuardViolation(step, frame, _indices(non_finite), "have non-finite positions (NaN or Inf)"))
+        if escaped.any():
+            farthest = int(torch.argmax(torch.where(escaped, excess, torch.zeros_like(excess))))
+            cause = (f"left the domain by more than the margin {self.margin:g} "
+                     f"(farthest: particle {farthest}, {float(excess[farthest]):.4g} beyond a wall)")
+            violations.append(GuardViolation(step, frame, _indices(escaped), cause))
+        if self.on_violation == "stop":
+            first = violations[0]
+            where = f"rollout of trajectory {trajectory!r}" if trajectory else "rollout"
+            raise RolloutDiverged(
+                f"{where} stopped at " + "; ".join(v.describe() for v in violations)
+                + ". Nothing was written for this trajectory; set rollout.guard.on_violation: clamp to continue "
+                "with the particles put back",
+                trajectory=trajectory, step=step, particles=first.particles.tolist(), cause=first.cause,
+            )
+        return self._clamped(position, previous, non_finite, escaped), violations
+
+    def _beyond_walls(self, position: Tensor) -> Tensor:
+        """(N,) largest distance by which a particle is outside a wall (0 inside)."""
+        if not self.walled:
+            return position.new_zeros(position.shape[0])
+        walled = position[:, self.walled]
+        lower, upper = self.lower.to(position), self.upper.to(position)
+        outside = torch.maximum(lower - walled, walled - upper).clamp(min=0)
+        return outside.max(dim=-1).values
+
+    def _clamped(self, position: Tensor, previous: Tensor, non_finite: Tensor, escaped: Tensor) -> Tensor:
+        position = torch.where(non_finite[:, None], previous, position)
+        if escaped.any():
+            walled = position[:, self.walled]
+            onto_walls = torch.minimum(torch.maximum(walled, self.lower.to(position)), self.upper.to(position))
+            position[:, self.walled] = torch.where(escaped[:, None], onto_walls, walled)
+        return position
+
+
+def _indices(mask: Tensor) -> np.ndarray:
+    return mask.nonzero()[:, 0].cpu().numpy()

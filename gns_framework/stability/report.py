@@ -1,0 +1,170 @@
+"""The stability report: every stiff and extreme case with its outcome and figures (``gns stability``).
+
+Each case is a function returning :class:`Row` objects; :func:`run_report` runs
+them all (well under a minute on one CPU core) and :func:`format_table` prints them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..data.trajectory import Trajectory
+from ..errors import RolloutDiverged
+from ..plugins import Registry
+from ..rollout import rollout
+from ..rollout_guard import RolloutGuard
+from .extreme import CASES, check_finite, tiny_simulator
+from .measure import (
+    collide,
+    collision_dt_limit,
+    energy_record,
+    explicit_euler_horizon_limit,
+    stability_limit,
+)
+from .problems import RepulsiveCollision, SpringChain
+
+CHAIN = SpringChain(num_masses=32, stiffness=1e6)
+"""The stiff chain of the report: 32 unit masses, k = 1e6 (omega_max = 2000 rad per unit time)."""
+COLLISION = RepulsiveCollision(closest_approach=0.5)
+"""The near-collision of the report: turning at half sigma, 4096 epsilon deep into the r^-12 wall."""
+LIMIT_STEPS, LIMIT_GROWTH = 2000, 1e8
+DRIFT_STEPS = 10_000
+SYMPLECTIC = ("semi_implicit_euler", "velocity_verlet")
+PHYSICAL = (*SYMPLECTIC, "explicit_euler")
+OTHER_PROCESSORS = ("shared_interaction_network", "graph_attention", "egnn")
+
+
+@dataclass(frozen=True)
+class Row:
+    group: str
+    case: str
+    outcome: str
+    figures: str
+
+
+def chain_limits(registry: Registry) -> Iterator[Row]:
+    theory = 2 / CHAIN.highest_frequency
+    for name in PHYSICAL:
+        advance = registry.get("integrator", name).advance
+        if name == "explicit_euler":
+            expected = explicit_euler_horizon_limit(CHAIN, LIMIT_STEPS, LIMIT_GROWTH)
+            found = stability_limit(advance, CHAIN, 1e-4 * theory, theory, LIMIT_STEPS, LIMIT_GROWTH)
+            outcome = "unstable for every dt" if found.dt >= expected else "FAIL: below the one-mode bound"
+            figures = (f"no limit; {LIMIT_GROWTH:.0e}x energy in {LIMIT_STEPS} steps at dt = {found.dt:.4g} "
+                       f"(omega_max dt = {found.dt * CHAIN.highest_frequency:.3g}; one-mode bound {expected:.4g})")
+        else:
+            found = stability_limit(advance, CHAIN, 1e-3 * theory, 2 * theory, LIMIT_STEPS, LIMIT_GROWTH)
+            error = found.dt / theory - 1
+            outcome = "limit as theory" if abs(error) < 1e-4 else "FAIL: limit differs from theory"
+            figures = f"dt_max = {found.dt:.6g} (theory 2/omega_max = {theory:.6g}, {error:+.1e})"
+        yield Row("spring chain N=32 k=1e6: dt limit", name, outcome, figures)
+
+
+def chain_drift(registry: Registry) -> Iterator[Row]:
+    for omega_dt in (0.1, 1.0):
+        dt = omega_dt / CHAIN.highest_frequency
+        for name in PHYSICAL:
+            record = energy_record(registry.get("integrator", name).advance, CHAIN, dt, DRIFT_STEPS)
+            if not record.finite:
+                outcome, figures = "diverged", f"energy non-finite at step {record.first_non_finite_step}"
+            else:
+                bounded = name in SYMPLECTIC and abs(record.drift) < 0.1 * max(record.max_error, 1e-12) + 1e-9
+                outcome = "bounded, no drift" if bounded else "energy grows"
+                figures = f"max |dE/E0| = {record.max_error:.3g}, drift {record.drift:+.2g}"
+            yield Row(f"spring chain: {DRIFT_STEPS} steps, omega_max dt = {omega_dt}", name, outcome, figures)
+
+
+def near_collision(registry: Registry) -> Iterator[Row]:
+    omega = COLLISION.contact_frequency
+    for name in PHYSICAL:
+        advance = registry.get("integrator", name).advance
+        limit = collision_dt_limit(advance, COLLISION)
+        fine = collide(advance, COLLISION, 0.1 / omega)
+        coarse = collide(advance, COLLISION, 30 / omega)
+        outcome = "tunnels at 30/omega" if coarse.passed_through else "no tunnelling at 30/omega"
+        figures = (f"1% energy error at dt = {limit * omega:.3g}/omega_contact; "
+                   f"|dE/E0| = {fine.energy_error:.2g} at 0.1/omega")
+        yield Row("near-collision r^-12, r_min = sigma/2", name, outcome, figures)
+    yield Row("near-collision r^-12, r_min = sigma/2", "velocity_euler", "n/a",
+              "no physical form: it needs a velocity law, not a force law")
+
+
+def _extreme_row(simulator, case: str, dim: int, dtype: torch.dtype, label: str) -> Row:
+    outcome = check_finite(simulator, CASES[case](dim, torch.Generator().manual_seed(0)), dtype)
+    result = "finite" if outcome.finite else "NaN/Inf in " + ", ".join(outcome.failures)
+    figures = (f"{outcome.num_edges} edges, up to {outcome.max_neighbours} neighbours, "
+               f"max |prediction| {outcome.max_abs_prediction:.3g}")
+    return Row(f"learned simulator, {label}", f"{case}, {dim}D, {str(dtype).removeprefix('torch.')}", result, figures)
+
+
+def extreme_inputs(registry: Registry) -> Iterator[Row]:
+    for dim in (2, 3):
+        simulator = tiny_simulator(registry, dim)
+        zero_std = tiny_simulator(registry, dim, zero_std=True)
+        for dtype in (torch.float32, torch.bfloat16):
+            for case in CASES:
+                yield _extreme_row(simulator, case, dim, dtype, "interaction_network")
+            yield _extreme_row(zero_std, "coincident particles", dim, dtype, "interaction_network, zero std")
+    for processor in OTHER_PROCESSORS:
+        simulator = tiny_simulator(registry, 2, processor)
+        rows = [_extreme_row(simulator, case, 2, dtype, processor) for case in CASES
+                for dtype in (torch.float32, torch.bfloat16)]
+        finite = sum(row.outcome == "finite" for row in rows)
+        failed = [row.case for row in rows if row.outcome != "finite"]
+        yield Row(f"learned simulator, {processor}", "every case, 2D, float32 and bfloat16",
+                  f"{finite}/{len(rows)} finite", "failed: " + "; ".join(failed) if failed else "")
+
+
+def _resting_trajectory(dim: int) -> Trajectory:
+    grid = np.stack(np.meshgrid(*[np.linspace(0.3, 0.7, 3)] * dim, indexing="ij"), -1).reshape(-1, dim)
+    position = np.repeat(grid[None].astype(np.float32), 12, axis=0)
+    return Trajectory(position, np.full(len(grid), 5, dtype=np.int64), key="resting")
+
+
+def rollout_guard(registry: Registry) -> Iterator[Row]:
+    """A model sabotaged to predict NaN, and one that flings particles out, under stop and clamp."""
+    trajectory = _resting_trajectory(2)
+    sabotage: dict[str, Callable] = {
+        "NaN prediction": lambda sim: sim.output_stats.mean.fill_(math.nan),
+        "particles flung out": lambda sim: sim.output_stats.mean.fill_(0.5),
+    }
+    for cause, apply in sabotage.items():
+        for mode in ("stop", "clamp"):
+            simulator = tiny_simulator(registry, 2)
+            apply(simulator)
+            guard = RolloutGuard(simulator.scene, margin=0.1, on_violation=mode)
+            try:
+                result = rollout(simulator, trajectory, steps=5, guard=guard)
+            except RolloutDiverged as exc:
+                yield Row("rollout guard (margin 0.1)", f"{cause}, {mode}", f"stopped at step {exc.step}",
+                          f"{len(exc.particles)} particle(s) named: {exc.cause}")
+                continue
+            finite = bool(np.isfinite(result.predicted).all())
+            first = result.guard_violations[0] if result.guard_violations else None
+            outcome = f"clamped {len(result.guard_violations)}x, output finite" if finite else "FAIL: non-finite output"
+            figures = first.describe() if first else "no violation detected"
+            yield Row("rollout guard (margin 0.1)", f"{cause}, {mode}", outcome, figures)
+
+
+SECTIONS: tuple[Callable[[Registry], Iterator[Row]], ...] = (
+    chain_limits, chain_drift, near_collision, extreme_inputs, rollout_guard,
+)
+
+
+def run_report(registry: Registry, sections=SECTIONS) -> Iterator[Row]:
+    """Every row of every section, as it is measured."""
+    for section in sections:
+        yield from section(registry)
+
+
+def failed(row: Row) -> bool:
+    return row.outcome.startswith("FAIL") or row.outcome.startswith("NaN")
+
+
+def format_row(row: Row, widths: tuple[int, int, int] = (48, 42, 28)) -> str:
+    return f"{row.group:<{widths[0]}} {row.case:<{widths[1]}} {row.outcome:<{widths[2]}} {row.figures}"
