@@ -191,7 +191,7 @@ def test_checkpoint_with_pickled_code_is_refused_without_running_it(tmp_path):
 
 
 def test_rollout_of_a_checkpoint_on_data_of_another_dimension_is_refused(run_dir, tmp_path, capsys):
-    from gns_framework.demo.soft_spheres import write_synthetic_dataset
+    from synthetic import write_synthetic_dataset
 
     data3d = write_synthetic_dataset(tmp_path / "d3", train=1, valid=0, test=1, dim=3, frames=8)
     out = tmp_path / "rollouts"

@@ -9,7 +9,7 @@ import torch
 
 from ..data.metadata import DatasetMetadata
 from ..data.trajectory import Trajectory
-from ..errors import DatasetError
+from ..errors import DatasetError, RolloutDiverged
 from ..loading import LoadedModel
 from ..plugins import Registry
 from ..rollout import rollout
@@ -31,7 +31,11 @@ def learned_candidate(model: LoadedModel, name: str, device: torch.device) -> Ca
         trajectory = Trajectory(
             np.concatenate([case.initial_positions, case.ground_truth]), case.particle_type, case.material_property, key=case.key
         )
-        return Prediction(rollout(model.simulator, trajectory, device=device).predicted)
+        try:
+            return Prediction(rollout(model.simulator, trajectory, device=device).predicted)
+        except RolloutDiverged:
+            # A diverged model is a result: the report counts it as diverged with infinite error.
+            return Prediction(np.full_like(case.ground_truth, np.nan))
 
     return Candidate(name, "learned", simulate, settings=f"{model.path.name} (step {model.step})", device=str(device))
 
