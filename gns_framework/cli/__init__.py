@@ -1,7 +1,7 @@
 """The ``gns`` command line. Each subcommand lives in its own module of this package.
 
-A command module defines ``HELP`` (one line), ``add_arguments(parser)`` and
-``run(args) -> int``. Modules are imported only when their command runs (or for
+A command module defines ``add_arguments(parser)`` and ``run(args) -> int``; its
+one-line help is its entry in :data:`COMMANDS`. Modules are imported only when their command runs (or for
 ``--help``), so ``gns --help`` stays fast and imports no heavy optional package.
 """
 

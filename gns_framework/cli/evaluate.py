@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from ..errors import GnsError
+from .arguments import positive_int
 
 
 def _scales(text: str) -> list[float]:
@@ -18,23 +19,16 @@ def _scales(text: str) -> list[float]:
     return values
 
 
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text}")
-    return value
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoints", nargs="+", type=Path, metavar="CHECKPOINT", help="trained models to compare")
     parser.add_argument("--dataset", type=Path, help="dataset folder (default: the first model's)")
     parser.add_argument("--split", default="test", help="split to evaluate on (default test)")
-    parser.add_argument("--trajectories", type=_positive, help="use only the first K trajectories")
+    parser.add_argument("--trajectories", type=positive_int, help="use only the first K trajectories")
     parser.add_argument("--out", type=Path, default=Path("runs/evaluation"), help="report folder")
     parser.add_argument("--grid-scales", type=_scales, default=[0.5, 1.0], help="simulator grid resolutions relative to the data's (default 0.5,1)")
     parser.add_argument("--substep-scales", type=_scales, default=[1.0], help="simulator substeps relative to the data's (default 1)")
     parser.add_argument("--no-simulator", action="store_true", help="compare learned models only")
-    parser.add_argument("--repeats", type=_positive, default=3, help="timed runs per case; the median counts (default 3)")
+    parser.add_argument("--repeats", type=positive_int, default=3, help="timed runs per case; the median counts (default 3)")
     parser.add_argument("--warmup", type=int, default=1, help="untimed runs first (default 1)")
     parser.add_argument("--error-metric", default="sinkhorn_final_pct", help="metric plotted against run time")
     parser.add_argument("--device", default="auto", help="device of the learned models")

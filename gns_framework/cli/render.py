@@ -6,21 +6,13 @@ import argparse
 import sys
 from pathlib import Path
 
-HELP = "write VTK frames and a prediction-vs-truth GIF of a rollout file"
-
+from .arguments import positive_int
 
 def _gif_path(value: str) -> Path:
     path = Path(value)
     if path.suffix.lower() != ".gif":
         raise argparse.ArgumentTypeError(f"{value}: the animation is written as .gif")
     return path
-
-
-def _positive(value: str) -> int:
-    number = int(value)
-    if number < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
-    return number
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,8 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="folder for predicted/ and ground_truth/ frames and their .pvd collections",
     )
     parser.add_argument("--gif", type=_gif_path, metavar="FILE", help="animation, prediction beside ground truth")
-    parser.add_argument("--every", type=_positive, default=1, metavar="K", help="animate every K-th frame (default 1)")
-    parser.add_argument("--fps", type=_positive, default=20, help="frames per second of the GIF (default 20)")
+    parser.add_argument("--every", type=positive_int, default=1, metavar="K", help="animate every K-th frame (default 1)")
+    parser.add_argument("--fps", type=positive_int, default=20, help="frames per second of the GIF (default 20)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -13,17 +13,17 @@ from pathlib import Path
 
 import numpy as np
 
-from gns_framework.contracts import Dataset, Params
+from gns_framework.contracts import Params
 from gns_framework.data.atomic import atomic_path, write_text_atomic
 from gns_framework.data.lazy import TrajectorySequence
-from gns_framework.data.metadata import DatasetMetadata, load_metadata
+from gns_framework.data.metadata import DatasetMetadata
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
 
-from .npz_common import open_npz, read_member
+from .npz_common import NpzSplitsDataset, open_npz, read_member
 
 
-class GeoelementsNpzDataset(Dataset):
+class GeoelementsNpzDataset(NpzSplitsDataset):
     """Datasets written by geoelements/gns (e.g. its Sand, WaterDrop conversions)."""
 
     name = "npz"
@@ -31,12 +31,6 @@ class GeoelementsNpzDataset(Dataset):
 
     class Params(Params):
         allow_pickle: bool = False
-
-    def metadata(self) -> DatasetMetadata:
-        return load_metadata(self.path)
-
-    def has_split(self, name: str) -> bool:
-        return (self.path / f"{name}.npz").is_file()
 
     def split(self, name: str) -> Sequence[Trajectory]:
         file = self.path / f"{name}.npz"

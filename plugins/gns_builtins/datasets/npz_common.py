@@ -1,4 +1,4 @@
-"""Shared reading of ``<split>.npz`` files: clear errors for missing or damaged archives."""
+"""Layouts with one ``<split>.npz`` per split: clear errors for missing or damaged archives."""
 
 from __future__ import annotations
 
@@ -7,7 +7,19 @@ from pathlib import Path
 
 import numpy as np
 
+from gns_framework.contracts import Dataset
+from gns_framework.data.metadata import DatasetMetadata, load_metadata
 from gns_framework.errors import DatasetError
+
+
+class NpzSplitsDataset(Dataset):
+    """Base of layouts storing ``metadata.json`` beside one ``<split>.npz`` per split."""
+
+    def metadata(self) -> DatasetMetadata:
+        return load_metadata(self.path)
+
+    def has_split(self, name: str) -> bool:
+        return (self.path / f"{name}.npz").is_file()
 
 
 def open_npz(path: Path, allow_pickle: bool = False) -> np.lib.npyio.NpzFile:

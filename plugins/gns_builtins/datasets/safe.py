@@ -16,19 +16,19 @@ from pathlib import Path
 
 import numpy as np
 
-from gns_framework.contracts import Dataset, Params
+from gns_framework.contracts import Params
 from gns_framework.data.atomic import atomic_path, write_text_atomic
 from gns_framework.data.lazy import TrajectorySequence
-from gns_framework.data.metadata import DatasetMetadata, load_metadata
+from gns_framework.data.metadata import DatasetMetadata
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
 
-from .npz_common import open_npz, read_member
+from .npz_common import NpzSplitsDataset, open_npz, read_member
 
 FIELDS = ("position", "particle_type", "material_property", "step_context")
 
 
-class SafeDataset(Dataset):
+class SafeDataset(NpzSplitsDataset):
     """Pickle-free layout that every tool can read with ``numpy.load(allow_pickle=False)``."""
 
     name = "safe"
@@ -36,12 +36,6 @@ class SafeDataset(Dataset):
 
     class Params(Params):
         pass
-
-    def metadata(self) -> DatasetMetadata:
-        return load_metadata(self.path)
-
-    def has_split(self, name: str) -> bool:
-        return (self.path / f"{name}.npz").is_file()
 
     def split(self, name: str) -> Sequence[Trajectory]:
         file = self.path / f"{name}.npz"
