@@ -1,12 +1,16 @@
-"""``gns train``: train a learned simulator from a recipe (resumable)."""
+"""``gns train``: train a learned simulator from a recipe (resumable; multi-process under torchrun)."""
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from ..plugins import load_registry
-from ..recipe import load_recipe
+from ..recipe import Recipe, load_recipe
+from ..training import distributed
+from ..training.distributed import Processes, processes_from_environment
+from ..training.tracking import JsonlTracker, Tracker, TrackerGroup
 from ..training.trainer import Trainer
 from .arguments import positive_int
 
@@ -21,10 +25,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         nargs="?",
         const="auto",
         metavar="CHECKPOINT",
-        help="continue from CHECKPOINT, or with no value from the newest good checkpoint of the run folder",
+        help="continue from CHECKPOINT, or with no value from the newest good checkpoint of the run folder "
+        "(automatic after an elastic restart under torchrun)",
     )
     parser.add_argument("--device", help="cpu, cuda or cuda:N (overrides training.device)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    tracking = parser.add_argument_group("tracking (MLflow; rank 0 only)")
+    tracking.add_argument(
+        "--tracking-uri",
+        help="MLflow tracking URI, e.g. http://host:5000 (default: $MLFLOW_TRACKING_URI, else sqlite:///mlflow.db "
+        "in the working directory, created on first use)",
+    )
+    tracking.add_argument("--experiment", help="MLflow experiment name (default: the recipe's name)")
+    tracking.add_argument(
+        "--no-tracking", action="store_true", help="no MLflow; metrics go to <run>/metrics.jsonl only"
+    )
+
+
+def open_tracker(args: argparse.Namespace, recipe: Recipe, run_dir: Path, resume: bool) -> Tracker:
+    """The run folder's metrics file, plus an MLflow run unless tracking is off or mlflow is missing."""
+    from ..training import mlflow_tracker
+
+    local = JsonlTracker(run_dir)
+    if args.no_tracking:
+        return local
+    if args.tracking_uri is None and not mlflow_tracker.mlflow_available():
+        print("mlflow is not installed: metrics go to the run folder only (pip install 'gns-framework[tracking]')")
+        return local
+    uri = args.tracking_uri or mlflow_tracker.default_tracking_uri()
+    try:
+        mlflow = mlflow_tracker.open_mlflow_tracker(run_dir, uri, args.experiment or recipe.name, resume)
+    except BaseException:
+        local.close(failed=True)
+        raise
+    print(f"tracking run {mlflow.run_id} in {uri}")
+    return TrackerGroup([local, mlflow])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -35,15 +70,36 @@ def run(args: argparse.Namespace) -> int:
     if args.device is not None:
         overrides.setdefault("training", {})["device"] = args.device
     recipe = load_recipe(args.recipe, registry, overrides)
-    trainer = Trainer(recipe, registry, run_dir=args.out, dataset_path=args.dataset, progress=not args.no_progress)
+    processes = processes_from_environment()
+    # After an elastic restart torchrun starts every worker afresh: continue from the last checkpoint.
+    resume = args.resume if args.resume is not None else ("auto" if processes.restart_count > 0 else None)
+    run_dir = args.out if args.out is not None else recipe.run_dir
+    tracker = open_tracker(args, recipe, run_dir, resume is not None) if processes.is_chief else None
     try:
-        if args.resume is not None:
-            resumed = trainer.resume(None if args.resume == "auto" else args.resume)
-            print(f"resumed from {resumed} at step {trainer.step}" if resumed else "no checkpoint to resume from; starting at step 0")
-        trainer.train()
-        final = trainer.validate()
+        trainer = Trainer(
+            recipe, registry, run_dir=run_dir, dataset_path=args.dataset, processes=processes, tracker=tracker,
+            progress=not args.no_progress,
+        )
+        return _train(trainer, processes, resume)
+    except BaseException:
+        if tracker is not None:
+            tracker.close(failed=True)
+        raise
     finally:
-        trainer.close()
-    summary = ", ".join(f"{k} {v:.4g}" for k, v in final.items())
-    print(f"trained {recipe.name} to step {trainer.step}; {summary}; checkpoints in {trainer.checkpoint_dir}")
+        distributed.stop()
+
+
+def _train(trainer: Trainer, processes: Processes, resume: str | None) -> int:
+    say = print if processes.is_chief else (lambda *a, **k: None)
+    if resume is not None:
+        resumed = trainer.resume(None if resume == "auto" else resume)
+        say(f"resumed from {resumed} at step {trainer.step}" if resumed else "no checkpoint to resume from; starting at step 0")
+    if processes.distributed:
+        say(f"training on {processes.world_size} processes ({trainer.device.type})")
+    trainer.train()
+    final = trainer.validate()
+    trainer.close()
+    summary = "".join(f", {k} {v:.4g}" for k, v in final.items())
+    say(f"trained {trainer.recipe.name} to step {trainer.step}{summary}; checkpoints in {trainer.checkpoint_dir}")
+    sys.stdout.flush()
     return 0

@@ -25,17 +25,23 @@ class WindowIndex:
     def __len__(self) -> int:
         return len(self.pairs)
 
+    def example(self, index: int) -> ParticleBatch:
+        trajectory, start = self.pairs[index]
+        return window(self.trajectories[trajectory], int(start), self.history)
+
     def batch(self, indices: Sequence[int]) -> ParticleBatch:
-        return collate([window(self.trajectories[t], s, self.history) for t, s in self.pairs[list(indices)]])
+        return collate([self.example(i) for i in indices])
 
 
 class WindowOrder:
-    """Which windows each process trains on at each step.
+    """Which windows each process trains on at each step: a distributed sampler driven by the step.
 
     Windows are shuffled once per epoch with a generator seeded by (seed, epoch);
     step ``s`` takes the global positions ``[s*G, (s+1)*G)`` of the concatenated
     epochs (G = batch size x world size) and process ``rank`` its own B of them, so
-    processes see disjoint shards and a resumed run continues with the same data.
+    processes see disjoint shards of every epoch. This is what a DistributedSampler
+    with ``set_epoch`` gives, but derived from the step alone, so a run resumed in
+    the middle of an epoch continues with exactly the data it would have seen.
     """
 
     def __init__(self, num_windows: int, batch_size: int, seed: int, rank: int = 0, world_size: int = 1):
@@ -57,13 +63,24 @@ class WindowOrder:
     def epoch_of(self, step: int) -> int:
         return step * self.batch_size * self.world_size // self.num_windows
 
-    def indices(self, step: int) -> list[int]:
+    def positions(self, step: int) -> range:
+        """This process's positions in the global stream of windows at ``step``."""
         first = (step * self.world_size + self.rank) * self.batch_size
-        positions = range(first, first + self.batch_size)
-        return [int(self.permutation(p // self.num_windows)[p % self.num_windows]) for p in positions]
+        return range(first, first + self.batch_size)
+
+    def window_at(self, position: int) -> int:
+        return int(self.permutation(position // self.num_windows)[position % self.num_windows])
+
+    def indices(self, step: int) -> list[int]:
+        return [self.window_at(p) for p in self.positions(step)]
 
 
-def step_generator(seed: int, rank: int, step: int) -> torch.Generator:
-    """Noise generator of one (process, step): independent streams, reproducible on resume."""
-    state = np.random.SeedSequence([seed, rank, step]).generate_state(2, dtype=np.uint32)
+def noise_generator(seed: int, position: int) -> torch.Generator:
+    """Noise generator of the window at ``position`` of the global stream.
+
+    Keyed by the stream position rather than by (rank, step), so every rank draws
+    independent noise and a run on W processes of B windows draws exactly the noise
+    of one process with W x B windows; resuming reproduces it too.
+    """
+    state = np.random.SeedSequence([seed, position]).generate_state(2, dtype=np.uint32)
     return torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))

@@ -1,4 +1,7 @@
-"""Where training metrics go. The default appends JSON lines to ``<run>/metrics.jsonl``."""
+"""Where training metrics go. The default appends JSON lines to ``<run>/metrics.jsonl``.
+
+Only rank 0 of a distributed run tracks (see distributed.py).
+"""
 
 from __future__ import annotations
 
@@ -15,7 +18,7 @@ class Tracker(Protocol):
 
     def log_artifact(self, path: Path) -> None: ...
 
-    def close(self) -> None: ...
+    def close(self, failed: bool = False) -> None: ...
 
 
 class JsonlTracker:
@@ -36,8 +39,31 @@ class JsonlTracker:
     def log_artifact(self, path: Path) -> None:
         """Artifacts already live in the run folder."""
 
-    def close(self) -> None:
+    def close(self, failed: bool = False) -> None:
         self._metrics.close()
+
+
+class TrackerGroup:
+    """Sends everything to several trackers (the run folder's JSON lines and MLflow, say)."""
+
+    def __init__(self, trackers: list[Tracker]):
+        self.trackers = trackers
+
+    def log_params(self, params: dict) -> None:
+        for tracker in self.trackers:
+            tracker.log_params(params)
+
+    def log_metrics(self, metrics: dict[str, float], step: int) -> None:
+        for tracker in self.trackers:
+            tracker.log_metrics(metrics, step)
+
+    def log_artifact(self, path: Path) -> None:
+        for tracker in self.trackers:
+            tracker.log_artifact(path)
+
+    def close(self, failed: bool = False) -> None:
+        for tracker in self.trackers:
+            tracker.close(failed)
 
 
 def read_metrics(run_dir: Path) -> list[dict]:

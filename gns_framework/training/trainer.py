@@ -10,16 +10,23 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+import yaml
+
 from ..checkpoint import checkpoint_name, latest_good_checkpoint, load_checkpoint, prune_checkpoints, save_checkpoint
-from ..data.windows import WindowIndex, WindowOrder, step_generator
-from ..errors import CheckpointError
-from ..loss import masked_acceleration_loss
+from ..data.atomic import write_text_atomic
+from ..data.batch import collate
+from ..data.windows import WindowIndex, WindowOrder, noise_generator
+from ..errors import CheckpointError, GnsError
+from ..loss import masked_acceleration_loss, masked_squared_error_sum
 from ..noise import random_walk_noise
 from ..plugins import Registry
 from ..recipe import Recipe
 from ..scene import scene_to_dict
 from ..simulator import build_simulator
+from . import distributed
+from .distributed import Processes
 from .optim import make_optimizer
+from .provenance import git_commit
 from .setup import plugin_versions, prepare_data
 from .tracking import JsonlTracker, Tracker
 
@@ -38,8 +45,14 @@ class Trainer:
         registry: installed components.
         run_dir: output folder (default: the recipe's ``output_dir`` or ``runs/<name>``).
         dataset_path: overrides ``dataset.path``.
-        rank, world_size: this process in a distributed run (1 process by default).
-        tracker: where metrics go (default: ``<run_dir>/metrics.jsonl``).
+        processes: this process's place in a torchrun job (one plain process by
+            default); when distributed, the process group is joined here and the
+            model is wrapped in DistributedDataParallel.
+        tracker: where rank 0's metrics go (default: ``<run_dir>/metrics.jsonl``).
+
+    ``simulator`` is the bare model (checkpoints, validation); ``model`` is what
+    training calls, the DDP wrapper when distributed, so its forward averages the
+    gradients over the ranks.
     """
 
     def __init__(
@@ -48,8 +61,7 @@ class Trainer:
         registry: Registry,
         run_dir: str | Path | None = None,
         dataset_path: str | Path | None = None,
-        rank: int = 0,
-        world_size: int = 1,
+        processes: Processes | None = None,
         tracker: Tracker | None = None,
         progress: bool = True,
     ):
@@ -57,24 +69,28 @@ class Trainer:
         self.registry = registry
         self.run_dir = Path(run_dir) if run_dir is not None else recipe.run_dir
         self.checkpoint_dir = self.run_dir / "checkpoints"
-        self.rank = rank
-        self.world_size = world_size
+        self.processes = processes if processes is not None else Processes()
+        self.rank = self.processes.rank
+        self.world_size = self.processes.world_size
         self.progress = progress
         if recipe.training.threads:
             torch.set_num_threads(recipe.training.threads)
-        self.device = resolve_device(recipe.training.device)
+        self.device = distributed.start(self.processes, resolve_device(recipe.training.device))
 
         self.data = prepare_data(recipe, registry, dataset_path)
         self.windows = WindowIndex(self.data.train, recipe.model.history)
-        self.order = WindowOrder(len(self.windows), recipe.training.batch_size, recipe.seed, rank, world_size)
-        self.validation_batches = self._validation_batches()
+        self.order = WindowOrder(len(self.windows), recipe.training.batch_size, recipe.seed, self.rank, self.world_size)
+        self.validation_batches = self._validation_batches() if self.processes.is_chief else []
 
+        # Same seed on every rank: identical initial weights (DDP would broadcast rank 0's anyway).
         torch.manual_seed(recipe.seed)
         self.simulator = build_simulator(self.data.scene, self.data.metadata, recipe.model, registry).to(self.device)
-        self.model: torch.nn.Module = self.simulator
+        self.model: torch.nn.Module = self.processes.wrap(self.simulator, self.device)
         self.optimizer, self.scheduler = make_optimizer(self.simulator.parameters(), recipe.training.optimizer)
         self.step = 0
-        self.tracker = tracker if tracker is not None else (JsonlTracker(self.run_dir) if rank == 0 else None)
+        self.tracker = None
+        if self.processes.is_chief:
+            self.tracker = tracker if tracker is not None else JsonlTracker(self.run_dir)
 
     def _validation_batches(self):
         valid = self.data.valid
@@ -119,48 +135,84 @@ class Trainer:
             torch.cuda.set_rng_state_all(state["rng"]["cuda"])
 
     def resume(self, checkpoint: str | Path | None = None) -> Path | None:
-        """Resume from ``checkpoint``, or from the newest good one of this run when None."""
-        if checkpoint is not None:
-            path, state = Path(checkpoint), load_checkpoint(checkpoint)
-        else:
-            found = latest_good_checkpoint(self.checkpoint_dir)
-            if found is None:
-                return None
-            path, state = found
+        """Resume from ``checkpoint``, or from the newest good one of this run when None.
+
+        Rank 0 reads the checkpoint and sends it to the other ranks, so every rank
+        resumes from the same state even while older checkpoints are being pruned.
+        """
+        found, error = None, None
+        if self.processes.is_chief:
+            try:
+                if checkpoint is not None:
+                    found = Path(checkpoint), load_checkpoint(checkpoint)
+                else:
+                    found = latest_good_checkpoint(self.checkpoint_dir)
+            except GnsError as exc:
+                error = exc
+        # Every rank must reach the broadcast, so rank 0's error travels with it.
+        found, error = self.processes.broadcast((found, error))
+        if error is not None:
+            raise error
+        if found is None:
+            return None
+        path, state = found
         self.load_state(state, str(path))
         return path
 
     def save(self) -> Path | None:
-        if self.rank != 0:
-            return None
-        path = save_checkpoint(self.checkpoint_dir / checkpoint_name(self.step), self.state())
-        prune_checkpoints(self.checkpoint_dir, self.recipe.training.keep_checkpoints)
+        """Rank 0 writes a checkpoint of the current step; every rank waits until it is on disk."""
+        path = None
+        if self.processes.is_chief:
+            path = save_checkpoint(self.checkpoint_dir / checkpoint_name(self.step), self.state())
+            prune_checkpoints(self.checkpoint_dir, self.recipe.training.keep_checkpoints)
+        self.processes.barrier()
         return path
 
-    def train_step(self) -> float:
-        """One optimiser step on this process's windows of the current step; returns its loss."""
-        batch = self.windows.batch(self.order.indices(self.step))
-        mask = self.simulator.predicted_mask(batch.particle_type.to(self.device))
-        noise = random_walk_noise(
-            batch.position_sequence, self.recipe.model.noise_std, step_generator(self.recipe.seed, self.rank, self.step)
+    def train_step(self) -> tuple[float, int]:
+        """One optimiser step on this process's windows of the current step.
+
+        The loss is the squared error averaged over the predicted particles of the
+        *global* batch (every rank's windows): each rank divides its error sum by the
+        all-reduced particle count and multiplies by the world size, which DDP's
+        gradient averaging divides out again. So W processes of B windows take
+        exactly the step of one process with the same W x B windows, whatever the
+        particle counts of the windows.
+
+        Returns:
+            the global batch's loss and particle count (identical on every rank).
+        """
+        positions = self.order.positions(self.step)
+        examples = [self.windows.example(self.order.window_at(p)) for p in positions]
+        noise = torch.cat(
+            [
+                random_walk_noise(e.position_sequence, self.recipe.model.noise_std, noise_generator(self.recipe.seed, p))
+                for e, p in zip(examples, positions)
+            ]
         )
-        batch = batch.to(self.device)
+        batch = collate(examples).to(self.device)
+        mask = self.simulator.predicted_mask(batch.particle_type)
         noise = noise.to(self.device) * mask[:, None, None]
         prediction, target = self.model(batch, noise)
-        loss = masked_acceleration_loss(prediction, target, mask)
-        if not torch.isfinite(loss):
-            raise FloatingPointError(f"training loss is {loss.item()} at step {self.step}")
+        error_sum = masked_squared_error_sum(prediction, target, mask)
+        particles = torch.tensor(batch.num_particles, dtype=torch.float64, device=self.device)
+        local = torch.stack([error_sum.detach().double(), mask.sum().double(), particles])
+        global_error, global_predicted, global_particles = self.processes.sum(local).tolist()
+        loss = error_sum * self.world_size / max(global_predicted, 1.0)
+        global_loss = global_error / max(global_predicted, 1.0)
+        if not math.isfinite(global_loss):
+            raise FloatingPointError(f"training loss is {global_loss} at step {self.step}")
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
         self.scheduler.step()
         self.step += 1
-        return float(loss.detach())
+        return global_loss, int(global_particles)
 
     @torch.no_grad()
     def validate(self) -> dict[str, float]:
         """One-step loss and next-position MSE on fixed, noise-free windows of the valid split."""
         if not self.validation_batches:
+            # Also the case on every rank but 0: validation is rank 0's, on the bare model.
             return {}
         self.simulator.eval()
         losses, position_errors = [], []
@@ -181,32 +233,52 @@ class Trainer:
         total = steps if steps is not None else self.recipe.training.steps
         spec = self.recipe.training
         losses: list[float] = []
-        if self.tracker is not None and self.step == 0:
-            self.tracker.log_params({"recipe": self.recipe.resolved(), "plugins": plugin_versions(self.recipe, self.registry)})
-        bar = tqdm(total=total, initial=self.step, desc="train", unit="step", disable=not self.progress or self.rank != 0)
-        started, started_step = time.perf_counter(), self.step
+        if self.tracker is not None:
+            self._track_run()
+        bar = tqdm(total=total, initial=self.step, desc="train", unit="step", disable=not self.progress or not self.processes.is_chief)
+        started, started_step, particles = time.perf_counter(), self.step, 0
         self.simulator.train()
+        checkpoint = None
         while self.step < total:
-            loss = self.train_step()
+            loss, step_particles = self.train_step()
             losses.append(loss)
+            particles += step_particles
             bar.update(1)
             bar.set_postfix(loss=f"{loss:.4g}")
             metrics = {}
             if self.step % spec.log_every == 0 or self.step == total:
                 elapsed = time.perf_counter() - started
                 metrics["train_loss"] = float(np.mean(losses[-spec.log_every :]))
-                metrics["steps_per_s"] = (self.step - started_step) / elapsed if elapsed > 0 else math.nan
+                if elapsed > 0:
+                    metrics["steps_per_s"] = (self.step - started_step) / elapsed
+                    metrics["particles_per_s"] = particles / elapsed
                 metrics["lr"] = self.scheduler.get_last_lr()[0]
             if self.step % spec.validate_every == 0 or self.step == total:
                 metrics.update(self.validate())
             if metrics and self.tracker is not None:
                 self.tracker.log_metrics(metrics, self.step)
             if self.step % spec.checkpoint_every == 0 or self.step == total:
-                self.save()
+                checkpoint = self.save()
         bar.close()
+        if checkpoint is not None and self.tracker is not None:
+            self.tracker.log_artifact(checkpoint)
         return losses
 
-    def close(self) -> None:
+    def _track_run(self) -> None:
+        """Parameters and resolved recipe of the run, for the tracker (rank 0)."""
+        self.tracker.log_params(
+            {
+                "recipe": self.recipe.resolved(),
+                "plugins": plugin_versions(self.recipe, self.registry),
+                "git_commit": git_commit(),
+                "world_size": self.world_size,
+            }
+        )
+        recipe_file = self.run_dir / "recipe.yaml"
+        write_text_atomic(recipe_file, yaml.safe_dump(self.recipe.resolved(), sort_keys=False))
+        self.tracker.log_artifact(recipe_file)
+
+    def close(self, failed: bool = False) -> None:
         if self.tracker is not None:
-            self.tracker.close()
+            self.tracker.close(failed)
 

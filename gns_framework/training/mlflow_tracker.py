@@ -1,0 +1,151 @@
+"""An MLflow run as a Tracker (rank 0 only).
+
+mlflow is imported when a tracker is opened, never when this module is imported,
+so ``import gns_framework`` and ``gns --help`` stay light and mlflow stays an
+optional extra (``pip install 'gns-framework[tracking]'``).
+
+The run's id is kept in ``<run_dir>/mlflow_run.json``; a resumed training (``--resume``
+or an elastic restart) goes on logging into the same MLflow run.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+from ..data.atomic import write_text_atomic
+from ..errors import GnsError
+
+RUN_FILE = "mlflow_run.json"
+DEFAULT_DATABASE = "mlflow.db"
+ARTIFACTS_FOLDER = "mlartifacts"
+_PARAMS_PER_REQUEST = 100
+
+
+class TrackingError(GnsError):
+    """The tracking backend is missing or refused the run."""
+
+
+def default_tracking_uri() -> str:
+    """``MLFLOW_TRACKING_URI`` when set, else a SQLite database in the working directory (created on first use)."""
+    return os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{Path.cwd() / DEFAULT_DATABASE}"
+
+
+def mlflow_available() -> bool:
+    try:
+        import mlflow  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _client(tracking_uri: str):
+    try:
+        from mlflow.tracking import MlflowClient
+    except ImportError:
+        raise TrackingError(
+            "MLflow tracking needs mlflow: pip install 'gns-framework[tracking]' (or train with --no-tracking)"
+        ) from None
+    return MlflowClient(tracking_uri)
+
+
+def _local_artifact_root(tracking_uri: str, experiment: str) -> str | None:
+    """Artifacts of a local SQLite store go beside the database, wherever the UI is started from."""
+    prefix = "sqlite:///"
+    if not tracking_uri.startswith(prefix):
+        return None
+    database = Path(tracking_uri[len(prefix) :])
+    return (database.parent / ARTIFACTS_FOLDER / experiment).resolve().as_uri()
+
+
+def experiment_id(client, tracking_uri: str, name: str, create: bool = True) -> str | None:
+    """The id of experiment ``name``; created when missing and ``create``."""
+    found = client.get_experiment_by_name(name)
+    if found is not None:
+        return found.experiment_id
+    if not create:
+        return None
+    return client.create_experiment(name, artifact_location=_local_artifact_root(tracking_uri, name))
+
+
+def flatten(params: dict[str, Any], prefix: str = "") -> dict[str, str]:
+    """Nested mapping -> ``{"a.b.c": "value"}`` with MLflow-safe string values (lists as JSON)."""
+    flat: dict[str, str] = {}
+    for key, value in params.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict) and value:
+            flat.update(flatten(value, f"{name}."))
+        elif isinstance(value, (list, tuple, dict)):
+            flat[name] = json.dumps(value)
+        else:
+            flat[name] = str(value)
+    return flat
+
+
+class MlflowTracker:
+    """Logs params, metrics and artifacts of one training run to an MLflow tracking store.
+
+    Args:
+        tracking_uri: ``sqlite:///path.db``, ``http://host:port`` of an ``mlflow server``, ...
+        experiment: experiment name (created when missing).
+        run_name: shown in the MLflow UI.
+        run_id: continue this existing run instead of starting one.
+    """
+
+    def __init__(self, tracking_uri: str, experiment: str, run_name: str | None = None, run_id: str | None = None):
+        self.client = _client(tracking_uri)
+        from mlflow.entities import Metric, Param
+
+        self._metric, self._param = Metric, Param
+        self.tracking_uri = tracking_uri
+        self.experiment_id = experiment_id(self.client, tracking_uri, experiment)
+        if run_id is not None:
+            self.run_id = run_id
+            self.client.update_run(run_id, status="RUNNING")
+        else:
+            self.run_id = self.client.create_run(self.experiment_id, run_name=run_name).info.run_id
+
+    def log_params(self, params: dict) -> None:
+        """Log ``params`` flattened; MLflow params are immutable, so a resumed run keeps the first value."""
+        logged = self.client.get_run(self.run_id).data.params
+        new = {}
+        for key, value in flatten(params).items():
+            if key not in logged:
+                new[key] = value
+            elif logged[key] != value:
+                warnings.warn(f"MLflow run {self.run_id}: param {key} stays {logged[key]!r} (now {value!r})", stacklevel=2)
+        entries = [self._param(k, v) for k, v in new.items()]
+        for i in range(0, len(entries), _PARAMS_PER_REQUEST):
+            self.client.log_batch(self.run_id, params=entries[i : i + _PARAMS_PER_REQUEST])
+
+    def log_metrics(self, metrics: dict[str, float], step: int) -> None:
+        now = int(time.time() * 1000)
+        entries = [self._metric(k, float(v), now, step) for k, v in metrics.items() if math.isfinite(v)]
+        if entries:
+            self.client.log_batch(self.run_id, metrics=entries)
+
+    def log_artifact(self, path: Path) -> None:
+        self.client.log_artifact(self.run_id, str(path))
+
+    def close(self, failed: bool = False) -> None:
+        self.client.set_terminated(self.run_id, status="FAILED" if failed else "FINISHED")
+
+
+def open_mlflow_tracker(run_dir: Path, tracking_uri: str, experiment: str, resume: bool) -> MlflowTracker:
+    """The MLflow run of ``run_dir``: the one it logged to before when resuming there, else a new one."""
+    record = Path(run_dir) / RUN_FILE
+    if resume and record.is_file():
+        saved = json.loads(record.read_text())
+        if saved.get("tracking_uri") == tracking_uri and saved.get("experiment") == experiment:
+            return MlflowTracker(tracking_uri, experiment, run_id=saved["run_id"])
+    tracker = MlflowTracker(tracking_uri, experiment, run_name=Path(run_dir).name)
+    record.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(
+        record, json.dumps({"tracking_uri": tracking_uri, "experiment": experiment, "run_id": tracker.run_id}) + "\n"
+    )
+    return tracker

@@ -1,0 +1,65 @@
+"""Data-parallel training: distinct shards, identical ranks, and the step of one process on the global batch."""
+
+from __future__ import annotations
+
+import torch
+from conftest import DDP_SNAPSHOTS
+
+from gns_framework.data.windows import WindowOrder
+from gns_framework.plugins import load_registry
+from gns_framework.recipe import validate_recipe
+from gns_framework.training.distributed import backend_for, processes_from_environment
+from gns_framework.training.trainer import Trainer
+
+
+def test_ranks_hold_identical_parameters_equal_to_one_process_on_the_global_batch(ddp_snapshots, ddp_recipe, tmp_path):
+    steps = DDP_SNAPSHOTS[0]
+    rank0, rank1 = ddp_snapshots[0, steps], ddp_snapshots[1, steps]
+    assert rank0["windows"] != rank1["windows"], "both ranks trained on the same windows"
+    for name, value in rank0["params"].items():
+        assert torch.equal(value, rank1["params"][name]), f"{name} differs between ranks after {steps} steps"
+    assert rank0["losses"] == rank1["losses"]
+
+    # One process, batch = both ranks' windows: the uneven particle counts make a
+    # per-rank mean loss differ from the global one, so this checks the weighting too.
+    single = dict(ddp_recipe, training=dict(ddp_recipe["training"], batch_size=2 * ddp_recipe["training"]["batch_size"]))
+    registry = load_registry()
+    trainer = Trainer(validate_recipe(single, registry), registry, run_dir=tmp_path / "single", progress=False)
+    losses = trainer.train(steps)
+    trainer.close()
+    assert sorted(trainer.order.indices(0)) == sorted(rank0["windows"] + rank1["windows"])
+    torch.testing.assert_close(torch.tensor(losses), torch.tensor(rank0["losses"]), rtol=1e-5, atol=1e-7)
+    for name, value in trainer.simulator.state_dict().items():
+        torch.testing.assert_close(value, rank0["params"][name], rtol=1e-5, atol=1e-7, msg=f"{name}: DDP != one process")
+
+
+def test_ranks_stay_identical_over_a_longer_run(ddp_snapshots):
+    steps = DDP_SNAPSHOTS[-1]
+    for name, value in ddp_snapshots[0, steps]["params"].items():
+        assert torch.equal(value, ddp_snapshots[1, steps]["params"][name]), name
+
+
+def test_window_order_gives_each_rank_a_distinct_shard_of_every_epoch():
+    num_windows, batch = 24, 3
+    ranks = [WindowOrder(num_windows, batch, seed=5, rank=r, world_size=2) for r in (0, 1)]
+    steps_per_epoch = num_windows // (batch * 2)
+    for epoch in range(3):
+        seen = [w for step in range(epoch * steps_per_epoch, (epoch + 1) * steps_per_epoch) for o in ranks for w in o.indices(step)]
+        assert sorted(seen) == list(range(num_windows)), f"epoch {epoch} is not one pass over the windows"
+    first, second = (ranks[0].indices(s) for s in (0, steps_per_epoch))
+    assert first != second, "epochs are not reshuffled"
+
+
+def test_processes_come_from_torchrun_environment():
+    env = {"RANK": "3", "WORLD_SIZE": "4", "LOCAL_RANK": "1", "TORCHELASTIC_RESTART_COUNT": "2"}
+    processes = processes_from_environment(env)
+    assert (processes.rank, processes.world_size, processes.local_rank, processes.restart_count) == (3, 4, 1, 2)
+    assert processes.distributed and not processes.is_chief
+    assert processes.device(torch.device("cuda")) == torch.device("cuda", 1)
+    alone = processes_from_environment({})
+    assert not alone.distributed and alone.is_chief and alone.device(torch.device("cuda")) == torch.device("cuda")
+
+
+def test_backend_is_gloo_on_cpu_and_nccl_on_gpu():
+    assert backend_for(torch.device("cpu")) == "gloo"
+    assert backend_for(torch.device("cuda", 0)) == "nccl"
