@@ -21,6 +21,7 @@ from .errors import CheckpointError
 
 FORMAT = "gns-framework/checkpoint-v1"
 _NAME = re.compile(r"^checkpoint-(\d{9})\.pt$")
+_PARTIAL = re.compile(r"^\.checkpoint-\d{9}\.pt\..+\.tmp\.pt$")
 REQUIRED = ("format", "model", "step", "recipe", "scene", "metadata", "plugins")
 
 
@@ -71,9 +72,16 @@ def list_checkpoints(directory: str | Path) -> list[tuple[int, Path]]:
 
 
 def prune_checkpoints(directory: str | Path, keep: int) -> None:
-    """Delete all but the newest ``keep`` checkpoints."""
+    """Delete all but the newest ``keep`` checkpoints, and partial writes a killed process left behind.
+
+    Only the run's single writer (rank 0) may call this: another writer's partial
+    file would look abandoned.
+    """
     for _, path in list_checkpoints(directory)[:-keep]:
         path.unlink(missing_ok=True)
+    for path in Path(directory).glob(".checkpoint-*"):
+        if _PARTIAL.match(path.name):
+            path.unlink(missing_ok=True)
 
 
 def latest_good_checkpoint(directory: str | Path) -> tuple[Path, dict[str, Any]] | None:

@@ -16,7 +16,7 @@ def uneven_dataset(tmp_path_factory) -> Path:
     return write_uneven_dataset(tmp_path_factory.mktemp("uneven") / "data")
 
 
-DDP_SNAPSHOTS = (3, 24)
+DDP_SNAPSHOTS = (3, 40)
 """Steps at which the 2-process run saves each rank's parameters: a short one, and the elastic test's full run."""
 
 

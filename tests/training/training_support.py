@@ -76,3 +76,46 @@ def subprocess_env() -> dict[str, str]:
 
 def gns_command(*args: str) -> list[str]:
     return [sys.executable, "-m", "gns_framework.cli", *args]
+
+
+def last_logged_step(run_dir: Path) -> int:
+    from gns_framework.training.tracking import read_metrics
+
+    logged = read_metrics(run_dir)
+    return logged[-1]["step"] if logged else 0
+
+
+def wait_until(condition, timeout: float, what: str, job=None):
+    """Poll ``condition()`` until it returns a truthy value; fail after ``timeout`` s or if ``job`` ends."""
+    import time
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        found = condition()
+        if found:
+            return found
+        if job is not None and job.poll() is not None:
+            raise AssertionError(f"process ended (exit {job.returncode}) before {what}")
+        time.sleep(0.05)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def child_processes(pid: int) -> list[int]:
+    """Direct children of ``pid``, from /proc (Linux)."""
+    children = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            children.append(int(stat.parent.name))
+    return children
+
+
+def process_environment(pid: int) -> dict[str, str]:
+    try:
+        raw = Path(f"/proc/{pid}/environ").read_bytes()
+    except OSError:
+        return {}
+    return dict(item.split("=", 1) for item in raw.decode(errors="replace").split("\0") if "=" in item)
