@@ -14,7 +14,6 @@ import json
 import math
 import os
 import time
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -54,12 +53,17 @@ def _client(tracking_uri: str):
     return MlflowClient(tracking_uri)
 
 
+def local_database(tracking_uri: str) -> Path | None:
+    """The file of a ``sqlite:///`` tracking URI; None for other stores."""
+    prefix = "sqlite:///"
+    return Path(tracking_uri[len(prefix) :]) if tracking_uri.startswith(prefix) else None
+
+
 def _local_artifact_root(tracking_uri: str, experiment: str) -> str | None:
     """Artifacts of a local SQLite store go beside the database, wherever the UI is started from."""
-    prefix = "sqlite:///"
-    if not tracking_uri.startswith(prefix):
+    database = local_database(tracking_uri)
+    if database is None:
         return None
-    database = Path(tracking_uri[len(prefix) :])
     return (database.parent / ARTIFACTS_FOLDER / experiment).resolve().as_uri()
 
 
@@ -99,9 +103,9 @@ class MlflowTracker:
 
     def __init__(self, tracking_uri: str, experiment: str, run_name: str | None = None, run_id: str | None = None):
         self.client = _client(tracking_uri)
-        from mlflow.entities import Metric, Param
+        from mlflow.entities import Metric, Param, RunTag
 
-        self._metric, self._param = Metric, Param
+        self._metric, self._param, self._tag = Metric, Param, RunTag
         self.tracking_uri = tracking_uri
         self.experiment_id = experiment_id(self.client, tracking_uri, experiment)
         if run_id is not None:
@@ -111,17 +115,20 @@ class MlflowTracker:
             self.run_id = self.client.create_run(self.experiment_id, run_name=run_name).info.run_id
 
     def log_params(self, params: dict) -> None:
-        """Log ``params`` flattened; MLflow params are immutable, so a resumed run keeps the first value."""
+        """Log ``params`` flattened.
+
+        MLflow params cannot change, so a resumed run keeps the values it started
+        with and records each changed one (more ``training.steps``, say) as a tag
+        ``changed.<param>`` = ``"old -> new"``.
+        """
         logged = self.client.get_run(self.run_id).data.params
-        new = {}
-        for key, value in flatten(params).items():
-            if key not in logged:
-                new[key] = value
-            elif logged[key] != value:
-                warnings.warn(f"MLflow run {self.run_id}: param {key} stays {logged[key]!r} (now {value!r})", stacklevel=2)
-        entries = [self._param(k, v) for k, v in new.items()]
+        flat = flatten(params)
+        entries = [self._param(k, v) for k, v in flat.items() if k not in logged]
+        changes = [self._tag(f"changed.{k}", f"{logged[k]} -> {v}") for k, v in flat.items() if logged.get(k, v) != v]
         for i in range(0, len(entries), _PARAMS_PER_REQUEST):
             self.client.log_batch(self.run_id, params=entries[i : i + _PARAMS_PER_REQUEST])
+        for i in range(0, len(changes), _PARAMS_PER_REQUEST):
+            self.client.log_batch(self.run_id, tags=changes[i : i + _PARAMS_PER_REQUEST])
 
     def log_metrics(self, metrics: dict[str, float], step: int) -> None:
         now = int(time.time() * 1000)

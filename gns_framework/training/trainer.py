@@ -236,23 +236,25 @@ class Trainer:
         if self.tracker is not None:
             self._track_run()
         bar = tqdm(total=total, initial=self.step, desc="train", unit="step", disable=not self.progress or not self.processes.is_chief)
-        started, started_step, particles = time.perf_counter(), self.step, 0
+        # Throughput over the optimiser steps alone since the last log (not validation or checkpoints).
+        window_steps, window_particles, window_seconds = 0, 0, 0.0
         self.simulator.train()
         checkpoint = None
         while self.step < total:
+            started = time.perf_counter()
             loss, step_particles = self.train_step()
+            window_seconds += time.perf_counter() - started
+            window_steps, window_particles = window_steps + 1, window_particles + step_particles
             losses.append(loss)
-            particles += step_particles
             bar.update(1)
             bar.set_postfix(loss=f"{loss:.4g}")
             metrics = {}
             if self.step % spec.log_every == 0 or self.step == total:
-                elapsed = time.perf_counter() - started
                 metrics["train_loss"] = float(np.mean(losses[-spec.log_every :]))
-                if elapsed > 0:
-                    metrics["steps_per_s"] = (self.step - started_step) / elapsed
-                    metrics["particles_per_s"] = particles / elapsed
+                metrics["steps_per_s"] = window_steps / window_seconds
+                metrics["particles_per_s"] = window_particles / window_seconds
                 metrics["lr"] = self.scheduler.get_last_lr()[0]
+                window_steps, window_particles, window_seconds = 0, 0, 0.0
             if self.step % spec.validate_every == 0 or self.step == total:
                 metrics.update(self.validate())
             if metrics and self.tracker is not None:

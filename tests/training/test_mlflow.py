@@ -1,0 +1,134 @@
+"""MLflow tracking: rank 0's params, metrics and artifacts in a SQLite store and on an mlflow server; gns compare."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+
+import pytest
+from training_support import free_loopback_port, subprocess_env, tiny_recipe, write_recipe
+
+from gns_framework.checkpoint import checkpoint_name
+from gns_framework.cli import main
+from gns_framework.training.mlflow_tracker import RUN_FILE
+
+mlflow = pytest.importorskip("mlflow")
+
+EXPECTED_METRICS = {"train_loss", "valid_one_step_loss", "valid_one_step_position_mse", "steps_per_s", "particles_per_s", "lr"}
+
+
+def train(recipe_file, run_dir, *extra: str) -> None:
+    assert main(["train", str(recipe_file), "--out", str(run_dir), "--experiment", "tiny-exp", "--no-progress", *extra]) == 0
+
+
+def check_tracked_run(client, run_id: str, steps: int) -> None:
+    run = client.get_run(run_id)
+    params = run.data.params
+    assert params["recipe.model.latent_size"] == "16"
+    assert params["recipe.model.processor.name"] == "interaction_network"
+    assert params["plugins.processor/interaction_network"].startswith("gns-framework ")
+    assert params["world_size"] == "1"
+    assert params["git_commit"]
+    assert EXPECTED_METRICS <= set(run.data.metrics)
+    assert [m.step for m in client.get_metric_history(run_id, "train_loss")][-1] == steps
+    artifacts = {a.path for a in client.list_artifacts(run_id)}
+    assert {"recipe.yaml", checkpoint_name(steps)} <= artifacts
+    assert run.info.status == "FINISHED"
+
+
+def test_training_tracks_to_a_sqlite_store_created_on_first_use_and_compare_reads_it(
+    uneven_dataset, tmp_path, monkeypatch, capsys
+):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    recipe_file = write_recipe(tmp_path / "recipe.yaml", tiny_recipe(uneven_dataset, steps=4))
+    train(recipe_file, tmp_path / "run-a")
+    assert (tmp_path / "mlflow.db").is_file()
+    train(recipe_file, tmp_path / "run-a", "--resume", "--steps", "6")
+    train(recipe_file, tmp_path / "run-b", "--steps", "2")
+
+    client = mlflow.tracking.MlflowClient(f"sqlite:///{tmp_path / 'mlflow.db'}")
+    run_a = json.loads((tmp_path / "run-a" / RUN_FILE).read_text())["run_id"]
+    run_b = json.loads((tmp_path / "run-b" / RUN_FILE).read_text())["run_id"]
+    assert run_a != run_b
+    check_tracked_run(client, run_a, steps=6)  # the resumed training went on in the same MLflow run
+    assert client.get_run(run_a).data.tags["changed.recipe.training.steps"] == "4 -> 6"
+    check_tracked_run(client, run_b, steps=2)
+
+    capsys.readouterr()
+    plot = tmp_path / "compare.png"
+    assert main(["compare", "tiny-exp", "--metrics", "train_loss", "steps_per_s", "--params", "training.steps", "world_size", "--plot", str(plot)]) == 0
+    table = capsys.readouterr().out.splitlines()
+    assert table[0].split() == ["run", "id", "status", "training.steps", "world_size", "train_loss", "steps_per_s"]
+    rows = {line.split()[1]: line.split() for line in table[1:3]}
+    assert rows[run_a[:8]][3] == "4" and rows[run_b[:8]][3] == "2"
+    assert plot.read_bytes().startswith(b"\x89PNG")
+
+
+def test_compare_names_the_choices_for_an_unknown_experiment(tmp_path, uneven_dataset, capsys):
+    database = tmp_path / "store.db"
+    recipe_file = write_recipe(tmp_path / "recipe.yaml", tiny_recipe(uneven_dataset, steps=1))
+    train(recipe_file, tmp_path / "run", "--tracking-uri", f"sqlite:///{database}")
+    assert main(["compare", "tiny-xp", "--tracking-uri", f"sqlite:///{database}"]) == 2
+    assert "no experiment 'tiny-xp'; experiments: Default, tiny-exp" in capsys.readouterr().err
+
+
+def test_import_and_help_never_import_mlflow():
+    code = (
+        "import sys, contextlib, io\n"
+        "import gns_framework, gns_framework.training.trainer, gns_framework.cli as cli\n"
+        "for argv in (['--help'], ['train', '--help'], ['compare', '--help']):\n"
+        "    with contextlib.suppress(SystemExit), contextlib.redirect_stdout(io.StringIO()):\n"
+        "        cli.main(argv)\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'mlflow'))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], env=subprocess_env(), capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "[]"
+
+
+def wait_for_health(url: str, server: subprocess.Popen, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if server.poll() is not None:
+            raise AssertionError(f"mlflow server exited with {server.returncode}: {server.stdout.read()}")
+        try:
+            with urllib.request.urlopen(f"{url}/health", timeout=2) as response:
+                if response.status == 200:
+                    return
+        except (urllib.error.URLError, ConnectionError, TimeoutError):
+            time.sleep(0.25)
+    raise AssertionError(f"mlflow server at {url} not healthy within {timeout} s")
+
+
+def test_training_tracks_to_an_mlflow_server_on_loopback(uneven_dataset, tmp_path):
+    port = free_loopback_port()
+    url = f"http://127.0.0.1:{port}"
+    command = [
+        sys.executable, "-m", "mlflow", "server", "--host", "127.0.0.1", "--port", str(port), "--workers", "1",
+        "--backend-store-uri", f"sqlite:///{tmp_path / 'server.db'}", "--artifacts-destination", str(tmp_path / "artifacts"),
+    ]
+    server = subprocess.Popen(
+        command, env=subprocess_env(), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        start_new_session=True,
+    )
+    try:
+        wait_for_health(url, server, timeout=120)
+        recipe_file = write_recipe(tmp_path / "recipe.yaml", tiny_recipe(uneven_dataset, steps=2))
+        train(recipe_file, tmp_path / "run", "--tracking-uri", url)
+        run_id = json.loads((tmp_path / "run" / RUN_FILE).read_text())["run_id"]
+        check_tracked_run(mlflow.tracking.MlflowClient(url), run_id, steps=2)
+        assert list((tmp_path / "artifacts").rglob("recipe.yaml")), "artifacts did not reach the server's store"
+    finally:
+        os.killpg(server.pid, signal.SIGTERM)
+        try:
+            server.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            os.killpg(server.pid, signal.SIGKILL)
+            server.wait()
