@@ -104,7 +104,13 @@ def start(processes: Processes, device: torch.device) -> torch.device:
     if processes.distributed and not dist.is_initialized():
         if device.type == "cuda":
             torch.cuda.set_device(device)
-        dist.init_process_group(backend=backend_for(device), rank=processes.rank, world_size=processes.world_size)
+        store, _, _ = next(dist.rendezvous("env://", processes.rank, processes.world_size))
+        # torchrun can keep one store across elastic restarts; without a per-attempt prefix a
+        # restarted worker may read a dead worker's address and fail to connect.
+        store = dist.PrefixStore(f"gns/attempt-{processes.restart_count}", store)
+        dist.init_process_group(
+            backend=backend_for(device), store=store, rank=processes.rank, world_size=processes.world_size
+        )
     return device
 
 

@@ -28,6 +28,8 @@ pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="fi
 
 
 def torchrun_command(port: int, *args: str) -> list[str]:
+    # torchrun's default (static) rendezvous keeps one store across restarts: the case
+    # where a restarted worker could find a dead worker's address (see distributed.start).
     return [
         sys.executable, "-m", "torch.distributed.run", "--nnodes", "1", "--nproc-per-node", "2", "--max-restarts", "1",
         "--master-addr", "127.0.0.1", "--master-port", str(port), "--local-addr", "127.0.0.1",
