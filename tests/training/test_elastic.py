@@ -15,7 +15,6 @@ from conftest import DDP_SNAPSHOTS
 from training_support import (
     child_processes,
     free_loopback_port,
-    gns_command,
     process_environment,
     subprocess_env,
     wait_until,
@@ -27,13 +26,28 @@ from gns_framework.checkpoint import checkpoint_name, list_checkpoints, load_che
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds torchrun's workers through /proc")
 
 
-def torchrun_command(port: int, *args: str) -> list[str]:
-    # torchrun's default (static) rendezvous keeps one store across restarts: the case
-    # where a restarted worker could find a dead worker's address (see distributed.start).
+def late_rank0_launcher(folder: Path) -> Path:
+    """`gns` for torchrun's workers, where restarted rank 0 starts late.
+
+    torchrun's default (static) rendezvous keeps one store across restarts, so a
+    restarted rank 1 that looks for rank 0 before rank 0 is up finds the dead rank 0's
+    address unless each attempt has its own keys (see distributed.start).
+    """
+    script = folder / "gns-late-rank0"
+    script.write_text(
+        "#!/bin/sh\n"
+        'if [ "$RANK" = 0 ] && [ "${TORCHELASTIC_RESTART_COUNT:-0}" != 0 ]; then sleep 6; fi\n'
+        f'exec "{sys.executable}" -m gns_framework.cli "$@"\n'
+    )
+    script.chmod(0o755)
+    return script
+
+
+def torchrun_command(port: int, launcher: Path, *args: str) -> list[str]:
     return [
         sys.executable, "-m", "torch.distributed.run", "--nnodes", "1", "--nproc-per-node", "2", "--max-restarts", "1",
-        "--master-addr", "127.0.0.1", "--master-port", str(port), "--local-addr", "127.0.0.1",
-        *gns_command(*args)[1:],
+        "--master-addr", "127.0.0.1", "--master-port", str(port), "--local-addr", "127.0.0.1", "--no-python",
+        str(launcher), *args,
     ]
 
 
@@ -41,7 +55,10 @@ def test_killed_rank_restarts_from_last_checkpoint_and_ends_as_uninterrupted(ddp
     steps, every = DDP_SNAPSHOTS[-1], ddp_recipe["training"]["checkpoint_every"]
     recipe_file = write_recipe(tmp_path / "recipe.yaml", ddp_recipe)
     run_dir = tmp_path / "run"
-    command = torchrun_command(free_loopback_port(), "train", str(recipe_file), "--out", str(run_dir), "--no-tracking", "--no-progress")
+    command = torchrun_command(
+        free_loopback_port(), late_rank0_launcher(tmp_path), "train", str(recipe_file), "--out", str(run_dir),
+        "--no-tracking", "--no-progress",
+    )
     log = tmp_path / "torchrun.log"
     with open(log, "w") as output:
         job = subprocess.Popen(command, env=subprocess_env(), cwd=tmp_path, stdout=output, stderr=subprocess.STDOUT, start_new_session=True)
