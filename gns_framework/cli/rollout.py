@@ -17,6 +17,7 @@ from ..loading import load_trained
 from ..plugins import load_registry
 from ..rollout import rollout, write_rollout
 from ..rollout_guard import RolloutGuard
+from ..training.mlflow_tracker import log_to_recorded_run
 from ..training.setup import open_dataset
 from ..training.trainer import resolve_device
 from .arguments import non_negative_float, positive_int
@@ -56,7 +57,9 @@ def run(args: argparse.Namespace) -> int:
     split_name = args.split or spec.split
     trajectories = dataset.split(split_name)
     count = min(len(trajectories), args.trajectories or spec.trajectories or len(trajectories))
-    out = args.out or args.checkpoint.parent.parent / "rollouts"
+    run_dir = args.checkpoint.parent.parent
+    out = args.out or run_dir / "rollouts"
+    errors = []
     guard = RolloutGuard(
         loaded.simulator.scene,
         args.guard_margin if args.guard_margin is not None else spec.guard.margin,
@@ -72,4 +75,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"{path}: {result.predicted.shape[0]} steps, position MSE {result.position_mse:.4g}{clamped}")
         for violation in result.guard_violations:
             print(f"gns rollout: warning: {path}: clamped {violation.describe()}", file=sys.stderr)
+        errors.append(result.position_mse)
+    if errors:
+        tracked = log_to_recorded_run(run_dir, {f"rollout_position_mse_{split_name}": sum(errors) / len(errors)}, loaded.step)
+        if tracked:
+            print(f"logged rollout_position_mse_{split_name} at step {loaded.step} to MLflow run {tracked}")
     return 0

@@ -156,3 +156,20 @@ def open_mlflow_tracker(run_dir: Path, tracking_uri: str, experiment: str, resum
         record, json.dumps({"tracking_uri": tracking_uri, "experiment": experiment, "run_id": tracker.run_id}) + "\n"
     )
     return tracker
+
+
+def log_to_recorded_run(run_dir: Path, metrics: dict[str, float], step: int) -> str | None:
+    """Add ``metrics`` to the MLflow run that trained ``run_dir``, leaving its status alone.
+
+    Returns the run id, or None when the run was not tracked with MLflow (or mlflow is missing).
+    """
+    record = Path(run_dir) / RUN_FILE
+    if not record.is_file() or not mlflow_available():
+        return None
+    saved = json.loads(record.read_text())
+    from mlflow.entities import Metric
+
+    now = int(time.time() * 1000)
+    entries = [Metric(k, float(v), now, step) for k, v in metrics.items() if math.isfinite(v)]
+    _client(saved["tracking_uri"]).log_batch(saved["run_id"], metrics=entries)
+    return saved["run_id"]
