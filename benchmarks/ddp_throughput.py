@@ -25,10 +25,9 @@ from pathlib import Path
 import torch
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from gns_framework.demo.soft_spheres import write_synthetic_dataset
 
-from tests.synthetic import write_synthetic_dataset  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def free_port() -> int:

@@ -21,9 +21,14 @@ class WindowIndex:
         if not pairs:
             raise ValueError(f"no trajectory has more than history = {history} frames")
         self.pairs = np.asarray(pairs, dtype=np.int64)
+        self._particles = np.asarray([t.num_particles for t in trajectories], dtype=np.int64)
 
     def __len__(self) -> int:
         return len(self.pairs)
+
+    def num_particles(self, index: int) -> int:
+        """Particles of window ``index``, without loading it."""
+        return int(self._particles[self.pairs[index, 0]])
 
     def example(self, index: int) -> ParticleBatch:
         trajectory, start = self.pairs[index]
@@ -63,6 +68,11 @@ class WindowOrder:
     def epoch_of(self, step: int) -> int:
         return step * self.batch_size * self.world_size // self.num_windows
 
+    def step_positions(self, step: int) -> range:
+        """Every process's positions in the global stream of windows at ``step``, in rank order."""
+        size = self.batch_size * self.world_size
+        return range(step * size, (step + 1) * size)
+
     def positions(self, step: int) -> range:
         """This process's positions in the global stream of windows at ``step``."""
         first = (step * self.world_size + self.rank) * self.batch_size
@@ -75,12 +85,12 @@ class WindowOrder:
         return [self.window_at(p) for p in self.positions(step)]
 
 
-def noise_generator(seed: int, position: int) -> torch.Generator:
-    """Noise generator of the window at ``position`` of the global stream.
+def step_generator(seed: int, step: int) -> torch.Generator:
+    """Noise generator of the global batch of one step, reproducible on resume.
 
-    Keyed by the stream position rather than by (rank, step), so every rank draws
-    independent noise and a run on W processes of B windows draws exactly the noise
-    of one process with W x B windows; resuming reproduces it too.
+    Every process draws the whole global batch's noise from it and keeps its own
+    particles' rows, so W processes get exactly the noise of one process training on
+    the same windows. (The 0 is the stream single-process runs have always used.)
     """
-    state = np.random.SeedSequence([seed, position]).generate_state(2, dtype=np.uint32)
+    state = np.random.SeedSequence([seed, 0, step]).generate_state(2, dtype=np.uint32)
     return torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))

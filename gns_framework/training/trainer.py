@@ -8,14 +8,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
-
 import yaml
+from torch import Tensor
+from tqdm import tqdm
 
 from ..checkpoint import checkpoint_name, latest_good_checkpoint, load_checkpoint, prune_checkpoints, save_checkpoint
 from ..data.atomic import write_text_atomic
-from ..data.batch import collate
-from ..data.windows import WindowIndex, WindowOrder, noise_generator
+from ..data.batch import ParticleBatch
+from ..data.windows import WindowIndex, WindowOrder, step_generator
 from ..errors import CheckpointError, GnsError
 from ..loss import masked_acceleration_loss, masked_squared_error_sum
 from ..noise import random_walk_noise
@@ -181,15 +181,9 @@ class Trainer:
         Returns:
             the global batch's loss and particle count (identical on every rank).
         """
-        positions = self.order.positions(self.step)
-        examples = [self.windows.example(self.order.window_at(p)) for p in positions]
-        noise = torch.cat(
-            [
-                random_walk_noise(e.position_sequence, self.recipe.model.noise_std, noise_generator(self.recipe.seed, p))
-                for e, p in zip(examples, positions)
-            ]
-        )
-        batch = collate(examples).to(self.device)
+        batch = self.windows.batch(self.order.indices(self.step))
+        noise = self._training_noise(batch)
+        batch = batch.to(self.device)
         mask = self.simulator.predicted_mask(batch.particle_type)
         noise = noise.to(self.device) * mask[:, None, None]
         prediction, target = self.model(batch, noise)
@@ -207,6 +201,16 @@ class Trainer:
         self.scheduler.step()
         self.step += 1
         return global_loss, int(global_particles)
+
+    def _training_noise(self, batch: ParticleBatch) -> Tensor:
+        """This process's rows of the random-walk noise of the step's global batch, (N, C, d)."""
+        counts = [self.windows.num_particles(self.order.window_at(p)) for p in self.order.step_positions(self.step)]
+        size = self.recipe.training.batch_size
+        first = sum(counts[: self.rank * size])
+        _, history, dim = batch.position_sequence.shape
+        shape = torch.empty((sum(counts), history, dim), dtype=batch.position_sequence.dtype)
+        noise = random_walk_noise(shape, self.recipe.model.noise_std, step_generator(self.recipe.seed, self.step))
+        return noise[first : first + batch.num_particles]
 
     @torch.no_grad()
     def validate(self) -> dict[str, float]:
