@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 
+import numpy as np
 import pytest
 import torch
 from training_support import gns_command, last_logged_step, subprocess_env, tiny_recipe, wait_until, write_recipe
@@ -57,12 +57,19 @@ def two_checkpoints(uneven_dataset, tmp_path):
     return tmp_path / "run", recipe
 
 
-@pytest.mark.parametrize("damage", ["truncated", "garbage"])
+DAMAGE = {
+    "truncated": lambda data: data[: len(data) // 2],
+    "random bytes": lambda data: np.random.default_rng(0).bytes(len(data)),
+    # A pickle that refers to an object it never stored: the unpickler raises KeyError.
+    "dangling pickle reference": lambda data: b"\x80\x02h\x05.",
+}
+
+
+@pytest.mark.parametrize("damage", DAMAGE)
 def test_damaged_checkpoint_error_names_the_file_and_resume_falls_back(two_checkpoints, damage):
     run_dir, recipe = two_checkpoints
     newest = run_dir / "checkpoints" / checkpoint_name(4)
-    data = newest.read_bytes()
-    newest.write_bytes(data[: len(data) // 2] if damage == "truncated" else os.urandom(len(data)))
+    newest.write_bytes(DAMAGE[damage](newest.read_bytes()))
 
     with pytest.raises(CheckpointError, match=f"{newest}: unreadable checkpoint"):
         load_checkpoint(newest)
