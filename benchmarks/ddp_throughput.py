@@ -25,9 +25,11 @@ from pathlib import Path
 import torch
 import yaml
 
-from gns_framework.demo.soft_spheres import write_synthetic_dataset
-
 ROOT = Path(__file__).resolve().parents[1]
+# The soft-sphere scene generator lives with the tests.
+sys.path.insert(0, str(ROOT / "tests"))
+
+from synthetic import write_synthetic_dataset  # noqa: E402
 
 
 def free_port() -> int:

@@ -10,7 +10,7 @@ from pathlib import Path
 import yaml
 
 from gns_framework.plugins import load_registry
-from gns_framework.demo.soft_spheres import soft_sphere_trajectory, synthetic_metadata
+from synthetic import soft_sphere_trajectory, synthetic_metadata
 
 # (block, kinematic floor) per training trajectory: 25 to 54 particles, some kinematic, so
 # the ranks' batches hold different numbers of predicted particles.
