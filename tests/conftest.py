@@ -12,6 +12,15 @@ from gns_framework.plugins import load_registry
 REPO = Path(__file__).resolve().parents[1]
 
 
+@pytest.fixture(scope="session", autouse=True)
+def mlflow_store_of_the_session(tmp_path_factory):
+    """`gns train` tracks to MLflow by default: keep the tests' runs out of the working directory."""
+    uri = f"sqlite:///{tmp_path_factory.mktemp('mlflow') / 'mlflow.db'}"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MLFLOW_TRACKING_URI", uri)
+        yield uri
+
+
 @pytest.fixture(scope="session")
 def registry():
     return load_registry()

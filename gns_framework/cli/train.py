@@ -9,8 +9,8 @@ from pathlib import Path
 from ..plugins import load_registry
 from ..recipe import Recipe, load_recipe
 from ..training import distributed
-from ..training.distributed import Processes, processes_from_environment
-from ..training.tracking import JsonlTracker, Tracker, TrackerGroup
+from ..training.distributed import processes_from_environment
+from ..training.tracking import Tracker, TrackerGroup
 from ..training.trainer import Trainer
 from .arguments import positive_int
 
@@ -42,22 +42,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def open_tracker(args: argparse.Namespace, recipe: Recipe, run_dir: Path, resume: bool) -> Tracker:
-    """The run folder's metrics file, plus an MLflow run unless tracking is off or mlflow is missing."""
+def with_mlflow(args: argparse.Namespace, recipe: Recipe, run_dir: Path, local: Tracker, resume: bool) -> Tracker:
+    """``local`` (the run folder's metrics file) plus an MLflow run, unless tracking is off or mlflow is missing."""
     from ..training import mlflow_tracker
 
-    local = JsonlTracker(run_dir)
     if args.no_tracking:
         return local
     if args.tracking_uri is None and not mlflow_tracker.mlflow_available():
         print("mlflow is not installed: metrics go to the run folder only (pip install 'gns-framework[tracking]')")
         return local
     uri = args.tracking_uri or mlflow_tracker.default_tracking_uri()
-    try:
-        mlflow = mlflow_tracker.open_mlflow_tracker(run_dir, uri, args.experiment or recipe.name, resume)
-    except BaseException:
-        local.close(failed=True)
-        raise
+    mlflow = mlflow_tracker.open_mlflow_tracker(run_dir, uri, args.experiment or recipe.name, resume)
     print(f"tracking run {mlflow.run_id} in {uri}")
     return TrackerGroup([local, mlflow])
 
@@ -73,32 +68,37 @@ def run(args: argparse.Namespace) -> int:
     processes = processes_from_environment()
     # After an elastic restart torchrun starts every worker afresh: continue from the last checkpoint.
     resume = args.resume if args.resume is not None else ("auto" if processes.restart_count > 0 else None)
-    run_dir = args.out if args.out is not None else recipe.run_dir
-    tracker = open_tracker(args, recipe, run_dir, resume is not None) if processes.is_chief else None
     try:
         trainer = Trainer(
-            recipe, registry, run_dir=run_dir, dataset_path=args.dataset, processes=processes, tracker=tracker,
+            recipe, registry, run_dir=args.out, dataset_path=args.dataset, processes=processes,
             progress=not args.no_progress,
         )
-        return _train(trainer, processes, resume)
-    except BaseException:
-        if tracker is not None:
-            tracker.close(failed=True)
-        raise
+        try:
+            return _train(trainer, args, resume)
+        except BaseException:
+            trainer.close(failed=True)
+            raise
     finally:
         distributed.stop()
 
 
-def _train(trainer: Trainer, processes: Processes, resume: str | None) -> int:
+def _train(trainer: Trainer, args: argparse.Namespace, resume: str | None) -> int:
+    processes = trainer.processes
     say = print if processes.is_chief else (lambda *a, **k: None)
     if resume is not None:
         resumed = trainer.resume(None if resume == "auto" else resume)
         say(f"resumed from {resumed} at step {trainer.step}" if resumed else "no checkpoint to resume from; starting at step 0")
+    # MLflow only once the data and any checkpoint have loaded, so a run that cannot start leaves no trace there.
+    if processes.is_chief:
+        trainer.tracker = with_mlflow(args, trainer.recipe, trainer.run_dir, trainer.tracker, resume is not None)
     if processes.distributed:
         say(f"training on {processes.world_size} processes ({trainer.device.type})")
     trainer.train()
     final = trainer.validate()
     trainer.close()
+    # Leave together: a rank that tears its process group down while rank 0 still
+    # validates can abort at exit.
+    processes.barrier()
     summary = "".join(f", {k} {v:.4g}" for k, v in final.items())
     say(f"trained {trainer.recipe.name} to step {trainer.step}{summary}; checkpoints in {trainer.checkpoint_dir}")
     sys.stdout.flush()
