@@ -82,7 +82,12 @@ def test_corrupt_checkpoint_is_a_clear_error(tmp_path):
 
 
 def test_demo_runs_end_to_end(tmp_path):
-    result = gns("demo", "--steps", "2", "--no-progress", "--out", str(tmp_path / "demo"))
+    """The demo's whole pipeline (simulate, train, roll out, animate, report), with a tiny model."""
+    recipe = tmp_path / "tiny.yaml"
+    recipe.write_text(yaml.safe_dump(tiny_recipe_mapping(tmp_path / "unused", tmp_path / "unused-run")))
+    result = gns("demo", "--steps", "2", "--repeats", "1", "--recipe", str(recipe), "--no-progress", "--out", str(tmp_path / "demo"))
     assert result.returncode == 0, result.stderr
     assert "validation one-step loss" in result.stdout
     assert (tmp_path / "demo" / "rollout.gif").is_file()
+    assert "mls_mpm grid 48 x 40 substeps (reference)" in (tmp_path / "demo" / "report" / "report.md").read_text()
+    assert (tmp_path / "demo" / "report" / "error_vs_time.png").is_file()

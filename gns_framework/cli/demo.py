@@ -34,6 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=positive_int, default=1500, help="training steps (default 1500)")
     parser.add_argument("--scene", type=Path, default=REPO / "scenes" / "demo_sand_2d.yaml", help="scene spec to simulate")
     parser.add_argument("--recipe", type=Path, default=REPO / "recipes" / "sand2d.yaml", help="recipe to train")
+    parser.add_argument("--repeats", type=positive_int, default=3, help="timed rollouts per model in the report (default 3)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     gif = animate_rollout(load_rollout(path), args.out / "rollout.gif", every=2)
     print(f"animation (prediction | ground truth): {gif}")
     cases = cases_from_split(test, loaded.metadata, loaded.simulator.scene.history)
-    report = compare([(recipe.name, loaded)], cases, loaded.metadata, registry, torch.device("cpu"))
+    report = compare([(recipe.name, loaded)], cases, loaded.metadata, registry, torch.device("cpu"), repeats=args.repeats)
     paths = write_report(report, args.out / "report")
     print(paths["markdown"].read_text())
     print(f"error against run time: {paths['error_vs_time']}")
