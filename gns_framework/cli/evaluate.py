@@ -76,14 +76,36 @@ def run(args: argparse.Namespace) -> int:
     print(paths["markdown"].read_text())
     for kind, path in paths.items():
         print(f"{kind}: {path}")
-    if args.vtk or args.gif:
-        _render_first_rollouts(args, names, cases[0].key)
+    animations = _render_first_rollouts(args, names, cases[0].key) if (args.vtk or args.gif) else {}
+    _log_to_training_runs(report, models, names, [*paths.values()], animations)
     return 0
 
 
-def _render_first_rollouts(args: argparse.Namespace, names: list[str], case_key: str) -> None:
+def _log_to_training_runs(report, models, names: list[str], report_files: list[Path], animations: dict[str, Path]) -> None:
+    """Attach the report (and the model's animation) to each model's MLflow run, when it was tracked."""
+    from ..training.mlflow_tracker import log_to_recorded_run
+
+    entries = {entry.name: entry for entry in report.entries}
+    for model, name in zip(models, names):
+        entry = entries[name]
+        metrics = {"evaluation_seconds_per_rollout": entry.seconds}
+        if entry.speedup is not None:
+            metrics["evaluation_speedup"] = entry.speedup
+        # MLflow metric names take no brackets: "mse_full[sand]" becomes "mse_full.sand".
+        metrics.update(
+            {f"evaluation_{k}".replace("[", ".").replace("]", ""): v for k, v in entry.metrics.items() if isinstance(v, float)}
+        )
+        files = report_files + ([animations[name]] if name in animations else [])
+        tracked = log_to_recorded_run(model.path.parent.parent, metrics, model.step, files, "evaluation")
+        if tracked:
+            print(f"logged the evaluation report of {name} to MLflow run {tracked}")
+
+
+def _render_first_rollouts(args: argparse.Namespace, names: list[str], case_key: str) -> dict[str, Path]:
+    """VTK and/or GIF of each model's first rollout; returns the GIFs by model name."""
     from ..evaluation.rollout_file import load_rollout
 
+    animations = {}
     for name in names:
         rollout = load_rollout(args.out / "rollouts" / name / f"{case_key}.npz")
         if args.vtk:
@@ -94,4 +116,6 @@ def _render_first_rollouts(args: argparse.Namespace, names: list[str], case_key:
         if args.gif:
             from ..viz.animation import animate_rollout
 
-            print(f"animation {name}: {animate_rollout(rollout, args.out / f'{name}.gif', every=2)}")
+            animations[name] = animate_rollout(rollout, args.out / f"{name}.gif", every=2)
+            print(f"animation {name}: {animations[name]}")
+    return animations

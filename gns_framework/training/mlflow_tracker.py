@@ -14,6 +14,7 @@ import json
 import math
 import os
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -158,10 +159,13 @@ def open_mlflow_tracker(run_dir: Path, tracking_uri: str, experiment: str, resum
     return tracker
 
 
-def log_to_recorded_run(run_dir: Path, metrics: dict[str, float], step: int) -> str | None:
-    """Add ``metrics`` to the MLflow run that trained ``run_dir``, leaving its status alone.
+def log_to_recorded_run(
+    run_dir: Path, metrics: dict[str, float], step: int, artifacts: Sequence[Path] = (), artifact_path: str | None = None
+) -> str | None:
+    """Add ``metrics`` (and ``artifacts`` under ``artifact_path``) to the MLflow run that trained ``run_dir``.
 
-    Returns the run id, or None when the run was not tracked with MLflow (or mlflow is missing).
+    The run's status is left alone. Returns the run id, or None when the run was not
+    tracked with MLflow (or mlflow is missing).
     """
     record = Path(run_dir) / RUN_FILE
     if not record.is_file() or not mlflow_available():
@@ -171,5 +175,8 @@ def log_to_recorded_run(run_dir: Path, metrics: dict[str, float], step: int) -> 
 
     now = int(time.time() * 1000)
     entries = [Metric(k, float(v), now, step) for k, v in metrics.items() if math.isfinite(v)]
-    _client(saved["tracking_uri"]).log_batch(saved["run_id"], metrics=entries)
+    client = _client(saved["tracking_uri"])
+    client.log_batch(saved["run_id"], metrics=entries)
+    for artifact in artifacts:
+        client.log_artifact(saved["run_id"], str(artifact), artifact_path)
     return saved["run_id"]

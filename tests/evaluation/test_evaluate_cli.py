@@ -54,6 +54,16 @@ def test_evaluate_writes_table_plots_vtk_and_gif(tmp_path: Path):
     assert meshio.read(frames[-1]).point_data["particle_type"].shape[0] > 0
     assert (out / "tiny.gif").stat().st_size > 0
 
+    # The training run was tracked (tests use a temporary MLflow store), so the report went to it.
+    assert "logged the evaluation report of tiny to MLflow run" in result.stdout
+    import mlflow
+
+    run_id = result.stdout.split("MLflow run ")[-1].split()[0]
+    client = mlflow.MlflowClient()
+    logged = {a.path for a in client.list_artifacts(run_id, "evaluation")}
+    assert {"evaluation/report.md", "evaluation/error_vs_time.png", "evaluation/tiny.gif"} <= logged
+    assert "evaluation_sinkhorn_final_pct" in client.get_run(run_id).data.metrics
+
 
 def test_evaluate_rejects_bad_scales(tmp_path: Path):
     result = gns("evaluate", str(tmp_path / "x.pt"), "--grid-scales", "0,1")
