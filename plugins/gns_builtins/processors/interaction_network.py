@@ -22,6 +22,7 @@ from torch import Tensor, nn
 from gns_framework.contracts import Graph, ModelSizes, Params, Processor
 
 from ..layers import NormedMLP
+from .edge_block import edge_block, node_table, table_rows
 
 
 class InteractionStep(nn.Module):
@@ -34,20 +35,17 @@ class InteractionStep(nn.Module):
         self.node_mlp = NormedMLP(2 * latent, hidden, hidden_layers, latent)
 
     def forward(self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor) -> tuple[Tensor, Tensor]:
-        first = self.edge_mlp.mlp.linears[0]
-        latent = self.latent
-        hidden = first.weight.shape[0]
-        weight_edge = first.weight[:, :latent]
+        mlp = self.edge_mlp.mlp
+        first = mlp.linears[0]
         # The first edge layer is linear in [e, x_r, x_s]: project the N nodes once and
         # gather, instead of multiplying E concatenated rows (same result, ~40% fewer FLOPs).
-        weight_nodes = torch.cat([first.weight[:, latent : 2 * latent], first.weight[:, 2 * latent :]], 0)
-        projected = x @ weight_nodes.T
-        h = torch.addmm(first.bias, e, weight_edge.T)
-        h = h + projected[receivers, :hidden] + projected[senders, hidden:]
-        edge_update = self.edge_mlp.norm(self.edge_mlp.mlp.rest(h))
-        aggregate = torch.zeros_like(x).index_add_(0, receivers, edge_update)
+        table = node_table(x, first.weight, first.bias)
+        rows = table_rows(senders, receivers, x.shape[0])
+        weights = [first.weight[:, : self.latent]] + [linear.weight for linear in mlp.linears[1:]]
+        biases = [linear.bias for linear in mlp.linears[1:]]
+        e_new, aggregate = edge_block(e, table, rows, receivers, weights, biases, self.edge_mlp.norm)
         node_update = self.node_mlp(torch.cat([x, aggregate], dim=-1))
-        return x + node_update, e + edge_update
+        return x + node_update, e_new
 
 
 class InteractionNetwork(Processor):

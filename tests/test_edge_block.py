@@ -1,0 +1,86 @@
+"""The chunked edge block equals the interaction network's edge update written out with concatenation."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from gns_builtins.layers import NormedMLP
+from gns_builtins.processors import edge_block as edge_block_module
+from gns_builtins.processors.edge_block import edge_block, node_table, table_rows
+
+
+def concatenated_update(mlp: NormedMLP, x, e, senders, receivers):
+    """``e + u`` and the sum of ``u`` at receivers, with ``u = LN(MLP([e, x_r, x_s]))`` on every edge."""
+    update = mlp(torch.cat([e, x[receivers], x[senders]], dim=-1))
+    aggregate = torch.zeros_like(x).index_add(0, receivers, update)
+    return e + update, aggregate
+
+
+def split_inputs(mlp: NormedMLP, x, senders, receivers):
+    """``edge_block``'s arguments: node table, its rows per edge, weights and biases."""
+    linears = mlp.mlp.linears
+    weights = [linears[0].weight[:, : x.shape[1]]] + [linear.weight for linear in linears[1:]]
+    table = node_table(x, linears[0].weight, linears[0].bias)
+    return table, table_rows(senders, receivers, x.shape[0]), weights, [linear.bias for linear in linears[1:]]
+
+
+@pytest.fixture
+def small_chunks(monkeypatch):
+    monkeypatch.setattr(edge_block_module, "EDGES_PER_CHUNK", 7)
+
+
+@pytest.mark.parametrize("hidden_layers", [0, 1, 2])
+@pytest.mark.parametrize("use_edge_output", [True, False])
+def test_values_and_gradients_match_autograd(small_chunks, hidden_layers, use_edge_output):
+    torch.manual_seed(hidden_layers)
+    n, latent, hidden = 11, 6, 5
+    receivers = torch.randint(0, n, (40,)).sort().values
+    senders = torch.randint(0, n, (40,))
+    mlp = NormedMLP(3 * latent, hidden, hidden_layers, latent).double()
+    with torch.no_grad():
+        mlp.norm.weight.normal_()
+        mlp.norm.bias.normal_()
+    x = torch.randn(n, latent, dtype=torch.float64, requires_grad=True)
+    e = torch.randn(40, latent, dtype=torch.float64, requires_grad=True)
+    weight_out = torch.randn(40, latent, dtype=torch.float64)
+    weight_agg = torch.randn(n, latent, dtype=torch.float64)
+
+    def loss(e_new, aggregate):
+        value = (aggregate * weight_agg).sum()
+        return value + (e_new * weight_out).sum() if use_edge_output else value
+
+    expected = concatenated_update(mlp, x, e, senders, receivers)
+    expected_grads = torch.autograd.grad(loss(*expected), [x, e, *mlp.parameters()])
+    table, rows, weights, biases = split_inputs(mlp, x, senders, receivers)
+    got = edge_block(e, table, rows, receivers, weights, biases, mlp.norm)
+    got_grads = torch.autograd.grad(loss(*got), [x, e, *mlp.parameters()])
+
+    for a, b in zip(got, expected):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
+    for a, b in zip(got_grads, expected_grads):
+        torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-10)
+
+
+def test_without_autograd_writes_in_place_when_asked(small_chunks):
+    torch.manual_seed(0)
+    n, latent = 9, 4
+    receivers, senders = torch.randint(0, n, (30,)).sort().values, torch.randint(0, n, (30,))
+    mlp = NormedMLP(3 * latent, 8, 2, latent)
+    x, e = torch.randn(n, latent), torch.randn(30, latent)
+    with torch.no_grad():
+        expected = concatenated_update(mlp, x, e, senders, receivers)
+        table, rows, weights, biases = split_inputs(mlp, x, senders, receivers)
+        e_new, aggregate = edge_block(e, table, rows, receivers, weights, biases, mlp.norm, in_place=True)
+    assert e_new is e
+    torch.testing.assert_close(e_new, expected[0])
+    torch.testing.assert_close(aggregate, expected[1])
+
+
+def test_in_place_refuses_autograd():
+    mlp = NormedMLP(6, 4, 1, 2)
+    x, e = torch.randn(3, 2), torch.randn(4, 2, requires_grad=True)
+    index = torch.zeros(4, dtype=torch.long)
+    table, rows, weights, biases = split_inputs(mlp, x, index, index)
+    with pytest.raises(ValueError, match="in_place"):
+        edge_block(e, table, rows, index, weights, biases, mlp.norm, in_place=True)
