@@ -20,8 +20,8 @@ from gns_framework.data.batch import ParticleBatch
 from gns_framework.data.metadata import DatasetMetadata
 
 RADIUS = 0.015
-SPACING = {2: 0.0058, 3: 0.0083}
-"""Lattice spacing per dimension; 3D: (4/3) pi (R/s)^3 ~= 24 lattice sites within R, ~20 after jitter."""
+SPACING = {2: 0.0058, 3: 0.0085}
+"""Lattice spacing per dimension; 3D chosen for ~20 neighbours within R, as in 2D."""
 JITTER = 0.15
 HISTORY = 6
 WATER = 5

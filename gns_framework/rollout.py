@@ -15,6 +15,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from .allocator import keep_freed_memory
 from .data.batch import window
 from .data.metadata import DatasetMetadata
 from .data.trajectory import Trajectory
@@ -58,6 +59,7 @@ def rollout(
     """
     _check_simulates(simulator, trajectory)
     guard = guard if guard is not None else RolloutGuard(simulator.scene)
+    keep_freed_memory()
     history = simulator.scene.history
     available = trajectory.num_steps - history
     steps = available if steps is None else min(steps, available)

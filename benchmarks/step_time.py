@@ -1,0 +1,238 @@
+"""Step time of the reference model on the lattice benchmark scene.
+
+Usage:
+    python benchmarks/step_time.py --particles N [--dim 2|3] [--repeat R] [--json] [--peer]
+    python benchmarks/step_time.py [--quick]      # the suite, one fresh process per scene, as a table
+
+One scene: median wall time of one training step (noise, forward, loss, backward,
+Adam), one rollout step (graph, features, model, integration, history shift) and
+the neighbour search alone, after warm-up runs; peak resident memory after the
+inference cases and after the training cases (``ru_maxrss``); and the efficiency
+ratio: the FLOP/s of the model's dense work divided by the FLOP/s torch.mm reaches
+on an (E, 128) x (128, 128) product in the same run. Cases are interleaved
+repeat by repeat, so load from other processes hits them alike. ``--peer`` also
+times the reference-style restatement (benchmarks/reference_style.py) with the
+same parameters, interleaved, and reports the speed-up over it.
+
+The scene is benchmarks/lattice_scene.py: one example, jittered lattice, radius
+0.015, ~20 neighbours per particle, WaterDrop statistics, 9 particle types; the
+model is the paper's (latent 128, two hidden layers of 128, 10 steps).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from lattice_scene import lattice_scene  # noqa: E402
+from model_flops import forward_flops  # noqa: E402
+
+from gns_framework.allocator import keep_freed_memory  # noqa: E402
+from gns_framework.loss import masked_acceleration_loss  # noqa: E402
+from gns_framework.noise import random_walk_noise  # noqa: E402
+from gns_framework.plugins import load_registry  # noqa: E402
+from gns_framework.recipe import ModelSpec, OptimizerSpec  # noqa: E402
+from gns_framework.simulator import build_simulator  # noqa: E402
+from gns_framework.training.optim import make_optimizer  # noqa: E402
+
+SUITE = [(992, 2), (3969, 2), (10000, 2), (100000, 2), (8000, 3)]
+PEER_MAX_EDGES = 300_000
+"""The peer is timed up to ~10k particles; beyond, its training memory (~42 KB per edge) does not fit."""
+
+
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def interleaved(cases: dict, warmup: int, repeat: int) -> dict[str, float]:
+    """Median seconds per case, the cases taking turns within every repeat."""
+    seconds: dict[str, list[float]] = {name: [] for name in cases}
+    for index in range(warmup + repeat):
+        for name, fn in cases.items():
+            start = time.perf_counter()
+            fn()
+            if index >= warmup:
+                seconds[name].append(time.perf_counter() - start)
+    return {name: statistics.median(values) for name, values in seconds.items()}
+
+
+class Stepper:
+    """One rollout step and one training step of a simulator on a fixed window."""
+
+    def __init__(self, simulator, batch, seed: int = 0):
+        self.simulator = simulator
+        self.batch = batch
+        self.optimizer, self.scheduler = make_optimizer(simulator.parameters(), OptimizerSpec())
+        self.generator = torch.Generator().manual_seed(seed)
+        self.mask = simulator.predicted_mask(batch.particle_type)
+
+    def rollout_step(self) -> None:
+        with torch.inference_mode():
+            next_position = self.simulator.predict_next_position(self.batch)
+            torch.cat([self.batch.position_sequence[:, 1:], next_position[:, None]], dim=1)
+
+    def train_step(self) -> None:
+        noise = random_walk_noise(self.batch.position_sequence, 6.7e-4, self.generator) * self.mask[:, None, None]
+        prediction, target = self.simulator(self.batch, noise)
+        loss = masked_acceleration_loss(prediction, target, self.mask)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        self.scheduler.step()
+
+
+def measure(particles: int, dim: int, repeat: int, warmup: int, peer: bool, train: bool) -> dict:
+    """Every figure of one scene, measured in this process."""
+    tuned = keep_freed_memory()
+    load_before = os.getloadavg()[0]
+    scene = lattice_scene(particles, dim)
+    torch.manual_seed(0)
+    simulator = build_simulator(scene.scene, scene.metadata, ModelSpec(), load_registry())
+    batch = scene.batch
+    position = batch.position_sequence[:, -1]
+    graph = simulator.build_graph(batch.position_sequence, batch)
+    edges = graph.num_edges
+    ours = Stepper(simulator, batch)
+    steppers = {"": ours}
+    if peer:
+        from reference_style import reference_style
+
+        steppers["peer_"] = Stepper(reference_style(simulator), batch)
+
+    latent = simulator.processor.steps[0].latent
+    hidden = simulator.processor.steps[0].edge_mlp.mlp.linears[1].in_features
+    mm_a, mm_b = torch.randn(edges, latent), torch.randn(latent, hidden)
+    mm_out = torch.empty(edges, hidden)
+
+    cases = {
+        "neighbour_search_s": lambda: simulator.graph_builder.build(position, batch.batch, 1),
+        "mm_s": lambda: torch.mm(mm_a, mm_b, out=mm_out),
+    }
+    cases.update({f"{prefix}rollout_step_s": stepper.rollout_step for prefix, stepper in steppers.items()})
+    result = interleaved(cases, warmup, repeat)
+    rss_inference = peak_rss_mb()
+    if train:
+        result.update(
+            interleaved({f"{prefix}train_step_s": s.train_step for prefix, s in steppers.items()}, warmup, repeat)
+        )
+
+    mm_flops = 2 * edges * latent * hidden / result.pop("mm_s")
+    flops = forward_flops(simulator, particles, edges)
+    figures = {
+        "particles": particles,
+        "dim": dim,
+        "edges": edges,
+        "mean_neighbours": edges / particles - 1,
+        "threads": torch.get_num_threads(),
+        "repeat": repeat,
+        "warmup": warmup,
+        **result,
+        "rollout_particles_per_s": particles / result["rollout_step_s"],
+        "rollout_edges_per_s": edges / result["rollout_step_s"],
+        "neighbour_search_per_particle_us": 1e6 * result["neighbour_search_s"] / particles,
+        "rollout_per_particle_us": 1e6 * result["rollout_step_s"] / particles,
+        "peak_rss_inference_mb": rss_inference,
+        "peak_rss_mb": peak_rss_mb(),
+        "mm_gflops": mm_flops / 1e9,
+        "model_gflop_per_forward": flops / 1e9,
+        "efficiency": flops / result["rollout_step_s"] / mm_flops,
+        "keep_freed_memory": tuned,
+        "load_before": load_before,
+        "load_after": os.getloadavg()[0],
+    }
+    if train:
+        figures["train_particles_per_s"] = particles / result["train_step_s"]
+        figures["train_efficiency"] = 3 * flops / result["train_step_s"] / mm_flops
+    if peer:
+        figures["peer_rollout_speedup"] = result["peer_rollout_step_s"] / result["rollout_step_s"]
+        peer_flops = forward_flops(simulator, particles, edges, split_first_layer=False)
+        figures["peer_efficiency"] = peer_flops / result["peer_rollout_step_s"] / mm_flops
+        if train:
+            figures["peer_train_speedup"] = result["peer_train_step_s"] / result["train_step_s"]
+    return figures
+
+
+def run_suite(args) -> list[dict]:
+    """Each scene in a fresh process, so peak memory and allocator state are its own."""
+    rows = []
+    for particles, dim in SUITE:
+        large = particles > 20_000
+        command = [
+            sys.executable, __file__, "--particles", str(particles), "--dim", str(dim), "--json",
+            "--threads", str(args.threads),
+            "--repeat", str(3 if large or args.quick else args.repeat),
+            "--warmup", str(1 if large or args.quick else args.warmup),
+        ]
+        if large and not args.train_large:
+            command.append("--no-train")
+        output = subprocess.run(command, check=True, capture_output=True, text=True).stdout
+        rows.append(json.loads(output.strip().splitlines()[-1]))
+        if rows[-1]["edges"] <= PEER_MAX_EDGES and not args.no_peer:
+            output = subprocess.run(command + ["--peer"], check=True, capture_output=True, text=True).stdout
+            peered = json.loads(output.strip().splitlines()[-1])
+            rows[-1].update({k: v for k, v in peered.items() if k.startswith("peer_")})
+        print(format_row(rows[-1]), file=sys.stderr, flush=True)
+    return rows
+
+
+HEADER = (
+    "| scene | particles | edges (incl. self) | mean neighbours | training step | rollout step | neighbour search "
+    "| rollout particles/s | rollout edges/s | peak RSS inference / training | efficiency (rollout / training) "
+    "| speed-up vs peer (training / rollout) |\n|" + "---|" * 12
+)
+
+
+def format_row(r: dict) -> str:
+    train = f"{r['train_step_s']:.3f} s" if "train_step_s" in r else "n/a"
+    train_eff = f"{r['train_efficiency']:.2f}" if "train_efficiency" in r else "n/a"
+    peer = "n/a"
+    if "peer_rollout_speedup" in r:
+        peer_train = f"{r['peer_train_speedup']:.1f}x" if "peer_train_speedup" in r else "n/a"
+        peer = f"{peer_train} / {r['peer_rollout_speedup']:.1f}x"
+    return (
+        f"| {r['dim']}D | {r['particles']:,} | {r['edges']:,} | {r['mean_neighbours']:.1f} | {train} "
+        f"| {r['rollout_step_s']:.3f} s | {1e3 * r['neighbour_search_s']:.1f} ms | {r['rollout_particles_per_s']:,.0f} "
+        f"| {r['rollout_edges_per_s']:.3g} | {r['peak_rss_inference_mb'] / 1024:.2f} / {r['peak_rss_mb'] / 1024:.2f} GB "
+        f"| {r['efficiency']:.2f} / {train_eff} | {peer} |"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--particles", type=int, help="one scene of about this many particles (default: the suite)")
+    parser.add_argument("--dim", type=int, choices=(2, 3), default=2)
+    parser.add_argument("--repeat", type=int, default=10)
+    parser.add_argument("--warmup", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=2, help="torch intra-op threads")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--peer", action="store_true", help="also time the reference-style peer, interleaved")
+    parser.add_argument("--no-train", action="store_true", help="skip the training step")
+    parser.add_argument("--quick", action="store_true", help="suite: 3 repeats after 1 warm-up")
+    parser.add_argument("--no-peer", action="store_true", help="suite: never time the peer")
+    parser.add_argument("--train-large", action="store_true", help="suite: time training at 100k particles too")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    if args.particles is None:
+        print(f"load average before: {os.getloadavg()}", file=sys.stderr)
+        rows = run_suite(args)
+        print(HEADER)
+        print("\n".join(format_row(r) for r in rows))
+        print(f"load average after: {os.getloadavg()}")
+        return
+    figures = measure(args.particles, args.dim, args.repeat, args.warmup, args.peer, not args.no_train)
+    print(json.dumps(figures) if args.json else HEADER + "\n" + format_row(figures))
+
+
+if __name__ == "__main__":
+    main()
