@@ -38,6 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lattice_scene import lattice_scene  # noqa: E402
 from model_flops import forward_flops  # noqa: E402
 
+from gns_framework.activation_memory import recompute_activations, set_recompute_activations  # noqa: E402
 from gns_framework.allocator import keep_freed_memory  # noqa: E402
 from gns_framework.loss import masked_acceleration_loss  # noqa: E402
 from gns_framework.noise import random_walk_noise  # noqa: E402
@@ -148,6 +149,7 @@ def measure(particles: int, dim: int, repeat: int, warmup: int, peer: bool, trai
         "model_gflop_per_forward": flops / 1e9,
         "efficiency": flops / result["rollout_step_s"] / mm_flops,
         "keep_freed_memory": tuned,
+        "recompute_activations": recompute_activations(),
         "load_before": load_before,
         "load_after": os.getloadavg()[0],
     }
@@ -170,7 +172,7 @@ def run_suite(args) -> list[dict]:
         large = particles > 20_000
         command = [
             sys.executable, __file__, "--particles", str(particles), "--dim", str(dim), "--json",
-            "--threads", str(args.threads),
+            "--threads", str(args.threads), *(["--recompute"] if args.recompute else []),
             "--repeat", str(3 if large or args.quick else args.repeat),
             "--warmup", str(1 if large or args.quick else args.warmup),
         ]
@@ -218,11 +220,13 @@ def main() -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--peer", action="store_true", help="also time the reference-style peer, interleaved")
     parser.add_argument("--no-train", action="store_true", help="skip the training step")
+    parser.add_argument("--recompute", action="store_true", help="training.recompute_activations: true")
     parser.add_argument("--quick", action="store_true", help="suite: 3 repeats after 1 warm-up")
     parser.add_argument("--no-peer", action="store_true", help="suite: never time the peer")
     parser.add_argument("--train-large", action="store_true", help="suite: time training at 100k particles too")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
+    set_recompute_activations(args.recompute)
     if args.particles is None:
         print(f"load average before: {os.getloadavg()}", file=sys.stderr)
         rows = run_suite(args)

@@ -83,6 +83,9 @@ class TrainingSpec(_Strict):
     keep_checkpoints: int = Field(3, ge=1)
     device: str = Field("auto", description="auto, cpu, cuda or cuda:N")
     threads: int | None = Field(None, ge=1, description="torch intra-op threads (default: torch's)")
+    recompute_activations: bool = Field(
+        False, description="recompute edge activations in the backward: about half the memory, ~10% slower"
+    )
 
 
 class RolloutGuardSpec(_Strict):

@@ -32,7 +32,9 @@ def small_chunks(monkeypatch):
 
 @pytest.mark.parametrize("hidden_layers", [0, 1, 2])
 @pytest.mark.parametrize("use_edge_output", [True, False])
-def test_values_and_gradients_match_autograd(small_chunks, hidden_layers, use_edge_output):
+@pytest.mark.parametrize("recompute", [False, True])
+def test_values_and_gradients_match_autograd(small_chunks, hidden_layers, use_edge_output, recompute, monkeypatch):
+    monkeypatch.setattr(edge_block_module, "recompute_activations", lambda: recompute)
     torch.manual_seed(hidden_layers)
     n, latent, hidden = 11, 6, 5
     receivers = torch.randint(0, n, (40,)).sort().values
@@ -84,3 +86,18 @@ def test_in_place_refuses_autograd():
     table, rows, weights, biases = split_inputs(mlp, x, index, index)
     with pytest.raises(ValueError, match="in_place"):
         edge_block(e, table, rows, index, weights, biases, mlp.norm, in_place=True)
+
+
+@pytest.mark.parametrize("recompute", [False, True])
+def test_backward_twice_on_a_retained_graph(small_chunks, recompute, monkeypatch):
+    monkeypatch.setattr(edge_block_module, "recompute_activations", lambda: recompute)
+    torch.manual_seed(1)
+    n, latent = 9, 4
+    receivers, senders = torch.randint(0, n, (30,)).sort().values, torch.randint(0, n, (30,))
+    mlp = NormedMLP(3 * latent, 8, 2, latent)
+    x, e = torch.randn(n, latent, requires_grad=True), torch.randn(30, latent)
+    table, rows, weights, biases = split_inputs(mlp, x, senders, receivers)
+    _, aggregate = edge_block(e, table, rows, receivers, weights, biases, mlp.norm)
+    first = torch.autograd.grad(aggregate.sum(), x, retain_graph=True)[0]
+    second = torch.autograd.grad(aggregate.sum(), x)[0]
+    torch.testing.assert_close(first, second)

@@ -12,6 +12,7 @@ import yaml
 from torch import Tensor
 from tqdm import tqdm
 
+from ..activation_memory import set_recompute_activations
 from ..allocator import keep_freed_memory
 from ..checkpoint import checkpoint_name, latest_good_checkpoint, load_checkpoint, prune_checkpoints, save_checkpoint
 from ..data.atomic import write_text_atomic
@@ -77,6 +78,7 @@ class Trainer:
         if recipe.training.threads:
             torch.set_num_threads(recipe.training.threads)
         keep_freed_memory()
+        set_recompute_activations(recipe.training.recompute_activations)
         self.device = distributed.start(self.processes, resolve_device(recipe.training.device))
 
         self.data = prepare_data(recipe, registry, dataset_path)

@@ -14,10 +14,11 @@ above glibc's mmap threshold that page-faults in on each call: together about as
 much time as the matrix products. Here each chunk of edges goes through the whole
 block while it sits in cache, so only the products remain costly.
 
-The backward is written by hand and recomputes a chunk's activations from
-``e``, ``P`` and the weights instead of storing them: a training step keeps one
-(E, L) tensor per message-passing step (the edge latents, kept anyway) instead of
-about six, for a third more matrix-product work in the backward.
+The backward is written by hand. It reuses the chunk activations stored by the
+forward, or, with :func:`~gns_framework.activation_memory.recompute_activations`,
+recomputes them from ``e``, the node table and the weights: then a training step
+keeps one (E, L) tensor per message-passing step (the edge latents, kept anyway)
+instead of four, for a third more matrix-product work in the backward.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
+
+from gns_framework.activation_memory import recompute_activations
 
 EDGES_PER_CHUNK = 1024
 """Edges per chunk: a 128-wide chunk activation is 512 KiB, so a chunk's working set stays in L2."""
@@ -63,13 +66,20 @@ def _chunks(num_edges: int):
     return ((lo, min(lo + EDGES_PER_CHUNK, num_edges)) for lo in range(0, num_edges, EDGES_PER_CHUNK))
 
 
-def _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out):
-    """Write ``e + u`` into ``out`` (may be ``e`` itself) and return the aggregate of ``u`` at receivers."""
+def _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, stored=None):
+    """Write ``e + u`` into ``out`` (may be ``e`` itself) and return the aggregate of ``u`` at receivers.
+
+    ``stored``, when given, receives every chunk's activations for the backward.
+    """
     latent = e.shape[1]
     aggregate = e.new_zeros(table.shape[0] // 2, latent)
     for lo, hi in _chunks(e.shape[0]):
-        _, a = _chunk_activations(e[lo:hi], table, rows[2 * lo : 2 * hi], weights, biases)
-        update = torch.layer_norm(a, (latent,), norm_weight, norm_bias, eps)
+        inputs, a = _chunk_activations(e[lo:hi], table, rows[2 * lo : 2 * hi], weights, biases)
+        if stored is None:
+            update = torch.layer_norm(a, (latent,), norm_weight, norm_bias, eps)
+        else:
+            update, mean, rstd = torch.native_layer_norm(a, (latent,), norm_weight, norm_bias, eps)
+            stored.append((inputs, a, mean, rstd))
         aggregate.index_add_(0, receivers[lo:hi], update)
         torch.add(e[lo:hi], update, out=out[lo:hi])
     return aggregate
@@ -80,7 +90,8 @@ class _EdgeBlock(torch.autograd.Function):
     def forward(ctx, e, table, rows, receivers, eps, num_layers, norm_weight, norm_bias, *parameters):
         weights, biases = [w.contiguous() for w in parameters[:num_layers]], parameters[num_layers:]
         out = torch.empty_like(e)
-        aggregate = _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out)
+        ctx.stored = None if recompute_activations() else []
+        aggregate = _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, ctx.stored)
         ctx.save_for_backward(e, table, rows, receivers, norm_weight, norm_bias, *weights, *biases)
         ctx.eps, ctx.num_layers = eps, num_layers
         ctx.set_materialize_grads(False)
@@ -97,7 +108,7 @@ class _EdgeBlock(torch.autograd.Function):
         grad_weights = [torch.zeros_like(w) for w in weights]
         grad_biases = [torch.zeros_like(b) for b in biases]
         grad_norm_weight, grad_norm_bias = torch.zeros_like(norm_weight), torch.zeros_like(norm_bias)
-        for lo, hi in _chunks(e.shape[0]):
+        for index, (lo, hi) in enumerate(_chunks(e.shape[0])):
             chunk_rows, e_chunk = rows[2 * lo : 2 * hi], e[lo:hi]
             if grad_aggregate is None:
                 grad_update = e.new_zeros(hi - lo, latent)
@@ -105,8 +116,11 @@ class _EdgeBlock(torch.autograd.Function):
                 grad_update = grad_aggregate.index_select(0, receivers[lo:hi])
             if grad_out is not None:
                 grad_update += grad_out[lo:hi]
-            inputs, a = _chunk_activations(e_chunk, table, chunk_rows, weights, biases)
-            _, mean, rstd = torch.native_layer_norm(a, (latent,), norm_weight, norm_bias, ctx.eps)
+            if ctx.stored is None:
+                inputs, a = _chunk_activations(e_chunk, table, chunk_rows, weights, biases)
+                _, mean, rstd = torch.native_layer_norm(a, (latent,), norm_weight, norm_bias, ctx.eps)
+            else:
+                inputs, a, mean, rstd = ctx.stored[index]
             grad_a, grad_gamma, grad_beta = torch.ops.aten.native_layer_norm_backward(
                 grad_update, a, (latent,), mean, rstd, norm_weight, norm_bias, [True, True, True]
             )
@@ -149,11 +163,20 @@ def edge_block(
         norm: the LayerNorm after the MLP.
         in_place: write ``e + u`` into ``e`` (allowed only without autograd).
     """
-    if torch.is_grad_enabled() and any(t.requires_grad for t in (e, table, *weights, *biases, norm.weight)):
-        if in_place:
-            raise ValueError("in_place edge updates cannot be differentiated")
-        return _EdgeBlock.apply(e, table, rows, receivers, norm.eps, len(weights), norm.weight, norm.bias, *weights, *biases)
-    out = e if in_place else torch.empty_like(e)
-    weights = [w.contiguous() for w in weights]
-    aggregate = _forward(e, table, rows, receivers, norm.weight, norm.bias, norm.eps, weights, biases, out)
+    # One dtype throughout (the widest given), whatever autocast would pick per operation:
+    # the in-place accumulations need it, and LayerNorm wants full precision anyway.
+    dtype = e.dtype
+    for t in (table, *weights, *biases, norm.weight):
+        dtype = torch.promote_types(dtype, t.dtype)
+    e, table = e.to(dtype), table.to(dtype)
+    weights, biases = [w.to(dtype) for w in weights], [b.to(dtype) for b in biases]
+    norm_weight, norm_bias = norm.weight.to(dtype), norm.bias.to(dtype)
+    with torch.autocast(e.device.type, enabled=False):
+        if torch.is_grad_enabled() and any(t.requires_grad for t in (e, table, *weights, *biases, norm_weight)):
+            if in_place:
+                raise ValueError("in_place edge updates cannot be differentiated")
+            return _EdgeBlock.apply(e, table, rows, receivers, norm.eps, len(weights), norm_weight, norm_bias, *weights, *biases)
+        out = e if in_place else torch.empty_like(e)
+        weights = [w.contiguous() for w in weights]
+        aggregate = _forward(e, table, rows, receivers, norm_weight, norm_bias, norm.eps, weights, biases, out)
     return out, aggregate
