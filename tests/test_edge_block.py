@@ -27,7 +27,7 @@ def split_inputs(mlp: NormedMLP, x, senders, receivers):
 
 @pytest.fixture
 def small_chunks(monkeypatch):
-    monkeypatch.setattr(edge_block_module, "EDGES_PER_CHUNK", 7)
+    monkeypatch.setattr(edge_block_module, "EDGES_PER_THREAD", 7)
 
 
 @pytest.mark.parametrize("hidden_layers", [0, 1, 2])

@@ -29,8 +29,13 @@ from torch.autograd.function import once_differentiable
 
 from gns_framework.activation_memory import recompute_activations
 
-EDGES_PER_CHUNK = 1024
-"""Edges per chunk: a 128-wide chunk activation is 512 KiB, so a chunk's working set stays in L2."""
+EDGES_PER_THREAD = 1024
+"""Edges per chunk and intra-op thread on CPU: each thread's share of a 128-wide chunk
+activation is 512 KiB, so its working set stays in its core's L2. Chunks grow with the
+threads because every operation on a chunk pays a fork/join and ~5 us of Python."""
+
+EDGES_PER_CHUNK_ACCELERATOR = 1 << 18
+"""Edges per chunk on GPUs, where every operation is a kernel launch: chunks only bound the temporaries."""
 
 
 def node_table(x: Tensor, first_weight: Tensor, first_bias: Tensor) -> Tensor:
@@ -62,18 +67,22 @@ def _chunk_activations(e, table, rows, weights, biases):
     return inputs, a
 
 
-def _chunks(num_edges: int):
-    return ((lo, min(lo + EDGES_PER_CHUNK, num_edges)) for lo in range(0, num_edges, EDGES_PER_CHUNK))
+def _chunk_size(device: torch.device) -> int:
+    return EDGES_PER_THREAD * torch.get_num_threads() if device.type == "cpu" else EDGES_PER_CHUNK_ACCELERATOR
 
 
-def _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, stored=None):
+def _chunks(num_edges: int, size: int):
+    return ((lo, min(lo + size, num_edges)) for lo in range(0, num_edges, size))
+
+
+def _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, chunk_size, stored=None):
     """Write ``e + u`` into ``out`` (may be ``e`` itself) and return the aggregate of ``u`` at receivers.
 
     ``stored``, when given, receives every chunk's activations for the backward.
     """
     latent = e.shape[1]
     aggregate = e.new_zeros(table.shape[0] // 2, latent)
-    for lo, hi in _chunks(e.shape[0]):
+    for lo, hi in _chunks(e.shape[0], chunk_size):
         inputs, a = _chunk_activations(e[lo:hi], table, rows[2 * lo : 2 * hi], weights, biases)
         if stored is None:
             update = torch.layer_norm(a, (latent,), norm_weight, norm_bias, eps)
@@ -91,7 +100,10 @@ class _EdgeBlock(torch.autograd.Function):
         weights, biases = [w.contiguous() for w in parameters[:num_layers]], parameters[num_layers:]
         out = torch.empty_like(e)
         ctx.stored = None if recompute_activations() else []
-        aggregate = _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, ctx.stored)
+        ctx.chunk_size = _chunk_size(e.device)
+        aggregate = _forward(
+            e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, ctx.chunk_size, ctx.stored
+        )
         ctx.save_for_backward(e, table, rows, receivers, norm_weight, norm_bias, *weights, *biases)
         ctx.eps, ctx.num_layers = eps, num_layers
         ctx.set_materialize_grads(False)
@@ -108,7 +120,7 @@ class _EdgeBlock(torch.autograd.Function):
         grad_weights = [torch.zeros_like(w) for w in weights]
         grad_biases = [torch.zeros_like(b) for b in biases]
         grad_norm_weight, grad_norm_bias = torch.zeros_like(norm_weight), torch.zeros_like(norm_bias)
-        for index, (lo, hi) in enumerate(_chunks(e.shape[0])):
+        for index, (lo, hi) in enumerate(_chunks(e.shape[0], ctx.chunk_size)):
             chunk_rows, e_chunk = rows[2 * lo : 2 * hi], e[lo:hi]
             if grad_aggregate is None:
                 grad_update = e.new_zeros(hi - lo, latent)
@@ -178,5 +190,7 @@ def edge_block(
             return _EdgeBlock.apply(e, table, rows, receivers, norm.eps, len(weights), norm_weight, norm_bias, *weights, *biases)
         out = e if in_place else torch.empty_like(e)
         weights = [w.contiguous() for w in weights]
-        aggregate = _forward(e, table, rows, receivers, norm_weight, norm_bias, norm.eps, weights, biases, out)
+        aggregate = _forward(
+            e, table, rows, receivers, norm_weight, norm_bias, norm.eps, weights, biases, out, _chunk_size(e.device)
+        )
     return out, aggregate
