@@ -1,7 +1,7 @@
 """Step time of the reference model on the lattice benchmark scene.
 
 Usage:
-    python benchmarks/step_time.py --particles N [--dim 2|3] [--repeat R] [--json] [--peer]
+    python benchmarks/step_time.py --particles N [--dim 2|3] [--repeat R] [--json] [--peer] [--precision bfloat16]
     python benchmarks/step_time.py [--quick]      # the suite, one fresh process per scene, as a table
 
 One scene: median wall time of one training step (noise, forward, loss, backward,
@@ -42,6 +42,7 @@ from gns_framework.activation_memory import recompute_activations, set_recompute
 from gns_framework.allocator import keep_freed_memory  # noqa: E402
 from gns_framework.loss import masked_acceleration_loss  # noqa: E402
 from gns_framework.noise import random_walk_noise  # noqa: E402
+from gns_framework.precision import PRECISIONS, autocast  # noqa: E402
 from gns_framework.plugins import load_registry  # noqa: E402
 from gns_framework.recipe import ModelSpec, OptimizerSpec  # noqa: E402
 from gns_framework.simulator import build_simulator  # noqa: E402
@@ -71,29 +72,31 @@ def interleaved(cases: dict, warmup: int, repeat: int) -> dict[str, float]:
 class Stepper:
     """One rollout step and one training step of a simulator on a fixed window."""
 
-    def __init__(self, simulator, batch, seed: int = 0):
+    def __init__(self, simulator, batch, seed: int = 0, precision: str = "float32"):
         self.simulator = simulator
+        self.precision = precision
         self.batch = batch
         self.optimizer, self.scheduler = make_optimizer(simulator.parameters(), OptimizerSpec())
         self.generator = torch.Generator().manual_seed(seed)
         self.mask = simulator.predicted_mask(batch.particle_type)
 
     def rollout_step(self) -> None:
-        with torch.inference_mode():
+        with torch.inference_mode(), autocast(self.precision, "cpu"):
             next_position = self.simulator.predict_next_position(self.batch)
             torch.cat([self.batch.position_sequence[:, 1:], next_position[:, None]], dim=1)
 
     def train_step(self) -> None:
         noise = random_walk_noise(self.batch.position_sequence, 6.7e-4, self.generator) * self.mask[:, None, None]
-        prediction, target = self.simulator(self.batch, noise)
-        loss = masked_acceleration_loss(prediction, target, self.mask)
+        with autocast(self.precision, "cpu"):
+            prediction, target = self.simulator(self.batch, noise)
+        loss = masked_acceleration_loss(prediction.float(), target, self.mask)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
         self.scheduler.step()
 
 
-def measure(particles: int, dim: int, repeat: int, warmup: int, peer: bool, train: bool) -> dict:
+def measure(particles: int, dim: int, repeat: int, warmup: int, peer: bool, train: bool, precision: str) -> dict:
     """Every figure of one scene, measured in this process."""
     tuned = keep_freed_memory()
     load_before = os.getloadavg()[0]
@@ -104,7 +107,7 @@ def measure(particles: int, dim: int, repeat: int, warmup: int, peer: bool, trai
     position = batch.position_sequence[:, -1]
     graph = simulator.build_graph(batch.position_sequence, batch)
     edges = graph.num_edges
-    ours = Stepper(simulator, batch)
+    ours = Stepper(simulator, batch, precision=precision)
     steppers = {"": ours}
     if peer:
         from reference_style import reference_style
@@ -136,6 +139,7 @@ def measure(particles: int, dim: int, repeat: int, warmup: int, peer: bool, trai
         "edges": edges,
         "mean_neighbours": edges / particles - 1,
         "threads": torch.get_num_threads(),
+        "precision": precision,
         "repeat": repeat,
         "warmup": warmup,
         **result,
@@ -173,6 +177,7 @@ def run_suite(args) -> list[dict]:
         command = [
             sys.executable, __file__, "--particles", str(particles), "--dim", str(dim), "--json",
             "--threads", str(args.threads), *(["--recompute"] if args.recompute else []),
+            "--precision", args.precision,
             "--repeat", str(3 if large or args.quick else args.repeat),
             "--warmup", str(1 if large or args.quick else args.warmup),
         ]
@@ -202,8 +207,9 @@ def format_row(r: dict) -> str:
     if "peer_rollout_speedup" in r:
         peer_train = f"{r['peer_train_speedup']:.1f}x" if "peer_train_speedup" in r else "n/a"
         peer = f"{peer_train} / {r['peer_rollout_speedup']:.1f}x"
+    scene = f"{r['dim']}D" if r.get("precision", "float32") == "float32" else f"{r['dim']}D, {r['precision']}"
     return (
-        f"| {r['dim']}D | {r['particles']:,} | {r['edges']:,} | {r['mean_neighbours']:.1f} | {train} "
+        f"| {scene} | {r['particles']:,} | {r['edges']:,} | {r['mean_neighbours']:.1f} | {train} "
         f"| {r['rollout_step_s']:.3f} s | {1e3 * r['neighbour_search_s']:.1f} ms | {r['rollout_particles_per_s']:,.0f} "
         f"| {r['rollout_edges_per_s']:.3g} | {r['peak_rss_inference_mb'] / 1024:.2f} / {r['peak_rss_mb'] / 1024:.2f} GB "
         f"| {r['efficiency']:.2f} / {train_eff} | {peer} |"
@@ -221,6 +227,7 @@ def main() -> None:
     parser.add_argument("--peer", action="store_true", help="also time the reference-style peer, interleaved")
     parser.add_argument("--no-train", action="store_true", help="skip the training step")
     parser.add_argument("--recompute", action="store_true", help="training.recompute_activations: true")
+    parser.add_argument("--precision", choices=PRECISIONS, default="float32", help="our model's product dtype (the peer stays float32)")
     parser.add_argument("--quick", action="store_true", help="suite: 3 repeats after 1 warm-up")
     parser.add_argument("--no-peer", action="store_true", help="suite: never time the peer")
     parser.add_argument("--train-large", action="store_true", help="suite: time training at 100k particles too")
@@ -234,7 +241,7 @@ def main() -> None:
         print("\n".join(format_row(r) for r in rows))
         print(f"load average after: {os.getloadavg()}")
         return
-    figures = measure(args.particles, args.dim, args.repeat, args.warmup, args.peer, not args.no_train)
+    figures = measure(args.particles, args.dim, args.repeat, args.warmup, args.peer, not args.no_train, args.precision)
     print(json.dumps(figures) if args.json else HEADER + "\n" + format_row(figures))
 
 

@@ -20,6 +20,7 @@ from .data.batch import window
 from .data.metadata import DatasetMetadata
 from .data.trajectory import Trajectory
 from .errors import DatasetError, RolloutDiverged
+from .precision import Precision, autocast
 from .rollout_guard import GuardViolation, RolloutGuard
 from .simulator import LearnedSimulator
 
@@ -49,13 +50,15 @@ def rollout(
     device: torch.device | str = "cpu",
     progress: bool = False,
     guard: RolloutGuard | None = None,
+    precision: Precision = "float32",
 ) -> RolloutResult:
     """Predict ``steps`` frames from the first C of ``trajectory``.
 
     Kinematic particles follow their prescribed (ground-truth) positions; every other
     particle only ever sees its own predictions. ``guard`` checks every predicted
     frame (default: stop on non-finite positions, no domain check); it raises
-    RolloutDiverged, or clamps and records the violations.
+    RolloutDiverged, or clamps and records the violations. ``precision`` picks the
+    dtype of the model's products (:mod:`gns_framework.precision`); positions stay float32.
     """
     _check_simulates(simulator, trajectory)
     guard = guard if guard is not None else RolloutGuard(simulator.scene)
@@ -75,7 +78,9 @@ def rollout(
     for step in tqdm(range(steps), desc=f"rollout {trajectory.key}", unit="step", disable=not progress):
         frame_context = None if context is None else context[history - 1 + step][None]
         current = replace(state, position_sequence=sequence, context=frame_context)
-        next_position = simulator.predict_next_position(current, prescribed=truth[step])
+        with autocast(precision, device):
+            next_position = simulator.predict_next_position(current, prescribed=truth[step])
+        next_position = next_position.to(predicted.dtype)
         next_position, found = guard.check(step, next_position, sequence[:, -1], trajectory.key)
         violations += found
         predicted[step] = next_position

@@ -69,6 +69,12 @@ def test_train_resume_rollout_render(dataset_multimaterial, tmp_path):
     rollout_file = tmp_path / "rollouts" / "test_0000.npz"
     with np.load(rollout_file, allow_pickle=False) as z:
         assert z["predicted_rollout"].shape[0] == 4
+    low = gns("rollout", str(checkpoint), "--steps", "4", "--out", str(tmp_path / "low"), "--no-progress",
+              "--precision", "bfloat16")
+    assert low.returncode == 0, low.stderr
+    with np.load(rollout_file) as full, np.load(tmp_path / "low" / "test_0000.npz") as bf16:
+        assert bf16["predicted_rollout"].dtype == full["predicted_rollout"].dtype
+        assert np.allclose(bf16["predicted_rollout"], full["predicted_rollout"], atol=1e-3)
     rendered = gns("render", str(rollout_file), "--gif", str(tmp_path / "r.gif"))
     assert rendered.returncode == 0 and (tmp_path / "r.gif").stat().st_size > 0
 

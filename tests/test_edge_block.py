@@ -101,3 +101,42 @@ def test_backward_twice_on_a_retained_graph(small_chunks, recompute, monkeypatch
     first = torch.autograd.grad(aggregate.sum(), x, retain_graph=True)[0]
     second = torch.autograd.grad(aggregate.sum(), x)[0]
     torch.testing.assert_close(first, second)
+
+
+def test_bfloat16_autocast_is_no_less_accurate_than_autocast_on_the_concatenated_mlp(small_chunks):
+    """Under autocast the products run in bfloat16 (results move), yet values and gradients
+    are as close to float32 as autocast makes the unsplit MLP; outputs and gradients stay float32."""
+    torch.manual_seed(0)
+    n, latent, hidden, edges = 13, 32, 32, 60
+    receivers = torch.randint(0, n, (edges,)).sort().values
+    senders = torch.randint(0, n, (edges,))
+    mlp = NormedMLP(3 * latent, hidden, 2, latent)
+    x = torch.randn(n, latent, requires_grad=True)
+    e = torch.randn(edges, latent, requires_grad=True)
+    weight_out, weight_agg = torch.randn(edges, latent), torch.randn(n, latent)
+
+    def chunked():
+        table, rows, weights, biases = split_inputs(mlp, x, senders, receivers)
+        return edge_block(e, table, rows, receivers, weights, biases, mlp.norm)
+
+    def concatenated():
+        update = mlp(torch.cat([e, x[receivers], x[senders]], dim=-1)).float()
+        return e + update, torch.zeros_like(x).index_add(0, receivers, update)
+
+    def values_and_gradients(block):
+        e_new, aggregate = block()
+        loss = (e_new * weight_out).sum() + (aggregate * weight_agg).sum()
+        return [e_new, aggregate, *torch.autograd.grad(loss, [x, e, *mlp.parameters()])]
+
+    full = values_and_gradients(concatenated)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        ours = values_and_gradients(chunked)
+        autocast_reference = values_and_gradients(concatenated)
+    for index, (a, b, c) in enumerate(zip(full, ours, autocast_reference)):
+        assert b.dtype == torch.float32, index
+        a, b, c = a.detach(), b.detach(), c.detach().float()
+        error = float((b - a).norm() / a.norm())
+        reference_error = float((c - a).norm() / a.norm())
+        assert error <= 1.2 * reference_error + 1e-6, (index, error, reference_error)
+        if index < 4:  # the outputs and input gradients pass through the products
+            assert error > 1e-4, (index, error)

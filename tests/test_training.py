@@ -124,3 +124,16 @@ def test_checkpoints_are_pruned_to_keep(dataset_2d, tmp_path, registry):
     raw["training"].update(checkpoint_every=1, keep_checkpoints=2)
     _train(raw, registry, 5)
     assert [step for step, _ in list_checkpoints(Path(tmp_path) / "checkpoints")] == [4, 5]
+
+
+def test_bfloat16_training_follows_float32_closely(dataset_2d, tmp_path, registry):
+    """training.precision: bfloat16 runs the products in bfloat16: the losses move, but only a little."""
+    losses = {}
+    for precision in ("float32", "bfloat16"):
+        raw = tiny_recipe_mapping(dataset_2d, tmp_path / precision, latent_size=32, mlp_hidden_size=32)
+        raw["training"]["precision"] = precision
+        losses[precision], trainer = _train(raw, registry, 4)
+    full, low = np.array(losses["float32"]), np.array(losses["bfloat16"])
+    assert np.all(np.isfinite(low))
+    assert not np.array_equal(full, low)
+    assert np.allclose(low, full, rtol=0.05), (full, low)

@@ -22,6 +22,7 @@ from ..errors import CheckpointError, GnsError
 from ..loss import masked_acceleration_loss, masked_squared_error_sum
 from ..noise import random_walk_noise
 from ..plugins import Registry
+from ..precision import autocast
 from ..recipe import Recipe
 from ..scene import scene_to_dict
 from ..simulator import build_simulator
@@ -190,8 +191,9 @@ class Trainer:
         batch = batch.to(self.device)
         mask = self.simulator.predicted_mask(batch.particle_type)
         noise = noise.to(self.device) * mask[:, None, None]
-        prediction, target = self.model(batch, noise)
-        error_sum = masked_squared_error_sum(prediction, target, mask)
+        with autocast(self.recipe.training.precision, self.device):
+            prediction, target = self.model(batch, noise)
+        error_sum = masked_squared_error_sum(prediction.float(), target, mask)
         particles = torch.tensor(batch.num_particles, dtype=torch.float64, device=self.device)
         local = torch.stack([error_sum.detach().double(), mask.sum().double(), particles])
         global_error, global_predicted, global_particles = self.processes.sum(local).tolist()

@@ -54,11 +54,14 @@ def table_rows(senders: Tensor, receivers: Tensor, num_nodes: int) -> Tensor:
 
 
 def _chunk_activations(e, table, rows, weights, biases):
-    """Post-ReLU inputs of every layer after the first, and the last layer's output, for one chunk."""
+    """Post-ReLU inputs of every layer after the first, and the last layer's output, for one chunk.
+
+    Everything is in the products' dtype: ``table``, ``weights`` and ``biases`` come cast to it.
+    """
     pairs = torch.arange(0, rows.shape[0], 2, device=rows.device)
     # One pass gathers and sums the receiver and sender rows of every edge.
     a = torch.nn.functional.embedding_bag(rows, table, pairs, mode="sum")
-    a.addmm_(e, weights[0].t())
+    a.addmm_(e.to(a.dtype), weights[0].t())
     inputs = []
     for weight, bias in zip(weights[1:], biases):
         z = a.relu_()
@@ -75,19 +78,50 @@ def _chunks(num_edges: int, size: int):
     return ((lo, min(lo + size, num_edges)) for lo in range(0, num_edges, size))
 
 
-def _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, chunk_size, stored=None):
+def _in_product_dtype(product_dtype, table, weights, biases):
+    """The operands of the products, cast once per call (a no-op in full precision)."""
+    cast = [w.to(product_dtype).contiguous() for w in weights], [b.to(product_dtype) for b in biases]
+    return (table.to(product_dtype), *cast)
+
+
+def _add_product(total: Tensor, a: Tensor, b: Tensor) -> None:
+    """``total += a @ b``, with the product in the operands' dtype and the sum in ``total``'s."""
+    if a.dtype == total.dtype:
+        total.addmm_(a, b)
+    else:
+        total += a @ b
+
+
+def _product_into(out: Tensor, a: Tensor, b: Tensor, added: Tensor | None) -> None:
+    """``out = a @ b (+ added)``, with the product in the operands' dtype and the sum in ``out``'s."""
+    if a.dtype == out.dtype:
+        if added is None:
+            torch.mm(a, b, out=out)
+        else:
+            torch.addmm(added, a, b, out=out)
+    elif added is None:
+        out.copy_(a @ b)
+    else:
+        torch.add(added, a @ b, out=out)
+
+
+def _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, plan, stored=None):
     """Write ``e + u`` into ``out`` (may be ``e`` itself) and return the aggregate of ``u`` at receivers.
 
-    ``stored``, when given, receives every chunk's activations for the backward.
+    ``plan`` is (edges per chunk, dtype of the products). ``stored``, when given, receives
+    every chunk's activations for the backward.
     """
+    chunk_size, product_dtype = plan
+    table, weights, biases = _in_product_dtype(product_dtype, table, weights, biases)
     latent = e.shape[1]
     aggregate = e.new_zeros(table.shape[0] // 2, latent)
     for lo, hi in _chunks(e.shape[0], chunk_size):
         inputs, a = _chunk_activations(e[lo:hi], table, rows[2 * lo : 2 * hi], weights, biases)
+        a_full = a.to(e.dtype)
         if stored is None:
-            update = torch.layer_norm(a, (latent,), norm_weight, norm_bias, eps)
+            update = torch.layer_norm(a_full, (latent,), norm_weight, norm_bias, eps)
         else:
-            update, mean, rstd = torch.native_layer_norm(a, (latent,), norm_weight, norm_bias, eps)
+            update, mean, rstd = torch.native_layer_norm(a_full, (latent,), norm_weight, norm_bias, eps)
             stored.append((inputs, a, mean, rstd))
         aggregate.index_add_(0, receivers[lo:hi], update)
         torch.add(e[lo:hi], update, out=out[lo:hi])
@@ -96,13 +130,13 @@ def _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, bi
 
 class _EdgeBlock(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, e, table, rows, receivers, eps, num_layers, norm_weight, norm_bias, *parameters):
-        weights, biases = [w.contiguous() for w in parameters[:num_layers]], parameters[num_layers:]
+    def forward(ctx, e, table, rows, receivers, eps, num_layers, product_dtype, norm_weight, norm_bias, *parameters):
+        weights, biases = parameters[:num_layers], parameters[num_layers:]
         out = torch.empty_like(e)
         ctx.stored = None if recompute_activations() else []
-        ctx.chunk_size = _chunk_size(e.device)
+        ctx.plan = (_chunk_size(e.device), product_dtype)
         aggregate = _forward(
-            e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, ctx.chunk_size, ctx.stored
+            e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, ctx.plan, ctx.stored
         )
         ctx.save_for_backward(e, table, rows, receivers, norm_weight, norm_bias, *weights, *biases)
         ctx.eps, ctx.num_layers = eps, num_layers
@@ -114,13 +148,15 @@ class _EdgeBlock(torch.autograd.Function):
     def backward(ctx, grad_out, grad_aggregate):
         e, table, rows, receivers, norm_weight, norm_bias, *parameters = ctx.saved_tensors
         weights, biases = parameters[: ctx.num_layers], parameters[ctx.num_layers :]
+        chunk_size, product_dtype = ctx.plan
+        product_table, product_weights, product_biases = _in_product_dtype(product_dtype, table, weights, biases)
         latent = e.shape[1]
         grad_e = torch.empty_like(e)
-        grad_table = torch.zeros_like(table)
+        grad_table = torch.zeros_like(table, dtype=e.dtype)
         grad_weights = [torch.zeros_like(w) for w in weights]
         grad_biases = [torch.zeros_like(b) for b in biases]
         grad_norm_weight, grad_norm_bias = torch.zeros_like(norm_weight), torch.zeros_like(norm_bias)
-        for index, (lo, hi) in enumerate(_chunks(e.shape[0], ctx.chunk_size)):
+        for index, (lo, hi) in enumerate(_chunks(e.shape[0], chunk_size)):
             chunk_rows, e_chunk = rows[2 * lo : 2 * hi], e[lo:hi]
             if grad_aggregate is None:
                 grad_update = e.new_zeros(hi - lo, latent)
@@ -129,10 +165,12 @@ class _EdgeBlock(torch.autograd.Function):
             if grad_out is not None:
                 grad_update += grad_out[lo:hi]
             if ctx.stored is None:
-                inputs, a = _chunk_activations(e_chunk, table, chunk_rows, weights, biases)
+                inputs, a = _chunk_activations(e_chunk, product_table, chunk_rows, product_weights, product_biases)
+                a = a.to(e.dtype)
                 _, mean, rstd = torch.native_layer_norm(a, (latent,), norm_weight, norm_bias, ctx.eps)
             else:
                 inputs, a, mean, rstd = ctx.stored[index]
+                a = a.to(e.dtype)
             grad_a, grad_gamma, grad_beta = torch.ops.aten.native_layer_norm_backward(
                 grad_update, a, (latent,), mean, rstd, norm_weight, norm_bias, [True, True, True]
             )
@@ -140,17 +178,18 @@ class _EdgeBlock(torch.autograd.Function):
             grad_norm_bias += grad_beta
             for j in range(len(weights) - 1, 0, -1):
                 z = inputs[j - 1]
-                grad_weights[j].addmm_(grad_a.t(), z)
-                grad_biases[j - 1] += grad_a.sum(0)
-                grad_a = torch.ops.aten.threshold_backward(grad_a @ weights[j], z, 0)
-            grad_weights[0].addmm_(grad_a.t(), e_chunk)
-            grad_table.index_add_(0, chunk_rows[0::2], grad_a)
-            grad_table.index_add_(0, chunk_rows[1::2], grad_a)
-            if grad_out is None:
-                torch.mm(grad_a, weights[0], out=grad_e[lo:hi])
-            else:
-                torch.addmm(grad_out[lo:hi], grad_a, weights[0], out=grad_e[lo:hi])
-        return (grad_e, grad_table, None, None, None, None, grad_norm_weight, grad_norm_bias, *grad_weights, *grad_biases)
+                grad_biases[j - 1] += grad_a.sum(0, dtype=e.dtype)
+                grad_a = grad_a.to(product_dtype)
+                _add_product(grad_weights[j], grad_a.t(), z)
+                grad_a = torch.ops.aten.threshold_backward(grad_a @ product_weights[j], z, 0)
+            grad_a = grad_a.to(product_dtype)
+            _add_product(grad_weights[0], grad_a.t(), e_chunk.to(product_dtype))
+            grad_a_full = grad_a.to(e.dtype)
+            grad_table.index_add_(0, chunk_rows[0::2], grad_a_full)
+            grad_table.index_add_(0, chunk_rows[1::2], grad_a_full)
+            _product_into(grad_e[lo:hi], grad_a, product_weights[0], None if grad_out is None else grad_out[lo:hi])
+        grad_table = grad_table.to(table.dtype)
+        return (grad_e, grad_table, None, None, None, None, None, grad_norm_weight, grad_norm_bias, *grad_weights, *grad_biases)
 
 
 def edge_block(
@@ -174,23 +213,29 @@ def edge_block(
         biases: the biases of the layers after the first.
         norm: the LayerNorm after the MLP.
         in_place: write ``e + u`` into ``e`` (allowed only without autograd).
+
+    Under autocast to a lower precision (bfloat16 or float16) the products run in that
+    dtype, as autocast would run the unsplit MLP's Linears; LayerNorm, the residual,
+    the aggregate and every gradient sum stay in the widest dtype given (float32).
     """
-    # One dtype throughout (the widest given), whatever autocast would pick per operation:
-    # the in-place accumulations need it, and LayerNorm wants full precision anyway.
     dtype = e.dtype
-    for t in (table, *weights, *biases, norm.weight):
+    for t in (*weights, *biases, norm.weight):
         dtype = torch.promote_types(dtype, t.dtype)
-    e, table = e.to(dtype), table.to(dtype)
+    device_type = e.device.type
+    product_dtype = dtype
+    if torch.is_autocast_enabled(device_type):
+        product_dtype = torch.get_autocast_dtype(device_type)
+    e = e.to(dtype)
     weights, biases = [w.to(dtype) for w in weights], [b.to(dtype) for b in biases]
     norm_weight, norm_bias = norm.weight.to(dtype), norm.bias.to(dtype)
-    with torch.autocast(e.device.type, enabled=False):
+    with torch.autocast(device_type, enabled=False):
         if torch.is_grad_enabled() and any(t.requires_grad for t in (e, table, *weights, *biases, norm_weight)):
             if in_place:
                 raise ValueError("in_place edge updates cannot be differentiated")
-            return _EdgeBlock.apply(e, table, rows, receivers, norm.eps, len(weights), norm_weight, norm_bias, *weights, *biases)
+            return _EdgeBlock.apply(
+                e, table, rows, receivers, norm.eps, len(weights), product_dtype, norm_weight, norm_bias, *weights, *biases
+            )
         out = e if in_place else torch.empty_like(e)
-        weights = [w.contiguous() for w in weights]
-        aggregate = _forward(
-            e, table, rows, receivers, norm_weight, norm_bias, norm.eps, weights, biases, out, _chunk_size(e.device)
-        )
+        plan = (_chunk_size(e.device), product_dtype)
+        aggregate = _forward(e, table, rows, receivers, norm_weight, norm_bias, norm.eps, weights, biases, out, plan)
     return out, aggregate
