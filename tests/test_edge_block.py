@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from gns_builtins import chunked
 from gns_builtins.layers import NormedMLP
 from gns_builtins.processors import edge_block as edge_block_module
 from gns_builtins.processors.edge_block import edge_block, node_table, table_rows
@@ -27,7 +28,7 @@ def split_inputs(mlp: NormedMLP, x, senders, receivers):
 
 @pytest.fixture
 def small_chunks(monkeypatch):
-    monkeypatch.setattr(edge_block_module, "EDGES_PER_THREAD", 7)
+    monkeypatch.setattr(chunked, "ROWS_PER_THREAD", 7)
 
 
 @pytest.mark.parametrize("hidden_layers", [0, 1, 2])

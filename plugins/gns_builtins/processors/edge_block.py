@@ -29,13 +29,17 @@ from torch.autograd.function import once_differentiable
 
 from gns_framework.activation_memory import recompute_activations
 
-EDGES_PER_THREAD = 1024
-"""Edges per chunk and intra-op thread on CPU: each thread's share of a 128-wide chunk
-activation is 512 KiB, so its working set stays in its core's L2. Chunks grow with the
-threads because every operation on a chunk pays a fork/join and ~5 us of Python."""
-
-EDGES_PER_CHUNK_ACCELERATOR = 1 << 18
-"""Edges per chunk on GPUs, where every operation is a kernel launch: chunks only bound the temporaries."""
+from ..chunked import (
+    add_product,
+    chunk_size,
+    chunks,
+    for_products,
+    hidden_backward,
+    hidden_forward,
+    product_dtype,
+    product_into,
+    widest_dtype,
+)
 
 
 def node_table(x: Tensor, first_weight: Tensor, first_bias: Tensor) -> Tensor:
@@ -62,47 +66,7 @@ def _chunk_activations(e, table, rows, weights, biases):
     # One pass gathers and sums the receiver and sender rows of every edge.
     a = torch.nn.functional.embedding_bag(rows, table, pairs, mode="sum")
     a.addmm_(e.to(a.dtype), weights[0].t())
-    inputs = []
-    for weight, bias in zip(weights[1:], biases):
-        z = a.relu_()
-        inputs.append(z)
-        a = torch.addmm(bias, z, weight.t())
-    return inputs, a
-
-
-def _chunk_size(device: torch.device) -> int:
-    return EDGES_PER_THREAD * torch.get_num_threads() if device.type == "cpu" else EDGES_PER_CHUNK_ACCELERATOR
-
-
-def _chunks(num_edges: int, size: int):
-    return ((lo, min(lo + size, num_edges)) for lo in range(0, num_edges, size))
-
-
-def _in_product_dtype(product_dtype, table, weights, biases):
-    """The operands of the products, cast once per call (a no-op in full precision)."""
-    cast = [w.to(product_dtype).contiguous() for w in weights], [b.to(product_dtype) for b in biases]
-    return (table.to(product_dtype), *cast)
-
-
-def _add_product(total: Tensor, a: Tensor, b: Tensor) -> None:
-    """``total += a @ b``, with the product in the operands' dtype and the sum in ``total``'s."""
-    if a.dtype == total.dtype:
-        total.addmm_(a, b)
-    else:
-        total += a @ b
-
-
-def _product_into(out: Tensor, a: Tensor, b: Tensor, added: Tensor | None) -> None:
-    """``out = a @ b (+ added)``, with the product in the operands' dtype and the sum in ``out``'s."""
-    if a.dtype == out.dtype:
-        if added is None:
-            torch.mm(a, b, out=out)
-        else:
-            torch.addmm(added, a, b, out=out)
-    elif added is None:
-        out.copy_(a @ b)
-    else:
-        torch.add(added, a @ b, out=out)
+    return hidden_forward(a, weights[1:], biases)
 
 
 def _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, plan, stored=None):
@@ -111,17 +75,16 @@ def _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, bi
     ``plan`` is (edges per chunk, dtype of the products). ``stored``, when given, receives
     every chunk's activations for the backward.
     """
-    chunk_size, product_dtype = plan
-    table, weights, biases = _in_product_dtype(product_dtype, table, weights, biases)
+    size, products = plan
+    table, weights, biases = table.to(products), for_products(products, weights), for_products(products, biases)
     latent = e.shape[1]
     aggregate = e.new_zeros(table.shape[0] // 2, latent)
-    for lo, hi in _chunks(e.shape[0], chunk_size):
+    for lo, hi in chunks(e.shape[0], size):
         inputs, a = _chunk_activations(e[lo:hi], table, rows[2 * lo : 2 * hi], weights, biases)
-        a_full = a.to(e.dtype)
         if stored is None:
-            update = torch.layer_norm(a_full, (latent,), norm_weight, norm_bias, eps)
+            update = torch.layer_norm(a.to(e.dtype), (latent,), norm_weight, norm_bias, eps)
         else:
-            update, mean, rstd = torch.native_layer_norm(a_full, (latent,), norm_weight, norm_bias, eps)
+            update, mean, rstd = torch.native_layer_norm(a.to(e.dtype), (latent,), norm_weight, norm_bias, eps)
             stored.append((inputs, a, mean, rstd))
         aggregate.index_add_(0, receivers[lo:hi], update)
         torch.add(e[lo:hi], update, out=out[lo:hi])
@@ -130,11 +93,11 @@ def _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, bi
 
 class _EdgeBlock(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, e, table, rows, receivers, eps, num_layers, product_dtype, norm_weight, norm_bias, *parameters):
+    def forward(ctx, e, table, rows, receivers, eps, num_layers, products, norm_weight, norm_bias, *parameters):
         weights, biases = parameters[:num_layers], parameters[num_layers:]
         out = torch.empty_like(e)
         ctx.stored = None if recompute_activations() else []
-        ctx.plan = (_chunk_size(e.device), product_dtype)
+        ctx.plan = (chunk_size(e.device), products)
         aggregate = _forward(
             e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, ctx.plan, ctx.stored
         )
@@ -148,15 +111,16 @@ class _EdgeBlock(torch.autograd.Function):
     def backward(ctx, grad_out, grad_aggregate):
         e, table, rows, receivers, norm_weight, norm_bias, *parameters = ctx.saved_tensors
         weights, biases = parameters[: ctx.num_layers], parameters[ctx.num_layers :]
-        chunk_size, product_dtype = ctx.plan
-        product_table, product_weights, product_biases = _in_product_dtype(product_dtype, table, weights, biases)
+        size, products = ctx.plan
+        product_table = table.to(products)
+        product_weights, product_biases = for_products(products, weights), for_products(products, biases)
         latent = e.shape[1]
         grad_e = torch.empty_like(e)
         grad_table = torch.zeros_like(table, dtype=e.dtype)
         grad_weights = [torch.zeros_like(w) for w in weights]
         grad_biases = [torch.zeros_like(b) for b in biases]
         grad_norm_weight, grad_norm_bias = torch.zeros_like(norm_weight), torch.zeros_like(norm_bias)
-        for index, (lo, hi) in enumerate(_chunks(e.shape[0], chunk_size)):
+        for index, (lo, hi) in enumerate(chunks(e.shape[0], size)):
             chunk_rows, e_chunk = rows[2 * lo : 2 * hi], e[lo:hi]
             if grad_aggregate is None:
                 grad_update = e.new_zeros(hi - lo, latent)
@@ -176,18 +140,14 @@ class _EdgeBlock(torch.autograd.Function):
             )
             grad_norm_weight += grad_gamma
             grad_norm_bias += grad_beta
-            for j in range(len(weights) - 1, 0, -1):
-                z = inputs[j - 1]
-                grad_biases[j - 1] += grad_a.sum(0, dtype=e.dtype)
-                grad_a = grad_a.to(product_dtype)
-                _add_product(grad_weights[j], grad_a.t(), z)
-                grad_a = torch.ops.aten.threshold_backward(grad_a @ product_weights[j], z, 0)
-            grad_a = grad_a.to(product_dtype)
-            _add_product(grad_weights[0], grad_a.t(), e_chunk.to(product_dtype))
-            grad_a_full = grad_a.to(e.dtype)
-            grad_table.index_add_(0, chunk_rows[0::2], grad_a_full)
-            grad_table.index_add_(0, chunk_rows[1::2], grad_a_full)
-            _product_into(grad_e[lo:hi], grad_a, product_weights[0], None if grad_out is None else grad_out[lo:hi])
+            grad_a = hidden_backward(
+                grad_a, inputs, product_weights[1:], grad_weights[1:], grad_biases, (products, e.dtype)
+            )
+            add_product(grad_weights[0], grad_a.t(), e_chunk.to(products))
+            grad_a_summed = grad_a.to(e.dtype)
+            grad_table.index_add_(0, chunk_rows[0::2], grad_a_summed)
+            grad_table.index_add_(0, chunk_rows[1::2], grad_a_summed)
+            product_into(grad_e[lo:hi], grad_a, product_weights[0], None if grad_out is None else grad_out[lo:hi])
         grad_table = grad_table.to(table.dtype)
         return (grad_e, grad_table, None, None, None, None, None, grad_norm_weight, grad_norm_bias, *grad_weights, *grad_biases)
 
@@ -218,13 +178,9 @@ def edge_block(
     dtype, as autocast would run the unsplit MLP's Linears; LayerNorm, the residual,
     the aggregate and every gradient sum stay in the widest dtype given (float32).
     """
-    dtype = e.dtype
-    for t in (*weights, *biases, norm.weight):
-        dtype = torch.promote_types(dtype, t.dtype)
+    dtype = widest_dtype(e, *weights, *biases, norm.weight)
     device_type = e.device.type
-    product_dtype = dtype
-    if torch.is_autocast_enabled(device_type):
-        product_dtype = torch.get_autocast_dtype(device_type)
+    products = product_dtype(dtype, device_type)
     e = e.to(dtype)
     weights, biases = [w.to(dtype) for w in weights], [b.to(dtype) for b in biases]
     norm_weight, norm_bias = norm.weight.to(dtype), norm.bias.to(dtype)
@@ -233,9 +189,9 @@ def edge_block(
             if in_place:
                 raise ValueError("in_place edge updates cannot be differentiated")
             return _EdgeBlock.apply(
-                e, table, rows, receivers, norm.eps, len(weights), product_dtype, norm_weight, norm_bias, *weights, *biases
+                e, table, rows, receivers, norm.eps, len(weights), products, norm_weight, norm_bias, *weights, *biases
             )
         out = e if in_place else torch.empty_like(e)
-        plan = (_chunk_size(e.device), product_dtype)
+        plan = (chunk_size(e.device), products)
         aggregate = _forward(e, table, rows, receivers, norm_weight, norm_bias, norm.eps, weights, biases, out, plan)
     return out, aggregate
