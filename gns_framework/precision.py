@@ -10,16 +10,19 @@ times faster; the error this adds is measured in docs/performance.md.
 from __future__ import annotations
 
 import contextlib
-from typing import Literal
+from typing import TYPE_CHECKING, Literal, get_args
 
-import torch
+if TYPE_CHECKING:
+    import torch
 
 Precision = Literal["float32", "bfloat16"]
-"""Also the choices of the recipe's ``training.precision`` and of ``gns rollout --precision``."""
-PRECISIONS: tuple[str, ...] = ("float32", "bfloat16")
+"""The choices of the recipe's ``training.precision`` and of ``gns rollout --precision``."""
+PRECISIONS: tuple[str, ...] = get_args(Precision)
 
 
 def autocast(precision: Precision, device: torch.device | str) -> contextlib.AbstractContextManager:
     """The context in which the model's products run in ``precision`` (float32: autocast off)."""
+    import torch  # here: naming the choices (recipes, CLI help) needs no torch
+
     device_type = torch.device(device).type
     return torch.autocast(device_type, dtype=torch.bfloat16, enabled=precision == "bfloat16")

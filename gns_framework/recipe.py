@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from .errors import PluginError, RecipeError
 from .plugins import Registry, did_you_mean
+from .precision import Precision
 from .validation import problems_from
 from .yaml_loading import load_yaml_mapping
 
@@ -86,7 +87,7 @@ class TrainingSpec(_Strict):
     recompute_activations: bool = Field(
         False, description="recompute edge activations in the backward: about half the memory, ~10% slower"
     )
-    precision: Literal["float32", "bfloat16"] = Field(
+    precision: Precision = Field(
         "float32", description="float32, or bfloat16 matrix products under autocast (faster on AMX CPUs and GPUs)"
     )
 

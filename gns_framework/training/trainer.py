@@ -193,7 +193,7 @@ class Trainer:
         noise = noise.to(self.device) * mask[:, None, None]
         with autocast(self.recipe.training.precision, self.device):
             prediction, target = self.model(batch, noise)
-        error_sum = masked_squared_error_sum(prediction.float(), target, mask)
+        error_sum = masked_squared_error_sum(prediction.to(target.dtype), target, mask)
         particles = torch.tensor(batch.num_particles, dtype=torch.float64, device=self.device)
         local = torch.stack([error_sum.detach().double(), mask.sum().double(), particles])
         global_error, global_predicted, global_particles = self.processes.sum(local).tolist()
