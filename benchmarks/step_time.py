@@ -89,7 +89,7 @@ class Stepper:
         noise = random_walk_noise(self.batch.position_sequence, 6.7e-4, self.generator) * self.mask[:, None, None]
         with autocast(self.precision, "cpu"):
             prediction, target = self.simulator(self.batch, noise)
-        loss = masked_acceleration_loss(prediction.float(), target, self.mask)
+        loss = masked_acceleration_loss(prediction.to(target.dtype), target, self.mask)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
