@@ -16,6 +16,8 @@ from collections.abc import Iterator
 import torch
 from torch import Tensor
 
+from . import fused_kernels
+
 ROWS_PER_THREAD = 1024
 """Rows per chunk and intra-op thread on CPU: each thread's share of a 128-wide chunk
 activation is 512 KiB, so its working set stays in its core's L2. Chunks grow with the
@@ -57,18 +59,30 @@ def for_products(dtype: torch.dtype, tensors) -> list[Tensor]:
     return [t.to(dtype).contiguous() for t in tensors]
 
 
-def hidden_forward(a: Tensor, weights, biases) -> tuple[list[Tensor], Tensor]:
+def hidden_forward(a: Tensor, weights, biases) -> tuple[list[Tensor], Tensor, Tensor | None]:
     """ReLU and the layers after the first, on the first layer's output ``a`` (modified in place).
 
-    Returns the post-ReLU input of each of those layers (kept for the backward) and the
-    last layer's output. ``weights`` and ``biases`` are in ``a``'s dtype.
+    Returns the post-ReLU input of each of those layers (kept for the backward), the
+    last layer's product without its bias, and that bias (None without layers after
+    the first): the caller adds it in its next pass over the chunk. ``weights`` and
+    ``biases`` are in ``a``'s dtype.
     """
-    inputs = []
+    inputs, pending_bias = [], None
     for weight, bias in zip(weights, biases):
-        z = a.relu_()
+        z = bias_relu_(a, pending_bias)
         inputs.append(z)
-        a = torch.addmm(bias, z, weight.t())
-    return inputs, a
+        a = torch.mm(z, weight.t())
+        pending_bias = bias
+    return inputs, a, pending_bias
+
+
+def bias_relu_(a: Tensor, bias: Tensor | None) -> Tensor:
+    """``a = relu(a + bias)`` in place (``relu(a)`` when ``bias`` is None); one pass on float32 CPU tensors."""
+    if bias is None:
+        return a.relu_()
+    if fused_kernels.applies(a, bias):
+        return fused_kernels.bias_relu_(a, bias)
+    return a.add_(bias).relu_()
 
 
 def hidden_backward(grad: Tensor, inputs, weights, grad_weights, grad_biases, dtypes) -> Tensor:
@@ -76,16 +90,30 @@ def hidden_backward(grad: Tensor, inputs, weights, grad_weights, grad_biases, dt
 
     ``dtypes`` is (the products' dtype, the sums' dtype). Accumulates into
     ``grad_weights`` and ``grad_biases`` (of the layers after the first, in the sums'
-    dtype); returns the gradient at the first layer's output in the products' dtype.
+    dtype), except the last layer's bias gradient, the column sum of ``grad``, which
+    the caller adds (the edge block does it in its LayerNorm backward). Returns the
+    gradient at the first layer's output in the products' dtype.
     """
-    products, sums = dtypes
+    products, _ = dtypes
     for j in range(len(weights) - 1, -1, -1):
         z = inputs[j]
-        grad_biases[j] += grad.sum(0, dtype=sums)
         grad = grad.to(products)
         add_product(grad_weights[j], grad.t(), z)
-        grad = torch.ops.aten.threshold_backward(grad @ weights[j], z, 0)
+        grad = relu_backward(grad @ weights[j], z, grad_biases[j - 1] if j > 0 else None)
     return grad.to(products)
+
+
+def relu_backward(grad: Tensor, z: Tensor, grad_bias: Tensor | None) -> Tensor:
+    """``grad`` (the gradient at ``z = relu(a)``) taken back to ``a``; its column sum added into ``grad_bias``.
+
+    May overwrite ``grad``. One fused pass on float32 CPU tensors (fused_kernels.py).
+    """
+    if fused_kernels.applies(grad, z, grad_bias):
+        return fused_kernels.relu_backward_(grad, z, grad_bias)
+    grad = torch.ops.aten.threshold_backward(grad, z, 0)
+    if grad_bias is not None:
+        grad_bias += grad.sum(0, dtype=grad_bias.dtype)
+    return grad
 
 
 def add_product(total: Tensor, a: Tensor, b: Tensor) -> None:
@@ -96,14 +124,9 @@ def add_product(total: Tensor, a: Tensor, b: Tensor) -> None:
         total += a @ b
 
 
-def product_into(out: Tensor, a: Tensor, b: Tensor, added: Tensor | None = None) -> None:
-    """``out = a @ b (+ added)``, with the product in the operands' dtype and the sum in ``out``'s."""
+def product_into(out: Tensor, a: Tensor, b: Tensor) -> None:
+    """``out = a @ b``, with the product in the operands' dtype and the result in ``out``'s."""
     if a.dtype == out.dtype:
-        if added is None:
-            torch.mm(a, b, out=out)
-        else:
-            torch.addmm(added, a, b, out=out)
-    elif added is None:
-        out.copy_(a @ b)
+        torch.mm(a, b, out=out)
     else:
-        torch.add(added, a @ b, out=out)
+        out.copy_(a @ b)

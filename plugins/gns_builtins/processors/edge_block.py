@@ -12,7 +12,10 @@ Done on whole (E, H) tensors, every elementwise operation streams the edge
 activations through main memory, and every (E, H) result is a fresh allocation
 above glibc's mmap threshold that page-faults in on each call: together about as
 much time as the matrix products. Here each chunk of edges goes through the whole
-block while it sits in cache, so only the products remain costly.
+block while it sits in cache, so only the products remain costly. On CPUs the
+elementwise passes of a chunk (bias and ReLU, LayerNorm with residual and sum at
+receivers, and their backward) run as a few fused C loops (``fused_kernels.py``),
+with the torch path as the fallback.
 
 The backward is written by hand. It reuses the chunk activations stored by the
 forward, or, with :func:`~gns_framework.activation_memory.recompute_activations`,
@@ -23,12 +26,15 @@ instead of four, for a third more matrix-product work in the backward.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
 from gns_framework.activation_memory import recompute_activations
 
+from .. import fused_kernels
 from ..chunked import (
     add_product,
     chunk_size,
@@ -57,10 +63,26 @@ def table_rows(senders: Tensor, receivers: Tensor, num_nodes: int) -> Tensor:
     return torch.stack([receivers, senders + num_nodes], 1).reshape(-1)
 
 
-def _chunk_activations(e, table, rows, weights, biases):
-    """Post-ReLU inputs of every layer after the first, and the last layer's output, for one chunk.
+class Plan(NamedTuple):
+    """How one call runs: edges per chunk, the products' dtype, and whether the receivers are sorted."""
 
-    Everything is in the products' dtype: ``table``, ``weights`` and ``biases`` come cast to it.
+    chunk_size: int
+    products: torch.dtype
+    receivers_sorted: bool
+
+    @staticmethod
+    def of(e: Tensor, receivers: Tensor, products: torch.dtype) -> Plan:
+        # Graph builders sort edges by receiver; the fused CPU kernels rely on it and check it once per call.
+        receivers_sorted = e.device.type == "cpu" and bool((receivers[1:] >= receivers[:-1]).all())
+        return Plan(chunk_size(e.device), products, receivers_sorted)
+
+
+def _chunk_activations(e, table, rows, weights, biases):
+    """For one chunk: the post-ReLU inputs of every layer after the first, the last layer's product and its bias.
+
+    The bias is None when the first layer is the last (its bias is in ``table``);
+    else it is still to be added to the product. Everything is in the products'
+    dtype: ``table``, ``weights`` and ``biases`` come cast to it.
     """
     pairs = torch.arange(0, rows.shape[0], 2, device=rows.device)
     # One pass gathers and sums the receiver and sender rows of every edge.
@@ -72,23 +94,78 @@ def _chunk_activations(e, table, rows, weights, biases):
 def _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, plan, stored=None):
     """Write ``e + u`` into ``out`` (may be ``e`` itself) and return the aggregate of ``u`` at receivers.
 
-    ``plan`` is (edges per chunk, dtype of the products). ``stored``, when given, receives
+    ``plan`` is the call's :class:`Plan`. ``stored``, when given, receives
     every chunk's activations for the backward.
     """
-    size, products = plan
+    size, products = plan.chunk_size, plan.products
     table, weights, biases = table.to(products), for_products(products, weights), for_products(products, biases)
     latent = e.shape[1]
     aggregate = e.new_zeros(table.shape[0] // 2, latent)
     for lo, hi in chunks(e.shape[0], size):
-        inputs, a = _chunk_activations(e[lo:hi], table, rows[2 * lo : 2 * hi], weights, biases)
-        if stored is None:
-            update = torch.layer_norm(a.to(e.dtype), (latent,), norm_weight, norm_bias, eps)
-        else:
-            update, mean, rstd = torch.native_layer_norm(a.to(e.dtype), (latent,), norm_weight, norm_bias, eps)
+        inputs, a, last_bias = _chunk_activations(e[lo:hi], table, rows[2 * lo : 2 * hi], weights, biases)
+        a = a.to(e.dtype)
+        if last_bias is not None:
+            last_bias = last_bias.to(e.dtype)
+        norm = (norm_weight, norm_bias, eps)
+        mean, rstd = _layer_norm_residual(
+            a, last_bias, norm, e[lo:hi], out[lo:hi], aggregate, receivers[lo:hi], stored is not None, plan
+        )
+        if stored is not None:
             stored.append((inputs, a, mean, rstd))
-        aggregate.index_add_(0, receivers[lo:hi], update)
-        torch.add(e[lo:hi], update, out=out[lo:hi])
     return aggregate
+
+
+def _layer_norm_residual(a, bias, norm, e, out, aggregate, receivers, stats, plan):
+    """LayerNorm ``u`` of ``a + bias``: writes ``e + u`` into ``out``, adds ``u`` into ``aggregate`` at ``receivers``.
+
+    ``a`` becomes ``a + bias`` (unless ``bias`` is None); ``norm`` is (weight, bias,
+    eps). Returns the LayerNorm's ``(mean, rstd)`` for the backward when ``stats``,
+    else ``(None, None)``.
+    """
+    norm_weight, norm_bias, eps = norm
+    if plan.receivers_sorted and fused_kernels.applies(a, bias, e, out, aggregate, receivers, norm_weight, norm_bias):
+        return fused_kernels.layer_norm_residual(a, bias, norm_weight, norm_bias, eps, e, out, aggregate, receivers, stats)
+    if bias is not None:
+        a += bias
+    if stats:
+        update, mean, rstd = torch.native_layer_norm(a, (a.shape[1],), norm_weight, norm_bias, eps)
+    else:
+        update, mean, rstd = torch.layer_norm(a, (a.shape[1],), norm_weight, norm_bias, eps), None, None
+    torch.add(e, update, out=out)
+    aggregate.index_add_(0, receivers, update)
+    return mean, rstd
+
+
+def _layer_norm_backward(grad_aggregate, receivers, grad_out, a, mean, rstd, norm, grad_e, grad_norm, grad_last_bias):
+    """Gradient at ``a`` from ``grad_aggregate[receivers] + grad_out`` (either may be None, not both).
+
+    ``norm`` is the LayerNorm's (weight, bias). Writes ``grad_out`` into ``grad_e`` (the
+    residual's share of the gradient at ``e``; untouched when None). Adds into
+    ``grad_norm`` (LayerNorm weight, bias) and into ``grad_last_bias``, the bias of the
+    layer that produced ``a`` (None when that is the first layer, whose bias is in the
+    node table).
+    """
+    norm_weight, norm_bias = norm
+    if fused_kernels.applies(grad_aggregate, receivers, grad_out, a, mean, rstd, norm_weight, grad_e, grad_last_bias):
+        return fused_kernels.layer_norm_backward(
+            grad_aggregate, receivers, grad_out, a, mean, rstd, norm_weight, grad_e, *grad_norm, grad_last_bias
+        )
+    if grad_out is not None:
+        grad_e.copy_(grad_out)
+    if grad_aggregate is None:
+        grad_update = grad_out
+    else:
+        grad_update = grad_aggregate.index_select(0, receivers)
+        if grad_out is not None:
+            grad_update += grad_out
+    grad_a, grad_gamma, grad_beta = torch.ops.aten.native_layer_norm_backward(
+        grad_update, a, (a.shape[1],), mean, rstd, norm_weight, norm_bias, [True, True, True]
+    )
+    grad_norm[0].add_(grad_gamma)
+    grad_norm[1].add_(grad_beta)
+    if grad_last_bias is not None:
+        grad_last_bias += grad_a.sum(0)
+    return grad_a
 
 
 class _EdgeBlock(torch.autograd.Function):
@@ -97,7 +174,7 @@ class _EdgeBlock(torch.autograd.Function):
         weights, biases = parameters[:num_layers], parameters[num_layers:]
         out = torch.empty_like(e)
         ctx.stored = None if recompute_activations() else []
-        ctx.plan = (chunk_size(e.device), products)
+        ctx.plan = Plan.of(e, receivers, products)
         aggregate = _forward(
             e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, ctx.plan, ctx.stored
         )
@@ -111,7 +188,7 @@ class _EdgeBlock(torch.autograd.Function):
     def backward(ctx, grad_out, grad_aggregate):
         e, table, rows, receivers, norm_weight, norm_bias, *parameters = ctx.saved_tensors
         weights, biases = parameters[: ctx.num_layers], parameters[ctx.num_layers :]
-        size, products = ctx.plan
+        size, products = ctx.plan.chunk_size, ctx.plan.products
         product_table = table.to(products)
         product_weights, product_biases = for_products(products, weights), for_products(products, biases)
         latent = e.shape[1]
@@ -120,26 +197,28 @@ class _EdgeBlock(torch.autograd.Function):
         grad_weights = [torch.zeros_like(w) for w in weights]
         grad_biases = [torch.zeros_like(b) for b in biases]
         grad_norm_weight, grad_norm_bias = torch.zeros_like(norm_weight), torch.zeros_like(norm_bias)
+        if grad_aggregate is None and grad_out is None:
+            grad_out = torch.zeros_like(e)
+        if grad_aggregate is not None:
+            # Often a column slice of the node MLP's input gradient; its rows are gathered per edge.
+            grad_aggregate = grad_aggregate.contiguous()
         for index, (lo, hi) in enumerate(chunks(e.shape[0], size)):
             chunk_rows, e_chunk = rows[2 * lo : 2 * hi], e[lo:hi]
-            if grad_aggregate is None:
-                grad_update = e.new_zeros(hi - lo, latent)
-            else:
-                grad_update = grad_aggregate.index_select(0, receivers[lo:hi])
-            if grad_out is not None:
-                grad_update += grad_out[lo:hi]
             if ctx.stored is None:
-                inputs, a = _chunk_activations(e_chunk, product_table, chunk_rows, product_weights, product_biases)
+                inputs, a, last_bias = _chunk_activations(
+                    e_chunk, product_table, chunk_rows, product_weights, product_biases
+                )
                 a = a.to(e.dtype)
+                if last_bias is not None:
+                    a += last_bias
                 _, mean, rstd = torch.native_layer_norm(a, (latent,), norm_weight, norm_bias, ctx.eps)
             else:
                 inputs, a, mean, rstd = ctx.stored[index]
-                a = a.to(e.dtype)
-            grad_a, grad_gamma, grad_beta = torch.ops.aten.native_layer_norm_backward(
-                grad_update, a, (latent,), mean, rstd, norm_weight, norm_bias, [True, True, True]
+            grad_a = _layer_norm_backward(
+                grad_aggregate, receivers[lo:hi], None if grad_out is None else grad_out[lo:hi], a, mean, rstd,
+                (norm_weight, norm_bias), grad_e[lo:hi], (grad_norm_weight, grad_norm_bias),
+                grad_biases[-1] if grad_biases else None,
             )
-            grad_norm_weight += grad_gamma
-            grad_norm_bias += grad_beta
             grad_a = hidden_backward(
                 grad_a, inputs, product_weights[1:], grad_weights[1:], grad_biases, (products, e.dtype)
             )
@@ -147,7 +226,10 @@ class _EdgeBlock(torch.autograd.Function):
             grad_a_summed = grad_a.to(e.dtype)
             grad_table.index_add_(0, chunk_rows[0::2], grad_a_summed)
             grad_table.index_add_(0, chunk_rows[1::2], grad_a_summed)
-            product_into(grad_e[lo:hi], grad_a, product_weights[0], None if grad_out is None else grad_out[lo:hi])
+            if grad_out is None:
+                product_into(grad_e[lo:hi], grad_a, product_weights[0])
+            else:
+                add_product(grad_e[lo:hi], grad_a, product_weights[0])
         grad_table = grad_table.to(table.dtype)
         return (grad_e, grad_table, None, None, None, None, None, grad_norm_weight, grad_norm_bias, *grad_weights, *grad_biases)
 
@@ -192,6 +274,6 @@ def edge_block(
                 e, table, rows, receivers, norm.eps, len(weights), products, norm_weight, norm_bias, *weights, *biases
             )
         out = e if in_place else torch.empty_like(e)
-        plan = (chunk_size(e.device), products)
+        plan = Plan.of(e, receivers, products)
         aggregate = _forward(e, table, rows, receivers, norm_weight, norm_bias, norm.eps, weights, biases, out, plan)
     return out, aggregate
