@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "step_time.py"
 REQUIRED = (
@@ -29,3 +30,31 @@ def test_one_scene_prints_one_json_object_with_every_figure(dim, precision):
     assert abs(figures["particles"] - 300) < 0.2 * 300
     assert figures["edges"] == pytest.approx(figures["particles"] * (figures["mean_neighbours"] + 1))
     assert 5 < figures["mean_neighbours"] < 30
+
+
+def test_the_peer_runs_in_a_child_process_with_the_reference_allocator():
+    command = [sys.executable, str(SCRIPT), "--particles", "300", "--repeat", "1", "--warmup", "0", "--threads", "1",
+               "--peer", "--json"]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    figures = json.loads(result.stdout.strip().splitlines()[-1])
+    assert figures["peer_allocator"] == "glibc" and figures["keep_freed_memory"]
+    for key in ("peer_train_step_s", "peer_rollout_step_s", "peer_peak_rss_inference_mb", "peer_peak_rss_mb",
+                "peer_train_speedup", "peer_rollout_speedup"):
+        assert figures[key] > 0, key
+
+
+def test_the_peer_computes_the_same_function_as_our_model():
+    sys.path.insert(0, str(SCRIPT.parent))
+    try:
+        from reference_style import reference_style
+        from step_time import benchmark_model
+    finally:
+        sys.path.remove(str(SCRIPT.parent))
+    scene, simulator = benchmark_model(200, 2)
+    peer = reference_style(simulator)
+    with torch.no_grad():
+        ours = simulator.predict_next_position(scene.batch)
+        theirs = peer.predict_next_position(scene.batch)
+    assert not torch.equal(ours, scene.batch.position_sequence[:, -1])
+    torch.testing.assert_close(theirs, ours, rtol=1e-5, atol=1e-6)
