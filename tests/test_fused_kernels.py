@@ -47,33 +47,30 @@ def two_threads():
 def test_layer_norm_residual_matches_torch(shape, seed, with_bias, stats):
     rows, width, threads = shape
     with num_threads(threads):
-        _check_layer_norm_residual(rows, width, seed, with_bias, stats)
+        g = _seeded(seed)
+        a = torch.randn(rows, width, generator=g) * 3 + 1
+        bias = torch.randn(width, generator=g) if with_bias else None
+        gamma, beta = torch.randn(width, generator=g), torch.randn(width, generator=g)
+        e = torch.randn(rows, width, generator=g)
+        nodes = max(1, rows // 3)
+        # Runs of equal receivers that straddle the threads' shares of rows.
+        receivers = torch.randint(0, nodes, (rows,), generator=g).sort().values
+        aggregate = torch.randn(nodes, width, generator=g)
 
+        biased = a + bias if with_bias else a.clone()
+        expected_update, expected_mean, expected_rstd = torch.native_layer_norm(biased, (width,), gamma, beta, 1e-5)
+        expected_aggregate = aggregate.index_add(0, receivers, expected_update)
 
-def _check_layer_norm_residual(rows, width, seed, with_bias, stats):
-    g = _seeded(seed)
-    a = torch.randn(rows, width, generator=g) * 3 + 1
-    bias = torch.randn(width, generator=g) if with_bias else None
-    gamma, beta, e = torch.randn(width, generator=g), torch.randn(width, generator=g), torch.randn(rows, width, generator=g)
-    nodes = max(1, rows // 3)
-    # Runs of equal receivers that straddle the threads' shares of rows.
-    receivers = torch.randint(0, nodes, (rows,), generator=g).sort().values
-    aggregate = torch.randn(nodes, width, generator=g)
-
-    biased = a + bias if with_bias else a.clone()
-    expected_update, expected_mean, expected_rstd = torch.native_layer_norm(biased, (width,), gamma, beta, 1e-5)
-    expected_aggregate = aggregate.index_add(0, receivers, expected_update)
-
-    out = torch.empty_like(e)
-    mean, rstd = fused_kernels.layer_norm_residual(a, bias, gamma, beta, 1e-5, e, out, aggregate, receivers, stats)
-    torch.testing.assert_close(a, biased, rtol=0, atol=0)
-    torch.testing.assert_close(out, e + expected_update, rtol=1e-5, atol=1e-5)
-    torch.testing.assert_close(aggregate, expected_aggregate, rtol=1e-5, atol=1e-5)
-    if stats:
-        torch.testing.assert_close(mean, expected_mean, rtol=1e-5, atol=1e-6)
-        torch.testing.assert_close(rstd, expected_rstd, rtol=1e-4, atol=1e-6)
-    else:
-        assert mean is None and rstd is None
+        out = torch.empty_like(e)
+        mean, rstd = fused_kernels.layer_norm_residual(a, bias, gamma, beta, 1e-5, e, out, aggregate, receivers, stats)
+        torch.testing.assert_close(a, biased, rtol=0, atol=0)
+        torch.testing.assert_close(out, e + expected_update, rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(aggregate, expected_aggregate, rtol=1e-5, atol=1e-5)
+        if stats:
+            torch.testing.assert_close(mean, expected_mean, rtol=1e-5, atol=1e-6)
+            torch.testing.assert_close(rstd, expected_rstd, rtol=1e-4, atol=1e-6)
+        else:
+            assert mean is None and rstd is None
 
 
 @requires_kernels
@@ -85,7 +82,9 @@ def test_layer_norm_residual_in_place_and_deterministic(two_threads):
     results = []
     for _ in range(3):
         residual, aggregate = e.clone(), torch.zeros(50, 128)
-        fused_kernels.layer_norm_residual(a.clone(), None, gamma, beta, 1e-5, residual, residual, aggregate, receivers, False)
+        fused_kernels.layer_norm_residual(
+            a.clone(), None, gamma, beta, 1e-5, residual, residual, aggregate, receivers, False
+        )
         results.append((residual, aggregate))
     update = torch.layer_norm(a, (128,), gamma, beta, 1e-5)
     torch.testing.assert_close(results[0][0], e + update, rtol=1e-5, atol=1e-5)
@@ -100,43 +99,39 @@ def test_layer_norm_residual_in_place_and_deterministic(two_threads):
 def test_layer_norm_backward_matches_torch(shape, seed, inputs, with_bias):
     rows, width, threads = shape
     with num_threads(threads):
-        _check_layer_norm_backward(rows, width, seed, inputs, with_bias)
+        g = _seeded(seed)
+        a = torch.randn(rows, width, generator=g) * 2
+        gamma, beta = torch.randn(width, generator=g), torch.randn(width, generator=g)
+        _, mean, rstd = torch.native_layer_norm(a, (width,), gamma, beta, 1e-5)
+        nodes = max(1, rows // 2)
+        receivers = torch.randint(0, nodes, (rows,), generator=g)
+        grad_aggregate = torch.randn(nodes, width, generator=g) if inputs != "out" else None
+        grad_out = torch.randn(rows, width, generator=g) if inputs != "aggregate" else None
+        grad_update = torch.zeros(rows, width)
+        if grad_aggregate is not None:
+            grad_update += grad_aggregate[receivers]
+        if grad_out is not None:
+            grad_update += grad_out
+        expected, expected_gamma, expected_beta = torch.ops.aten.native_layer_norm_backward(
+            grad_update, a, (width,), mean, rstd, gamma, beta, [True, True, True]
+        )
 
-
-def _check_layer_norm_backward(rows, width, seed, inputs, with_bias):
-    g = _seeded(seed)
-    a = torch.randn(rows, width, generator=g) * 2
-    gamma, beta = torch.randn(width, generator=g), torch.randn(width, generator=g)
-    _, mean, rstd = torch.native_layer_norm(a, (width,), gamma, beta, 1e-5)
-    nodes = max(1, rows // 2)
-    receivers = torch.randint(0, nodes, (rows,), generator=g)
-    grad_aggregate = torch.randn(nodes, width, generator=g) if inputs != "out" else None
-    grad_out = torch.randn(rows, width, generator=g) if inputs != "aggregate" else None
-    grad_update = torch.zeros(rows, width)
-    if grad_aggregate is not None:
-        grad_update += grad_aggregate[receivers]
-    if grad_out is not None:
-        grad_update += grad_out
-    expected, expected_gamma, expected_beta = torch.ops.aten.native_layer_norm_backward(
-        grad_update, a, (width,), mean, rstd, gamma, beta, [True, True, True]
-    )
-
-    grad_residual = torch.full((rows, width), 7.0)
-    sums = [torch.ones(width) for _ in range(3)]
-    got = fused_kernels.layer_norm_backward(
-        grad_aggregate, receivers, grad_out, a, mean, rstd, gamma, grad_residual, sums[0], sums[1],
-        sums[2] if with_bias else None,
-    )
-    # Rounding in x - mean is amplified by rstd (1/sqrt(eps) for constant rows, e.g. width 1).
-    scale = 1 + expected.abs().max().item() + (rstd.max() * grad_update.abs().max() * gamma.abs().max()).item()
-    torch.testing.assert_close(got, expected, rtol=1e-4, atol=1e-5 * scale)
-    torch.testing.assert_close(sums[0], 1 + expected_gamma, rtol=1e-4, atol=1e-4 * math.sqrt(rows))
-    torch.testing.assert_close(sums[1], 1 + expected_beta, rtol=1e-4, atol=1e-4 * math.sqrt(rows))
-    if with_bias:
-        torch.testing.assert_close(sums[2], 1 + expected.sum(0), rtol=1e-4, atol=1e-4 * math.sqrt(rows) * scale)
-    else:
-        assert torch.equal(sums[2], torch.ones(width))
-    torch.testing.assert_close(grad_residual, grad_out if grad_out is not None else torch.full((rows, width), 7.0))
+        grad_residual = torch.full((rows, width), 7.0)
+        sums = [torch.ones(width) for _ in range(3)]
+        got = fused_kernels.layer_norm_backward(
+            grad_aggregate, receivers, grad_out, a, mean, rstd, gamma, grad_residual, sums[0], sums[1],
+            sums[2] if with_bias else None,
+        )
+        # Rounding in x - mean is amplified by rstd (1/sqrt(eps) for constant rows, e.g. width 1).
+        scale = 1 + expected.abs().max().item() + (rstd.max() * grad_update.abs().max() * gamma.abs().max()).item()
+        torch.testing.assert_close(got, expected, rtol=1e-4, atol=1e-5 * scale)
+        torch.testing.assert_close(sums[0], 1 + expected_gamma, rtol=1e-4, atol=1e-4 * math.sqrt(rows))
+        torch.testing.assert_close(sums[1], 1 + expected_beta, rtol=1e-4, atol=1e-4 * math.sqrt(rows))
+        if with_bias:
+            torch.testing.assert_close(sums[2], 1 + expected.sum(0), rtol=1e-4, atol=1e-4 * math.sqrt(rows) * scale)
+        else:
+            assert torch.equal(sums[2], torch.ones(width))
+        torch.testing.assert_close(grad_residual, grad_out if grad_out is not None else torch.full((rows, width), 7.0))
 
 
 @requires_kernels
@@ -145,22 +140,19 @@ def _check_layer_norm_backward(rows, width, seed, inputs, with_bias):
 def test_relu_kernels_match_torch(shape, seed, with_bias):
     rows, width, threads = shape
     with num_threads(threads):
-        _check_relu_kernels(rows, width, seed, with_bias)
+        g = _seeded(seed)
+        a, grad = torch.randn(rows, width, generator=g), torch.randn(rows, width, generator=g)
+        bias = torch.randn(width, generator=g)
+        a[0, 0] = -bias[0]  # exactly 0 after the bias: the ReLU's gradient there is 0, as in torch
+        z = torch.relu(a + bias)
+        assert torch.equal(fused_kernels.bias_relu_(a.clone(), bias), z)
 
-
-def _check_relu_kernels(rows, width, seed, with_bias):
-    g = _seeded(seed)
-    a, bias, grad = torch.randn(rows, width, generator=g), torch.randn(width, generator=g), torch.randn(rows, width, generator=g)
-    a[0, 0] = -bias[0]  # exactly 0 after the bias: the ReLU's gradient there is 0, as in torch
-    z = torch.relu(a + bias)
-    assert torch.equal(fused_kernels.bias_relu_(a.clone(), bias), z)
-
-    expected = torch.ops.aten.threshold_backward(grad, z, 0)
-    grad_bias = torch.zeros(width) if with_bias else None
-    got = fused_kernels.relu_backward_(grad.clone(), z, grad_bias)
-    assert torch.equal(got, expected)
-    if with_bias:
-        torch.testing.assert_close(grad_bias, expected.sum(0), rtol=1e-5, atol=1e-5 * math.sqrt(rows))
+        expected = torch.ops.aten.threshold_backward(grad, z, 0)
+        grad_bias = torch.zeros(width) if with_bias else None
+        got = fused_kernels.relu_backward_(grad.clone(), z, grad_bias)
+        assert torch.equal(got, expected)
+        if with_bias:
+            torch.testing.assert_close(grad_bias, expected.sum(0), rtol=1e-5, atol=1e-5 * math.sqrt(rows))
 
 
 @requires_kernels

@@ -121,7 +121,7 @@ def layer_norm_residual(
     receivers: Tensor,
     stats: bool,
 ) -> tuple[Tensor | None, Tensor | None]:
-    """``a += bias`` (in place, unless None), ``u = LayerNorm(a)``, ``out = residual + u``, ``aggregate[receivers] += u``.
+    """``a += bias`` (unless None), ``u = LayerNorm(a)``, ``out = residual + u``, ``aggregate[receivers] += u``.
 
     ``a``, ``residual`` and ``out``: (C, H); ``out`` may be ``residual``. ``aggregate``
     (N, H); ``receivers`` (C,) int64, **sorted ascending** (each thread then owns whole

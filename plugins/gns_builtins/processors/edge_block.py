@@ -99,14 +99,13 @@ def _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, bi
     """
     size, products = plan.chunk_size, plan.products
     table, weights, biases = table.to(products), for_products(products, weights), for_products(products, biases)
-    latent = e.shape[1]
-    aggregate = e.new_zeros(table.shape[0] // 2, latent)
+    aggregate = e.new_zeros(table.shape[0] // 2, e.shape[1])
+    norm = (norm_weight, norm_bias, eps)
     for lo, hi in chunks(e.shape[0], size):
         inputs, a, last_bias = _chunk_activations(e[lo:hi], table, rows[2 * lo : 2 * hi], weights, biases)
         a = a.to(e.dtype)
         if last_bias is not None:
             last_bias = last_bias.to(e.dtype)
-        norm = (norm_weight, norm_bias, eps)
         mean, rstd = _layer_norm_residual(
             a, last_bias, norm, e[lo:hi], out[lo:hi], aggregate, receivers[lo:hi], stored is not None, plan
         )
@@ -124,7 +123,9 @@ def _layer_norm_residual(a, bias, norm, e, out, aggregate, receivers, stats, pla
     """
     norm_weight, norm_bias, eps = norm
     if plan.receivers_sorted and fused_kernels.applies(a, bias, e, out, aggregate, receivers, norm_weight, norm_bias):
-        return fused_kernels.layer_norm_residual(a, bias, norm_weight, norm_bias, eps, e, out, aggregate, receivers, stats)
+        return fused_kernels.layer_norm_residual(
+            a, bias, norm_weight, norm_bias, eps, e, out, aggregate, receivers, stats
+        )
     if bias is not None:
         a += bias
     if stats:
