@@ -59,21 +59,19 @@ def for_products(dtype: torch.dtype, tensors) -> list[Tensor]:
     return [t.to(dtype).contiguous() for t in tensors]
 
 
-def hidden_forward(a: Tensor, weights, biases) -> tuple[list[Tensor], Tensor, Tensor | None]:
+def hidden_forward(a: Tensor, weights, biases) -> tuple[list[Tensor], Tensor]:
     """ReLU and the layers after the first, on the first layer's output ``a`` (modified in place).
 
-    Returns the post-ReLU input of each of those layers (kept for the backward), the
-    last layer's product without its bias, and that bias (None without layers after
-    the first): the caller adds it in its next pass over the chunk. ``weights`` and
-    ``biases`` are in ``a``'s dtype.
+    Returns the post-ReLU input of each of those layers (kept for the backward) and the
+    last layer's product *without* its bias, ``biases[-1]``: the caller adds it in its
+    next pass over the chunk. ``weights`` and ``biases`` are in ``a``'s dtype.
     """
-    inputs, pending_bias = [], None
-    for weight, bias in zip(weights, biases):
-        z = bias_relu_(a, pending_bias)
+    inputs = []
+    for j, weight in enumerate(weights):
+        z = bias_relu_(a, biases[j - 1] if j > 0 else None)
         inputs.append(z)
         a = torch.mm(z, weight.t())
-        pending_bias = bias
-    return inputs, a, pending_bias
+    return inputs, a
 
 
 def bias_relu_(a: Tensor, bias: Tensor | None) -> Tensor:

@@ -78,11 +78,11 @@ class Plan(NamedTuple):
 
 
 def _chunk_activations(e, table, rows, weights, biases):
-    """For one chunk: the post-ReLU inputs of every layer after the first, the last layer's product and its bias.
+    """For one chunk: the post-ReLU inputs of every layer after the first, and the last layer's product.
 
-    The bias is None when the first layer is the last (its bias is in ``table``);
-    else it is still to be added to the product. Everything is in the products'
-    dtype: ``table``, ``weights`` and ``biases`` come cast to it.
+    The product lacks the last bias, ``biases[-1]``, when there are layers after the
+    first (else the bias is in ``table``). Everything is in the products' dtype:
+    ``table``, ``weights`` and ``biases`` come cast to it.
     """
     pairs = torch.arange(0, rows.shape[0], 2, device=rows.device)
     # One pass gathers and sums the receiver and sender rows of every edge.
@@ -98,14 +98,13 @@ def _forward(e, table, rows, receivers, norm_weight, norm_bias, eps, weights, bi
     every chunk's activations for the backward.
     """
     size, products = plan.chunk_size, plan.products
+    last_bias = biases[-1] if biases else None
     table, weights, biases = table.to(products), for_products(products, weights), for_products(products, biases)
     aggregate = e.new_zeros(table.shape[0] // 2, e.shape[1])
     norm = (norm_weight, norm_bias, eps)
     for lo, hi in chunks(e.shape[0], size):
-        inputs, a, last_bias = _chunk_activations(e[lo:hi], table, rows[2 * lo : 2 * hi], weights, biases)
+        inputs, a = _chunk_activations(e[lo:hi], table, rows[2 * lo : 2 * hi], weights, biases)
         a = a.to(e.dtype)
-        if last_bias is not None:
-            last_bias = last_bias.to(e.dtype)
         mean, rstd = _layer_norm_residual(
             a, last_bias, norm, e[lo:hi], out[lo:hi], aggregate, receivers[lo:hi], stored is not None, plan
         )
@@ -200,15 +199,14 @@ class _EdgeBlock(torch.autograd.Function):
         grad_norm_weight, grad_norm_bias = torch.zeros_like(norm_weight), torch.zeros_like(norm_bias)
         if grad_aggregate is None and grad_out is None:
             grad_out = torch.zeros_like(e)
+        last_bias = biases[-1] if biases else None
         if grad_aggregate is not None:
             # Often a column slice of the node MLP's input gradient; its rows are gathered per edge.
             grad_aggregate = grad_aggregate.contiguous()
         for index, (lo, hi) in enumerate(chunks(e.shape[0], size)):
             chunk_rows, e_chunk = rows[2 * lo : 2 * hi], e[lo:hi]
             if ctx.stored is None:
-                inputs, a, last_bias = _chunk_activations(
-                    e_chunk, product_table, chunk_rows, product_weights, product_biases
-                )
+                inputs, a = _chunk_activations(e_chunk, product_table, chunk_rows, product_weights, product_biases)
                 a = a.to(e.dtype)
                 if last_bias is not None:
                     a += last_bias
