@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import torch
 from torch import Tensor
+
+if TYPE_CHECKING:
+    from .data.metadata import DatasetMetadata
+    from .recipe import ModelSpec
 
 
 def random_walk_noise(
@@ -26,3 +32,16 @@ def random_walk_noise(
     ) * (noise_std_last_step / num_velocities**0.5)
     velocity_noise = torch.cumsum(velocity_noise, dim=1)
     return torch.cat([torch.zeros_like(velocity_noise[:, :1]), torch.cumsum(velocity_noise, dim=1)], dim=1)
+
+
+def training_noise_std(model: "ModelSpec", metadata: "DatasetMetadata") -> float:
+    """The random-walk noise std of a model's recipe, in dataset length units per frame.
+
+    ``noise_relative`` scales with the data: the reference's absolute 6.7e-4 was tuned
+    for DeepMind's datasets, and on data with slower particles the same value drowns
+    the velocity signal. The std enters the input normalisation too, so a checkpoint
+    rebuilds the same value from its stored metadata.
+    """
+    if model.noise_relative is None:
+        return model.noise_std
+    return model.noise_relative * sum(metadata.vel_std) / len(metadata.vel_std)

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from .errors import PluginError, RecipeError
 from .plugins import Registry, did_you_mean
@@ -39,6 +39,12 @@ class DatasetSpec(ComponentSpec):
 
     name: str = "safe"
     path: str = Field(description="folder with metadata.json and <split> files, relative to the working directory")
+    frame_stride: int = Field(
+        1,
+        ge=1,
+        description="stored frames per learned step: the model sees every k-th frame (dt and statistics scale with it); "
+        "fewer, larger steps make rollouts cheaper and accumulate less error",
+    )
 
 
 class ModelSpec(_Strict):
@@ -52,7 +58,15 @@ class ModelSpec(_Strict):
     material_properties: list[str] | None = Field(
         None, description="names of the data's material_property columns; default: the materials' properties"
     )
-    noise_std: float = Field(6.7e-4, ge=0, description="random-walk noise std at the last input velocity")
+    noise_std: float = Field(
+        6.7e-4, ge=0, description="random-walk noise std at the last input velocity, in dataset length units per frame"
+    )
+    noise_relative: float | None = Field(
+        None,
+        ge=0,
+        description="random-walk noise std as a fraction of the data's velocity std (mean over dimensions of the "
+        "metadata's vel_std); replaces noise_std, so one value fits data of any scale",
+    )
     periodic: list[bool] | None = Field(
         None, description="per dimension, whether the domain wraps around; default: the metadata's periodic_boundary_conditions"
     )
@@ -63,14 +77,33 @@ class ModelSpec(_Strict):
     decoder: ComponentSpec = ComponentSpec(name="mlp")
     integrator: ComponentSpec = ComponentSpec(name="semi_implicit_euler")
 
+    @model_validator(mode="after")
+    def _one_noise_rule(self) -> "ModelSpec":
+        if self.noise_relative is not None and "noise_std" in self.model_fields_set:
+            raise ValueError("give noise_std (absolute) or noise_relative (fraction of the velocity std), not both")
+        return self
+
 
 class OptimizerSpec(_Strict):
-    """Adam with ``lr = lr_min + (lr_init - lr_min) * lr_decay ** (step / lr_decay_steps)``."""
+    """Adam and its learning-rate schedule.
 
+    ``exponential`` (the reference's): ``lr = lr_min + (lr_init - lr_min) * lr_decay ** (step / lr_decay_steps)``.
+    ``cosine``: after ``warmup_steps`` of linear warm-up from 0 to ``lr_init``, a half cosine from ``lr_init``
+    down to ``lr_min`` at the last training step (``training.steps``), so the whole budget is used.
+    """
+
+    schedule: Literal["exponential", "cosine"] = Field("exponential", description="exponential (reference) or cosine")
     lr_init: float = Field(1e-4, gt=0)
     lr_min: float = Field(1e-6, ge=0)
-    lr_decay: float = Field(0.1, gt=0, le=1)
-    lr_decay_steps: float = Field(5e6, gt=0)
+    lr_decay: float = Field(0.1, gt=0, le=1, description="exponential schedule only")
+    lr_decay_steps: float = Field(5e6, gt=0, description="exponential schedule only")
+    warmup_steps: int = Field(0, ge=0, description="linear warm-up steps from lr 0 (both schedules)")
+
+    @model_validator(mode="after")
+    def _floor_below_start(self) -> "OptimizerSpec":
+        if self.lr_min > self.lr_init:
+            raise ValueError(f"lr_min ({self.lr_min}) must not exceed lr_init ({self.lr_init})")
+        return self
 
 
 class TrainingSpec(_Strict):
@@ -89,6 +122,16 @@ class TrainingSpec(_Strict):
     )
     precision: Precision = Field(
         "float32", description="float32, or bfloat16 matrix products under autocast (faster on AMX CPUs and GPUs)"
+    )
+    validation_rollouts: int = Field(
+        0,
+        ge=0,
+        description="valid trajectories rolled out in full at each validation (0: one-step loss only); "
+        "the checkpoint with the best best_metric so far is kept as checkpoints/best.pt",
+    )
+    best_metric: Literal["valid_rollout_mse", "valid_rollout_sinkhorn_pct", "valid_rollout_runout_error_pct"] = Field(
+        "valid_rollout_mse",
+        description="rollout metric (lower is better, mean over the validation rollouts) that picks best.pt",
     )
 
 
@@ -156,7 +199,7 @@ def _component_problems(raw: dict, registry: Registry) -> list[tuple[str, str]]:
             continue
         if kind == "dataset":
             name = spec.get("name", "safe")
-            params = {k: v for k, v in spec.items() if k not in ("name", "path")}
+            params = {k: v for k, v in spec.items() if k not in DatasetSpec.model_fields}
         else:
             name = spec.get("name")
             params = {k: v for k, v in spec.items() if k != "name"}

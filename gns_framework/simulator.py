@@ -16,6 +16,7 @@ from .data.batch import ParticleBatch
 from .data.metadata import DatasetMetadata
 from .errors import RecipeError
 from .features import FeatureBuilder, edge_feature_size, node_feature_size
+from .noise import training_noise_std
 from .normalization import Stats
 from .periodic import PeriodicBox
 from .plugins import Registry
@@ -150,11 +151,12 @@ def build_simulator(scene: Scene, metadata: DatasetMetadata, model: ModelSpec, r
               f"use one of: {', '.join(periodic_builders) or 'none installed'}")],
         )
     integrator = integrator_cls(integrator_params)
-    velocity_stats = Stats(metadata.vel_mean, metadata.vel_std, model.noise_std)
+    noise_std = training_noise_std(model, metadata)
+    velocity_stats = Stats(metadata.vel_mean, metadata.vel_std, noise_std)
     if integrator.predicts == "acceleration":
-        output_stats = Stats(metadata.acc_mean, metadata.acc_std, model.noise_std)
+        output_stats = Stats(metadata.acc_mean, metadata.acc_std, noise_std)
     else:
-        output_stats = Stats(metadata.vel_mean, metadata.vel_std, model.noise_std)
+        output_stats = Stats(metadata.vel_mean, metadata.vel_std, noise_std)
     context_stats = None
     if scene.context_size:
         context_stats = Stats(metadata.context_mean, metadata.context_std)

@@ -7,7 +7,9 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+from ..contracts import Scene
 from ..data.metadata import DatasetMetadata
+from ..data.stride import strided
 from ..data.trajectory import Trajectory
 from ..errors import DatasetError, RolloutDiverged
 from ..loading import LoadedModel
@@ -67,6 +69,8 @@ def simulator_candidates(
     seeds = trajectory_seeds(scene.seed, counts["train"] + counts["valid"] + counts["test"])[-counts["test"] :]
     seed_of = {case.key: seed for case, seed in zip(cases, seeds)}
     history = len(cases[0].initial_positions)
+    # A model trained with dataset.frame_stride k sees every k-th stored frame (its metadata's dt is k frame_dt).
+    stride = max(1, round(metadata.dt / scene.time.frame_dt))
 
     candidates = []
     for grid_scale in grid_scales:
@@ -82,7 +86,7 @@ def simulator_candidates(
             simulator = build_simulator(variant, registry, "metadata.json: generated_from")
 
             def simulate(case: Case, simulator=simulator, variant=variant) -> Prediction:
-                trajectory = simulator.simulate(variant, seed_of[case.key])
+                trajectory = strided(simulator.simulate(variant, seed_of[case.key]), stride)
                 return Prediction(trajectory.position[history:], trajectory.particle_type, trajectory.position[history - 1])
 
             reference = grid == scene.domain.grid and substeps == scene.time.substeps
@@ -118,14 +122,19 @@ def compare(
     if with_simulator:
         candidates += simulator_candidates(metadata, registry, cases, grid_scales, substep_scales)
     scene = models[0][1].simulator.scene
-    materials = {t: registry.material_by_type(t).cls for t in scene.particle_types}
     return evaluate(
         candidates,
         cases,
         repeats=repeats,
         warmup=warmup,
         error_metric=error_metric,
-        granular_types=[t for t, m in materials.items() if m.constitutive_model == "drucker_prager"],
-        material_names={t: m.name for t, m in materials.items()},
+        granular_types=granular_particle_types(scene, registry),
+        material_names={t: registry.material_by_type(t).cls.name for t in scene.particle_types},
         rollout_dir=rollout_dir,
     )
+
+
+def granular_particle_types(scene: Scene, registry: Registry) -> list[int]:
+    """The scene's particle types whose material is granular (runout and pile profile are measured on them)."""
+    materials = {t: registry.material_by_type(t).cls for t in scene.particle_types}
+    return [t for t, m in materials.items() if m.constitutive_model == "drucker_prager"]

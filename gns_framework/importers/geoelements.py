@@ -88,7 +88,9 @@ class ImportedCheckpoint:
             "plugins": plugin_versions(recipe, registry),
         }
         if self.optimizer_state is not None:
-            optimizer, scheduler = make_optimizer(self.simulator.parameters(), recipe.training.optimizer)
+            optimizer, scheduler = make_optimizer(
+                self.simulator.parameters(), recipe.training.optimizer, recipe.training.steps
+            )
             optimizer.load_state_dict(self.optimizer_state)
             schedule = scheduler.state_dict()
             schedule.update(

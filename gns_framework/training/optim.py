@@ -1,22 +1,38 @@
-"""Adam with the reference's exponential learning-rate decay and floor."""
+"""Adam with the reference's exponential learning-rate decay, or a cosine schedule fitted to the step budget."""
 
 from __future__ import annotations
+
+import math
 
 import torch
 
 from ..recipe import OptimizerSpec
 
 
-def exponential_decay(spec: OptimizerSpec):
-    """``lr(step) = lr_min + (lr_init - lr_min) * lr_decay ** (step / lr_decay_steps)``, as a LambdaLR factor."""
+def learning_rate(spec: OptimizerSpec, step: int, total_steps: int) -> float:
+    """The learning rate of optimiser step ``step`` (0-based) of a ``total_steps`` run.
 
-    def factor(step: int) -> float:
-        lr = spec.lr_min + (spec.lr_init - spec.lr_min) * spec.lr_decay ** (step / spec.lr_decay_steps)
-        return lr / spec.lr_init
+    Warm-up ramps linearly from ``lr_init / warmup_steps`` to ``lr_init``: Adam's
+    first steps take full-size moves whatever the gradient scale, which a freshly
+    initialised network with LayerNorm turns into large jumps. The exponential
+    schedule then decays as the reference does; the cosine one reaches ``lr_min``
+    at ``total_steps``, so a short run ends with small steps instead of stopping
+    at a high learning rate.
+    """
+    if step < spec.warmup_steps:
+        return spec.lr_init * (step + 1) / spec.warmup_steps
+    if spec.schedule == "exponential":
+        return spec.lr_min + (spec.lr_init - spec.lr_min) * spec.lr_decay ** (step / spec.lr_decay_steps)
+    span = max(total_steps - spec.warmup_steps, 1)
+    progress = min((step - spec.warmup_steps) / span, 1.0)
+    return spec.lr_min + (spec.lr_init - spec.lr_min) * 0.5 * (1.0 + math.cos(math.pi * progress))
 
-    return factor
 
-
-def make_optimizer(parameters, spec: OptimizerSpec) -> tuple[torch.optim.Optimizer, torch.optim.lr_scheduler.LambdaLR]:
+def make_optimizer(
+    parameters, spec: OptimizerSpec, total_steps: int
+) -> tuple[torch.optim.Optimizer, torch.optim.lr_scheduler.LambdaLR]:
+    """Adam and its schedule as a LambdaLR factor of ``lr_init``; ``total_steps`` is the run's step budget."""
     optimizer = torch.optim.Adam(parameters, lr=spec.lr_init)
-    return optimizer, torch.optim.lr_scheduler.LambdaLR(optimizer, exponential_decay(spec))
+    return optimizer, torch.optim.lr_scheduler.LambdaLR(
+        optimizer, lambda step: learning_rate(spec, step, total_steps) / spec.lr_init
+    )

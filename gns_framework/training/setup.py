@@ -8,6 +8,7 @@ from pathlib import Path
 
 from ..contracts import Dataset, Scene
 from ..data.metadata import DatasetMetadata
+from ..data.stride import FrameStrideDataset
 from ..data.trajectory import Trajectory
 from ..errors import DatasetError
 from ..plugins import Registry
@@ -16,12 +17,13 @@ from ..scene import scene_from_data
 
 
 def open_dataset(spec: DatasetSpec, registry: Registry, path: str | Path | None = None) -> Dataset:
-    """The dataset plugin a recipe names, on ``path`` (default: the recipe's)."""
+    """The dataset plugin a recipe names, on ``path`` (default: the recipe's), seen every ``frame_stride`` frames."""
     cls, params = component(registry, "dataset", spec)
     folder = Path(path if path is not None else spec.path)
     if not folder.is_dir():
         raise DatasetError(f"{folder}: dataset folder not found (dataset.path in the recipe, or --dataset)")
-    return cls(params, folder)
+    dataset = cls(params, folder)
+    return FrameStrideDataset(dataset, spec.frame_stride) if spec.frame_stride > 1 else dataset
 
 
 @dataclass

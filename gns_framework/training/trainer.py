@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from pathlib import Path
@@ -20,7 +21,8 @@ from ..data.batch import ParticleBatch
 from ..data.windows import WindowIndex, WindowOrder, step_generator
 from ..errors import CheckpointError, GnsError
 from ..loss import masked_acceleration_loss, masked_squared_error_sum
-from ..noise import random_walk_noise
+from ..evaluation.candidates import granular_particle_types
+from ..noise import random_walk_noise, training_noise_std
 from ..plugins import Registry
 from ..precision import autocast
 from ..recipe import Recipe
@@ -30,8 +32,13 @@ from . import distributed
 from .distributed import Processes
 from .optim import make_optimizer
 from .provenance import git_commit
+from .rollout_validation import validation_rollout_metrics
 from .setup import plugin_versions, prepare_data
 from .tracking import JsonlTracker, Tracker
+
+
+BEST_CHECKPOINT = "best.pt"
+"""File name, in the run's checkpoint folder, of the checkpoint with the best validation-rollout score."""
 
 
 def resolve_device(name: str) -> torch.device:
@@ -86,13 +93,20 @@ class Trainer:
         self.windows = WindowIndex(self.data.train, recipe.model.history)
         self.order = WindowOrder(len(self.windows), recipe.training.batch_size, recipe.seed, self.rank, self.world_size)
         self.validation_batches = self._validation_batches() if self.processes.is_chief else []
+        valid = self.data.valid if self.processes.is_chief and self.data.valid is not None else []
+        self.validation_trajectories = [valid[i] for i in range(min(recipe.training.validation_rollouts, len(valid)))]
 
         # Same seed on every rank: identical initial weights (DDP would broadcast rank 0's anyway).
         torch.manual_seed(recipe.seed)
         self.simulator = build_simulator(self.data.scene, self.data.metadata, recipe.model, registry).to(self.device)
         self.model: torch.nn.Module = self.processes.wrap(self.simulator, self.device)
-        self.optimizer, self.scheduler = make_optimizer(self.simulator.parameters(), recipe.training.optimizer)
+        self.noise_std = training_noise_std(recipe.model, self.data.metadata)
+        self.optimizer, self.scheduler = make_optimizer(
+            self.simulator.parameters(), recipe.training.optimizer, recipe.training.steps
+        )
         self.step = 0
+        self.best: dict = {"metric": recipe.training.best_metric, "value": math.inf, "step": None}
+        """The best validation-rollout score so far and its step (restored on resume)."""
         self.tracker = None
         if self.processes.is_chief:
             self.tracker = tracker if tracker is not None else JsonlTracker(self.run_dir)
@@ -119,6 +133,7 @@ class Trainer:
             "scene": scene_to_dict(self.data.scene),
             "metadata": self.data.metadata.to_json_dict(),
             "plugins": plugin_versions(self.recipe, self.registry),
+            "best": dict(self.best),
         }
 
     def load_state(self, state: dict, source: str) -> None:
@@ -135,6 +150,8 @@ class Trainer:
         self.optimizer.load_state_dict(state["optimizer"])
         self.scheduler.load_state_dict(state["scheduler"])
         self.step = int(state["step"])
+        if "best" in state and state["best"].get("metric") == self.best["metric"]:
+            self.best = dict(state["best"])
         torch.set_rng_state(state["rng"]["torch"])
         if torch.cuda.is_available() and state["rng"]["cuda"]:
             torch.cuda.set_rng_state_all(state["rng"]["cuda"])
@@ -215,7 +232,7 @@ class Trainer:
         first = sum(counts[: self.rank * size])
         _, history, dim = batch.position_sequence.shape
         shape = torch.empty((sum(counts), history, dim), dtype=batch.position_sequence.dtype)
-        noise = random_walk_noise(shape, self.recipe.model.noise_std, step_generator(self.recipe.seed, self.step))
+        noise = random_walk_noise(shape, self.noise_std, step_generator(self.recipe.seed, self.step))
         return noise[first : first + batch.num_particles]
 
     @torch.no_grad()
@@ -235,8 +252,33 @@ class Trainer:
                 batch.position_sequence, self.simulator.output_stats.denormalize(prediction)
             )
             position_errors.append(float(((next_position - batch.next_position)[mask] ** 2).mean()))
+        metrics = {"valid_one_step_loss": float(np.mean(losses)), "valid_one_step_position_mse": float(np.mean(position_errors))}
+        if self.validation_trajectories:
+            metrics.update(
+                validation_rollout_metrics(
+                    self.simulator,
+                    self.validation_trajectories,
+                    self.data.metadata,
+                    granular_particle_types(self.data.scene, self.registry),
+                    self.device,
+                )
+            )
         self.simulator.train()
-        return {"valid_one_step_loss": float(np.mean(losses)), "valid_one_step_position_mse": float(np.mean(position_errors))}
+        return metrics
+
+    def keep_if_best(self, metrics: dict[str, float]) -> Path | None:
+        """Write ``checkpoints/best.pt`` (and ``best.json``) when ``metrics`` beat the best rollout score so far.
+
+        Only rank 0 validates, so only rank 0 ever writes it; the numbered
+        checkpoints' retention never touches it.
+        """
+        value = metrics.get(self.best["metric"])
+        if value is None or not value < self.best["value"]:
+            return None
+        self.best = {"metric": self.best["metric"], "value": float(value), "step": self.step}
+        path = save_checkpoint(self.checkpoint_dir / BEST_CHECKPOINT, self.state())
+        write_text_atomic(self.checkpoint_dir / "best.json", json.dumps(self.best, indent=2) + "\n")
+        return path
 
     def train(self, steps: int | None = None) -> list[float]:
         """Train until ``steps`` (default: the recipe's) total steps; returns this call's losses."""
@@ -267,6 +309,8 @@ class Trainer:
                 window_steps, window_particles, window_seconds = 0, 0, 0.0
             if self.step % spec.validate_every == 0 or self.step == total:
                 metrics.update(self.validate())
+                if self.keep_if_best(metrics) is not None:
+                    metrics["best_step"] = self.step
             if metrics and self.tracker is not None:
                 self.tracker.log_metrics(metrics, self.step)
             if self.step % spec.checkpoint_every == 0 or self.step == total:

@@ -1,0 +1,66 @@
+"""Validation by rollout: what a trained simulator is for, measured while it trains.
+
+The one-step loss says how well the model predicts one frame from ground-truth
+inputs; a rollout feeds it its own predictions for the whole trajectory, so it
+measures what users see (drift, clumping, a collapse that does not run out). The
+one-step loss and rollout error often disagree late in training, which is why the
+best checkpoint is chosen by a rollout metric.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Collection, Sequence
+
+import numpy as np
+import torch
+
+from ..data.metadata import DatasetMetadata
+from ..data.trajectory import Trajectory
+from ..errors import RolloutDiverged
+from ..evaluation.metrics import ParticleRollout, rollout_metrics
+from ..rollout import rollout
+from ..simulator import LearnedSimulator
+
+METRICS = {
+    "valid_rollout_mse": "mse_full",
+    "valid_rollout_sinkhorn_pct": "sinkhorn_final_pct",
+    "valid_rollout_runout_error_pct": "runout_error_pct",
+}
+"""Tracked name -> :func:`rollout_metrics` key, each averaged over the validation rollouts."""
+
+
+def validation_rollout_metrics(
+    simulator: LearnedSimulator,
+    trajectories: Sequence[Trajectory],
+    metadata: DatasetMetadata,
+    granular_types: Collection[int],
+    device: torch.device,
+) -> dict[str, float]:
+    """Mean rollout errors of ``simulator`` over ``trajectories`` (full length, from their first C frames).
+
+    A diverged rollout scores ``inf`` in every metric, so it can never be the best.
+    Runout is reported only where the scene has granular particles.
+    """
+    totals: dict[str, list[float]] = {name: [] for name in METRICS}
+    history = simulator.scene.history
+    for trajectory in trajectories:
+        truth = torch.as_tensor(trajectory.position[history:], dtype=torch.float64)
+        start = torch.as_tensor(trajectory.position[history - 1], dtype=torch.float64)
+        try:
+            predicted = torch.as_tensor(rollout(simulator, trajectory, device=device).predicted, dtype=torch.float64)
+        except RolloutDiverged:
+            predicted = torch.full_like(truth, math.nan)
+        particle_type = torch.as_tensor(trajectory.particle_type)
+        metrics = rollout_metrics(
+            ParticleRollout.of(predicted, particle_type, start=start),
+            ParticleRollout.of(truth, particle_type, start=start),
+            dt=metadata.dt,
+            bounds=metadata.bounds,
+            granular_types=granular_types,
+        )
+        for name, key in METRICS.items():
+            value = metrics.get(key)
+            if value is not None:
+                totals[name].append(float(value.item()))
+    return {name: float(np.mean(values)) for name, values in totals.items() if values}
