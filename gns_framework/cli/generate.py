@@ -12,6 +12,7 @@ from ..recipe import ComponentSpec
 from ..simulation.build import build_simulator
 from ..simulation.generate import generate_dataset, is_up_to_date, provenance
 from ..simulation.scene_spec import load_scene
+from .arguments import non_negative_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,6 +22,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--valid", type=int, help="validation trajectories (default: 10%%, at least 1 when N >= 3)")
     parser.add_argument("--test", type=int, help="test trajectories (default: 10%%, at least 1 when N >= 3)")
     parser.add_argument("--layout", default="safe", help="dataset plugin to write with (default: safe)")
+    parser.add_argument(
+        "--seed",
+        type=non_negative_int,
+        help="scene seed (overrides the scene file's seed): another seed gives trajectories none of the file's seed "
+        "produces, e.g. a held-out test set",
+    )
     parser.add_argument("--device", help="simulator device, e.g. cpu or cuda (overrides simulator.device)")
     parser.add_argument("--force", action="store_true", help="regenerate even if DIR already holds this dataset")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -39,6 +46,8 @@ def split_counts(total: int, valid: int | None, test: int | None) -> dict[str, i
 def run(args: argparse.Namespace) -> int:
     registry = load_registry()
     scene = load_scene(args.scene)
+    if args.seed is not None:
+        scene = scene.model_copy(update={"seed": args.seed})
     if args.device is not None:
         chosen = ComponentSpec(name=scene.simulator.name, **{**scene.simulator.params, "device": args.device})
         scene = scene.model_copy(update={"simulator": chosen})

@@ -111,3 +111,21 @@ def test_split_counts_need_a_training_trajectory():
     assert generate_command.split_counts(2, None, None) == {"train": 2, "valid": 0, "test": 0}
     with pytest.raises(Exception, match="leaves no training trajectory"):
         generate_command.split_counts(3, 2, 1)
+
+
+def test_gns_generate_seed_gives_trajectories_the_file_seed_never_does(cli_registry, tmp_path, capsys):
+    scene_file = tmp_path / "scene.yaml"
+    scene_file.write_text(yaml.safe_dump(mixed(frames=6)))
+    common = ["generate", str(scene_file), "--trajectories", "3", "--no-progress"]
+    assert main([*common, "--out", str(tmp_path / "file_seed")]) == 0
+    assert main([*common, "--out", str(tmp_path / "seed_5"), "--seed", "5"]) == 0
+    provenance = json.loads((tmp_path / "seed_5" / "metadata.json").read_text())["generated_from"]
+    assert provenance["scene"]["seed"] == 5
+    with np.load(tmp_path / "file_seed" / "test.npz") as a, np.load(tmp_path / "seed_5" / "test.npz") as b:
+        first, other = ([k for k in archive.files if k.endswith("position")][0] for archive in (a, b))
+        assert first != other and not np.array_equal(a[first], b[other])
+    with pytest.raises(SystemExit) as exited:
+        main([*common, "--out", str(tmp_path / "bad"), "--seed", "-1"])
+    assert exited.value.code == 2
+    assert "--seed: must be >= 0, got -1" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
