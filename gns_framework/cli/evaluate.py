@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 from pathlib import Path
 
 from ..errors import GnsError
@@ -17,6 +18,29 @@ def _scales(text: str) -> list[float]:
     if not values or any(v <= 0 for v in values):
         raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers, got {text!r}")
     return values
+
+
+def model_labels(recipe_names: list[str], checkpoints: list[Path]) -> list[str]:
+    """One label per model, safe as a file name and unique: rollouts and GIFs are written under it.
+
+    One model is labelled by its recipe's name; several by recipe, run folder and
+    checkpoint file (``sand2d.run-a.checkpoint-000001000``), since two checkpoints
+    of one recipe often share a file name. Characters outside ``[A-Za-z0-9_.-]``
+    become ``_``, and a label seen before gets ``-2``, ``-3``, ...
+    """
+    if len(checkpoints) == 1:
+        raw = list(recipe_names)
+    else:
+        raw = [f"{name}.{path.resolve().parent.parent.name}.{path.stem}" for name, path in zip(recipe_names, checkpoints)]
+    labels: list[str] = []
+    for text in raw:
+        label = re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip(".") or "model"
+        candidate, count = label, 1
+        while candidate in labels:
+            count += 1
+            candidate = f"{label}-{count}"
+        labels.append(candidate)
+    return labels
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -57,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         trajectories = trajectories[: args.trajectories]
     cases = cases_from_split(trajectories, metadata, histories.pop())
 
-    names = [f"{m.recipe.name} ({p.parent.parent.name}/{p.name})" if len(models) > 1 else m.recipe.name for m, p in zip(models, args.checkpoints)]
+    names = model_labels([m.recipe.name for m in models], args.checkpoints)
     report = compare(
         list(zip(names, models)),
         cases,

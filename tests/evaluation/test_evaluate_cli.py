@@ -64,6 +64,28 @@ def test_evaluate_writes_table_plots_vtk_and_gif(tmp_path: Path):
     assert {"evaluation/report.md", "evaluation/error_vs_time.png", "evaluation/tiny.gif"} <= logged
     assert "evaluation_sinkhorn_final_pct" in client.get_run(run_id).data.metrics
 
+    # Two checkpoints with one file name: labels stay file names, distinct, with no accidental sub-folders.
+    other = tmp_path / "other" / "checkpoints"
+    other.mkdir(parents=True)
+    (other / checkpoint.name).write_bytes(checkpoint.read_bytes())
+    both = tmp_path / "both"
+    result = gns("evaluate", str(checkpoint), str(other / checkpoint.name), "--out", str(both), "--no-simulator",
+                 "--repeats", "1", "--warmup", "0", "--trajectories", "1", "--gif")
+    assert result.returncode == 0, result.stderr
+    labels = ["tiny.run.checkpoint-000000002", "tiny.other.checkpoint-000000002"]
+    assert sorted(p.name for p in both.glob("*.gif")) == sorted(f"{label}.gif" for label in labels)
+    assert sorted(p.name for p in (both / "rollouts").iterdir()) == sorted(labels)
+    assert all(f"| {label} | learned |" in (both / "report.md").read_text() for label in labels)
+
+
+def test_model_labels_are_safe_file_names_and_unique():
+    from gns_framework.cli.evaluate import model_labels
+
+    assert model_labels(["sand2d"], [Path("runs/a/checkpoints/best.pt")]) == ["sand2d"]
+    same = [Path("runs/a b/checkpoints/best.pt"), Path("runs/c/checkpoints/best.pt"), Path("runs/c/checkpoints/best.pt")]
+    assert model_labels(["sand2d"] * 3, same) == ["sand2d.a_b.best", "sand2d.c.best", "sand2d.c.best-2"]
+    assert model_labels(["x/../y"], [Path("m.pt")]) == ["x_.._y"]
+
 
 def test_evaluate_rejects_bad_scales(tmp_path: Path):
     result = gns("evaluate", str(tmp_path / "x.pt"), "--grid-scales", "0,1")
