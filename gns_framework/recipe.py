@@ -19,6 +19,10 @@ from .validation import problems_from
 from .yaml_loading import load_yaml_mapping
 
 
+REFERENCE_NOISE_STD = 6.7e-4
+"""The reference's training noise (Sanchez-Gonzalez et al. 2020), tuned for DeepMind's datasets."""
+
+
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
@@ -59,7 +63,9 @@ class ModelSpec(_Strict):
         None, description="names of the data's material_property columns; default: the materials' properties"
     )
     noise_std: float = Field(
-        6.7e-4, ge=0, description="random-walk noise std at the last input velocity, in dataset length units per frame"
+        REFERENCE_NOISE_STD,
+        ge=0,
+        description="random-walk noise std at the last input velocity, in dataset length units per frame",
     )
     noise_relative: float | None = Field(
         None,
@@ -79,8 +85,13 @@ class ModelSpec(_Strict):
 
     @model_validator(mode="after")
     def _one_noise_rule(self) -> "ModelSpec":
-        if self.noise_relative is not None and "noise_std" in self.model_fields_set:
-            raise ValueError("give noise_std (absolute) or noise_relative (fraction of the velocity std), not both")
+        # A resolved recipe (checkpoints, recipe.yaml) holds both keys with noise_std at its default: that is
+        # no conflict. Another noise_std beside noise_relative is.
+        if self.noise_relative is not None and self.noise_std != REFERENCE_NOISE_STD:
+            raise ValueError(
+                f"give noise_std (absolute) or noise_relative (fraction of the velocity std), not both "
+                f"(noise_std {self.noise_std} beside noise_relative {self.noise_relative})"
+            )
         return self
 
 

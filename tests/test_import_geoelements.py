@@ -189,7 +189,7 @@ def test_command_writes_a_checkpoint_that_loads_and_resumes(tmp_path, capsys):
     with torch.no_grad():
         assert torch.equal(loaded.simulator.predict_next_position(batch), direct.predict_next_position(batch))
     stored = load_checkpoint(out)
-    assert stored["step"] == 7 and stored["recipe"]["dataset"] == {"name": "npz", "path": str(dataset), "allow_pickle": False}
+    assert stored["step"] == 7 and stored["recipe"]["dataset"] == {"name": "npz", "path": str(dataset), "frame_stride": 1, "allow_pickle": False}
     resumed = torch.optim.Adam(loaded.simulator.parameters())
     resumed.load_state_dict(stored["optimizer"])
     assert stored["scheduler"]["last_epoch"] == 7

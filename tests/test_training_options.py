@@ -105,6 +105,13 @@ def test_relative_noise_reaches_training_and_the_normalisation(dataset_2d, regis
     trainer.close()
 
 
+def test_a_resolved_recipe_with_relative_noise_validates_again(dataset_2d, registry):
+    """Checkpoints store the resolved recipe, with noise_std at its default beside noise_relative."""
+    recipe = validate_recipe(tiny_recipe_mapping(dataset_2d, noise_relative=0.1), registry)
+    again = validate_recipe(recipe.resolved(), registry)
+    assert again.model.noise_relative == 0.1 and again.resolved() == recipe.resolved()
+
+
 @pytest.mark.parametrize(
     "model, message",
     [

@@ -56,7 +56,9 @@ class SafeDataset(NpzSplitsDataset):
             get = lambda f: read_member(archive, file, f"{key}/{f}") if f in fields else None  # noqa: E731
             return Trajectory(get("position"), get("particle_type"), get("material_property"), get("step_context"), key)
 
-        return TrajectorySequence(sorted(groups), load, str(file), self.metadata().dim)
+        # File order is the order the trajectories were written in (``gns generate``: seed order), which
+        # re-simulating a test case relies on; sorting the keys would lose it.
+        return TrajectorySequence(list(groups), load, str(file), self.metadata().dim)
 
     @classmethod
     def write(cls, path: Path, metadata: DatasetMetadata, splits: dict[str, Sequence[Trajectory]]) -> None:
