@@ -88,12 +88,26 @@ def test_corrupt_checkpoint_is_a_clear_error(tmp_path):
 
 
 def test_demo_runs_end_to_end(tmp_path):
-    """The demo's whole pipeline (simulate, train, roll out, animate, report), with a tiny model."""
+    """The demo's whole pipeline with a tiny short model: simulate, train, roll out the shipped model, animate, report."""
     recipe = tmp_path / "tiny.yaml"
     recipe.write_text(yaml.safe_dump(tiny_recipe_mapping(tmp_path / "unused", tmp_path / "unused-run")))
-    result = gns("demo", "--steps", "2", "--repeats", "1", "--recipe", str(recipe), "--no-progress", "--out", str(tmp_path / "demo"))
+    demo = tmp_path / "demo"
+    result = gns("demo", "--steps", "2", "--repeats", "1", "--held-out", "1", "--recipe", str(recipe), "--no-progress",
+                 "--out", str(demo))
     assert result.returncode == 0, result.stderr
-    assert "validation one-step loss" in result.stdout
-    assert (tmp_path / "demo" / "rollout.gif").is_file()
-    assert "mls_mpm grid 48 x 40 substeps (reference)" in (tmp_path / "demo" / "report" / "report.md").read_text()
-    assert (tmp_path / "demo" / "report" / "error_vs_time.png").is_file()
+    assert "short model: validation one-step loss" in result.stdout
+    assert "(seed 2)" in result.stdout, "the held-out collapses come from a seed the shipped model never trained on"
+    assert (demo / "rollout.gif").is_file()
+    # The shipped model steps over 2 frames, the tiny one over 1: one report each, both against the simulator.
+    shipped, short = (demo / "report" / "report.md").read_text(), (demo / "report_2" / "report.md").read_text()
+    assert "| sand2d-fast-pretrained | learned |" in shipped and "| tiny-2-steps | learned |" in short
+    for table in (shipped, short):
+        assert "mls_mpm grid 48 x 40 substeps (reference)" in table
+    assert (demo / "report" / "error_vs_time.png").is_file()
+
+
+def test_demo_without_the_pretrained_model_says_where_it_should_be(tmp_path):
+    result = gns("demo", "--model", str(tmp_path / "missing.pt"), "--out", str(tmp_path / "demo"))
+    assert result.returncode == 2
+    assert "missing.pt: pretrained model not found" in result.stderr
+    assert not (tmp_path / "demo").exists()

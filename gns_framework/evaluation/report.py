@@ -113,6 +113,7 @@ class Entry:
         metrics: metric name -> mean over cases (None when missing), see METRIC_UNITS.
         mse_per_step: (S,) position MSE per rolled-out frame averaged over cases, or None.
         speedup: reference seconds / these seconds, or None without a reference.
+        cases: case key -> that case's metrics (the spread a mean hides: the worst collapse matters).
     """
 
     name: str
@@ -125,6 +126,7 @@ class Entry:
     metrics: dict[str, float | None]
     mse_per_step: np.ndarray | None
     speedup: float | None = None
+    cases: dict[str, dict[str, float | None]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -190,7 +192,7 @@ def evaluate(
             curves.append(None if metrics["mse_per_step"] is None else metrics["mse_per_step"][0].numpy())
             if rollout_dir is not None and _same_particles(prediction, case):
                 save_rollout(Path(rollout_dir) / candidate.name / f"{case.key}.npz", _as_rollout(prediction, case))
-        entries.append(_entry(candidate, summaries, timings, curves))
+        entries.append(_entry(candidate, summaries, timings, curves, [case.key for case in cases]))
 
     reference = next((e for e in entries if e.reference), None)
     if reference is not None:
@@ -273,7 +275,7 @@ def _mean_over_cases(values: list[float | None]) -> float | None:
 
 
 def _entry(
-    candidate: Candidate, summaries: list[dict[str, float | None]], timings: list[Timing], curves: list
+    candidate: Candidate, summaries: list[dict[str, float | None]], timings: list[Timing], curves: list, keys: list[str]
 ) -> Entry:
     names = list(dict.fromkeys(name for summary in summaries for name in summary))
     metrics = {name: _mean_over_cases([s.get(name) for s in summaries]) for name in names}
@@ -288,6 +290,7 @@ def _entry(
         spread=float(np.mean([t.spread for t in timings])),
         metrics=metrics,
         mse_per_step=np.mean(curves, axis=0) if same_length else None,
+        cases=dict(zip(keys, summaries)),
     )
 
 
@@ -346,10 +349,43 @@ def markdown_table(report: Report) -> str:
         ]
         row += [_format(e.metrics.get(m)) for m in headline]
         lines.append("| " + " | ".join(row) + " |")
+    lines += _spread_over_cases(report)
     lines += ["", "Metrics (L: the dataset's length unit, s: seconds):", ""]
     lines += [f"- `{name}`: {meaning}" for name, meaning in METRIC_UNITS.items()]
     lines.append("")
     return "\n".join(lines)
+
+
+SPREAD_METRICS = ("runout_error_pct", "sinkhorn_final_pct")
+"""Metrics whose median and worst case over the test cases the Markdown report states (cases.csv has all)."""
+
+
+def _spread_over_cases(report: Report) -> list[str]:
+    """Median and worst case of the headline errors over the cases, when there are several."""
+    if report.num_cases < 2:
+        return []
+    lines = ["", f"Spread over the {report.num_cases} cases (median / worst):", ""]
+    for e in report.entries:
+        parts = []
+        for metric in SPREAD_METRICS:
+            values = [c.get(metric) for c in e.cases.values()]
+            if values and all(v is not None for v in values):
+                parts.append(f"{metric} {_format(float(np.median(values)))} / {_format(max(values))}")
+        if parts:
+            lines.append(f"- {e.name}: " + "; ".join(parts))
+    return lines if len(lines) > 3 else []
+
+
+def write_cases_csv(report: Report, path: Path) -> None:
+    """One row per entry and case with every metric of that case; missing values are empty cells."""
+    metric_names = list(dict.fromkeys(name for e in report.entries for c in e.cases.values() for name in c))
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["name", "case"] + metric_names)
+        for e in report.entries:
+            for key, metrics in e.cases.items():
+                row = [metrics.get(name) for name in metric_names]
+                writer.writerow([e.name, key] + ["" if v is None else v for v in row])
 
 
 def write_csv(report: Report, path: Path) -> None:
@@ -451,17 +487,19 @@ def plot_error_over_rollout(report: Report, path: Path) -> None:
 
 
 def write_report(report: Report, out_dir: str | Path) -> dict[str, Path]:
-    """Write ``report.md``, ``report.csv``, ``error_vs_time.png`` and ``error_over_rollout.png``."""
+    """Write ``report.md``, ``report.csv``, ``cases.csv``, ``error_vs_time.png`` and ``error_over_rollout.png``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {
         "markdown": out_dir / "report.md",
         "csv": out_dir / "report.csv",
+        "cases_csv": out_dir / "cases.csv",
         "error_vs_time": out_dir / "error_vs_time.png",
         "error_over_rollout": out_dir / "error_over_rollout.png",
     }
     paths["markdown"].write_text(markdown_table(report))
     write_csv(report, paths["csv"])
+    write_cases_csv(report, paths["cases_csv"])
     plot_error_vs_time(report, paths["error_vs_time"])
     plot_error_over_rollout(report, paths["error_over_rollout"])
     return paths

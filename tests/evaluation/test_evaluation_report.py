@@ -138,6 +138,20 @@ def test_report_files(report, tmp_path):
             assert image.format == "PNG" and image.size[0] > 300
 
 
+def test_each_case_is_reported_and_the_spread_stated(report, tmp_path):
+    paths = write_report(report, tmp_path / "report")
+    with paths["cases_csv"].open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [(r["name"], r["case"]) for r in rows] == [(e.name, k) for e in report.entries for k in ("case0", "case1")]
+    gns = next(e for e in report.entries if e.name == "gns")
+    per_case = [float(r["runout_error_pct"]) for r in rows if r["name"] == "gns"]
+    assert per_case == pytest.approx([gns.cases[k]["runout_error_pct"] for k in ("case0", "case1")])
+    assert np.mean(per_case) == pytest.approx(gns.metrics["runout_error_pct"])
+    line = next(l for l in paths["markdown"].read_text().splitlines() if l.startswith("- gns:"))
+    worst = max(per_case)
+    assert f"runout_error_pct {np.median(per_case):.3g} / {worst:.3g}" in line
+
+
 def test_rollouts_of_the_same_particles_are_saved_for_rendering(report, tmp_path):
     saved = sorted(p.relative_to(tmp_path / "rollouts").as_posix() for p in (tmp_path / "rollouts").rglob("*.npz"))
     same_particles = ["gns", "mpm dt/1", "mpm dt/16", "mpm dt/2"]
