@@ -261,9 +261,17 @@ class Dataset(ABC):
     Params: ClassVar[type[Params]] = Params
     writable: ClassVar[bool] = False
 
-    def __init__(self, params: Params, path: Path):
+    def __init__(self, params: Params, path: Path, allow_pickle: bool = False):
+        """``allow_pickle``: the user's grant to unpickle anything from the files under ``path``.
+
+        It comes from one command's ``--allow-pickle FOLDER`` for this folder,
+        never from a recipe or a checkpoint, which can travel to other data.
+        Layouts that store pickles read them without it only where they can do so
+        without running code from the file.
+        """
         self.params = params
         self.path = Path(path)
+        self.allow_pickle = allow_pickle
 
     @abstractmethod
     def metadata(self) -> "DatasetMetadata":

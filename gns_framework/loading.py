@@ -11,7 +11,7 @@ from .checkpoint import load_checkpoint
 from .data.metadata import DatasetMetadata, parse_metadata
 from .errors import CheckpointError, PluginError
 from .plugins import Registry
-from .recipe import Recipe, validate_recipe
+from .recipe import Recipe, validate_recipe, without_pickle_grant
 from .scene import scene_from_dict
 from .simulator import LearnedSimulator, build_simulator
 
@@ -30,7 +30,7 @@ def load_trained(path: str | Path, registry: Registry, device: torch.device | st
     path = Path(path)
     state = load_checkpoint(path, map_location="cpu")
     try:
-        recipe = validate_recipe(state["recipe"], registry, f"{path} (stored recipe)")
+        recipe = validate_recipe(without_pickle_grant(state["recipe"]), registry, f"{path} (stored recipe)")
     except PluginError as exc:
         raise CheckpointError(f"{path}: needs a component that is not installed: {exc}") from None
     metadata = parse_metadata(state["metadata"], f"{path} (stored metadata)")

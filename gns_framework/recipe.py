@@ -38,6 +38,16 @@ class ComponentSpec(BaseModel):
         return dict(self.model_extra or {})
 
 
+PICKLE_GRANT = "allow_pickle"
+"""The dataset key with which recipes once granted unpickling.
+
+A grant in a recipe travels with it, and into every checkpoint trained from it,
+to data the user never named, so it is given per command for one folder
+(``--allow-pickle FOLDER``) instead: a recipe file holding it is refused, and a
+checkpoint's stored copy is dropped unread (:func:`without_pickle_grant`).
+"""
+
+
 class DatasetSpec(ComponentSpec):
     """Dataset layout (``name``: a dataset plugin), its folder and the plugin's parameters."""
 
@@ -210,7 +220,14 @@ def _component_problems(raw: dict, registry: Registry) -> list[tuple[str, str]]:
             continue
         if kind == "dataset":
             name = spec.get("name", "safe")
-            params = {k: v for k, v in spec.items() if k not in DatasetSpec.model_fields}
+            params = {k: v for k, v in spec.items() if k not in DatasetSpec.model_fields and k != PICKLE_GRANT}
+            if PICKLE_GRANT in spec:
+                problems.append((
+                    f"dataset.{PICKLE_GRANT}",
+                    "a recipe cannot grant unpickling (the grant would travel with it and its checkpoints to other "
+                    "data): remove the key and, only for data you trust, give the command --allow-pickle FOLDER; "
+                    "geoelements .npz files of numpy arrays read without it",
+                ))
         else:
             name = spec.get("name")
             params = {k: v for k, v in spec.items() if k != "name"}
@@ -235,6 +252,14 @@ def _component_problems(raw: dict, registry: Registry) -> list[tuple[str, str]]:
                      f"installed: {', '.join(known)}")
                 )
     return problems
+
+
+def without_pickle_grant(raw: dict) -> dict:
+    """A checkpoint's stored recipe without the ``dataset.allow_pickle`` older versions stored: it grants nothing."""
+    dataset = raw.get("dataset")
+    if not isinstance(dataset, dict) or PICKLE_GRANT not in dataset:
+        return raw
+    return {**raw, "dataset": {k: v for k, v in dataset.items() if k != PICKLE_GRANT}}
 
 
 def load_recipe(path: str | Path, registry: Registry, overrides: dict | None = None) -> Recipe:

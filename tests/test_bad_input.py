@@ -110,7 +110,8 @@ DAMAGED_DATA = [
     (flat_position, r"train\.npz: trajectory 'train_000': position: expected shape \(T, N, d\)"),
     (nan_position, r"train\.npz: trajectory 'train_001': position: non-finite value at frame 4, particle 7"),
     (short_particle_type, r"train\.npz: trajectory 'train_000': particle_type: expected shape"),
-    (pickled_member, r"train\.npz: train_000/position: holds pickled Python objects.*allow_pickle: true"),
+    (pickled_member, r"train\.npz: train_000/position: holds a pickled object array, but this layout stores plain "
+                     r"numeric arrays only and never unpickles$"),
     (three_dimensional_metadata, r"train\.npz: trajectory 'train_000': position: has d = 2 but metadata says dim = 3"),
     (negative_std, r"metadata\.json: invalid metadata: .*vel_std must be finite and >= 0"),
     (truncate("train.npz"), r"train\.npz: not a readable \.npz archive \(truncated or corrupt\?\)"),

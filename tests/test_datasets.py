@@ -1,4 +1,4 @@
-"""Dataset layouts: round trips, pickle opt-in, clear errors on damaged or inconsistent files."""
+"""Dataset layouts: round trips, pickled members, clear errors on damaged or inconsistent files."""
 
 from __future__ import annotations
 
@@ -26,8 +26,7 @@ def test_round_trip(layout, trajectories, tmp_path, registry):
     cls = registry.get("dataset", layout)
     metadata = synthetic_metadata(trajectories, 2)
     cls.write(tmp_path, metadata, {"train": trajectories})
-    params = cls.Params(allow_pickle=True) if layout == "npz" else cls.Params()
-    dataset = cls(params, tmp_path)
+    dataset = cls(cls.Params(), tmp_path)
     assert dataset.metadata() == metadata
     assert dataset.splits() == ["train"]
     loaded = dataset.split("train")
@@ -38,11 +37,17 @@ def test_round_trip(layout, trajectories, tmp_path, registry):
         np.testing.assert_array_equal(original.material_property, back.material_property)
 
 
-def test_pickled_npz_needs_opt_in(trajectories, tmp_path, registry):
-    cls = registry.get("dataset", "npz")
+def test_the_safe_layout_never_unpickles(trajectories, tmp_path, registry):
+    """A pickled member in a safe file is refused, with no opt-in to suggest: the layout has none."""
+    cls = registry.get("dataset", "safe")
     cls.write(tmp_path, synthetic_metadata(trajectories, 2), {"train": trajectories})
-    with pytest.raises(DatasetError, match="pickled.*allow_pickle: true"):
+    with np.load(tmp_path / "train.npz") as archive:
+        members = dict(archive)
+    members["a/position"] = np.array([members["a/position"]], dtype=object)
+    np.savez(tmp_path / "train.npz", **members)
+    with pytest.raises(DatasetError, match=r"train\.npz: a/position: holds a pickled object array") as info:
         cls(cls.Params(), tmp_path).split("train")[0]
+    assert "allow" not in str(info.value)
 
 
 def test_truncated_split_file_is_a_clear_error(trajectories, tmp_path, registry):

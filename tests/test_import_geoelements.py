@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from fractions import Fraction
 
 import pytest
@@ -16,6 +17,8 @@ from gns_framework.importers.geoelements import import_geoelements_checkpoint
 from gns_framework.importers.geoelements_layout import Architecture
 from gns_framework.loading import load_trained
 from gns_framework.plugins import load_registry
+from hostile import MEMBER, write_hostile_dataset
+from synthetic import soft_sphere_trajectory, synthetic_metadata
 
 REGISTRY = load_registry()
 METADATA = {
@@ -189,7 +192,40 @@ def test_command_writes_a_checkpoint_that_loads_and_resumes(tmp_path, capsys):
     with torch.no_grad():
         assert torch.equal(loaded.simulator.predict_next_position(batch), direct.predict_next_position(batch))
     stored = load_checkpoint(out)
-    assert stored["step"] == 7 and stored["recipe"]["dataset"] == {"name": "npz", "path": str(dataset), "frame_stride": 1, "allow_pickle": False}
+    assert stored["step"] == 7 and stored["recipe"]["dataset"] == {"name": "npz", "path": str(dataset), "frame_stride": 1}
     resumed = torch.optim.Adam(loaded.simulator.parameters())
     resumed.load_state_dict(stored["optimizer"])
     assert stored["scheduler"]["last_epoch"] == 7
+
+
+def test_imported_model_rolls_out_on_geoelements_data_without_opt_in(tmp_path, capsys):
+    """geoelements' .npz files hold pickles of numpy arrays only: read with no --allow-pickle."""
+    trajectory = soft_sphere_trajectory(0, frames=9, block=3, particle_types=(6,), kinematic_floor=True,
+                                        with_property=True, key="simulation_trajectory_0")
+    dataset = tmp_path / "sand"
+    REGISTRY.get("dataset", "npz").write(dataset, synthetic_metadata([trajectory], 2), {"test": [trajectory]})
+    torch.save(geoelements_state_dict(properties=1), tmp_path / "model-7.pt")
+    out = tmp_path / "run" / "checkpoints" / "imported.pt"
+    assert main(["import-geoelements", str(tmp_path / "model-7.pt"), "--dataset", str(dataset),
+                 "--particle-types", "3,6", "--out", str(out)]) == 0
+
+    assert main(["rollout", str(out), "--no-progress"]) == 0, capsys.readouterr().err
+    assert "test_0000.npz: 3 steps" in capsys.readouterr().out
+
+
+def test_import_never_stores_a_pickle_grant(tmp_path, capsys):
+    """The option that stored the grant in the checkpoint is gone; its rollout refuses a hostile file unrun."""
+    marker = tmp_path / "marker"
+    dataset = write_hostile_dataset(tmp_path / "hostile", METADATA, marker)
+    torch.save(geoelements_state_dict(), tmp_path / "model-7.pt")
+    out = tmp_path / "run" / "checkpoints" / "imported.pt"
+    command = ["import-geoelements", str(tmp_path / "model-7.pt"), "--dataset", str(dataset), "--out", str(out)]
+    with pytest.raises(SystemExit):
+        main([*command, "--allow-pickle"])
+    assert "unrecognized arguments: --allow-pickle" in capsys.readouterr().err
+    assert main(command) == 0
+
+    assert main(["rollout", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert not marker.exists(), "the payload ran"
+    assert re.search(rf"test\.npz: {MEMBER}: refused to unpickle builtins\.exec", err), err

@@ -73,13 +73,23 @@ def test_unknown_component_lists_installed_choices(registry):
 
 
 def test_component_params_are_validated_with_their_location(registry):
-    raw = {"name": "x", "dataset": {"path": "d", "allow_pickel": True, "name": "npz"},
+    raw = {"name": "x", "dataset": {"path": "d", "verify_checksum": True, "name": "tfrecord"},
            "model": {"processor": {"name": "interaction_network", "message_passing_steps": 0}}}
     with pytest.raises(RecipeError) as info:
         validate_recipe(raw, registry)
     problems = dict(info.value.problems)
-    assert "did you mean 'allow_pickle'" in problems["dataset.allow_pickel"]
+    assert "did you mean 'verify_checksums'" in problems["dataset.verify_checksum"]
     assert "greater than or equal to 1" in problems["model.processor.message_passing_steps"]
+
+
+def test_a_recipe_cannot_grant_unpickling(registry):
+    """The grant would travel with the recipe and its checkpoints to other data: it is given per command instead."""
+    for value in (True, False):
+        raw = {"name": "x", "dataset": {"name": "npz", "path": "d", "allow_pickle": value}}
+        with pytest.raises(RecipeError) as info:
+            validate_recipe(raw, registry, "r.yaml")
+        assert [location for location, _ in info.value.problems] == ["dataset.allow_pickle"]
+        assert "--allow-pickle FOLDER" in str(info.value)
 
 
 def test_unknown_material_is_reported(registry):

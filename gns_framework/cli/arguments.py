@@ -1,8 +1,9 @@
-"""Argument types shared by the commands: bad values are argparse errors (usage, exit code 2)."""
+"""Arguments and argument types shared by the commands: bad values are argparse errors (usage, exit code 2)."""
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def positive_int(text: str) -> int:
@@ -36,3 +37,13 @@ def non_negative_float(text: str) -> float:
     if not value >= 0 or value == float("inf"):
         raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
     return value
+
+
+def add_allow_pickle(parser: argparse.ArgumentParser) -> None:
+    """``--allow-pickle FOLDER``: the per-command grant to unpickle anything from one dataset folder."""
+    parser.add_argument(
+        "--allow-pickle", type=Path, metavar="FOLDER",
+        help="let the npz layout unpickle any object from the dataset in FOLDER, which must be the dataset this "
+        "command reads; only for data you trust, as unpickling can run code stored in the files. geoelements "
+        "files of numpy arrays read without it. Recipes and checkpoints never grant it",
+    )

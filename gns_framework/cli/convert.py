@@ -7,9 +7,11 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
+from ..data.array_pickle import pickle_granted
 from ..errors import GnsError, RecipeError
 from ..plugins import load_registry
 from ..validation import problems_from
+from .arguments import add_allow_pickle
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -17,11 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--from", dest="source_layout", required=True, help="layout of SOURCE (a dataset plugin)")
     parser.add_argument("--to", dest="target_layout", required=True, help="layout to write (a writable dataset plugin)")
     parser.add_argument("--out", type=Path, required=True, help="dataset folder to write")
-    parser.add_argument(
-        "--allow-pickle",
-        action="store_true",
-        help="let the npz reader unpickle objects: only for files you trust (unpickling can run code)",
-    )
+    add_allow_pickle(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -33,12 +31,11 @@ def run(args: argparse.Namespace) -> int:
         raise GnsError(f"dataset layout {args.target_layout!r} is read-only; writable: {', '.join(writable)}")
     if args.source.resolve() == args.out.resolve():
         raise GnsError("--out must differ from SOURCE: converting in place could overwrite the files being read")
-    options = {"allow_pickle": True} if args.allow_pickle else {}
     try:
-        params = source_cls.Params.model_validate(options)
+        params = source_cls.Params.model_validate({})
     except ValidationError as exc:
         raise RecipeError(f"--from {args.source_layout}", problems_from(exc, source_cls.Params)) from None
-    source = source_cls(params, args.source)
+    source = source_cls(params, args.source, allow_pickle=pickle_granted(args.source, args.allow_pickle))
     metadata = source.metadata()
     splits = {name: list(source.split(name)) for name in source.splits()}
     if not splits:

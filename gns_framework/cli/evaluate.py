@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 
 from ..errors import GnsError
-from .arguments import positive_int
+from .arguments import add_allow_pickle, positive_int
 
 
 def _scales(text: str) -> list[float]:
@@ -46,6 +46,7 @@ def model_labels(recipe_names: list[str], checkpoints: list[Path]) -> list[str]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoints", nargs="+", type=Path, metavar="CHECKPOINT", help="trained models to compare")
     parser.add_argument("--dataset", type=Path, help="dataset folder (default: the first model's)")
+    add_allow_pickle(parser)
     parser.add_argument("--split", default="test", help="split to evaluate on (default test)")
     parser.add_argument("--trajectories", type=positive_int, help="use only the first K trajectories")
     parser.add_argument("--out", type=Path, default=Path("runs/evaluation"), help="report folder")
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     histories = {m.simulator.scene.history for m in models}
     if len(histories) > 1:
         raise GnsError(f"the models need different input histories {sorted(histories)}; evaluate them separately")
-    dataset = open_dataset(models[0].recipe.dataset, registry, args.dataset)
+    dataset = open_dataset(models[0].recipe.dataset, registry, args.dataset, args.allow_pickle)
     metadata = dataset.metadata()
     trajectories = dataset.split(args.split)
     if args.trajectories:

@@ -34,10 +34,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"the --noise_std the model was trained with (default {NOISE_STD}); it enters the normalisation",
     )
     parser.add_argument("--name", help="recipe name of the imported run (default: imported-<model file stem>)")
-    parser.add_argument(
-        "--allow-pickle", action="store_true",
-        help="let the recipe read the dataset's pickled .npz files (only for data you trust)",
-    )
     parser.add_argument("--out", type=Path, help="checkpoint to write (default: runs/<name>/checkpoints/checkpoint-<step>.pt)")
 
 
@@ -52,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         registry=registry,
     )
     name = args.name or f"imported-{args.model.stem}"
-    dataset = {"name": "npz", "path": str(args.dataset), "allow_pickle": args.allow_pickle}
+    dataset = {"name": "npz", "path": str(args.dataset)}
     state = imported.checkpoint_state(name, dataset, registry)
     out = args.out or Path("runs") / name / "checkpoints" / checkpoint_name(imported.step)
     out.parent.mkdir(parents=True, exist_ok=True)

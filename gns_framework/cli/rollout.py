@@ -21,12 +21,13 @@ from ..rollout_guard import RolloutGuard
 from ..training.mlflow_tracker import log_to_recorded_run
 from ..training.setup import open_dataset
 from ..training.trainer import resolve_device
-from .arguments import non_negative_float, positive_int
+from .arguments import add_allow_pickle, non_negative_float, positive_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", type=Path, help="checkpoint file written by gns train")
     parser.add_argument("--dataset", type=Path, help="dataset folder (default: the one the model was trained on)")
+    add_allow_pickle(parser)
     parser.add_argument("--split", help="split to roll out (default: the recipe's rollout.split)")
     parser.add_argument("--steps", type=positive_int, help="steps per rollout (default: to the end of each trajectory)")
     parser.add_argument("--trajectories", type=positive_int, help="how many trajectories (default: all)")
@@ -52,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
     loaded = load_trained(args.checkpoint, registry, device)
     spec = loaded.recipe.rollout
-    dataset = open_dataset(loaded.recipe.dataset, registry, args.dataset)
+    dataset = open_dataset(loaded.recipe.dataset, registry, args.dataset, args.allow_pickle)
     dim = dataset.metadata().dim
     if dim != loaded.simulator.scene.dim:
         raise DatasetError(

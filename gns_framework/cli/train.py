@@ -12,13 +12,14 @@ from ..training import distributed
 from ..training.distributed import processes_from_environment
 from ..training.tracking import Tracker, TrackerGroup
 from ..training.trainer import Trainer
-from .arguments import positive_int
+from .arguments import add_allow_pickle, positive_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recipe", type=Path, help="recipe YAML file")
     parser.add_argument("--steps", type=positive_int, help="total training steps (overrides training.steps)")
     parser.add_argument("--dataset", type=Path, help="dataset folder (overrides dataset.path)")
+    add_allow_pickle(parser)
     parser.add_argument("--out", type=Path, help="run folder (overrides output_dir; default runs/<name>)")
     parser.add_argument(
         "--resume",
@@ -71,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         trainer = Trainer(
             recipe, registry, run_dir=args.out, dataset_path=args.dataset, processes=processes,
-            progress=not args.no_progress,
+            progress=not args.no_progress, allow_pickle=args.allow_pickle,
         )
         try:
             return _train(trainer, args, resume)

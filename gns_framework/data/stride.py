@@ -53,7 +53,7 @@ class FrameStrideDataset(Dataset):
     """
 
     def __init__(self, dataset: Dataset, stride: int):
-        super().__init__(dataset.params, dataset.path)
+        super().__init__(dataset.params, dataset.path, allow_pickle=dataset.allow_pickle)
         self.name = dataset.name
         self.inner = dataset
         self.stride = stride

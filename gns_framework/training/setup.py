@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..contracts import Dataset, Scene
+from ..data.array_pickle import pickle_granted
 from ..data.metadata import DatasetMetadata
 from ..data.stride import FrameStrideDataset
 from ..data.trajectory import Trajectory
@@ -16,13 +17,19 @@ from ..recipe import DatasetSpec, Recipe, component
 from ..scene import scene_from_data
 
 
-def open_dataset(spec: DatasetSpec, registry: Registry, path: str | Path | None = None) -> Dataset:
-    """The dataset plugin a recipe names, on ``path`` (default: the recipe's), seen every ``frame_stride`` frames."""
+def open_dataset(
+    spec: DatasetSpec, registry: Registry, path: str | Path | None = None, allow_pickle: Path | None = None
+) -> Dataset:
+    """The dataset plugin a recipe names, on ``path`` (default: the recipe's), seen every ``frame_stride`` frames.
+
+    ``allow_pickle`` is the folder the user's ``--allow-pickle`` names: it lets the
+    plugin unpickle anything only if it is this dataset's folder.
+    """
     cls, params = component(registry, "dataset", spec)
     folder = Path(path if path is not None else spec.path)
     if not folder.is_dir():
         raise DatasetError(f"{folder}: dataset folder not found (dataset.path in the recipe, or --dataset)")
-    dataset = cls(params, folder)
+    dataset = cls(params, folder, allow_pickle=pickle_granted(folder, allow_pickle))
     return FrameStrideDataset(dataset, spec.frame_stride) if spec.frame_stride > 1 else dataset
 
 
@@ -35,8 +42,10 @@ class PreparedData:
     scene: Scene
 
 
-def prepare_data(recipe: Recipe, registry: Registry, dataset_path: str | Path | None = None) -> PreparedData:
-    dataset = open_dataset(recipe.dataset, registry, dataset_path)
+def prepare_data(
+    recipe: Recipe, registry: Registry, dataset_path: str | Path | None = None, allow_pickle: Path | None = None
+) -> PreparedData:
+    dataset = open_dataset(recipe.dataset, registry, dataset_path, allow_pickle)
     metadata = dataset.metadata()
     train = dataset.split("train")
     valid = dataset.split("valid") if dataset.has_split("valid") else None

@@ -55,6 +55,8 @@ class Trainer:
         registry: installed components.
         run_dir: output folder (default: the recipe's ``output_dir`` or ``runs/<name>``).
         dataset_path: overrides ``dataset.path``.
+        allow_pickle: the folder the user's ``--allow-pickle`` names; it lets the dataset
+            unpickle anything only if it is the dataset's folder.
         processes: this process's place in a torchrun job (one plain process by
             default); when distributed, the process group is joined here and the
             model is wrapped in DistributedDataParallel.
@@ -74,6 +76,7 @@ class Trainer:
         processes: Processes | None = None,
         tracker: Tracker | None = None,
         progress: bool = True,
+        allow_pickle: Path | None = None,
     ):
         self.recipe = recipe
         self.registry = registry
@@ -89,7 +92,7 @@ class Trainer:
         set_recompute_activations(recipe.training.recompute_activations)
         self.device = distributed.start(self.processes, resolve_device(recipe.training.device))
 
-        self.data = prepare_data(recipe, registry, dataset_path)
+        self.data = prepare_data(recipe, registry, dataset_path, allow_pickle)
         self.windows = WindowIndex(self.data.train, recipe.model.history)
         self.order = WindowOrder(len(self.windows), recipe.training.batch_size, recipe.seed, self.rank, self.world_size)
         self.validation_batches = self._validation_batches() if self.processes.is_chief else []

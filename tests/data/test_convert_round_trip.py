@@ -43,13 +43,13 @@ def source_without_context(tmp_path_factory, registry):
     return write_source(tmp_path_factory.mktemp("source"), registry, with_context=False)
 
 
-def convert(src, source_layout, target_layout, out, *extra) -> None:
-    assert main(["convert", str(src), "--from", source_layout, "--to", target_layout, "--out", str(out), *extra]) == 0
+def convert(src, source_layout, target_layout, out) -> None:
+    assert main(["convert", str(src), "--from", source_layout, "--to", target_layout, "--out", str(out)]) == 0
 
 
 def load(registry, layout, path):
     cls = registry.get("dataset", layout)
-    dataset = cls(cls.Params(allow_pickle=True) if layout == "npz" else cls.Params(), path)
+    dataset = cls(cls.Params(), path)
     return dataset.metadata(), {name: list(dataset.split(name)) for name in dataset.splits()}
 
 
@@ -57,7 +57,7 @@ def load(registry, layout, path):
 def test_round_trip_through_every_layout(layout, source, source_without_context, registry, tmp_path):
     src, original = source_without_context if layout == "npz" else source
     convert(src, "safe", layout, tmp_path / layout)
-    convert(tmp_path / layout, layout, "safe", tmp_path / "back", *(["--allow-pickle"] if layout == "npz" else []))
+    convert(tmp_path / layout, layout, "safe", tmp_path / "back")
     metadata, splits = load(registry, "safe", tmp_path / "back")
     expected_metadata, _ = load(registry, "safe", src)
     for field in ("bounds", "sequence_length", "default_connectivity_radius", "dim", "dt",

@@ -1,8 +1,11 @@
 """geoelements/gns layout: ``<split>.npz`` of pickled ``(positions, particle_type[, material_property])`` tuples.
 
-Each member (``simulation_trajectory_<i>``) is a NumPy object array, so reading it
-unpickles Python objects, which can run code stored in the file: refused unless
-the user opts in with ``allow_pickle: true``.
+Each member (``simulation_trajectory_<i>``) is a NumPy object array, stored as a
+pickle, and unpickling can run code stored in the file. geoelements' pickles hold
+numpy arrays only, so they are read with an unpickler that rebuilds arrays and
+refuses every other global (:mod:`gns_framework.data.array_pickle`). A file that
+needs more is read only when the user grants it for its folder on the command
+line (``--allow-pickle FOLDER``); a recipe or a checkpoint never grants it.
 """
 
 from __future__ import annotations
@@ -13,14 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from gns_framework.contracts import Params
 from gns_framework.data.atomic import atomic_path, write_text_atomic
 from gns_framework.data.lazy import TrajectorySequence
 from gns_framework.data.metadata import DatasetMetadata
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
 
-from .npz_common import NpzSplitsDataset, open_npz, read_member
+from .npz_common import NpzSplitsDataset, open_npz, read_array_pickle
 
 
 class GeoelementsNpzDataset(NpzSplitsDataset):
@@ -29,15 +31,12 @@ class GeoelementsNpzDataset(NpzSplitsDataset):
     name = "npz"
     writable = True
 
-    class Params(Params):
-        allow_pickle: bool = False
-
     def split(self, name: str) -> Sequence[Trajectory]:
         file = self.path / f"{name}.npz"
-        archive = open_npz(file, allow_pickle=self.params.allow_pickle)
+        archive = open_npz(file, allow_pickle=self.allow_pickle)
 
         def load(key: str) -> Trajectory:
-            item = read_member(archive, file, key)
+            item = read_array_pickle(archive, file, key)
             if item.dtype != object or item.ndim != 1 or len(item) not in (2, 3):
                 raise DatasetError(
                     f"{file}: trajectory {key!r}: expected a (positions, particle_type[, material_property]) "

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from gns_framework.contracts import Dataset
+from gns_framework.data.array_pickle import RefusedGlobal, read_npy_object_array
 from gns_framework.data.metadata import DatasetMetadata, load_metadata
 from gns_framework.errors import DatasetError
 
@@ -23,6 +24,7 @@ class NpzSplitsDataset(Dataset):
 
 
 def open_npz(path: Path, allow_pickle: bool = False) -> np.lib.npyio.NpzFile:
+    """``path`` opened lazily; numpy unpickles its members only with ``allow_pickle`` (the user's grant)."""
     if not path.is_file():
         raise DatasetError(f"{path}: split file not found")
     try:
@@ -32,15 +34,50 @@ def open_npz(path: Path, allow_pickle: bool = False) -> np.lib.npyio.NpzFile:
 
 
 def read_member(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> np.ndarray:
+    """Member ``key`` of a layout of plain arrays: a pickled (object) member is refused, never unpickled."""
+    array = _read_plain(archive, path, key)
+    if array is None:
+        raise DatasetError(
+            f"{path}: {key}: holds a pickled object array, but this layout stores plain numeric arrays only "
+            "and never unpickles"
+        )
+    return array
+
+
+def read_array_pickle(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> np.ndarray:
+    """Member ``key``, an object array of numpy arrays, rebuilt without running code from the file.
+
+    :class:`ArrayUnpickler` refuses every global but numpy's array classes. Plain
+    arrays, and any pickle when ``archive`` was opened with the user's
+    ``--allow-pickle`` grant, are read by numpy itself; the caller checks the form.
+    """
+    array = _read_plain(archive, path, key)
+    if array is not None:
+        return array
+    try:
+        return read_npy_object_array(archive.zip, f"{key}.npy")
+    except RefusedGlobal as exc:
+        raise DatasetError(
+            f"{path}: {key}: refused to unpickle {exc.global_name}: expected a pickle of numpy arrays, which names "
+            "only numpy.ndarray, numpy.dtype and numpy's multiarray._reconstruct and scalar; unpickling anything "
+            "else runs code stored in the file. Only if you trust the file, opt in for its folder with "
+            f"--allow-pickle {path.parent} (gns convert, train, rollout and evaluate take it)"
+        ) from None
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise DatasetError(f"{path}: {key}: truncated or corrupt member: {exc}") from None
+    except Exception as exc:
+        # A damaged pickle can fail anywhere in the unpickler (EOFError, KeyError, TypeError, ...).
+        reason = f"not a numpy object array of arrays (truncated or corrupt?): {type(exc).__name__}: {exc}"
+        raise DatasetError(f"{path}: {key}: {reason}") from None
+
+
+def _read_plain(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> np.ndarray | None:
+    """Member ``key`` as numpy reads it, or None for a pickled member numpy would not unpickle."""
     try:
         return archive[key]
     except ValueError as exc:
         if "allow_pickle" in str(exc):
-            raise DatasetError(
-                f"{path}: {key}: holds pickled Python objects, and unpickling runs code stored in the "
-                "file. Only for files you trust, opt in with `allow_pickle: true` in the recipe's "
-                "dataset section (or --allow-pickle on the command line)."
-            ) from None
+            return None
         raise DatasetError(f"{path}: {key}: unreadable array: {exc}") from None
     except (zipfile.BadZipFile, EOFError, OSError, KeyError) as exc:
         raise DatasetError(f"{path}: {key}: truncated or corrupt member: {exc}") from None
