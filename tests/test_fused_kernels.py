@@ -1,8 +1,8 @@
-"""The fused CPU kernels compute what the torch path computes, and the edge block falls back without them."""
+"""The fused CPU kernels agree with the torch path (in float64), and the edge block falls back without them."""
 
 from __future__ import annotations
 
-import math
+import copy
 from contextlib import contextmanager
 
 import pytest
@@ -10,6 +10,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from float_tolerances import assert_close_to_reference
 from gns_builtins import chunked, fused_kernels
 from gns_builtins.layers import NormedMLP
 from gns_builtins.processors import edge_block as edge_block_module
@@ -23,6 +24,17 @@ shapes = st.tuples(st.integers(1, 300), st.integers(1, 130), st.integers(1, 2))
 
 def _seeded(seed: int) -> torch.Generator:
     return torch.Generator().manual_seed(seed)
+
+
+def _layer_norm64(x: torch.Tensor, gamma: torch.Tensor, beta: torch.Tensor):
+    """LayerNorm of float32 ``x`` in float64: (u, mean, rstd) and the magnitude u's rounding scales with.
+
+    Rounding x - mean costs eps * (|x| + |mean|), amplified by rstd: for nearly equal
+    values of a row the float32 result is only that good, whatever the kernel.
+    """
+    u, mean, rstd = torch.native_layer_norm(x.double(), (x.shape[-1],), gamma.double(), beta.double(), 1e-5)
+    scale = gamma.double().abs() * rstd * (x.double().abs() + mean.abs()) + beta.double().abs()
+    return u, mean, rstd, scale
 
 
 @contextmanager
@@ -44,7 +56,7 @@ def two_threads():
 @requires_kernels
 @settings(max_examples=40, deadline=None)
 @given(shape=shapes, seed=st.integers(0, 2**16), with_bias=st.booleans(), stats=st.booleans())
-def test_layer_norm_residual_matches_torch(shape, seed, with_bias, stats):
+def test_layer_norm_residual_matches_torch_in_float64(shape, seed, with_bias, stats):
     rows, width, threads = shape
     with num_threads(threads):
         g = _seeded(seed)
@@ -58,17 +70,19 @@ def test_layer_norm_residual_matches_torch(shape, seed, with_bias, stats):
         aggregate = torch.randn(nodes, width, generator=g)
 
         biased = a + bias if with_bias else a.clone()
-        expected_update, expected_mean, expected_rstd = torch.native_layer_norm(biased, (width,), gamma, beta, 1e-5)
-        expected_aggregate = aggregate.index_add(0, receivers, expected_update)
+        update, expected_mean, expected_rstd, update_scale = _layer_norm64(biased, gamma, beta)
+        expected_aggregate = aggregate.double().index_add(0, receivers, update)
+        aggregate_scale = aggregate.double().abs().index_add(0, receivers, update_scale)
 
         out = torch.empty_like(e)
         mean, rstd = fused_kernels.layer_norm_residual(a, bias, gamma, beta, 1e-5, e, out, aggregate, receivers, stats)
         torch.testing.assert_close(a, biased, rtol=0, atol=0)
-        torch.testing.assert_close(out, e + expected_update, rtol=1e-5, atol=1e-5)
-        torch.testing.assert_close(aggregate, expected_aggregate, rtol=1e-5, atol=1e-5)
+        assert_close_to_reference(out, e.double() + update, scale=e.double().abs() + update_scale, msg="out")
+        assert_close_to_reference(aggregate, expected_aggregate, scale=aggregate_scale, msg="aggregate")
         if stats:
-            torch.testing.assert_close(mean, expected_mean, rtol=1e-5, atol=1e-6)
-            torch.testing.assert_close(rstd, expected_rstd, rtol=1e-4, atol=1e-6)
+            row_magnitude = biased.double().abs().mean(-1, keepdim=True)
+            assert_close_to_reference(mean, expected_mean, scale=row_magnitude, msg="mean")
+            assert_close_to_reference(rstd, expected_rstd, scale=expected_rstd, msg="rstd")
         else:
             assert mean is None and rstd is None
 
@@ -86,8 +100,8 @@ def test_layer_norm_residual_in_place_and_deterministic(two_threads):
             a.clone(), None, gamma, beta, 1e-5, residual, residual, aggregate, receivers, False
         )
         results.append((residual, aggregate))
-    update = torch.layer_norm(a, (128,), gamma, beta, 1e-5)
-    torch.testing.assert_close(results[0][0], e + update, rtol=1e-5, atol=1e-5)
+    update, _, _, update_scale = _layer_norm64(a, gamma, beta)
+    assert_close_to_reference(results[0][0], e.double() + update, scale=e.double().abs() + update_scale)
     for residual, aggregate in results[1:]:
         assert torch.equal(residual, results[0][0]) and torch.equal(aggregate, results[0][1])
 
@@ -96,7 +110,7 @@ def test_layer_norm_residual_in_place_and_deterministic(two_threads):
 @settings(max_examples=40, deadline=None)
 @given(shape=shapes, seed=st.integers(0, 2**16), inputs=st.sampled_from(["both", "aggregate", "out"]),
        with_bias=st.booleans())
-def test_layer_norm_backward_matches_torch(shape, seed, inputs, with_bias):
+def test_layer_norm_backward_matches_torch_in_float64(shape, seed, inputs, with_bias):
     rows, width, threads = shape
     with num_threads(threads):
         g = _seeded(seed)
@@ -107,14 +121,20 @@ def test_layer_norm_backward_matches_torch(shape, seed, inputs, with_bias):
         receivers = torch.randint(0, nodes, (rows,), generator=g)
         grad_aggregate = torch.randn(nodes, width, generator=g) if inputs != "out" else None
         grad_out = torch.randn(rows, width, generator=g) if inputs != "aggregate" else None
-        grad_update = torch.zeros(rows, width)
+        # The float64 backward from the same float32 inputs, mean and rstd included.
+        grad_update = torch.zeros(rows, width, dtype=torch.float64)
         if grad_aggregate is not None:
-            grad_update += grad_aggregate[receivers]
+            grad_update += grad_aggregate.double()[receivers]
         if grad_out is not None:
-            grad_update += grad_out
+            grad_update += grad_out.double()
+        mean64, rstd64 = mean.double(), rstd.double()
         expected, expected_gamma, expected_beta = torch.ops.aten.native_layer_norm_backward(
-            grad_update, a, (width,), mean, rstd, gamma, beta, [True, True, True]
+            grad_update, a.double(), (width,), mean64, rstd64, gamma.double(), beta.double(), [True, True, True]
         )
+        # grad_a = rstd * (g * gamma - mean(g * gamma) - xhat * mean(g * gamma * xhat)): its terms are of the
+        # row's rstd * max |g * gamma| (1/sqrt(eps) for constant rows, e.g. width 1); the sums add those up.
+        row_scale = rstd64 * (grad_update * gamma.double()).abs().amax(-1, keepdim=True)
+        xhat = (a.double() - mean64) * rstd64
 
         grad_residual = torch.full((rows, width), 7.0)
         sums = [torch.ones(width) for _ in range(3)]
@@ -122,13 +142,12 @@ def test_layer_norm_backward_matches_torch(shape, seed, inputs, with_bias):
             grad_aggregate, receivers, grad_out, a, mean, rstd, gamma, grad_residual, sums[0], sums[1],
             sums[2] if with_bias else None,
         )
-        # Rounding in x - mean is amplified by rstd (1/sqrt(eps) for constant rows, e.g. width 1).
-        scale = 1 + expected.abs().max().item() + (rstd.max() * grad_update.abs().max() * gamma.abs().max()).item()
-        torch.testing.assert_close(got, expected, rtol=1e-4, atol=1e-5 * scale)
-        torch.testing.assert_close(sums[0], 1 + expected_gamma, rtol=1e-4, atol=1e-4 * math.sqrt(rows))
-        torch.testing.assert_close(sums[1], 1 + expected_beta, rtol=1e-4, atol=1e-4 * math.sqrt(rows))
+        assert_close_to_reference(got, expected, scale=row_scale, msg="grad_a")
+        assert_close_to_reference(sums[0], 1 + expected_gamma, scale=1 + (grad_update * xhat).abs().sum(0),
+                                  msg="grad_gamma")
+        assert_close_to_reference(sums[1], 1 + expected_beta, scale=1 + grad_update.abs().sum(0), msg="grad_beta")
         if with_bias:
-            torch.testing.assert_close(sums[2], 1 + expected.sum(0), rtol=1e-4, atol=1e-4 * math.sqrt(rows) * scale)
+            assert_close_to_reference(sums[2], 1 + expected.sum(0), scale=1 + row_scale.sum(), msg="grad_bias")
         else:
             assert torch.equal(sums[2], torch.ones(width))
         torch.testing.assert_close(grad_residual, grad_out if grad_out is not None else torch.full((rows, width), 7.0))
@@ -152,7 +171,7 @@ def test_relu_kernels_match_torch(shape, seed, with_bias):
         got = fused_kernels.relu_backward_(grad.clone(), z, grad_bias)
         assert torch.equal(got, expected)
         if with_bias:
-            torch.testing.assert_close(grad_bias, expected.sum(0), rtol=1e-5, atol=1e-5 * math.sqrt(rows))
+            assert_close_to_reference(grad_bias, expected.double().sum(0), scale=expected.double().abs().sum(0))
 
 
 @requires_kernels
@@ -180,6 +199,17 @@ def _edge_block_case(seed: int, receivers_sorted: bool, hidden_layers: int):
     e = torch.randn(edges, latent, requires_grad=True)
     weight_out, weight_agg = torch.randn(edges, latent), torch.randn(n, latent)
     return mlp, x, e, senders, receivers, weight_out, weight_agg
+
+
+def _float64_case(mlp, x, e, senders, receivers, weight_out, weight_agg):
+    """The same case in float64, where the fused kernels never apply: the reference both float32 paths meet."""
+    x64, e64 = (t.detach().double().requires_grad_() for t in (x, e))
+    return copy.deepcopy(mlp).double(), x64, e64, senders, receivers, weight_out.double(), weight_agg.double()
+
+
+def _edge_block_outputs(mlp) -> list[str]:
+    """The names of what _run_edge_block returns, in order."""
+    return ["e_new", "aggregate", "grad x", "grad e"] + [f"grad {name}" for name, _ in mlp.named_parameters()]
 
 
 def _run_edge_block(mlp, x, e, senders, receivers, weight_out, weight_agg, use_edge_output):
@@ -212,8 +242,23 @@ def test_float32_edge_block_with_and_without_kernels(receivers_sorted, hidden_la
     assert "layer_norm_backward" in calls and ("layer_norm_residual" in calls) == receivers_sorted
     monkeypatch.setattr(fused_kernels, "applies", lambda *tensors: False)
     plain = _run_edge_block(*case, use_edge_output)
-    for got, expected in zip(fused, plain):
-        torch.testing.assert_close(got, expected, rtol=1e-5, atol=1e-5)
+    reference = _run_edge_block(*_float64_case(*case), use_edge_output)
+    for name, got_fused, got_plain, expected in zip(_edge_block_outputs(case[0]), fused, plain, reference, strict=True):
+        assert_close_to_reference(got_fused, expected, msg=f"{name}, fused kernels")
+        assert_close_to_reference(got_plain, expected, msg=f"{name}, torch path")
+
+
+@requires_kernels
+def test_float32_edge_block_comparison_catches_an_error_of_1e_4_relative(monkeypatch, two_threads):
+    """The tolerance above is not so loose that a gradient 1e-4 off (840 float32 epsilons) passes."""
+    monkeypatch.setattr(chunked, "ROWS_PER_THREAD", 9)
+    case = _edge_block_case(2, True, 2)
+    fused = _run_edge_block(*case, True)
+    reference = _run_edge_block(*_float64_case(*case), True)
+    for index, name in enumerate(_edge_block_outputs(case[0])):
+        assert_close_to_reference(fused[index], reference[index], msg=name)
+        with pytest.raises(AssertionError, match=name):
+            assert_close_to_reference(fused[index] * (1 + 1e-4), reference[index], msg=name)
 
 
 def test_disabled_by_environment(monkeypatch):
@@ -235,10 +280,10 @@ def test_without_a_compiler_warns_once_and_the_edge_block_keeps_the_torch_path(m
             assert fused_kernels.library() is None
         case = _edge_block_case(0, True, 1)
         e_new, aggregate, *_ = _run_edge_block(*case, True)
-        mlp, x, e, senders, receivers = case[:5]
+        mlp, x, e, senders, receivers = _float64_case(*case)[:5]
         update = mlp(torch.cat([e, x[receivers], x[senders]], dim=-1)).detach()
-        torch.testing.assert_close(e_new, e.detach() + update, rtol=1e-5, atol=1e-5)
-        torch.testing.assert_close(aggregate, torch.zeros_like(x).index_add(0, receivers, update), rtol=1e-5, atol=1e-5)
+        assert_close_to_reference(e_new, e.detach() + update)
+        assert_close_to_reference(aggregate, torch.zeros_like(x).index_add(0, receivers, update))
         assert list(tmp_path.iterdir()) == []
     finally:
         fused_kernels.library.cache_clear()

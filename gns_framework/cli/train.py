@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..checkpoint import list_checkpoints
 from ..plugins import load_registry
 from ..recipe import Recipe, load_recipe
 from ..training import distributed
@@ -21,13 +22,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dataset", type=Path, help="dataset folder (overrides dataset.path)")
     add_allow_pickle(parser)
     parser.add_argument("--out", type=Path, help="run folder (overrides output_dir; default runs/<name>)")
-    parser.add_argument(
+    start = parser.add_mutually_exclusive_group()
+    start.add_argument(
         "--resume",
         nargs="?",
         const="auto",
         metavar="CHECKPOINT",
         help="continue from CHECKPOINT, or with no value from the newest good checkpoint of the run folder "
-        "(automatic after an elastic restart under torchrun)",
+        "(automatic after an elastic restart under torchrun). Refused when every checkpoint there is damaged, "
+        "or when the run folder holds newer checkpoints than CHECKPOINT (branch into another folder with --out)",
+    )
+    start.add_argument(
+        "--restart",
+        action="store_true",
+        help="start afresh at step 0 in a run folder that holds checkpoints (damaged ones included): they and the "
+        "record of their MLflow run move to <run>/earlier-N/, nothing is deleted. Without --resume or --restart "
+        "such a folder is refused",
     )
     parser.add_argument("--device", help="cpu, cuda or cuda:N (overrides training.device)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -67,15 +77,13 @@ def run(args: argparse.Namespace) -> int:
         overrides.setdefault("training", {})["device"] = args.device
     recipe = load_recipe(args.recipe, registry, overrides)
     processes = processes_from_environment()
-    # After an elastic restart torchrun starts every worker afresh: continue from the last checkpoint.
-    resume = args.resume if args.resume is not None else ("auto" if processes.restart_count > 0 else None)
     try:
         trainer = Trainer(
             recipe, registry, run_dir=args.out, dataset_path=args.dataset, processes=processes,
             progress=not args.no_progress, allow_pickle=args.allow_pickle,
         )
         try:
-            return _train(trainer, args, resume)
+            return _train(trainer, args)
         except BaseException:
             trainer.close(failed=True)
             raise
@@ -83,15 +91,28 @@ def run(args: argparse.Namespace) -> int:
         distributed.stop()
 
 
-def _train(trainer: Trainer, args: argparse.Namespace, resume: str | None) -> int:
+def _train(trainer: Trainer, args: argparse.Namespace) -> int:
     processes = trainer.processes
     say = print if processes.is_chief else (lambda *a, **k: None)
+    resume, restart = args.resume, args.restart
+    # After an elastic restart torchrun starts every worker afresh, with the same arguments: continue from the
+    # checkpoints this run has written since, not from --resume's older one nor afresh again.
+    if processes.restart_count > 0:
+        written = processes.broadcast(processes.is_chief and bool(list_checkpoints(trainer.checkpoint_dir)))
+        if written:
+            resume, restart = "auto", False
+    resumed = None
     if resume is not None:
         resumed = trainer.resume(None if resume == "auto" else resume)
         say(f"resumed from {resumed} at step {trainer.step}" if resumed else "no checkpoint to resume from; starting at step 0")
-    # MLflow only once the data and any checkpoint have loaded, so a run that cannot start leaves no trace there.
+    if resumed is None:
+        earlier = trainer.start_afresh(restart)
+        if earlier is not None:
+            say(f"starting afresh at step 0; the earlier run's checkpoints are kept in {earlier}")
+    # MLflow only once the data and any checkpoint have loaded, so a run that cannot start leaves no trace there;
+    # a run from step 0 is a new history, so a new MLflow run.
     if processes.is_chief:
-        trainer.tracker = with_mlflow(args, trainer.recipe, trainer.run_dir, trainer.tracker, resume is not None)
+        trainer.tracker = with_mlflow(args, trainer.recipe, trainer.run_dir, trainer.tracker, resumed is not None)
     if processes.distributed:
         say(f"training on {processes.world_size} processes ({trainer.device.type})")
     trainer.train()

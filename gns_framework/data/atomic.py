@@ -1,4 +1,5 @@
-"""Atomic file writes: a reader never sees a half-written file, and a failed write keeps the old one."""
+"""Atomic file writes: a reader never sees a half-written file, a failed write keeps the old one, and a finished
+one survives a power loss."""
 
 from __future__ import annotations
 
@@ -13,6 +14,10 @@ from pathlib import Path
 def atomic_path(path: str | Path, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it over ``path`` only on success.
 
+    The file's data is flushed to disk before the rename and the directory after it:
+    the rename is an entry of the directory, which without its own fsync can be lost
+    in a power cut, leaving the old file (or none) behind a run that reported success.
+
     ``suffix`` keeps a file extension some writers insist on (``np.savez`` adds ``.npz``).
     """
     path = Path(path)
@@ -25,8 +30,18 @@ def atomic_path(path: str | Path, suffix: str = "") -> Iterator[Path]:
         with open(tmp_path, "rb+") as handle:
             os.fsync(handle.fileno())
         os.replace(tmp_path, path)
+        fsync_directory(path.parent)
     finally:
         tmp_path.unlink(missing_ok=True)
+
+
+def fsync_directory(directory: str | Path) -> None:
+    """Flush ``directory``'s entries (files renamed into or out of it) to disk."""
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def write_text_atomic(path: str | Path, text: str) -> None:

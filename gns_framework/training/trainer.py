@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,9 @@ from tqdm import tqdm
 
 from ..activation_memory import set_recompute_activations
 from ..allocator import keep_freed_memory
-from ..checkpoint import checkpoint_name, latest_good_checkpoint, load_checkpoint, prune_checkpoints, save_checkpoint
+from ..checkpoint import (
+    checkpoint_name, make_room_for_a_fresh_start, prune_checkpoints, resume_point, save_checkpoint, set_aside_damaged,
+)
 from ..data.atomic import write_text_atomic
 from ..data.batch import ParticleBatch
 from ..data.windows import WindowIndex, WindowOrder, step_generator
@@ -30,6 +33,7 @@ from ..scene import scene_to_dict
 from ..simulator import build_simulator
 from . import distributed
 from .distributed import Processes
+from .mlflow_tracker import RUN_FILE
 from .optim import make_optimizer
 from .provenance import git_commit
 from .rollout_validation import validation_rollout_metrics
@@ -164,14 +168,14 @@ class Trainer:
 
         Rank 0 reads the checkpoint and sends it to the other ranks, so every rank
         resumes from the same state even while older checkpoints are being pruned.
+        A resume that would overwrite or prune a checkpoint of another history is
+        refused (resume_point); damaged newer checkpoints are renamed aside once the
+        state has loaded, so that this run's checkpoints of their steps never replace them.
         """
         found, error = None, None
         if self.processes.is_chief:
             try:
-                if checkpoint is not None:
-                    found = Path(checkpoint), load_checkpoint(checkpoint)
-                else:
-                    found = latest_good_checkpoint(self.checkpoint_dir)
+                found = resume_point(self.checkpoint_dir, checkpoint)
             except GnsError as exc:
                 error = exc
         # Every rank must reach the broadcast, so rank 0's error travels with it.
@@ -180,9 +184,29 @@ class Trainer:
             raise error
         if found is None:
             return None
-        path, state = found
-        self.load_state(state, str(path))
-        return path
+        self.load_state(found.state, str(found.path))
+        if self.processes.is_chief:
+            for path in found.damaged_newer:
+                warnings.warn(f"damaged checkpoint {path} kept as {set_aside_damaged(path).name}", stacklevel=2)
+        return found.path
+
+    def start_afresh(self, restart: bool = False) -> Path | None:
+        """Claim the run folder for a run from step 0; returns where ``restart`` moved earlier checkpoints, if it did.
+
+        A folder holding checkpoints is refused, or with ``restart`` moved aside
+        with the earlier MLflow record (make_room_for_a_fresh_start). Rank 0 decides
+        and tells the others.
+        """
+        earlier, error = None, None
+        if self.processes.is_chief:
+            try:
+                earlier = make_room_for_a_fresh_start(self.checkpoint_dir, restart, [self.run_dir / RUN_FILE])
+            except GnsError as exc:
+                error = exc
+        earlier, error = self.processes.broadcast((earlier, error))
+        if error is not None:
+            raise error
+        return earlier
 
     def save(self) -> Path | None:
         """Rank 0 writes a checkpoint of the current step; every rank waits until it is on disk."""

@@ -76,6 +76,30 @@ def test_training_tracks_to_a_sqlite_store_created_on_first_use_and_compare_read
     assert plot.read_bytes().startswith(b"\x89PNG")
 
 
+def test_damaged_checkpoints_never_give_the_mlflow_run_a_second_history_and_a_restart_gets_a_new_run(
+    uneven_dataset, tmp_path, capsys
+):
+    store = f"sqlite:///{tmp_path / 'store.db'}"
+    recipe_file = write_recipe(tmp_path / "recipe.yaml", tiny_recipe(uneven_dataset, steps=2, checkpoint_every=2))
+    run_dir = tmp_path / "run"
+    train(recipe_file, run_dir, "--tracking-uri", store)
+    first = json.loads((run_dir / RUN_FILE).read_text())["run_id"]
+    client = mlflow.tracking.MlflowClient(store)
+    history = [(m.step, m.value) for m in client.get_metric_history(first, "train_loss")]
+    checkpoint = run_dir / "checkpoints" / checkpoint_name(2)
+    checkpoint.write_bytes(checkpoint.read_bytes()[:-100])
+
+    resumed = ["train", str(recipe_file), "--out", str(run_dir), "--experiment", "tiny-exp", "--tracking-uri", store]
+    assert main([*resumed, "--resume", "--no-progress"]) == 2
+    assert "every checkpoint is damaged" in capsys.readouterr().err
+    train(recipe_file, run_dir, "--tracking-uri", store, "--restart")
+    second = json.loads((run_dir / RUN_FILE).read_text())["run_id"]
+    assert second != first
+    assert json.loads((run_dir / "earlier-1" / RUN_FILE).read_text())["run_id"] == first
+    assert [(m.step, m.value) for m in client.get_metric_history(first, "train_loss")] == history
+    check_tracked_run(client, second, steps=2)
+
+
 def test_compare_names_the_choices_for_an_unknown_experiment(tmp_path, uneven_dataset, capsys):
     database = tmp_path / "store.db"
     recipe_file = write_recipe(tmp_path / "recipe.yaml", tiny_recipe(uneven_dataset, steps=1))
