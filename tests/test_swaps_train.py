@@ -38,6 +38,16 @@ def test_every_built_in_component_is_covered():
     assert sorted(GRAPH_BUILDERS) == REGISTRY.names("graph_builder")
 
 
+@pytest.mark.parametrize("processor", sorted(PROCESSORS))
+def test_every_parameter_gets_a_gradient(processor, dataset, tmp_path):
+    # A parameter whose output nothing reads stops DistributedDataParallel (tests/training/test_ddp_components.py).
+    recipe = tiny_recipe(dataset, processor={"name": processor, **PROCESSORS[processor]})
+    trainer = tiny_trainer(recipe, tmp_path)
+    trainer.train(1)
+    without = [name for name, p in trainer.simulator.named_parameters() if p.grad is None]
+    assert not without, f"{processor}: parameters without a gradient: {without}"
+
+
 @pytest.mark.parametrize("processor", sorted(set(PROCESSORS) - {"interaction_network"}))
 def test_alternative_processor_learns(processor, dataset, tmp_path):
     # Nearly noise-free inputs, so the one-step loss on fixed validation windows can fall far.
