@@ -146,7 +146,7 @@ def flatten(params: dict[str, Any], prefix: str = "") -> dict[str, str]:
 
 
 @dataclass
-class _Call:
+class Request:
     """A request waiting in the outbox: ``send`` makes it; or, for a batch of metric entries, ``metrics`` of
     ``step``, which the outbox sends joined with the batches next to it, and which alone it may give up when full."""
 
@@ -178,20 +178,20 @@ class Outbox:
         self.where, self.kept_in = where, kept_in
         self._send_metrics = send_metrics
         self.retry_seconds, self.close_seconds, self.capacity = retry_seconds, close_seconds, capacity
-        self._calls: collections.deque[_Call] = collections.deque()
+        self._waiting: collections.deque[Request] = collections.deque()
         self._changed = threading.Condition()
         self._closing = False
         self._given_up_steps: list[int] = []
         self._thread = threading.Thread(target=self._work, name="gns-tracking", daemon=True)
         self._thread.start()
 
-    def put(self, call: _Call) -> None:
-        """Queue ``call``; returns at once. A full outbox gives up its oldest metrics to make room."""
+    def put(self, request: Request) -> None:
+        """Queue ``request``; returns at once. A full outbox gives up its oldest metrics to make room."""
         with self._changed:
-            if len(self._calls) >= self.capacity:
-                oldest = next((c for c in self._calls if c.metrics is not None), None)
+            if len(self._waiting) >= self.capacity:
+                oldest = next((r for r in self._waiting if r.metrics is not None), None)
                 if oldest is not None:
-                    self._calls.remove(oldest)
+                    self._waiting.remove(oldest)
                     if not self._given_up_steps:
                         warnings.warn(
                             f"tracking: more than {self.capacity} requests wait for {self.where}; the oldest metrics "
@@ -199,40 +199,42 @@ class Outbox:
                             stacklevel=3,
                         )
                     self._given_up_steps.append(oldest.step)
-            self._calls.append(call)
+            self._waiting.append(request)
             self._changed.notify()
 
-    def _next(self) -> list[_Call]:
-        """The first waiting call, or a run of consecutive metrics batches that fit one request."""
-        first = self._calls[0]
+    def _next(self) -> list[Request]:
+        """The first waiting request, or a run of consecutive metrics batches that fit one request."""
+        first = self._waiting[0]
         if first.metrics is None:
             return [first]
         run, size = [], 0
-        for call in self._calls:
-            if call.metrics is None or size + len(call.metrics) > _METRICS_PER_REQUEST:
+        for request in self._waiting:
+            if request.metrics is None or size + len(request.metrics) > _METRICS_PER_REQUEST:
                 break
-            run.append(call)
-            size += len(call.metrics)
+            run.append(request)
+            size += len(request.metrics)
         return run
 
     def _work(self) -> None:
         outage_since = None
         while True:
             with self._changed:
-                self._changed.wait_for(lambda: self._calls or self._closing)
-                if not self._calls:
+                self._changed.wait_for(lambda: self._waiting or self._closing)
+                if not self._waiting:
                     return
-                calls = self._next()
+                requests = self._next()
             try:
-                if calls[0].metrics is None:
-                    calls[0].send()
+                if requests[0].metrics is None:
+                    requests[0].send()
                 else:
-                    self._send_metrics([entry for call in calls for entry in call.metrics])
+                    self._send_metrics([entry for request in requests for entry in request.metrics])
             except Exception as error:  # noqa: BLE001 - whatever the server does, training goes on
                 if not server_unreachable(error):
-                    what = calls[0].what if len(calls) == 1 else f"the metrics of steps {calls[0].step} to {calls[-1].step}"
+                    what = requests[0].what
+                    if len(requests) > 1:
+                        what = f"the metrics of steps {requests[0].step} to {requests[-1].step}"
                     warnings.warn(f"tracking: {self.where} refused {what}: {error}", stacklevel=1)
-                    self._done(calls)
+                    self._done(requests)
                     continue
                 if outage_since is None:
                     outage_since = time.monotonic()
@@ -246,7 +248,7 @@ class Outbox:
                         return
                     self._changed.wait_for(lambda: self._closing, timeout=self.retry_seconds)
                 continue
-            self._done(calls)
+            self._done(requests)
             if outage_since is not None:
                 print(
                     f"tracking: {self.where} is back after {time.monotonic() - outage_since:.0f} s; "
@@ -255,11 +257,11 @@ class Outbox:
                 )
                 outage_since = None
 
-    def _done(self, calls: list[_Call]) -> None:
+    def _done(self, requests: list[Request]) -> None:
         with self._changed:
-            for call in calls:
-                if self._calls and self._calls[0] is call:
-                    self._calls.popleft()
+            for request in requests:
+                if self._waiting and self._waiting[0] is request:
+                    self._waiting.popleft()
 
     def close(self) -> None:
         """Send what waits, for at most ``close_seconds`` (and no more retries once the server is unreachable),
@@ -269,9 +271,9 @@ class Outbox:
             self._changed.notify()
         self._thread.join(timeout=self.close_seconds)
         with self._changed:
-            left = list(self._calls)
-        steps = sorted(self._given_up_steps + [c.step for c in left if c.metrics is not None])
-        others = [c.what for c in left if c.metrics is None]
+            left = list(self._waiting)
+        steps = sorted(self._given_up_steps + [r.step for r in left if r.metrics is not None])
+        others = [r.what for r in left if r.metrics is None]
         if steps or others:
             parts = [f"metrics of {len(steps)} logs (steps {steps[0]} to {steps[-1]})"] if steps else []
             warnings.warn(
@@ -327,7 +329,7 @@ class MlflowTracker:
         with and records each changed one (more ``training.steps``, say) as a tag
         ``changed.<param>`` = ``"old -> new"``.
         """
-        self.outbox.put(_Call("the run's params", send=lambda: self._send_params(params)))
+        self.outbox.put(Request("the run's params", send=lambda: self._send_params(params)))
 
     def _send_params(self, params: dict) -> None:
         logged = self.client.get_run(self.run_id).data.params
@@ -344,18 +346,18 @@ class MlflowTracker:
         now = int(time.time() * 1000)
         entries = [self._metric(k, float(v), now, step) for k, v in metrics.items() if math.isfinite(v)]
         if entries:
-            self.outbox.put(_Call(f"the metrics of step {step}", metrics=entries, step=step))
+            self.outbox.put(Request(f"the metrics of step {step}", metrics=entries, step=step))
 
     def _send_metrics(self, entries: list) -> None:
         self.client.log_batch(self.run_id, metrics=entries)
 
     def log_artifact(self, path: Path) -> None:
-        self.outbox.put(_Call(f"artifact {Path(path).name}", send=lambda: self.client.log_artifact(self.run_id, str(path))))
+        self.outbox.put(Request(f"artifact {Path(path).name}", send=lambda: self.client.log_artifact(self.run_id, str(path))))
 
     def close(self, failed: bool = False) -> None:
         status = "FAILED" if failed else "FINISHED"
         self.outbox.put(
-            _Call(f"the run's status {status}", send=lambda: self.client.set_terminated(self.run_id, status=status))
+            Request(f"the run's status {status}", send=lambda: self.client.set_terminated(self.run_id, status=status))
         )
         self.outbox.close()
 

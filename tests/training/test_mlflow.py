@@ -142,7 +142,7 @@ def test_outbox_never_blocks_keeps_order_gives_up_refused_requests_and_names_wha
     from mlflow.exceptions import MlflowException
     from mlflow.protos.databricks_pb2 import INVALID_PARAMETER_VALUE
 
-    from gns_framework.training.mlflow_tracker import Outbox, _Call
+    from gns_framework.training.mlflow_tracker import Outbox, Request
 
     sent, server_up, release = [], threading.Event(), threading.Event()
 
@@ -159,12 +159,12 @@ def test_outbox_never_blocks_keeps_order_gives_up_refused_requests_and_names_wha
     started = time.monotonic()
     with pytest.warns(UserWarning) as caught:
         for step in range(1, 7):
-            outbox.put(_Call(f"step {step}", metrics=[f"m{step}"], step=step))
+            outbox.put(Request(f"step {step}", metrics=[f"m{step}"], step=step))
         assert time.monotonic() - started < 0.5, "put waited on the server"
         release.set()
         time.sleep(0.3)  # a few failed tries
-        outbox.put(_Call("a refused request", send=refused))
-        outbox.put(_Call("step 7", metrics=["m7"], step=7))
+        outbox.put(Request("a refused request", send=refused))
+        outbox.put(Request("step 7", metrics=["m7"], step=7))
         server_up.set()
         outbox.close()
     messages = [str(w.message) for w in caught]
