@@ -37,6 +37,8 @@ class AttentionStep(nn.Module):
         self.attention = GATv2Conv(latent, latent // heads, heads=heads, edge_dim=latent, add_self_loops=False)
         self.node_mlp = NormedMLP(2 * latent, hidden, hidden_layers, latent)
         self.edge_mlp = NormedMLP(3 * latent, hidden, hidden_layers, latent) if updates_edges else None
+        if self.edge_mlp is None:
+            self.register_load_state_dict_pre_hook(_drop_untrained_edge_mlp)
 
     def forward(self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor) -> tuple[Tensor, Tensor]:
         # PyG's edge_index is (source, target): messages flow sender -> receiver.
@@ -45,6 +47,13 @@ class AttentionStep(nn.Module):
         if self.edge_mlp is not None:
             e = e + self.edge_mlp(torch.cat([e, x[receivers], x[senders]], dim=-1))
         return x, e
+
+
+def _drop_untrained_edge_mlp(module, state_dict, prefix, *args) -> None:
+    """Checkpoints written while the last step still had an edge MLP hold its weights at their initial
+    values (no gradient ever reached them): drop them, so that those checkpoints load."""
+    for key in [k for k in state_dict if k.startswith(f"{prefix}edge_mlp.")]:
+        del state_dict[key]
 
 
 class GraphAttentionProcessor(Processor):
