@@ -44,9 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     tracking = parser.add_argument_group(
         "tracking (MLflow; rank 0 only)",
-        "Training never waits on the tracking server: while it is unreachable the metrics stay in "
-        "<run>/metrics.jsonl and go to it when it is back (tried every $GNS_TRACKING_RETRY_SECONDS, default 30; "
-        "an ending run waits at most $GNS_TRACKING_CLOSE_SECONDS, default 60, then warns what it did not receive).",
+        "Metrics always go to <run>/metrics.jsonl. Training never waits on the tracking server: what it misses "
+        "while unreachable is sent when it is back (tried every $GNS_TRACKING_RETRY_SECONDS, default 30); an ending "
+        "run waits at most $GNS_TRACKING_CLOSE_SECONDS (default 60), then warns what the server did not receive. "
+        "A server unreachable at the start leaves the run untracked, with a warning.",
     )
     tracking.add_argument(
         "--tracking-uri",
