@@ -384,7 +384,8 @@ def log_to_recorded_run(
     """Add ``metrics`` (and ``artifacts`` under ``artifact_path``) to the MLflow run that trained ``run_dir``.
 
     The run's status is left alone. Returns the run id, or None when the run was not
-    tracked with MLflow (or mlflow is missing).
+    tracked with MLflow (or mlflow is missing), or when its server is unreachable: the
+    caller's results are on disk by then, so that is a warning, not a failure.
     """
     record = Path(run_dir) / RUN_FILE
     if not record.is_file() or not mlflow_available():
@@ -395,7 +396,17 @@ def log_to_recorded_run(
     now = int(time.time() * 1000)
     entries = [Metric(k, float(v), now, step) for k, v in metrics.items() if math.isfinite(v)]
     client = _client(saved["tracking_uri"])
-    client.log_batch(saved["run_id"], metrics=entries)
-    for artifact in artifacts:
-        client.log_artifact(saved["run_id"], str(artifact), artifact_path)
+    try:
+        client.log_batch(saved["run_id"], metrics=entries)
+        for artifact in artifacts:
+            client.log_artifact(saved["run_id"], str(artifact), artifact_path)
+    except Exception as error:
+        if not server_unreachable(error):
+            raise
+        warnings.warn(
+            f"tracking: MLflow at {saved['tracking_uri']} unreachable ({_first_line(error)}); "
+            f"{', '.join(sorted(metrics))} not logged to its run {saved['run_id']}",
+            stacklevel=2,
+        )
+        return None
     return saved["run_id"]

@@ -190,6 +190,16 @@ def test_training_goes_on_without_mlflow_when_the_server_is_unreachable_at_the_s
     assert not (tmp_path / "run" / RUN_FILE).exists()
 
 
+def test_rollout_and_evaluation_metrics_for_an_unreachable_server_are_a_warning(tmp_path, monkeypatch):
+    from gns_framework.training.mlflow_tracker import log_to_recorded_run
+
+    monkeypatch.setenv("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
+    nobody = f"http://127.0.0.1:{free_loopback_port()}"
+    (tmp_path / RUN_FILE).write_text(json.dumps({"tracking_uri": nobody, "experiment": "x", "run_id": "abc"}))
+    with pytest.warns(UserWarning, match=f"MLflow at {nobody} unreachable .*rollout_position_mse_test not logged to its run abc"):
+        assert log_to_recorded_run(tmp_path, {"rollout_position_mse_test": 0.5}, step=3) is None
+
+
 def start_server(folder, port: int) -> subprocess.Popen:
     """An ``mlflow server`` on 127.0.0.1:``port`` whose store and artifacts live in ``folder`` (kept across restarts)."""
     command = [
