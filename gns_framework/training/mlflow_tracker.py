@@ -405,7 +405,7 @@ def log_to_recorded_run(
             raise
         warnings.warn(
             f"tracking: MLflow at {saved['tracking_uri']} unreachable ({_first_line(error)}); "
-            f"{', '.join(sorted(metrics))} not logged to its run {saved['run_id']}",
+            f"{', '.join(f'{k} {v:.6g}' for k, v in sorted(metrics.items()))} not logged to its run {saved['run_id']}",
             stacklevel=2,
         )
         return None

@@ -196,7 +196,7 @@ def test_rollout_and_evaluation_metrics_for_an_unreachable_server_are_a_warning(
     monkeypatch.setenv("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
     nobody = f"http://127.0.0.1:{free_loopback_port()}"
     (tmp_path / RUN_FILE).write_text(json.dumps({"tracking_uri": nobody, "experiment": "x", "run_id": "abc"}))
-    with pytest.warns(UserWarning, match=f"MLflow at {nobody} unreachable .*rollout_position_mse_test not logged to its run abc"):
+    with pytest.warns(UserWarning, match=f"MLflow at {nobody} unreachable .*rollout_position_mse_test 0.5 not logged to its run abc"):
         assert log_to_recorded_run(tmp_path, {"rollout_position_mse_test": 0.5}, step=3) is None
 
 
