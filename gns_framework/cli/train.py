@@ -77,7 +77,7 @@ def with_mlflow(args: argparse.Namespace, recipe: Recipe, run_dir: Path, local: 
             raise
         # Training never waits on tracking: without a server at the start, this run is not in MLflow.
         warnings.warn(
-            f"tracking: MLflow at {uri} unreachable ({error}); training goes on without it, "
+            f"tracking: MLflow at {uri} unreachable ({mlflow_tracker.first_line(error)}); training goes on without it, "
             f"the metrics go to {run_dir / 'metrics.jsonl'} only",
             stacklevel=2,
         )

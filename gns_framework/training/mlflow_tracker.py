@@ -239,7 +239,7 @@ class Outbox:
                 if outage_since is None:
                     outage_since = time.monotonic()
                     warnings.warn(
-                        f"tracking: {self.where} unreachable ({_first_line(error)}); training goes on, the metrics "
+                        f"tracking: {self.where} unreachable ({first_line(error)}); training goes on, the metrics "
                         f"are kept in {self.kept_in} and sent when it is back (trying every {self.retry_seconds:g} s)",
                         stacklevel=1,
                     )
@@ -282,7 +282,8 @@ class Outbox:
             )
 
 
-def _first_line(error: BaseException) -> str:
+def first_line(error: BaseException) -> str:
+    """The first line of ``error``'s message: MLflow's can run to a traceback, too long for a warning."""
     text = str(error).strip().splitlines()
     return text[0] if text else type(error).__name__
 
@@ -404,7 +405,7 @@ def log_to_recorded_run(
         if not server_unreachable(error):
             raise
         warnings.warn(
-            f"tracking: MLflow at {saved['tracking_uri']} unreachable ({_first_line(error)}); "
+            f"tracking: MLflow at {saved['tracking_uri']} unreachable ({first_line(error)}); "
             f"{', '.join(f'{k} {v:.6g}' for k, v in sorted(metrics.items()))} not logged to its run {saved['run_id']}",
             stacklevel=2,
         )

@@ -57,7 +57,7 @@ def _drop_untrained_edge_mlp(module, state_dict, prefix, *args) -> None:
 
 
 class GraphAttentionProcessor(Processor):
-    """M unshared GATv2 attention steps with residuals on nodes and (but after the last step) edges."""
+    """M unshared GATv2 attention steps with residuals on nodes, and on edges in every step but the last."""
 
     name = "graph_attention"
 
