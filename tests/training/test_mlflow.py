@@ -13,7 +13,9 @@ import urllib.error
 import urllib.request
 
 import pytest
-from training_support import free_loopback_port, subprocess_env, tiny_recipe, write_recipe
+from training_support import (
+    free_loopback_port, last_logged_step, subprocess_env, tiny_recipe, wait_until, write_recipe,
+)
 
 from gns_framework.checkpoint import checkpoint_name
 from gns_framework.cli import main
@@ -307,3 +309,43 @@ def test_an_mlflow_server_that_stops_during_training_never_holds_it_up_and_gets_
         assert [line["step"] for line in read_metrics(run_dir)][-4:] == [13, 14, 15, 16]
     finally:
         stop_server(servers[-1])
+
+
+def test_under_torchrun_a_killed_mlflow_server_stops_neither_rank(uneven_dataset, tmp_path):
+    """Rank 0 alone talks to the server and every rank meets it at each step, so a rank 0 stuck on the server
+    (or ended by it) would hold up or end the whole job."""
+    port = free_loopback_port()
+    url = f"http://127.0.0.1:{port}"
+    server = start_server(tmp_path, port)
+    run_dir = tmp_path / "run"
+    recipe = tiny_recipe(uneven_dataset, steps=200, log_every=1, validate_every=1000, checkpoint_every=1000)
+    recipe_file = write_recipe(tmp_path / "recipe.yaml", recipe)
+    env = subprocess_env() | {
+        "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2", "MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR": "2", "GNS_TRACKING_CLOSE_SECONDS": "20",
+    }
+    command = [
+        sys.executable, "-m", "torch.distributed.run", "--nnodes", "1", "--nproc-per-node", "2",
+        "--master-addr", "127.0.0.1", "--master-port", str(free_loopback_port()), "--local-addr", "127.0.0.1",
+        "-m", "gns_framework.cli", "train", str(recipe_file), "--out", str(run_dir), "--tracking-uri", url,
+        "--experiment", "tiny-exp", "--no-progress",
+    ]
+    log = tmp_path / "torchrun.log"
+    with open(log, "w") as output:
+        job = subprocess.Popen(command, env=env, cwd=tmp_path, stdout=output, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        wait_until(lambda: last_logged_step(run_dir) >= 10, 120, "step 10", job)
+        os.killpg(server.pid, signal.SIGKILL)
+        server.wait()
+        killed_at = last_logged_step(run_dir)
+        job.wait(timeout=240)
+    finally:
+        if job.poll() is None:
+            os.killpg(job.pid, signal.SIGKILL)
+            job.wait()
+        stop_server(server)
+    text = log.read_text()
+    assert job.returncode == 0, text
+    assert killed_at < 200, "training ended before the server was killed"
+    assert "unreachable" in text and "did not receive metrics of" in text, text
+    assert "trained tiny to step 200" in text
+    assert [line["step"] for line in read_metrics(run_dir)] == list(range(1, 201))
