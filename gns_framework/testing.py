@@ -104,7 +104,8 @@ def check_processor(
     """Shapes, finite outputs, permutation equivariance and gradient flow of a processor.
 
     Permutation equivariance: renaming the nodes (and reordering the edges) renames
-    the outputs the same way.
+    the outputs the same way. Gradient flow: every parameter gets a gradient from the
+    node latents alone, as in training, where the decoder reads nodes only.
     """
     _expect(inspect.isclass(cls) and issubclass(cls, Processor), f"{cls!r} is not a Processor subclass")
     sizes = sizes or small_sizes()
@@ -126,12 +127,18 @@ def check_processor(
     _expect(_close(x_perm, x_out[perm], 1e-9), f"{cls.name}: node outputs are not permutation-equivariant")
     _expect(_close(e_perm, e_out[edge_order], 1e-9), f"{cls.name}: edge outputs do not follow the edge reordering")
 
-    (x_out.square().sum() + e_out.square().sum()).backward()
+    # The decoder reads the node latents alone, so the gradient flows back from them only: a parameter that
+    # only the returned edge latents depend on never trains, and DistributedDataParallel refuses it.
+    x_out.square().sum().backward()
     _expect(x.grad is not None and bool(x.grad.abs().sum() > 0), f"{cls.name}: no gradient reaches the node latents")
     trained = [p for p in processor.parameters() if p.requires_grad]
     _expect(bool(trained), f"{cls.name}: has no trainable parameters")
     no_grad = [name for name, p in processor.named_parameters() if p.requires_grad and p.grad is None]
-    _expect(not no_grad, f"{cls.name}: parameters receive no gradient: {no_grad}")
+    _expect(
+        not no_grad,
+        f"{cls.name}: parameters receive no gradient from the node latents (what the decoder reads): {no_grad}; "
+        "give a component only parameters its node output depends on",
+    )
 
 
 def check_encoder(cls: type[Encoder], params: Mapping | None = None, sizes: ModelSizes | None = None) -> None:

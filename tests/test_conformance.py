@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.util
 
 import pytest
+import torch
 
 from gns_framework import testing
 from gns_framework.plugins import load_registry
@@ -76,3 +77,22 @@ class _CrossTalkProcessor(REGISTRY.get("processor", "interaction_network")):
 def test_processor_check_catches_broken_permutation_equivariance():
     with pytest.raises(AssertionError, match="permutation"):
         testing.check_processor(_CrossTalkProcessor, PROCESSOR_PARAMS)
+
+
+class _EdgeOnlyParameterProcessor(REGISTRY.get("processor", "interaction_network")):
+    """A last edge update that nothing downstream reads, as graph_attention had: DDP refuses its parameters."""
+
+    name = "edge_only_parameter"
+
+    def __init__(self, params, sizes):
+        super().__init__(params, sizes)
+        self.final_edge_update = torch.nn.Linear(sizes.latent, sizes.latent)
+
+    def forward(self, node_latent, edge_latent, graph):
+        node_latent, edge_latent = super().forward(node_latent, edge_latent, graph)
+        return node_latent, edge_latent + self.final_edge_update(edge_latent)
+
+
+def test_processor_check_catches_a_parameter_only_the_edge_output_depends_on():
+    with pytest.raises(AssertionError, match="final_edge_update"):
+        testing.check_processor(_EdgeOnlyParameterProcessor, PROCESSOR_PARAMS)

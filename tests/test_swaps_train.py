@@ -7,6 +7,7 @@ import itertools
 
 import numpy as np
 import pytest
+import torch
 
 from gns_framework.plugins import load_registry
 from synthetic import write_synthetic_dataset
@@ -36,6 +37,32 @@ def dataset(tmp_path_factory):
 def test_every_built_in_component_is_covered():
     assert sorted(PROCESSORS) == REGISTRY.names("processor")
     assert sorted(GRAPH_BUILDERS) == REGISTRY.names("graph_builder")
+
+
+@pytest.mark.parametrize("processor", sorted(PROCESSORS))
+def test_every_parameter_gets_a_gradient(processor, dataset, tmp_path):
+    # A parameter whose output nothing reads stops DistributedDataParallel (tests/training/test_ddp_components.py).
+    recipe = tiny_recipe(dataset, processor={"name": processor, **PROCESSORS[processor]})
+    trainer = tiny_trainer(recipe, tmp_path)
+    trainer.train(1)
+    without = [name for name, p in trainer.simulator.named_parameters() if p.grad is None]
+    assert not without, f"{processor}: parameters without a gradient: {without}"
+
+
+def test_graph_attention_loads_weights_written_when_its_last_step_had_an_edge_mlp():
+    from gns_builtins.layers import NormedMLP
+    from gns_framework.testing import small_sizes
+
+    cls = REGISTRY.get("processor", "graph_attention")
+    sizes = small_sizes()
+    params = cls.Params(message_passing_steps=2, heads=2)
+    processor = cls(params, sizes)
+    assert processor.steps[-1].edge_mlp is None and processor.steps[0].edge_mlp is not None
+    written = cls(params, sizes).state_dict()
+    written.update({f"steps.1.edge_mlp.{k}": v for k, v in NormedMLP(3 * sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers, sizes.latent).state_dict().items()})
+    processor.load_state_dict(written)
+    for name, value in processor.state_dict().items():
+        assert torch.equal(value, written[name]), name
 
 
 @pytest.mark.parametrize("processor", sorted(set(PROCESSORS) - {"interaction_network"}))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from pathlib import Path
 
 from ..checkpoint import list_checkpoints
@@ -41,7 +42,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--device", help="cpu, cuda or cuda:N (overrides training.device)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    tracking = parser.add_argument_group("tracking (MLflow; rank 0 only)")
+    tracking = parser.add_argument_group(
+        "tracking (MLflow; rank 0 only)",
+        "Metrics always go to <run>/metrics.jsonl. Training never waits on the tracking server: what it misses "
+        "while unreachable is sent when it is back (tried every $GNS_TRACKING_RETRY_SECONDS, default 30); an ending "
+        "run waits at most $GNS_TRACKING_CLOSE_SECONDS (default 60), then warns what the server did not receive. "
+        "A server unreachable at the start leaves the run untracked, with a warning.",
+    )
     tracking.add_argument(
         "--tracking-uri",
         help="MLflow tracking URI, e.g. http://host:5000 (default: $MLFLOW_TRACKING_URI, else sqlite:///mlflow.db "
@@ -63,7 +70,18 @@ def with_mlflow(args: argparse.Namespace, recipe: Recipe, run_dir: Path, local: 
         print("mlflow is not installed: metrics go to the run folder only (pip install 'gns-framework[tracking]')")
         return local
     uri = args.tracking_uri or mlflow_tracker.default_tracking_uri()
-    mlflow = mlflow_tracker.open_mlflow_tracker(run_dir, uri, args.experiment or recipe.name, resume)
+    try:
+        mlflow = mlflow_tracker.open_mlflow_tracker(run_dir, uri, args.experiment or recipe.name, resume)
+    except Exception as error:
+        if not mlflow_tracker.server_unreachable(error):
+            raise
+        # Training never waits on tracking: without a server at the start, this run is not in MLflow.
+        warnings.warn(
+            f"tracking: MLflow at {uri} unreachable ({mlflow_tracker.first_line(error)}); training goes on without it, "
+            f"the metrics go to {run_dir / 'metrics.jsonl'} only",
+            stacklevel=2,
+        )
+        return local
     print(f"tracking run {mlflow.run_id} in {uri}")
     return TrackerGroup([local, mlflow])
 

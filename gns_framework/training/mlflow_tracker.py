@@ -6,15 +6,25 @@ optional extra (``pip install 'gns-framework[tracking]'``).
 
 The run's id is kept in ``<run_dir>/mlflow_run.json``; a resumed training (``--resume``
 or an elastic restart) goes on logging into the same MLflow run.
+
+A tracking server that is slow or down never holds up or ends training: the run's
+params, metrics and artifacts go out from a thread of their own (Outbox), in order,
+and what an outage kept back goes out when the server is back. The metrics are in
+the run folder's ``metrics.jsonl`` whatever happens to the server.
 """
 
 from __future__ import annotations
 
+import collections
 import json
 import math
 import os
+import sys
+import threading
 import time
-from collections.abc import Sequence
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +35,20 @@ RUN_FILE = "mlflow_run.json"
 DEFAULT_DATABASE = "mlflow.db"
 ARTIFACTS_FOLDER = "mlartifacts"
 _PARAMS_PER_REQUEST = 100
+_METRICS_PER_REQUEST = 1000
+"""MLflow's limit of metrics in one log_batch request."""
+
+REQUEST_LIMITS = {"MLFLOW_HTTP_REQUEST_TIMEOUT": "10", "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2"}
+"""Defaults for MLflow's HTTP client where the environment sets none. MLflow's own
+(120 s a request, 7 retries with growing pauses) wait about 4 minutes on a server
+that is down, which a training start or a run's final flush should not."""
+
+RETRY_SECONDS = "GNS_TRACKING_RETRY_SECONDS"
+"""Environment variable: seconds between tries while the tracking server is unreachable (default 30)."""
+CLOSE_SECONDS = "GNS_TRACKING_CLOSE_SECONDS"
+"""Environment variable: the longest an ending run waits to send what an outage kept back (default 60)."""
+OUTBOX_CAPACITY = 10_000
+"""Calls that may wait for the server; beyond it the oldest waiting metrics are given up (metrics.jsonl keeps them)."""
 
 
 class TrackingError(GnsError):
@@ -51,7 +75,36 @@ def _client(tracking_uri: str):
         raise TrackingError(
             "MLflow tracking needs mlflow: pip install 'gns-framework[tracking]' (or train with --no-tracking)"
         ) from None
+    for name, value in REQUEST_LIMITS.items():
+        os.environ.setdefault(name, value)
     return MlflowClient(tracking_uri)
+
+
+def server_unreachable(error: BaseException) -> bool:
+    """Whether ``error`` says the tracking server could not be reached, timed out, failed or is busy (5xx, 429):
+    worth trying again later, unlike a request the server refused (4xx)."""
+    from mlflow.exceptions import MlflowException
+
+    if isinstance(error, MlflowException):
+        status = error.get_http_status_code()
+    else:
+        status = getattr(getattr(error, "response", None), "status_code", None)
+        if status is None:
+            return isinstance(error, OSError)  # requests' connection errors and timeouts are OSErrors
+    return status >= 500 or status == 429
+
+
+def _seconds(variable: str, default: float) -> float:
+    text = os.environ.get(variable)
+    if text is None:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value >= 0:
+        raise TrackingError(f"{variable}={text!r}: must be a number of seconds, 0 or more")
+    return value
 
 
 def local_database(tracking_uri: str) -> Path | None:
@@ -92,17 +145,169 @@ def flatten(params: dict[str, Any], prefix: str = "") -> dict[str, str]:
     return flat
 
 
+@dataclass
+class Request:
+    """A request waiting in the outbox: ``send`` makes it; or, for a batch of metric entries, ``metrics`` of
+    ``step``, which the outbox sends joined with the batches next to it, and which alone it may give up when full."""
+
+    what: str
+    send: Callable[[], None] | None = None
+    metrics: list | None = None
+    step: int | None = None
+
+
+class Outbox:
+    """Sends a tracking server's requests, in order, from a thread of its own, so that training never waits on it.
+
+    A request the server cannot be reached for (server_unreachable) stays first in
+    line and is tried again every ``retry_seconds``, with one warning per outage;
+    everything queued behind it goes out when the server is back. A request the
+    server refuses is given up with a warning. ``close`` waits at most
+    ``close_seconds`` for the line to empty, then warns about what is left.
+
+    Args:
+        where: the server, as warnings name it.
+        kept_in: where the metrics are kept whatever happens here, as warnings name it.
+        send_metrics: sends a list of metric entries in one request.
+    """
+
+    def __init__(
+        self, where: str, kept_in: str, send_metrics: Callable[[list], None], retry_seconds: float, close_seconds: float,
+        capacity: int = OUTBOX_CAPACITY,
+    ):
+        self.where, self.kept_in = where, kept_in
+        self._send_metrics = send_metrics
+        self.retry_seconds, self.close_seconds, self.capacity = retry_seconds, close_seconds, capacity
+        self._waiting: collections.deque[Request] = collections.deque()
+        self._changed = threading.Condition()
+        self._closing = False
+        self._given_up_steps: list[int] = []
+        self._thread = threading.Thread(target=self._work, name="gns-tracking", daemon=True)
+        self._thread.start()
+
+    def put(self, request: Request) -> None:
+        """Queue ``request``; returns at once. A full outbox gives up its oldest metrics to make room."""
+        with self._changed:
+            if len(self._waiting) >= self.capacity:
+                oldest = next((r for r in self._waiting if r.metrics is not None), None)
+                if oldest is not None:
+                    self._waiting.remove(oldest)
+                    if not self._given_up_steps:
+                        warnings.warn(
+                            f"tracking: more than {self.capacity} requests wait for {self.where}; the oldest metrics "
+                            f"are given up from now on (they stay in {self.kept_in})",
+                            stacklevel=3,
+                        )
+                    self._given_up_steps.append(oldest.step)
+            self._waiting.append(request)
+            self._changed.notify()
+
+    def _next(self) -> list[Request]:
+        """The first waiting request, or a run of consecutive metrics batches that fit one request."""
+        first = self._waiting[0]
+        if first.metrics is None:
+            return [first]
+        run, size = [], 0
+        for request in self._waiting:
+            if request.metrics is None or size + len(request.metrics) > _METRICS_PER_REQUEST:
+                break
+            run.append(request)
+            size += len(request.metrics)
+        return run
+
+    def _work(self) -> None:
+        outage_since = None
+        while True:
+            with self._changed:
+                self._changed.wait_for(lambda: self._waiting or self._closing)
+                if not self._waiting:
+                    return
+                requests = self._next()
+            try:
+                if requests[0].metrics is None:
+                    requests[0].send()
+                else:
+                    self._send_metrics([entry for request in requests for entry in request.metrics])
+            except Exception as error:  # noqa: BLE001 - whatever the server does, training goes on
+                if not server_unreachable(error):
+                    what = requests[0].what
+                    if len(requests) > 1:
+                        what = f"the metrics of steps {requests[0].step} to {requests[-1].step}"
+                    warnings.warn(f"tracking: {self.where} refused {what}: {error}", stacklevel=1)
+                    self._done(requests)
+                    continue
+                if outage_since is None:
+                    outage_since = time.monotonic()
+                    warnings.warn(
+                        f"tracking: {self.where} unreachable ({first_line(error)}); training goes on, the metrics "
+                        f"are kept in {self.kept_in} and sent when it is back (trying every {self.retry_seconds:g} s)",
+                        stacklevel=1,
+                    )
+                with self._changed:
+                    if self._closing:
+                        return
+                    self._changed.wait_for(lambda: self._closing, timeout=self.retry_seconds)
+                continue
+            self._done(requests)
+            if outage_since is not None:
+                print(
+                    f"tracking: {self.where} is back after {time.monotonic() - outage_since:.0f} s; "
+                    f"what it missed is being sent",
+                    file=sys.stderr,
+                )
+                outage_since = None
+
+    def _done(self, requests: list[Request]) -> None:
+        with self._changed:
+            for request in requests:
+                if self._waiting and self._waiting[0] is request:
+                    self._waiting.popleft()
+
+    def close(self) -> None:
+        """Send what waits, for at most ``close_seconds`` (and no more retries once the server is unreachable),
+        then warn about anything left unsent."""
+        with self._changed:
+            self._closing = True
+            self._changed.notify()
+        self._thread.join(timeout=self.close_seconds)
+        with self._changed:
+            left = list(self._waiting)
+        steps = sorted(self._given_up_steps + [r.step for r in left if r.metrics is not None])
+        others = [r.what for r in left if r.metrics is None]
+        if steps or others:
+            parts = [f"metrics of {len(steps)} logs (steps {steps[0]} to {steps[-1]})"] if steps else []
+            warnings.warn(
+                f"tracking: {self.where} did not receive {', '.join(parts + others)}; the metrics are in {self.kept_in}",
+                stacklevel=2,
+            )
+
+
+def first_line(error: BaseException) -> str:
+    """The first line of ``error``'s message: MLflow's can run to a traceback, too long for a warning."""
+    text = str(error).strip().splitlines()
+    return text[0] if text else type(error).__name__
+
+
 class MlflowTracker:
     """Logs params, metrics and artifacts of one training run to an MLflow tracking store.
+
+    Opening the run (and continuing one) talks to the server at once, within
+    REQUEST_LIMITS; everything after goes through an Outbox, so a server that goes
+    away during training costs the training nothing.
 
     Args:
         tracking_uri: ``sqlite:///path.db``, ``http://host:port`` of an ``mlflow server``, ...
         experiment: experiment name (created when missing).
         run_name: shown in the MLflow UI.
         run_id: continue this existing run instead of starting one.
+        kept_in: where the metrics are kept locally, for the warnings of an outage.
     """
 
-    def __init__(self, tracking_uri: str, experiment: str, run_name: str | None = None, run_id: str | None = None):
+    def __init__(
+        self, tracking_uri: str, experiment: str, run_name: str | None = None, run_id: str | None = None,
+        kept_in: str = "the run folder's metrics.jsonl",
+    ):
+        retry_seconds, close_seconds = _seconds(RETRY_SECONDS, 30.0), _seconds(CLOSE_SECONDS, 60.0)
         self.client = _client(tracking_uri)
         from mlflow.entities import Metric, Param, RunTag
 
@@ -114,6 +319,9 @@ class MlflowTracker:
             self.client.update_run(run_id, status="RUNNING")
         else:
             self.run_id = self.client.create_run(self.experiment_id, run_name=run_name).info.run_id
+        self.outbox = Outbox(
+            f"MLflow at {tracking_uri}", kept_in, self._send_metrics, retry_seconds=retry_seconds, close_seconds=close_seconds,
+        )
 
     def log_params(self, params: dict) -> None:
         """Log ``params`` flattened.
@@ -122,6 +330,9 @@ class MlflowTracker:
         with and records each changed one (more ``training.steps``, say) as a tag
         ``changed.<param>`` = ``"old -> new"``.
         """
+        self.outbox.put(Request("the run's params", send=lambda: self._send_params(params)))
+
+    def _send_params(self, params: dict) -> None:
         logged = self.client.get_run(self.run_id).data.params
         flat = flatten(params)
         entries = [self._param(k, v) for k, v in flat.items() if k not in logged]
@@ -132,26 +343,35 @@ class MlflowTracker:
             self.client.log_batch(self.run_id, tags=changes[i : i + _PARAMS_PER_REQUEST])
 
     def log_metrics(self, metrics: dict[str, float], step: int) -> None:
+        """Queue ``metrics`` stamped with the time of the call, not of their sending."""
         now = int(time.time() * 1000)
         entries = [self._metric(k, float(v), now, step) for k, v in metrics.items() if math.isfinite(v)]
         if entries:
-            self.client.log_batch(self.run_id, metrics=entries)
+            self.outbox.put(Request(f"the metrics of step {step}", metrics=entries, step=step))
+
+    def _send_metrics(self, entries: list) -> None:
+        self.client.log_batch(self.run_id, metrics=entries)
 
     def log_artifact(self, path: Path) -> None:
-        self.client.log_artifact(self.run_id, str(path))
+        self.outbox.put(Request(f"artifact {Path(path).name}", send=lambda: self.client.log_artifact(self.run_id, str(path))))
 
     def close(self, failed: bool = False) -> None:
-        self.client.set_terminated(self.run_id, status="FAILED" if failed else "FINISHED")
+        status = "FAILED" if failed else "FINISHED"
+        self.outbox.put(
+            Request(f"the run's status {status}", send=lambda: self.client.set_terminated(self.run_id, status=status))
+        )
+        self.outbox.close()
 
 
 def open_mlflow_tracker(run_dir: Path, tracking_uri: str, experiment: str, resume: bool) -> MlflowTracker:
     """The MLflow run of ``run_dir``: the one it logged to before when resuming there, else a new one."""
     record = Path(run_dir) / RUN_FILE
+    kept_in = str(Path(run_dir) / "metrics.jsonl")
     if resume and record.is_file():
         saved = json.loads(record.read_text())
         if saved.get("tracking_uri") == tracking_uri and saved.get("experiment") == experiment:
-            return MlflowTracker(tracking_uri, experiment, run_id=saved["run_id"])
-    tracker = MlflowTracker(tracking_uri, experiment, run_name=Path(run_dir).name)
+            return MlflowTracker(tracking_uri, experiment, run_id=saved["run_id"], kept_in=kept_in)
+    tracker = MlflowTracker(tracking_uri, experiment, run_name=Path(run_dir).name, kept_in=kept_in)
     record.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(
         record, json.dumps({"tracking_uri": tracking_uri, "experiment": experiment, "run_id": tracker.run_id}) + "\n"
@@ -165,7 +385,8 @@ def log_to_recorded_run(
     """Add ``metrics`` (and ``artifacts`` under ``artifact_path``) to the MLflow run that trained ``run_dir``.
 
     The run's status is left alone. Returns the run id, or None when the run was not
-    tracked with MLflow (or mlflow is missing).
+    tracked with MLflow (or mlflow is missing), or when its server is unreachable: the
+    caller's results are on disk by then, so that is a warning, not a failure.
     """
     record = Path(run_dir) / RUN_FILE
     if not record.is_file() or not mlflow_available():
@@ -176,7 +397,17 @@ def log_to_recorded_run(
     now = int(time.time() * 1000)
     entries = [Metric(k, float(v), now, step) for k, v in metrics.items() if math.isfinite(v)]
     client = _client(saved["tracking_uri"])
-    client.log_batch(saved["run_id"], metrics=entries)
-    for artifact in artifacts:
-        client.log_artifact(saved["run_id"], str(artifact), artifact_path)
+    try:
+        client.log_batch(saved["run_id"], metrics=entries)
+        for artifact in artifacts:
+            client.log_artifact(saved["run_id"], str(artifact), artifact_path)
+    except Exception as error:
+        if not server_unreachable(error):
+            raise
+        warnings.warn(
+            f"tracking: MLflow at {saved['tracking_uri']} unreachable ({first_line(error)}); "
+            f"{', '.join(f'{k} {v:.6g}' for k, v in sorted(metrics.items()))} not logged to its run {saved['run_id']}",
+            stacklevel=2,
+        )
+        return None
     return saved["run_id"]

@@ -1,8 +1,10 @@
-"""One rank of a 2-process CPU training, started by torch.multiprocessing from the DDP tests."""
+"""One rank of a 2-process CPU training: started by torch.multiprocessing (train_rank) or by torchrun (run as a script)."""
 
 from __future__ import annotations
 
+import json
 import os
+import sys
 from pathlib import Path
 
 import torch
@@ -10,7 +12,7 @@ import torch
 from gns_framework.plugins import load_registry
 from gns_framework.recipe import validate_recipe
 from gns_framework.training import distributed
-from gns_framework.training.distributed import Processes
+from gns_framework.training.distributed import Processes, processes_from_environment
 from gns_framework.training.trainer import Trainer
 
 
@@ -31,3 +33,32 @@ def train_rank(rank: int, world_size: int, port: int, recipe: dict, run_dir: str
         trainer.close()
     finally:
         distributed.stop()
+
+
+def train_under_torchrun(recipe_file: str, out: str, steps: int) -> None:
+    """One torchrun worker: train ``steps`` steps, then save this rank's parameters and gradients.
+
+    The gradients are those of the last step after DDP averaged them, so they must be
+    equal on every rank, and present for every parameter (DDP stops a run at the next
+    step when a parameter gets none).
+    """
+    processes = processes_from_environment()
+    registry = load_registry()
+    recipe = validate_recipe(json.loads(Path(recipe_file).read_text()), registry)
+    trainer = Trainer(recipe, registry, run_dir=Path(out) / "run", processes=processes, progress=False)
+    try:
+        losses = trainer.train(steps)
+        named = dict(trainer.simulator.named_parameters())
+        snapshot = {
+            "params": {name: p.detach() for name, p in named.items()},
+            "grads": {name: p.grad for name, p in named.items()},
+            "losses": losses,
+        }
+        torch.save(snapshot, Path(out) / f"rank{processes.rank}.pt")
+        trainer.close()
+    finally:
+        distributed.stop()
+
+
+if __name__ == "__main__":
+    train_under_torchrun(sys.argv[1], sys.argv[2], int(sys.argv[3]))

@@ -7,16 +7,20 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 import urllib.error
 import urllib.request
 
 import pytest
-from training_support import free_loopback_port, subprocess_env, tiny_recipe, write_recipe
+from training_support import (
+    free_loopback_port, last_logged_step, subprocess_env, tiny_recipe, wait_until, write_recipe,
+)
 
 from gns_framework.checkpoint import checkpoint_name
 from gns_framework.cli import main
 from gns_framework.training.mlflow_tracker import RUN_FILE
+from gns_framework.training.tracking import read_metrics
 
 mlflow = pytest.importorskip("mlflow")
 
@@ -136,28 +140,212 @@ def wait_for_health(url: str, server: subprocess.Popen, timeout: float) -> None:
     raise AssertionError(f"mlflow server at {url} not healthy within {timeout} s")
 
 
+def test_outbox_never_blocks_keeps_order_gives_up_refused_requests_and_names_what_an_outage_kept_back():
+    from mlflow.exceptions import MlflowException
+    from mlflow.protos.databricks_pb2 import INVALID_PARAMETER_VALUE
+
+    from gns_framework.training.mlflow_tracker import Outbox, Request
+
+    sent, server_up, release = [], threading.Event(), threading.Event()
+
+    def send_metrics(entries):
+        release.wait()
+        if not server_up.is_set():
+            raise ConnectionError("connection refused")
+        sent.extend(entries)
+
+    def refused():
+        raise MlflowException("bad value", error_code=INVALID_PARAMETER_VALUE)
+
+    outbox = Outbox("the server", "metrics.jsonl", send_metrics, retry_seconds=0.05, close_seconds=10, capacity=4)
+    started = time.monotonic()
+    with pytest.warns(UserWarning) as caught:
+        for step in range(1, 7):
+            outbox.put(Request(f"step {step}", metrics=[f"m{step}"], step=step))
+        assert time.monotonic() - started < 0.5, "put waited on the server"
+        release.set()
+        time.sleep(0.3)  # a few failed tries
+        outbox.put(Request("a refused request", send=refused))
+        outbox.put(Request("step 7", metrics=["m7"], step=7))
+        server_up.set()
+        outbox.close()
+    messages = [str(w.message) for w in caught]
+    assert any("unreachable (connection refused)" in m for m in messages), messages
+    assert any("the oldest metrics are given up" in m for m in messages), messages
+    assert any("refused a refused request: bad value" in m for m in messages), messages
+    # Capacity 4: the 8 requests of the outage gave up the 4 oldest metrics, never the other requests.
+    assert sent == ["m5", "m6", "m7"]
+    assert any("did not receive metrics of 4 logs (steps 1 to 4)" in m for m in messages), messages
+
+
+def test_training_goes_on_without_mlflow_when_the_server_is_unreachable_at_the_start(
+    uneven_dataset, tmp_path, monkeypatch
+):
+    monkeypatch.setenv("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
+    nobody = f"http://127.0.0.1:{free_loopback_port()}"
+    recipe_file = write_recipe(tmp_path / "recipe.yaml", tiny_recipe(uneven_dataset, steps=2))
+    started = time.monotonic()
+    with pytest.warns(UserWarning, match=f"MLflow at {nobody} unreachable .*training goes on without it"):
+        train(recipe_file, tmp_path / "run", "--tracking-uri", nobody)
+    assert time.monotonic() - started < 60
+    assert [line["step"] for line in read_metrics(tmp_path / "run")] == [2]
+    assert not (tmp_path / "run" / RUN_FILE).exists()
+
+
+def test_rollout_and_evaluation_metrics_for_an_unreachable_server_are_a_warning(tmp_path, monkeypatch):
+    from gns_framework.training.mlflow_tracker import log_to_recorded_run
+
+    monkeypatch.setenv("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
+    nobody = f"http://127.0.0.1:{free_loopback_port()}"
+    (tmp_path / RUN_FILE).write_text(json.dumps({"tracking_uri": nobody, "experiment": "x", "run_id": "abc"}))
+    with pytest.warns(UserWarning, match=f"MLflow at {nobody} unreachable .*rollout_position_mse_test 0.5 not logged to its run abc"):
+        assert log_to_recorded_run(tmp_path, {"rollout_position_mse_test": 0.5}, step=3) is None
+
+
+def start_server(folder, port: int) -> subprocess.Popen:
+    """An ``mlflow server`` on 127.0.0.1:``port`` whose store and artifacts live in ``folder`` (kept across restarts)."""
+    command = [
+        sys.executable, "-m", "mlflow", "server", "--host", "127.0.0.1", "--port", str(port), "--workers", "1",
+        "--backend-store-uri", f"sqlite:///{folder / 'server.db'}", "--artifacts-destination", str(folder / "artifacts"),
+    ]
+    server = subprocess.Popen(
+        command, env=subprocess_env(), cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        start_new_session=True,
+    )
+    wait_for_health(f"http://127.0.0.1:{port}", server, timeout=120)
+    return server
+
+
+def stop_server(server: subprocess.Popen) -> None:
+    if server.poll() is not None:
+        return
+    os.killpg(server.pid, signal.SIGTERM)
+    try:
+        server.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        os.killpg(server.pid, signal.SIGKILL)
+        server.wait()
+
+
 def test_training_tracks_to_an_mlflow_server_on_loopback(uneven_dataset, tmp_path):
     port = free_loopback_port()
     url = f"http://127.0.0.1:{port}"
-    command = [
-        sys.executable, "-m", "mlflow", "server", "--host", "127.0.0.1", "--port", str(port), "--workers", "1",
-        "--backend-store-uri", f"sqlite:///{tmp_path / 'server.db'}", "--artifacts-destination", str(tmp_path / "artifacts"),
-    ]
-    server = subprocess.Popen(
-        command, env=subprocess_env(), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        start_new_session=True,
-    )
+    server = start_server(tmp_path, port)
     try:
-        wait_for_health(url, server, timeout=120)
         recipe_file = write_recipe(tmp_path / "recipe.yaml", tiny_recipe(uneven_dataset, steps=2))
         train(recipe_file, tmp_path / "run", "--tracking-uri", url)
         run_id = json.loads((tmp_path / "run" / RUN_FILE).read_text())["run_id"]
         check_tracked_run(mlflow.tracking.MlflowClient(url), run_id, steps=2)
         assert list((tmp_path / "artifacts").rglob("recipe.yaml")), "artifacts did not reach the server's store"
     finally:
-        os.killpg(server.pid, signal.SIGTERM)
-        try:
-            server.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            os.killpg(server.pid, signal.SIGKILL)
-            server.wait()
+        stop_server(server)
+
+
+def logged_steps(client, run_id: str, metric: str = "train_loss") -> list[int]:
+    return sorted(m.step for m in client.get_metric_history(run_id, metric))
+
+
+def test_an_mlflow_server_that_stops_during_training_never_holds_it_up_and_gets_what_it_missed_when_back(
+    uneven_dataset, tmp_path, monkeypatch, recwarn, capsys
+):
+    """The server is stopped after step 3 and started again after step 8 (the hook waits meanwhile, so the
+    server gets the steps it missed before training goes on); a resumed run then loses it for good at step 13."""
+    # Each request to the stopped server fails after about 4 s of MLflow's own retries (0 s, then 4 s apart), so a
+    # trainer that waited on one would pause that long; the outbox tries again every half second.
+    monkeypatch.setenv("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "2")
+    monkeypatch.setenv("MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR", "2")
+    monkeypatch.setenv("MLFLOW_HTTP_REQUEST_TIMEOUT", "5")
+    monkeypatch.setenv("GNS_TRACKING_RETRY_SECONDS", "0.5")
+    port = free_loopback_port()
+    url = f"http://127.0.0.1:{port}"
+    client = mlflow.tracking.MlflowClient(url)
+    servers = [start_server(tmp_path, port)]
+    run_dir = tmp_path / "run"
+    stop_after, start_after, lost_after = 3, 8, 13
+    pauses: dict[int, float] = {}  # step -> seconds from the end of the step before to its start: the trainer's own
+
+    from gns_framework.training.trainer import Trainer
+
+    train_step = Trainer.train_step
+    last_end = [None]
+
+    def train_step_with_outages(trainer):
+        if last_end[0] is not None:
+            pauses[trainer.step + 1] = time.perf_counter() - last_end[0]
+        result = train_step(trainer)
+        if trainer.step in (stop_after, lost_after):
+            stop_server(servers[-1])
+        if trainer.step == start_after:
+            servers.append(start_server(tmp_path, port))
+            run_id = json.loads((run_dir / RUN_FILE).read_text())["run_id"]
+            deadline = time.monotonic() + 60
+            while logged_steps(client, run_id) != list(range(1, start_after)) and time.monotonic() < deadline:
+                time.sleep(0.2)
+            assert logged_steps(client, run_id) == list(range(1, start_after)), "the steps of the outage were not sent"
+        last_end[0] = time.perf_counter()
+        return result
+
+    monkeypatch.setattr(Trainer, "train_step", train_step_with_outages)
+    recipe = tiny_recipe(uneven_dataset, steps=12, log_every=1, validate_every=4, checkpoint_every=4)
+    recipe_file = write_recipe(tmp_path / "recipe.yaml", recipe)
+    try:
+        train(recipe_file, run_dir, "--tracking-uri", url)
+        run_id = json.loads((run_dir / RUN_FILE).read_text())["run_id"]
+        assert [str(w.message) for w in recwarn if "unreachable" in str(w.message)], "no warning of the outage"
+        assert "is back" in capsys.readouterr().err
+        check_tracked_run(client, run_id, steps=12)
+        assert logged_steps(client, run_id) == list(range(1, 13))
+        assert logged_steps(client, run_id, "valid_one_step_loss") == [4, 8, 12]
+        # Steps 4 to 8 ran with the server down: the trainer did not wait on it (validation and a checkpoint included).
+        slowest = max(pauses[s] for s in range(stop_after + 1, start_after + 1))
+        assert slowest < 2.0, f"a step waited {slowest:.1f} s on the stopped server"
+
+        recwarn.clear()
+        started = time.monotonic()
+        train(recipe_file, run_dir, "--tracking-uri", url, "--resume", "--steps", "16")
+        assert time.monotonic() - started < 60
+        unsent = [str(w.message) for w in recwarn if "did not receive" in str(w.message)]
+        assert len(unsent) == 1 and "steps 13 to 16" in unsent[0] and str(run_dir / "metrics.jsonl") in unsent[0], unsent
+        assert [line["step"] for line in read_metrics(run_dir)][-4:] == [13, 14, 15, 16]
+    finally:
+        stop_server(servers[-1])
+
+
+def test_under_torchrun_a_killed_mlflow_server_stops_neither_rank(uneven_dataset, tmp_path):
+    """Rank 0 alone talks to the server and every rank meets it at each step, so a rank 0 stuck on the server
+    (or ended by it) would hold up or end the whole job."""
+    port = free_loopback_port()
+    url = f"http://127.0.0.1:{port}"
+    server = start_server(tmp_path, port)
+    run_dir = tmp_path / "run"
+    recipe = tiny_recipe(uneven_dataset, steps=200, log_every=1, validate_every=1000, checkpoint_every=1000)
+    recipe_file = write_recipe(tmp_path / "recipe.yaml", recipe)
+    env = subprocess_env() | {
+        "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2", "MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR": "2", "GNS_TRACKING_CLOSE_SECONDS": "20",
+    }
+    command = [
+        sys.executable, "-m", "torch.distributed.run", "--nnodes", "1", "--nproc-per-node", "2",
+        "--master-addr", "127.0.0.1", "--master-port", str(free_loopback_port()), "--local-addr", "127.0.0.1",
+        "-m", "gns_framework.cli", "train", str(recipe_file), "--out", str(run_dir), "--tracking-uri", url,
+        "--experiment", "tiny-exp", "--no-progress",
+    ]
+    log = tmp_path / "torchrun.log"
+    with open(log, "w") as output:
+        job = subprocess.Popen(command, env=env, cwd=tmp_path, stdout=output, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        wait_until(lambda: last_logged_step(run_dir) >= 10, 120, "step 10", job)
+        os.killpg(server.pid, signal.SIGKILL)
+        server.wait()
+        killed_at = last_logged_step(run_dir)
+        job.wait(timeout=240)
+    finally:
+        if job.poll() is None:
+            os.killpg(job.pid, signal.SIGKILL)
+            job.wait()
+        stop_server(server)
+    text = log.read_text()
+    assert job.returncode == 0, text
+    assert killed_at < 200, "training ended before the server was killed"
+    assert "unreachable" in text and "did not receive metrics of" in text, text
+    assert "trained tiny to step 200" in text
+    assert [line["step"] for line in read_metrics(run_dir)] == list(range(1, 201))
