@@ -14,8 +14,9 @@ position MSE over the whole rollout. Evaluation time is not training time.
 
 A recipe with a schedule fitted to its step budget (``schedule: cosine``) needs
 a step count: its step time is measured first on 20 throwaway steps, and
-``training.steps`` is set so the schedule ends at the budget. The reference
-recipe keeps its own (exponential, effectively flat) schedule.
+``training.steps`` is set so the schedule ends at the budget; if the steps turn
+out faster, training goes on at ``lr_min`` until the budget is spent. The
+reference recipe keeps its own (exponential, effectively flat) schedule.
 
 The last line of output is one JSON object: per recipe, the evaluation points
 (minutes, step, metrics), and the final ratio reference / ours per metric
@@ -105,7 +106,8 @@ def run_recipe(recipe_path: Path, data: Path, threads: int, minutes: float, poin
         trained, evaluations = 0.0, []
         trainer.simulator.train()
         for mark in marks:
-            while trained < mark and trainer.step < trainer.recipe.training.steps:
+            # Past its step budget a cosine schedule holds lr_min: a slow calibration never leaves time unused.
+            while trained < mark:
                 started = time.perf_counter()
                 trainer.train_step()
                 trained += time.perf_counter() - started
