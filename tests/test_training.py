@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from gns_framework.checkpoint import list_checkpoints, load_checkpoint
+from gns_framework.checkpoint import list_checkpoints, load_checkpoint, save_checkpoint
 from gns_framework.contracts import Params, Processor
 from gns_framework.errors import CheckpointError
 from gns_framework.hookspecs import hookimpl
@@ -58,6 +58,19 @@ def test_checkpoint_of_another_model_is_refused(dataset_multimaterial, tmp_path,
     other = tiny_recipe_mapping(dataset_multimaterial, tmp_path, latent_size=32)
     trainer = Trainer(validate_recipe(other, registry), registry, progress=False)
     with pytest.raises(CheckpointError, match="different model: model.latent_size: checkpoint 16, recipe 32"):
+        trainer.resume()
+
+
+def test_an_optimizer_state_of_another_parameter_layout_is_a_clear_error(dataset_multimaterial, tmp_path, registry):
+    """A processor that has since dropped a layer: the checkpoint's optimizer state has one tensor more."""
+    _train(tiny_recipe_mapping(dataset_multimaterial, tmp_path), registry, 3)
+    path = list_checkpoints(tmp_path / "checkpoints")[-1][1]
+    state = {k: v for k, v in load_checkpoint(path).items() if k != "format"}
+    group = state["optimizer"]["param_groups"][0]
+    group["params"] = group["params"] + [max(group["params"]) + 1]
+    save_checkpoint(path, state)
+    trainer = Trainer(validate_recipe(tiny_recipe_mapping(dataset_multimaterial, tmp_path), registry), registry, progress=False)
+    with pytest.raises(CheckpointError, match=f"{path}: its model or optimizer state does not fit"):
         trainer.resume()
 
 

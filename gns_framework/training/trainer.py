@@ -153,8 +153,16 @@ class Trainer:
             raise CheckpointError(f"{source}: written for a different model: {details}")
         if state["scene"] != scene_to_dict(self.data.scene):
             raise CheckpointError(f"{source}: scene: written for {state['scene']}, this dataset gives {scene_to_dict(self.data.scene)}")
-        self.simulator.load_state_dict(state["model"])
-        self.optimizer.load_state_dict(state["optimizer"])
+        try:
+            self.simulator.load_state_dict(state["model"])
+            self.optimizer.load_state_dict(state["optimizer"])
+        except (RuntimeError, ValueError) as exc:
+            # A model or optimizer state of another parameter layout, e.g. a processor that has since
+            # dropped an unused layer: the weights may still load for rollouts (gns rollout), not for training.
+            raise CheckpointError(
+                f"{source}: its model or optimizer state does not fit this recipe's parameters; roll it out with "
+                f"`gns rollout`, or start a new run (--out NEW): {str(exc).splitlines()[0]}"
+            ) from None
         self.scheduler.load_state_dict(state["scheduler"])
         self.step = int(state["step"])
         if "best" in state and state["best"].get("metric") == self.best["metric"]:
