@@ -81,7 +81,8 @@ class Stepper:
         self.simulator = simulator
         self.precision = precision
         self.batch = batch
-        self.optimizer, self.scheduler = make_optimizer(simulator.parameters(), OptimizerSpec())
+        spec = OptimizerSpec()  # the reference schedule: exponential, independent of the run length
+        self.optimizer, self.scheduler = make_optimizer(simulator.parameters(), spec, total_steps=1)
         self.generator = torch.Generator().manual_seed(seed)
         self.mask = simulator.predicted_mask(batch.particle_type)
 
