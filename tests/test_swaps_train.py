@@ -67,11 +67,13 @@ def test_graph_attention_loads_weights_written_when_its_last_step_had_an_edge_ml
 
 @pytest.mark.parametrize("processor", sorted(set(PROCESSORS) - {"interaction_network"}))
 def test_alternative_processor_learns(processor, dataset, tmp_path):
-    # Nearly noise-free inputs, so the one-step loss on fixed validation windows can fall far.
+    # Nearly noise-free inputs, so the one-step loss on fixed validation windows can fall far. 800 steps:
+    # at 400 egnn's loss ratio was 0.64 on one CPU and below 0.6 on another (rounding of the fused
+    # kernels); at 800 it is 0.33, clear of the threshold.
     recipe = tiny_recipe(dataset, processor={"name": processor, **PROCESSORS[processor]}, lr=3e-3, noise_std=1e-5)
     trainer = tiny_trainer(recipe, tmp_path)
     before = trainer.validate()["valid_one_step_loss"]
-    trainer.train(400)
+    trainer.train(800)
     after = trainer.validate()["valid_one_step_loss"]
     assert after < 0.6 * before, (processor, before, after)
 
