@@ -38,6 +38,7 @@ from gns_framework.evaluation.candidates import granular_particle_types
 from gns_framework.plugins import load_registry
 from gns_framework.recipe import load_recipe
 from gns_framework.training.rollout_validation import validation_rollout_metrics
+from gns_framework.training.tracking import TrackerGroup
 from gns_framework.training.trainer import Trainer
 
 REPO = Path(__file__).resolve().parents[1]
@@ -60,23 +61,8 @@ def _overrides(threads: int, steps: int | None = None) -> dict:
 def _trainer(recipe_path: Path, data: Path, threads: int, run_dir: Path, steps: int | None = None) -> Trainer:
     registry = load_registry()
     recipe = load_recipe(recipe_path, registry, _overrides(threads, steps))
-    return Trainer(recipe, registry, run_dir=run_dir, dataset_path=data, progress=False, tracker=_NoTracker())
-
-
-class _NoTracker:
-    """Nothing is tracked: the benchmark prints its figures."""
-
-    def log_params(self, params):
-        pass
-
-    def log_metrics(self, metrics, step):
-        pass
-
-    def log_artifact(self, path):
-        pass
-
-    def close(self, failed=False):
-        pass
+    # An empty tracker group tracks nothing: the benchmark prints its figures.
+    return Trainer(recipe, registry, run_dir=run_dir, dataset_path=data, progress=False, tracker=TrackerGroup([]))
 
 
 def _step_budget(recipe_path: Path, data: Path, threads: int, minutes: float, scratch: Path) -> int | None:

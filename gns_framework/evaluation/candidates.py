@@ -15,6 +15,7 @@ from ..errors import DatasetError, RolloutDiverged
 from ..loading import LoadedModel
 from ..plugins import Registry
 from ..rollout import rollout
+from ..simulator import LearnedSimulator
 from .report import Candidate, Case, Prediction, Report, evaluate
 
 
@@ -26,6 +27,19 @@ def cases_from_split(trajectories: Sequence[Trajectory], metadata: DatasetMetada
     ]
 
 
+def learned_positions(simulator: LearnedSimulator, trajectory: Trajectory, device: torch.device | str) -> np.ndarray:
+    """(S, N, d) positions ``simulator`` rolls out from the first C frames of ``trajectory``.
+
+    A diverged model is a result, not an error: its positions are NaN, which the
+    metrics count as diverged with infinite error.
+    """
+    try:
+        return rollout(simulator, trajectory, device=device).predicted
+    except RolloutDiverged:
+        shape = (trajectory.num_steps - simulator.scene.history, *trajectory.position.shape[1:])
+        return np.full(shape, np.nan, dtype=trajectory.position.dtype)
+
+
 def learned_candidate(model: LoadedModel, name: str, device: torch.device) -> Candidate:
     """A trained simulator rolled out from each case's input frames (kinematic particles prescribed)."""
 
@@ -33,11 +47,7 @@ def learned_candidate(model: LoadedModel, name: str, device: torch.device) -> Ca
         trajectory = Trajectory(
             np.concatenate([case.initial_positions, case.ground_truth]), case.particle_type, case.material_property, key=case.key
         )
-        try:
-            return Prediction(rollout(model.simulator, trajectory, device=device).predicted)
-        except RolloutDiverged:
-            # A diverged model is a result: the report counts it as diverged with infinite error.
-            return Prediction(np.full_like(case.ground_truth, np.nan))
+        return Prediction(learned_positions(model.simulator, trajectory, device))
 
     return Candidate(name, "learned", simulate, settings=f"{model.path.name} (step {model.step})", device=str(device))
 

@@ -186,7 +186,7 @@ def evaluate(
             prediction, timing = time_call(
                 partial(candidate.simulate, case), repeats=repeats, warmup=warmup, device=candidate.device
             )
-            metrics = _score(prediction, case, horizons, granular_types, material_names)
+            metrics = score_prediction(prediction, case, horizons, granular_types, material_names)
             summaries.append(summarise(metrics))
             timings.append(timing)
             curves.append(None if metrics["mse_per_step"] is None else metrics["mse_per_step"][0].numpy())
@@ -209,7 +209,7 @@ def score_rollout(
     material_names: Mapping[int, str] | None = None,
 ) -> dict[str, float | None]:
     """Every metric of a rollout file's prediction against its ground truth (no timing)."""
-    metrics = _score(
+    metrics = score_prediction(
         Prediction(rollout.predicted_rollout), Case.from_rollout(rollout), horizons, granular_types, material_names
     )
     return summarise(metrics)
@@ -224,13 +224,14 @@ def _same_particles(prediction: Prediction, case: Case) -> bool:
     return prediction.particle_type is None and np.shape(prediction.position) == case.ground_truth.shape
 
 
-def _score(
+def score_prediction(
     prediction: Prediction,
     case: Case,
-    horizons: Sequence[int],
-    granular_types: Collection[int],
-    material_names: Mapping[int, str] | None,
+    horizons: Sequence[int] = DEFAULT_HORIZONS,
+    granular_types: Collection[int] = (),
+    material_names: Mapping[int, str] | None = None,
 ) -> dict[str, torch.Tensor | None]:
+    """Every :func:`rollout_metrics` metric of one prediction against its case's ground truth, in float64."""
     position = _host_float64(prediction.position)
     if position.ndim != 3 or position.shape[0] != case.ground_truth.shape[0]:
         raise ValueError(

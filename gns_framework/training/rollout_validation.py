@@ -9,7 +9,6 @@ best checkpoint is chosen by a rollout metric.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Collection, Sequence
 
 import numpy as np
@@ -17,9 +16,8 @@ import torch
 
 from ..data.metadata import DatasetMetadata
 from ..data.trajectory import Trajectory
-from ..errors import RolloutDiverged
-from ..evaluation.metrics import ParticleRollout, rollout_metrics
-from ..rollout import rollout
+from ..evaluation.candidates import cases_from_split, learned_positions
+from ..evaluation.report import Prediction, score_prediction
 from ..simulator import LearnedSimulator
 
 METRICS = {
@@ -39,26 +37,15 @@ def validation_rollout_metrics(
 ) -> dict[str, float]:
     """Mean rollout errors of ``simulator`` over ``trajectories`` (full length, from their first C frames).
 
-    A diverged rollout scores ``inf`` in every metric, so it can never be the best.
-    Runout is reported only where the scene has granular particles.
+    Scored as ``gns evaluate`` scores a learned model: a diverged rollout scores
+    ``inf`` in every metric, so it can never be the best. Runout is reported only
+    where the scene has granular particles.
     """
     totals: dict[str, list[float]] = {name: [] for name in METRICS}
-    history = simulator.scene.history
-    for trajectory in trajectories:
-        truth = torch.as_tensor(trajectory.position[history:], dtype=torch.float64)
-        start = torch.as_tensor(trajectory.position[history - 1], dtype=torch.float64)
-        try:
-            predicted = torch.as_tensor(rollout(simulator, trajectory, device=device).predicted, dtype=torch.float64)
-        except RolloutDiverged:
-            predicted = torch.full_like(truth, math.nan)
-        particle_type = torch.as_tensor(trajectory.particle_type)
-        metrics = rollout_metrics(
-            ParticleRollout.of(predicted, particle_type, start=start),
-            ParticleRollout.of(truth, particle_type, start=start),
-            dt=metadata.dt,
-            bounds=metadata.bounds,
-            granular_types=granular_types,
-        )
+    cases = cases_from_split(trajectories, metadata, simulator.scene.history)
+    for trajectory, case in zip(trajectories, cases):
+        prediction = Prediction(learned_positions(simulator, trajectory, device))
+        metrics = score_prediction(prediction, case, granular_types=granular_types)
         for name, key in METRICS.items():
             value = metrics.get(key)
             if value is not None:
