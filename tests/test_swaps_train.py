@@ -11,21 +11,11 @@ import torch
 
 from gns_framework.plugins import load_registry
 from synthetic import write_synthetic_dataset
+from tiny import TINY_GRAPH_BUILDERS as GRAPH_BUILDERS
+from tiny import TINY_PROCESSORS as PROCESSORS
 from tiny import tiny_recipe, tiny_trainer
 
 REGISTRY = load_registry()
-PROCESSORS = {
-    "interaction_network": {"message_passing_steps": 2},
-    "shared_interaction_network": {"message_passing_steps": 2},
-    "graph_attention": {"message_passing_steps": 2, "heads": 2},
-    "egnn": {"message_passing_steps": 2},
-}
-GRAPH_BUILDERS = {
-    "radius": {},
-    "periodic_radius": {},
-    "knn": {"k": 6},
-    "radius_torch_cluster": {},
-}
 INTEGRATORS = REGISTRY.names("integrator")
 
 

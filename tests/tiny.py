@@ -9,6 +9,17 @@ from gns_framework.recipe import Recipe, validate_recipe
 from gns_framework.training.trainer import Trainer
 
 
+TINY_PROCESSORS = {
+    "interaction_network": {"message_passing_steps": 2},
+    "shared_interaction_network": {"message_passing_steps": 2},
+    "graph_attention": {"message_passing_steps": 2, "heads": 2},
+    "egnn": {"message_passing_steps": 2},
+}
+"""Parameters of each built-in processor at test size."""
+TINY_GRAPH_BUILDERS = {"radius": {}, "periodic_radius": {}, "knn": {"k": 6}, "radius_torch_cluster": {}}
+"""Parameters of each built-in graph builder at test size."""
+
+
 def tiny_recipe(dataset: Path, registry: Registry | None = None, lr: float = 1e-3, **model) -> Recipe:
     """A validated recipe of a tiny model on ``dataset``; ``model`` keys override the model section."""
     return validate_recipe(tiny_recipe_mapping(dataset, lr=lr, **model), registry or load_registry())

@@ -15,18 +15,13 @@ from pathlib import Path
 
 import pytest
 import torch
+from tiny import TINY_GRAPH_BUILDERS as GRAPH_BUILDERS
+from tiny import TINY_PROCESSORS as PROCESSORS
 from training_support import free_loopback_port, subprocess_env, tiny_recipe
 
 from gns_framework.plugins import load_registry
 
 REGISTRY = load_registry()
-PROCESSORS = {
-    "interaction_network": {"message_passing_steps": 2},
-    "shared_interaction_network": {"message_passing_steps": 2},
-    "graph_attention": {"message_passing_steps": 2, "heads": 2},
-    "egnn": {"message_passing_steps": 2},
-}
-GRAPH_BUILDERS = {"radius": {}, "periodic_radius": {}, "knn": {"k": 6}, "radius_torch_cluster": {}}
 WORKER = Path(__file__).with_name("ddp_worker.py")
 STEPS = 3
 """Two would do (DDP refuses a parameter without a gradient at the next step); the third shows the ranks stay in step."""
