@@ -20,6 +20,7 @@ COMMANDS: dict[str, str] = {
     "train": "train a learned simulator from a recipe",
     "rollout": "roll a trained simulator out on a dataset split",
     "evaluate": "report error against run time of trained models and the ground-truth simulator",
+    "invert": "recover material properties or initial velocities from an observed trajectory through a trained model",
     "render": "write VTK frames and a prediction-vs-truth GIF of a rollout file",
     "import-geoelements": "convert a geoelements/gns checkpoint (model-<step>.pt) into a gns-framework checkpoint",
     "generate": "simulate a scene spec into a dataset of train/valid/test trajectories",

@@ -4,17 +4,16 @@ from __future__ import annotations
 
 import argparse
 import sys
-import warnings
 from pathlib import Path
 
 from ..checkpoint import list_checkpoints
 from ..plugins import load_registry
-from ..recipe import Recipe, load_recipe
+from ..recipe import load_recipe
 from ..training import distributed
 from ..training.distributed import processes_from_environment
-from ..training.tracking import Tracker, TrackerGroup
 from ..training.trainer import Trainer
 from .arguments import add_allow_pickle, positive_int
+from .tracking_options import add_tracking_arguments, with_mlflow
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,48 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--device", help="cpu, cuda or cuda:N (overrides training.device)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    tracking = parser.add_argument_group(
-        "tracking (MLflow; rank 0 only)",
-        "Metrics always go to <run>/metrics.jsonl. Training never waits on the tracking server: what it misses "
-        "while unreachable is sent when it is back (tried every $GNS_TRACKING_RETRY_SECONDS, default 30); an ending "
-        "run waits at most $GNS_TRACKING_CLOSE_SECONDS (default 60), then warns what the server did not receive. "
-        "A server unreachable at the start leaves the run untracked, with a warning.",
-    )
-    tracking.add_argument(
-        "--tracking-uri",
-        help="MLflow tracking URI, e.g. http://host:5000 (default: $MLFLOW_TRACKING_URI, else sqlite:///mlflow.db "
-        "in the working directory, created on first use)",
-    )
-    tracking.add_argument("--experiment", help="MLflow experiment name (default: the recipe's name)")
-    tracking.add_argument(
-        "--no-tracking", action="store_true", help="no MLflow; metrics go to <run>/metrics.jsonl only"
-    )
-
-
-def with_mlflow(args: argparse.Namespace, recipe: Recipe, run_dir: Path, local: Tracker, resume: bool) -> Tracker:
-    """``local`` (the run folder's metrics file) plus an MLflow run, unless tracking is off or mlflow is missing."""
-    from ..training import mlflow_tracker
-
-    if args.no_tracking:
-        return local
-    if args.tracking_uri is None and not mlflow_tracker.mlflow_available():
-        print("mlflow is not installed: metrics go to the run folder only (pip install 'gns-framework[tracking]')")
-        return local
-    uri = args.tracking_uri or mlflow_tracker.default_tracking_uri()
-    try:
-        mlflow = mlflow_tracker.open_mlflow_tracker(run_dir, uri, args.experiment or recipe.name, resume)
-    except Exception as error:
-        if not mlflow_tracker.server_unreachable(error):
-            raise
-        # Training never waits on tracking: without a server at the start, this run is not in MLflow.
-        warnings.warn(
-            f"tracking: MLflow at {uri} unreachable ({mlflow_tracker.first_line(error)}); training goes on without it, "
-            f"the metrics go to {run_dir / 'metrics.jsonl'} only",
-            stacklevel=2,
-        )
-        return local
-    print(f"tracking run {mlflow.run_id} in {uri}")
-    return TrackerGroup([local, mlflow])
+    add_tracking_arguments(parser, "<run>/metrics.jsonl", "the recipe's name")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -130,7 +88,7 @@ def _train(trainer: Trainer, args: argparse.Namespace) -> int:
     # MLflow only once the data and any checkpoint have loaded, so a run that cannot start leaves no trace there;
     # a run from step 0 is a new history, so a new MLflow run.
     if processes.is_chief:
-        trainer.tracker = with_mlflow(args, trainer.recipe, trainer.run_dir, trainer.tracker, resumed is not None)
+        trainer.tracker = with_mlflow(args, trainer.recipe.name, trainer.run_dir, trainer.tracker, resumed is not None)
     if processes.distributed:
         say(f"training on {processes.world_size} processes ({trainer.device.type})")
     trainer.train()

@@ -1,0 +1,78 @@
+"""``gns invert``: recover material properties or initial velocities by differentiating the learned rollout.
+
+The configuration file is described in :mod:`gns_framework.inverse.config` and in
+docs/inverse.md. Results go to a new folder: one that already holds an inversion's
+results is refused, so nothing written before is replaced.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ..errors import GnsError
+from .arguments import add_allow_pickle
+from .tracking_options import add_tracking_arguments, with_mlflow
+
+OUTPUTS = ("result.json", "metrics.jsonl", "convergence.png", "rollout.npz", "rollout.gif")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("config", type=Path, help="inversion config YAML (model, observed, unknowns, optimizer, loss)")
+    parser.add_argument("--out", type=Path, help="results folder (default: runs/invert/<config file name>)")
+    add_allow_pickle(parser)
+    parser.add_argument("--no-gif", action="store_true", help="do not animate the recovered rollout")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_tracking_arguments(parser, "<out>/metrics.jsonl", "invert")
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+    from tqdm import tqdm
+
+    from ..inverse.config import load_invert_config
+    from ..inverse.solve import prepare, solve, track_iteration, write_outputs
+    from ..plugins import load_registry
+    from ..training.tracking import JsonlTracker
+
+    config, unknowns = load_invert_config(args.config)
+    out = args.out or Path("runs/invert") / args.config.stem
+    earlier = [name for name in OUTPUTS if (out / name).exists()]
+    if earlier:
+        raise GnsError(f"{out}: holds an earlier inversion ({', '.join(earlier)}); choose another --out or move it away")
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    inversion = prepare(config, unknowns, args.config, load_registry(), args.allow_pickle)
+    tracker = with_mlflow(args, "invert", out, JsonlTracker(out), resume=False)
+    tracker.log_params({"config": config.model_dump(mode="json"), "config_file": str(args.config)})
+    names = inversion.problem.parameters.names
+    bar = tqdm(total=config.optimizer.iterations, desc="invert", unit="it", disable=args.no_progress)
+
+    def on_iteration(iterate) -> None:
+        track_iteration(tracker, inversion, iterate)
+        values = inversion.problem.parameters.values(torch.from_numpy(iterate.u)).tolist()
+        bar.set_postfix_str(f"loss {iterate.loss:.4g}, " + ", ".join(f"{n} {v:.4g}" for n, v in zip(names, values)))
+        bar.update(1)
+
+    try:
+        result = solve(inversion, on_iteration)
+    except BaseException:
+        bar.close()
+        tracker.close(failed=True)
+        raise
+    bar.close()
+    paths = write_outputs(inversion, result, out, gif=not args.no_gif)
+    for path in paths.values():
+        tracker.log_artifact(path)
+    tracker.log_metrics({"final_loss": result.loss, "seconds": result.seconds}, result.iterations)
+    tracker.close()
+    recovered = ", ".join(f"{k} {v}" for k, v in result.unknowns.items())
+    print(
+        f"recovered {recovered}; loss ({config.loss}) {result.loss:.4g} after {result.iterations} iterations, "
+        f"{result.evaluations} rollouts, {result.seconds:.1f} s"
+    )
+    for kind, path in paths.items():
+        print(f"{kind}: {path}")
+    sys.stdout.flush()
+    return 0

@@ -1,0 +1,110 @@
+"""Searching the scaled unknowns ``u`` in [0, 1]^k: projected Adam, or SciPy's bounded L-BFGS-B.
+
+Each loss evaluation is one learned rollout and its backward. Both optimisers report
+every iteration (``on_iteration``) with the loss at the iterate they have just
+accepted, so progress bars, logs and plots show the path the search took.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..errors import GnsError
+
+
+class InversionDiverged(GnsError):
+    """The loss or its gradient became non-finite during the search."""
+
+
+@dataclass(frozen=True)
+class Iterate:
+    """One accepted iterate: 1-based iteration, loss there, and the scaled unknowns."""
+
+    iteration: int
+    loss: float
+    u: np.ndarray
+
+
+@dataclass(frozen=True)
+class Solution:
+    u: np.ndarray
+    iterations: int
+    evaluations: int
+    message: str
+
+
+LossFunction = Callable[[Tensor], Tensor]
+Observer = Callable[[Iterate], None]
+
+
+class _Evaluator:
+    """Loss and gradient at ``u``, counted, refusing non-finite values with the field to change."""
+
+    def __init__(self, loss: LossFunction, describe: Callable[[np.ndarray], str], dtype: torch.dtype):
+        self.loss, self.describe, self.dtype = loss, describe, dtype
+        self.count = 0
+
+    def __call__(self, u: np.ndarray) -> tuple[float, np.ndarray]:
+        self.count += 1
+        point = torch.tensor(u, dtype=self.dtype, requires_grad=True)
+        value = self.loss(point)
+        (gradient,) = torch.autograd.grad(value, point)
+        value, gradient = float(value.detach()), gradient.detach().double().numpy()
+        if not (np.isfinite(value) and np.isfinite(gradient).all()):
+            raise InversionDiverged(
+                f"loss: non-finite {'value' if not np.isfinite(value) else 'gradient'} at evaluation {self.count} "
+                f"({self.describe(u)}): the learned rollout left the range it was trained on; narrow the unknowns' "
+                "bounds or lower optimizer.lr"
+            )
+        return value, gradient
+
+
+def adam(loss: LossFunction, u0: np.ndarray, lr: float, iterations: int, on_iteration: Observer,
+         describe: Callable[[np.ndarray], str], dtype: torch.dtype = torch.float32) -> Solution:
+    """Adam on ``u``, projected back onto [0, 1]^k after every step."""
+    evaluate = _Evaluator(loss, describe, dtype)
+    u = torch.tensor(u0, dtype=torch.float64)
+    u.grad = torch.zeros_like(u)
+    optimizer = torch.optim.Adam([u], lr=lr)
+    for iteration in range(1, iterations + 1):
+        value, gradient = evaluate(u.detach().numpy())
+        on_iteration(Iterate(iteration, value, u.detach().numpy().copy()))
+        u.grad = torch.from_numpy(gradient)
+        optimizer.step()
+        with torch.no_grad():
+            u.clamp_(0.0, 1.0)
+    return Solution(u.detach().numpy().copy(), iterations, evaluate.count, f"{iterations} Adam steps")
+
+
+def lbfgs(loss: LossFunction, u0: np.ndarray, iterations: int, on_iteration: Observer,
+          describe: Callable[[np.ndarray], str], dtype: torch.dtype = torch.float32) -> Solution:
+    """SciPy's L-BFGS-B within [0, 1]^k, at most ``iterations`` iterations.
+
+    The loss is divided by its value at ``u0`` before SciPy sees it, so SciPy's
+    absolute stopping tolerances mean the same for a loss in m^2 as for one in %.
+    """
+    from scipy.optimize import minimize
+
+    evaluate = _Evaluator(loss, describe, dtype)
+    scale = max(evaluate(u0)[0], np.finfo(np.float64).tiny)
+
+    def scaled(u: np.ndarray) -> tuple[float, np.ndarray]:
+        value, gradient = evaluate(u)
+        return value / scale, gradient / scale
+
+    def accepted(intermediate) -> None:
+        on_iteration(Iterate(accepted.count, float(intermediate.fun) * scale, np.asarray(intermediate.x).copy()))
+        accepted.count += 1
+
+    accepted.count = 1
+    result = minimize(
+        scaled, np.asarray(u0, dtype=np.float64), jac=True, method="L-BFGS-B",
+        bounds=[(0.0, 1.0)] * len(u0), callback=accepted,
+        options={"maxiter": iterations, "maxfun": 4 * iterations},
+    )
+    return Solution(np.asarray(result.x, dtype=np.float64), int(result.nit), evaluate.count, str(result.message))

@@ -1,0 +1,278 @@
+"""An inverse problem: which unknowns make the learned rollout reproduce an observed trajectory.
+
+The unknowns are gathered in one vector ``u`` in [0, 1]^k, each scaled over its bounds,
+so one optimiser step size fits a friction coefficient and a velocity in m/s alike.
+:meth:`InverseProblem.loss` maps ``u`` to the rollout's misfit, differentiably:
+
+    u -> values (friction, velocity, ...) -> model inputs (material_property, history)
+      -> learned rollout from the observed first C frames -> loss against the observation
+
+The observed trajectory's own value of an unknown is never read: a property column is
+overwritten for the particles it concerns, and an unknown initial velocity rebuilds
+their C input frames from the first observed frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..data.batch import ParticleBatch, window
+from ..data.metadata import DatasetMetadata
+from ..data.trajectory import Trajectory
+from ..errors import RecipeError
+from ..evaluation.metrics import ParticleRollout, domain_size, runout_distance, sinkhorn_distance
+from ..simulator import LearnedSimulator
+from .config import INITIAL_VELOCITY, InvertConfig, PropertyUnknown, VelocityUnknown
+from .rollout import differentiable_rollout
+
+LOSS_UNITS = {
+    "positions": "L^2, position MSE over the observed frames and moving particles",
+    "runout": "%, |predicted - observed| runout at the last observed frame, of the observed runout",
+    "sinkhorn": "%, Sinkhorn distance between the final particle clouds, of the domain size",
+}
+SINKHORN_BLUR_FRACTION = 1e-3
+"""Blur of the Sinkhorn loss as a share of the domain size: the evaluation metric's."""
+
+
+@dataclass(frozen=True)
+class Parameters:
+    """Names and bounds of the scalar unknowns, in the order of the vector ``u``.
+
+    Shapes: low, high (k,).
+    """
+
+    names: tuple[str, ...]
+    low: np.ndarray
+    high: np.ndarray
+
+    def values(self, u: Tensor) -> Tensor:
+        """(k,) physical values of the scaled vector ``u`` in [0, 1]^k."""
+        low = torch.as_tensor(self.low, dtype=u.dtype, device=u.device)
+        high = torch.as_tensor(self.high, dtype=u.dtype, device=u.device)
+        return low + u * (high - low)
+
+    def scaled(self, values: Sequence[float]) -> np.ndarray:
+        return (np.asarray(values, dtype=np.float64) - self.low) / (self.high - self.low)
+
+    def as_record(self, values: Sequence[float], unknowns: dict) -> dict:
+        """``{"friction": 0.71, "initial_velocity": [1.2, 0.0]}``: values grouped by unknown."""
+        record, index = {}, 0
+        for name, unknown in unknowns.items():
+            width = len(unknown.start)
+            chunk = [float(v) for v in values[index : index + width]]
+            record[name] = chunk if isinstance(unknown, VelocityUnknown) else chunk[0]
+            index += width
+        return record
+
+
+def parameters_of(unknowns: dict[str, PropertyUnknown | VelocityUnknown]) -> tuple[Parameters, np.ndarray]:
+    """The scaled layout of ``unknowns`` and its starting vector ``u0``."""
+    names, low, high, start = [], [], [], []
+    for name, unknown in unknowns.items():
+        if isinstance(unknown, VelocityUnknown):
+            names += [f"{name}.{axis}" for axis in "xyz"[: len(unknown.bounds)]]
+            low += [b[0] for b in unknown.bounds]
+            high += [b[1] for b in unknown.bounds]
+        else:
+            names.append(name)
+            low.append(unknown.bounds[0])
+            high.append(unknown.bounds[1])
+        start += unknown.start
+    parameters = Parameters(tuple(names), np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64))
+    return parameters, parameters.scaled(start)
+
+
+def check_against_model(
+    config: InvertConfig,
+    unknowns: dict[str, PropertyUnknown | VelocityUnknown],
+    simulator: LearnedSimulator,
+    trajectories: Sequence[Trajectory] | None,
+    source: str | Path,
+) -> None:
+    """Every problem only the model and the data reveal, at once: RecipeError naming each field."""
+    scene = simulator.scene
+    problems: list[tuple[str, str]] = []
+    for name, unknown in unknowns.items():
+        where = f"unknowns.{name}"
+        if isinstance(unknown, VelocityUnknown):
+            if len(unknown.bounds) != scene.dim:
+                problems.append((f"{where}.bounds", f"needs {scene.dim} [low, high] pairs (one per axis), got {len(unknown.bounds)}"))
+        elif name not in scene.property_names:
+            inputs = ", ".join(scene.property_names) if scene.property_names else "none"
+            problems.append((where, f"the model has no input {name!r}: it was trained with the material properties: "
+                                    f"{inputs} (or use {INITIAL_VELOCITY})"))
+        kind = unknown.particle_type
+        if kind is not None:
+            if kind not in scene.particle_types:
+                problems.append((f"{where}.particle_type", f"{kind} is not among the model's particle types {list(scene.particle_types)}"))
+            elif kind in scene.kinematic_types:
+                problems.append((f"{where}.particle_type", f"{kind} is kinematic: the model does not move it"))
+    if trajectories is not None:
+        observed = config.observed
+        if observed.trajectory >= len(trajectories):
+            problems.append(("observed.trajectory", f"{observed.trajectory} is out of range: split {observed.split!r} "
+                                                    f"of {observed.dataset} holds {len(trajectories)} trajectories (0 .. {len(trajectories) - 1})"))
+        else:
+            trajectory = trajectories[observed.trajectory]
+            frames = trajectory.num_steps
+            if isinstance(observed.frames, list):
+                bad = [f for f in observed.frames if not scene.history <= f < frames]
+                if bad or not observed.frames:
+                    problems.append(("observed.frames", f"frames {bad or '[]'} are not rolled out: give indices in "
+                                                        f"[{scene.history}, {frames - 1}] (the first {scene.history} are the model's input)"))
+            elif frames <= scene.history:
+                problems.append(("observed.trajectory", f"has {frames} frames; the model needs more than its {scene.history} input frames"))
+            for name, unknown in unknowns.items():
+                kind = unknown.particle_type
+                if kind is not None and kind in scene.particle_types and not (trajectory.particle_type == kind).any():
+                    problems.append((f"unknowns.{name}.particle_type", f"no particle of type {kind} in trajectory {trajectory.key!r}"))
+            if scene.property_names and trajectory.material_property is None:
+                missing = [p for p in scene.property_names if p not in unknowns]
+                if missing:
+                    problems.append(("observed.dataset", f"trajectory {trajectory.key!r} has no material_property, and the "
+                                                         f"model needs {missing} besides the unknowns"))
+    if problems:
+        raise RecipeError(source, problems)
+
+
+def observed_frames(frames: str | list[int], history: int, num_frames: int) -> list[int]:
+    """Trajectory frame indices the loss compares, sorted."""
+    if frames == "last":
+        return [num_frames - 1]
+    if frames == "all":
+        return list(range(history, num_frames))
+    return sorted(set(frames))
+
+
+class InverseProblem:
+    """The loss of an observed trajectory as a differentiable function of the scaled unknowns.
+
+    Args:
+        simulator: the trained model (its parameters are frozen here).
+        trajectory: the observed trajectory, as the model sees it (frame stride applied).
+        metadata: of the observed dataset (``dt`` between the model's frames, bounds).
+        unknowns: the typed unknowns, by name.
+        loss: ``positions``, ``runout`` or ``sinkhorn`` (:data:`LOSS_UNITS`).
+        frames: observed frame indices the loss compares (:func:`observed_frames`).
+        granular_types: particle types whose runout counts (default: every moving type).
+        checkpoint_every: gradient checkpointing interval in rollout steps (0: none).
+        dtype: float32, or float64 for gradient checks.
+    """
+
+    def __init__(
+        self,
+        simulator: LearnedSimulator,
+        trajectory: Trajectory,
+        metadata: DatasetMetadata,
+        unknowns: dict[str, PropertyUnknown | VelocityUnknown],
+        loss: str,
+        frames: Sequence[int],
+        granular_types: Sequence[int] = (),
+        checkpoint_every: int = 0,
+        device: torch.device | str = "cpu",
+        dtype: torch.dtype = torch.float32,
+    ):
+        self.simulator = simulator.requires_grad_(False)
+        self.trajectory = trajectory
+        self.metadata = metadata
+        self.unknowns = unknowns
+        self.loss_name = loss
+        self.frames = list(frames)
+        self.checkpoint_every = checkpoint_every
+        self.parameters, self.start = parameters_of(unknowns)
+        scene = simulator.scene
+        history = scene.history
+        self.steps = self.frames[-1] - history + 1
+        self.dtype = dtype
+        state = window(trajectory, 0, history, with_target=False).to(device)
+        material_property = state.material_property
+        if material_property is None and scene.property_names:
+            # Every column the model reads is an unknown here (checked): start from the properties' defaults.
+            material_property = torch.zeros(state.num_particles, len(scene.property_names), device=device)
+        self.state = ParticleBatch(
+            position_sequence=state.position_sequence.to(dtype),
+            particle_type=state.particle_type,
+            batch=state.batch,
+            num_examples=1,
+            material_property=None if material_property is None else material_property.to(dtype),
+            context=state.context,
+        )
+        observed = torch.from_numpy(trajectory.position[history : history + self.steps]).to(device, dtype)
+        self.prescribed = observed
+        self.moving = simulator.predicted_mask(state.particle_type)
+        self.target = observed[[f - history for f in self.frames]]
+        kinds = list(granular_types) or sorted(set(state.particle_type[self.moving].tolist()))
+        self.granular = torch.isin(state.particle_type, torch.tensor(kinds, device=device)) & self.moving
+        self.first_frame = self.state.position_sequence[:, 0]
+        self.domain = domain_size(metadata.bounds)
+
+    def model_inputs(self, u: Tensor) -> ParticleBatch:
+        """The rollout's starting state with the unknowns' values in place of the observed ones."""
+        values = self.parameters.values(u).to(self.dtype)
+        sequence, material_property = self.state.position_sequence, self.state.material_property
+        index = 0
+        scene = self.simulator.scene
+        for name, unknown in self.unknowns.items():
+            width = len(unknown.start)
+            value = values[index : index + width]
+            index += width
+            if isinstance(unknown, VelocityUnknown):
+                # C input frames of a body moving at the unknown velocity from the first observed frame.
+                ticks = torch.arange(scene.history, dtype=self.dtype, device=u.device)[:, None]
+                rebuilt = self.first_frame[:, None] + ticks * (value * self.metadata.dt)
+                chosen = (self.state.particle_type == unknown.particle_type)[:, None, None]
+                sequence = torch.where(chosen, rebuilt, sequence)
+            else:
+                chosen = self._particles(unknown)[:, None]
+                column = torch.zeros(len(scene.property_names), dtype=torch.bool, device=u.device)
+                column[scene.property_names.index(name)] = True
+                material_property = torch.where(chosen & column, value, material_property)
+        return ParticleBatch(
+            position_sequence=sequence,
+            particle_type=self.state.particle_type,
+            batch=self.state.batch,
+            num_examples=1,
+            material_property=material_property,
+            context=self.state.context,
+        )
+
+    def _particles(self, unknown: PropertyUnknown) -> Tensor:
+        if unknown.particle_type is None:
+            return self.moving
+        return self.state.particle_type == unknown.particle_type
+
+    def rollout(self, u: Tensor) -> tuple[ParticleBatch, Tensor]:
+        """The starting state and the (S, N, d) predicted positions for the scaled unknowns ``u``."""
+        state = self.model_inputs(u)
+        return state, differentiable_rollout(self.simulator, state, self.prescribed, self.checkpoint_every)
+
+    def loss(self, u: Tensor) -> Tensor:
+        """The scalar misfit (units in :data:`LOSS_UNITS`) of the rollout from ``u``."""
+        state, predicted = self.rollout(u)
+        return self.misfit(state, predicted)
+
+    def misfit(self, state: ParticleBatch, predicted: Tensor) -> Tensor:
+        history = self.simulator.scene.history
+        compared = predicted[[f - history for f in self.frames]]
+        if self.loss_name == "positions":
+            return (compared - self.target)[:, self.moving].square().mean()
+        final, observed_final = compared[-1], self.target[-1]
+        if self.loss_name == "sinkhorn":
+            weight = self.moving[None]
+            distance = sinkhorn_distance(
+                final[None], observed_final[None], weight, weight,
+                blur=SINKHORN_BLUR_FRACTION * self.domain, diameter=self.domain,
+            )
+            return 100 * distance[0] / self.domain
+        start = state.position_sequence[:, 0]
+        predicted_runout = runout_distance(ParticleRollout.of(final[None], state.particle_type, start=start), self.granular)
+        observed_runout = runout_distance(
+            ParticleRollout.of(observed_final[None], state.particle_type, start=self.first_frame), self.granular
+        )
+        return 100 * (predicted_runout - observed_runout).abs()[0] / observed_runout.abs()[0]
