@@ -97,8 +97,9 @@ def lbfgs(loss: LossFunction, u0: np.ndarray, iterations: int, on_iteration: Obs
         value, gradient = evaluate(u)
         return value / scale, gradient / scale
 
-    def accepted(intermediate) -> None:
-        on_iteration(Iterate(accepted.count, float(intermediate.fun) * scale, np.asarray(intermediate.x).copy()))
+    def accepted(intermediate_result) -> None:
+        # SciPy passes the OptimizeResult only to a parameter of exactly this name.
+        on_iteration(Iterate(accepted.count, float(intermediate_result.fun) * scale, np.asarray(intermediate_result.x).copy()))
         accepted.count += 1
 
     accepted.count = 1

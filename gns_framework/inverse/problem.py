@@ -92,7 +92,7 @@ def check_against_model(
     config: InvertConfig,
     unknowns: dict[str, PropertyUnknown | VelocityUnknown],
     simulator: LearnedSimulator,
-    trajectories: Sequence[Trajectory] | None,
+    trajectories: Sequence[Trajectory],
     source: str | Path,
 ) -> None:
     """Every problem only the model and the data reveal, at once: RecipeError naming each field."""
@@ -113,30 +113,29 @@ def check_against_model(
                 problems.append((f"{where}.particle_type", f"{kind} is not among the model's particle types {list(scene.particle_types)}"))
             elif kind in scene.kinematic_types:
                 problems.append((f"{where}.particle_type", f"{kind} is kinematic: the model does not move it"))
-    if trajectories is not None:
-        observed = config.observed
-        if observed.trajectory >= len(trajectories):
-            problems.append(("observed.trajectory", f"{observed.trajectory} is out of range: split {observed.split!r} "
-                                                    f"of {observed.dataset} holds {len(trajectories)} trajectories (0 .. {len(trajectories) - 1})"))
-        else:
-            trajectory = trajectories[observed.trajectory]
-            frames = trajectory.num_steps
-            if isinstance(observed.frames, list):
-                bad = [f for f in observed.frames if not scene.history <= f < frames]
-                if bad or not observed.frames:
-                    problems.append(("observed.frames", f"frames {bad or '[]'} are not rolled out: give indices in "
-                                                        f"[{scene.history}, {frames - 1}] (the first {scene.history} are the model's input)"))
-            elif frames <= scene.history:
-                problems.append(("observed.trajectory", f"has {frames} frames; the model needs more than its {scene.history} input frames"))
-            for name, unknown in unknowns.items():
-                kind = unknown.particle_type
-                if kind is not None and kind in scene.particle_types and not (trajectory.particle_type == kind).any():
-                    problems.append((f"unknowns.{name}.particle_type", f"no particle of type {kind} in trajectory {trajectory.key!r}"))
-            if scene.property_names and trajectory.material_property is None:
-                missing = [p for p in scene.property_names if p not in unknowns]
-                if missing:
-                    problems.append(("observed.dataset", f"trajectory {trajectory.key!r} has no material_property, and the "
-                                                         f"model needs {missing} besides the unknowns"))
+    observed = config.observed
+    if observed.trajectory >= len(trajectories):
+        problems.append(("observed.trajectory", f"{observed.trajectory} is out of range: split {observed.split!r} "
+                                                f"of {observed.dataset} holds {len(trajectories)} trajectories (0 .. {len(trajectories) - 1})"))
+    else:
+        trajectory = trajectories[observed.trajectory]
+        frames = trajectory.num_steps
+        if isinstance(observed.frames, list):
+            bad = [f for f in observed.frames if not scene.history <= f < frames]
+            if bad or not observed.frames:
+                problems.append(("observed.frames", f"frames {bad or '[]'} are not rolled out: give indices in "
+                                                    f"[{scene.history}, {frames - 1}] (the first {scene.history} are the model's input)"))
+        elif frames <= scene.history:
+            problems.append(("observed.trajectory", f"has {frames} frames; the model needs more than its {scene.history} input frames"))
+        for name, unknown in unknowns.items():
+            kind = unknown.particle_type
+            if kind is not None and kind in scene.particle_types and not (trajectory.particle_type == kind).any():
+                problems.append((f"unknowns.{name}.particle_type", f"no particle of type {kind} in trajectory {trajectory.key!r}"))
+        if scene.property_names and trajectory.material_property is None:
+            missing = [p for p in scene.property_names if p not in unknowns]
+            if missing:
+                problems.append(("observed.dataset", f"trajectory {trajectory.key!r} has no material_property, and the "
+                                                     f"model needs {missing} besides the unknowns"))
     if problems:
         raise RecipeError(source, problems)
 

@@ -53,7 +53,6 @@ def prepare(
     """Load the model and the observed trajectory; every problem they reveal is one RecipeError."""
     device = torch.device(config.device)
     model = load_trained(config.model, registry, device)
-    check_against_model(config, unknowns, model.simulator, None, source)
     observed = config.observed
     spec = model.recipe.dataset
     if observed.layout is not None:

@@ -1,0 +1,233 @@
+"""gns invert: gradients of the learned rollout against finite differences, config errors, outputs.
+
+The gradient checks run the shipped model in float64 on a short rollout of a
+synthetic granular-like trajectory. The loss is smooth only piecewise: a pair of
+particles crossing the connectivity radius adds or removes an edge. Central
+differences in float64 with step h have truncation error O(h^2 f''') and round-off
+O(eps f / h), both ~1e-9 relative at h = 1e-6 of the unit-scaled unknown; a larger
+step (1e-5) already crosses such a kink on this trajectory and is off by 0.4 %.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from gns_framework.errors import RecipeError
+from gns_framework.inverse.config import PropertyUnknown, VelocityUnknown, parse_invert_config
+from gns_framework.inverse.optimize import InversionDiverged, adam
+from gns_framework.inverse.problem import InverseProblem
+from gns_framework.loading import load_trained
+from synthetic import soft_sphere_trajectory, synthetic_metadata
+from tiny import tiny_recipe, tiny_trainer
+
+MODEL = Path(__file__).resolve().parents[1] / "models" / "sand2d_fast.pt"
+SAND = 6
+UNKNOWNS = {
+    "friction": PropertyUnknown(bounds=(0.4, 1.0), initial=0.7),
+    "initial_velocity": VelocityUnknown(particle_type=SAND, bounds=[(-0.5, 0.5), (-0.5, 0.5)], initial=[0.1, -0.05]),
+}
+
+
+@pytest.fixture(scope="module")
+def shipped_float64(registry):
+    model = load_trained(MODEL, registry, "cpu")
+    return model.simulator.double()
+
+
+@pytest.fixture(scope="module")
+def observed():
+    """A falling block of sand-typed particles with a friction column, 12 frames."""
+    trajectory = soft_sphere_trajectory(3, frames=12, block=5, particle_types=(SAND,), with_property=True, key="block")
+    return trajectory, synthetic_metadata([trajectory], 2)
+
+
+def problem_of(simulator, observed, loss: str, checkpoint_every: int = 0, frames=(9, 11), unknowns=UNKNOWNS):
+    trajectory, metadata = observed
+    return InverseProblem(
+        simulator, trajectory, metadata, unknowns, loss, list(frames),
+        checkpoint_every=checkpoint_every, dtype=torch.float64,
+    )
+
+
+def autograd_and_central_differences(problem: InverseProblem, h: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    u = torch.tensor(problem.start, dtype=torch.float64, requires_grad=True)
+    (gradient,) = torch.autograd.grad(problem.loss(u), u)
+    differences = []
+    with torch.no_grad():
+        for i in range(len(problem.start)):
+            step = torch.zeros_like(u)
+            step[i] = h
+            differences.append((problem.loss(u + step).item() - problem.loss(u - step).item()) / (2 * h))
+    return gradient.numpy(), np.array(differences)
+
+
+@pytest.mark.parametrize("loss", ["positions", "runout"])
+def test_the_gradient_of_every_unknown_matches_central_differences(shipped_float64, observed, loss):
+    gradient, differences = autograd_and_central_differences(problem_of(shipped_float64, observed, loss))
+    assert np.all(np.abs(differences) > 0), "every unknown moves the loss"
+    relative = np.abs(gradient - differences) / np.abs(differences)
+    assert relative.max() <= 1e-3, (gradient, differences)
+
+
+def test_the_sinkhorn_gradient_matches_central_differences(shipped_float64, observed):
+    # geomloss differentiates the converged dual potentials (envelope theorem), so the
+    # gradient is that of the Sinkhorn divergence itself, to the solver's tolerance.
+    gradient, differences = autograd_and_central_differences(problem_of(shipped_float64, observed, "sinkhorn"))
+    relative = np.abs(gradient - differences) / np.abs(differences)
+    assert relative.max() <= 1e-3, (gradient, differences)
+
+
+def test_the_gradient_check_catches_a_wrong_gradient(shipped_float64, observed):
+    """The same comparison fails when the unknown's path into the model is cut (a detach)."""
+    problem = problem_of(shipped_float64, observed, "positions")
+    inputs = problem.model_inputs
+
+    def detached_property(u):
+        state = inputs(u)
+        return replace(state, material_property=state.material_property.detach())
+
+    problem.model_inputs = detached_property
+    gradient, differences = autograd_and_central_differences(problem)
+    relative = np.abs(gradient - differences) / np.abs(differences)
+    assert relative[0] > 1e-3
+
+
+def test_checkpointing_gives_the_same_loss_and_gradient(shipped_float64, observed):
+    whole, checkpointed = (problem_of(shipped_float64, observed, "positions", k) for k in (0, 2))
+    results = []
+    for problem in (whole, checkpointed):
+        u = torch.tensor(problem.start, dtype=torch.float64, requires_grad=True)
+        loss = problem.loss(u)
+        results.append((loss.item(), torch.autograd.grad(loss, u)[0].numpy()))
+    assert results[0][0] == pytest.approx(results[1][0], rel=1e-12)
+    np.testing.assert_allclose(results[0][1], results[1][1], rtol=1e-10)
+
+
+def test_the_observed_value_of_an_unknown_is_never_read(shipped_float64, observed):
+    trajectory, metadata = observed
+    altered = replace(trajectory, material_property=np.full_like(trajectory.material_property, 0.1),
+                      position=trajectory.position.copy())
+    altered.position[1:6] += 0.01  # the C - 1 input frames after the first: rebuilt from the unknown velocity
+    u = torch.tensor(problem_of(shipped_float64, observed, "positions").start)
+    with torch.no_grad():
+        first = problem_of(shipped_float64, observed, "positions").loss(u)
+        second = problem_of(shipped_float64, (altered, metadata), "positions").loss(u)
+    assert float(first) == float(second)
+
+
+def test_adam_stops_on_a_non_finite_loss_naming_the_field():
+    def loss(u):
+        return (u * float("nan")).sum()
+
+    with pytest.raises(InversionDiverged, match=r"loss: non-finite value at evaluation 1 \(friction 0.7\)"):
+        adam(loss, np.array([0.5]), 0.1, 3, lambda it: None, lambda u: "friction 0.7")
+
+
+def config_mapping(model: Path, dataset: Path, **changes) -> dict:
+    raw = {
+        "model": str(model),
+        "observed": {"dataset": str(dataset), "split": "test", "trajectory": 0, "frames": "last"},
+        "unknowns": {"friction": {"bounds": [0.4, 1.0], "initial": 0.7}},
+        "optimizer": {"name": "adam", "lr": 0.05, "iterations": 2},
+        "loss": "positions",
+        "checkpoint_every": 3,
+        "threads": 1,
+    }
+    raw.update(changes)
+    return raw
+
+
+def test_schema_problems_are_reported_at_once_with_their_location():
+    raw = config_mapping(Path("m.pt"), Path("d"), optimizer={"name": "sgd", "iterations": 0}, loss="runnout")
+    raw["unknowns"] = {"friction": {"bounds": [0.4, 1.0], "initial": 1.2},
+                       "initial_velocity": {"particle_type": 6, "bounds": [[1, -1], [0, 1]]}}
+    with pytest.raises(RecipeError) as caught:
+        parse_invert_config(raw, "inv.yaml")
+    locations = {loc for loc, _ in caught.value.problems}
+    assert {"optimizer.name", "optimizer.iterations", "loss", "unknowns.friction", "unknowns.initial_velocity"} <= locations
+    text = str(caught.value)
+    assert "initial 1.2 lies outside its bounds [0.4, 1.0]" in text
+    assert "axis 0: bounds must be [low, high] with low < high" in text
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tmp_path_factory, dataset_multimaterial, registry) -> Path:
+    run = tmp_path_factory.mktemp("invert_run")
+    trainer = tiny_trainer(tiny_recipe(dataset_multimaterial, registry), run, registry)
+    trainer.train()
+    return trainer.save()
+
+
+def gns(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "gns_framework.cli", *args], capture_output=True, text=True,
+                          cwd=cwd, timeout=600)
+
+
+def write_config(path: Path, raw: dict) -> Path:
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+@pytest.mark.parametrize("optimizer", ["adam", "lbfgs"])
+def test_gns_invert_writes_its_results(tmp_path, tiny_model, dataset_multimaterial, optimizer):
+    config = write_config(tmp_path / "inv.yaml", config_mapping(
+        tiny_model, dataset_multimaterial, optimizer={"name": optimizer, "lr": 0.05, "iterations": 2}))
+    result = gns("invert", str(config), "--out", "out", "--no-progress", "--no-tracking", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    out = tmp_path / "out"
+    record = json.loads((out / "result.json").read_text())
+    assert set(record) >= {"unknowns", "loss", "iterations", "seconds"}
+    assert 0.4 <= record["unknowns"]["friction"] <= 1.0 and np.isfinite(record["loss"])
+    assert 1 <= record["iterations"] <= 2
+    for name in ("convergence.png", "rollout.npz", "rollout.gif", "metrics.jsonl"):
+        assert (out / name).stat().st_size > 0
+    lines = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert [line["step"] for line in lines if "friction" in line][:2] == [1, 2]
+    # Nothing written is replaced: a second inversion into the same folder is refused.
+    before = (out / "result.json").read_bytes()
+    again = gns("invert", str(config), "--out", "out", "--no-progress", "--no-tracking", cwd=tmp_path)
+    assert again.returncode == 2 and "holds an earlier inversion" in again.stderr
+    assert (out / "result.json").read_bytes() == before
+
+
+def test_gns_invert_logs_to_mlflow(tmp_path, tiny_model, dataset_multimaterial, mlflow_store_of_the_session):
+    config = write_config(tmp_path / "inv.yaml", config_mapping(tiny_model, dataset_multimaterial))
+    result = gns("invert", str(config), "--out", "out", "--no-progress", "--no-gif", "--experiment", "inverse-test",
+                 cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(mlflow_store_of_the_session)
+    experiment = client.get_experiment_by_name("inverse-test")
+    (run,) = client.search_runs([experiment.experiment_id])
+    assert {"loss", "friction", "final_loss"} <= set(run.data.metrics)
+    assert "result.json" in {a.path for a in client.list_artifacts(run.info.run_id)}
+
+
+def test_model_and_data_problems_are_reported_at_once(tmp_path, tiny_model, dataset_multimaterial):
+    raw = config_mapping(tiny_model, dataset_multimaterial)
+    raw["observed"]["trajectory"] = 7
+    raw["unknowns"] = {
+        "cohesion": {"bounds": [0, 1]},
+        "initial_velocity": {"particle_type": 3, "bounds": [[-1, 1]]},
+    }
+    config = write_config(tmp_path / "inv.yaml", raw)
+    result = gns("invert", str(config), "--out", "out", "--no-progress", "--no-tracking", cwd=tmp_path)
+    assert result.returncode == 2
+    for expected in (
+        "unknowns.cohesion: the model has no input 'cohesion': it was trained with the material properties: friction",
+        "unknowns.initial_velocity.bounds: needs 2 [low, high] pairs",
+        "unknowns.initial_velocity.particle_type: 3 is kinematic",
+        "observed.trajectory: 7 is out of range",
+    ):
+        assert expected in result.stderr, result.stderr
+    assert not (tmp_path / "out").exists()
