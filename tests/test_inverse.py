@@ -156,7 +156,7 @@ def test_schema_problems_are_reported_at_once_with_their_location():
     assert {"optimizer.name", "optimizer.iterations", "loss", "unknowns.friction", "unknowns.initial_velocity"} <= locations
     text = str(caught.value)
     assert "initial 1.2 lies outside its bounds [0.4, 1.0]" in text
-    assert "axis 0: bounds must be [low, high] with low < high" in text
+    assert "axis 0: bounds must be [low, high] with low <= high" in text
 
 
 @pytest.fixture(scope="module")
@@ -231,3 +231,15 @@ def test_model_and_data_problems_are_reported_at_once(tmp_path, tiny_model, data
     ):
         assert expected in result.stderr, result.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_equal_bounds_fix_a_known_velocity_axis(shipped_float64, observed):
+    unknowns = {"initial_velocity": VelocityUnknown(particle_type=SAND, bounds=[(0.0, 1.0), (-0.2, -0.2)])}
+    problem = problem_of(shipped_float64, observed, "positions", unknowns=unknowns)
+    assert problem.start.tolist() == [0.5, 0.5]
+    u = torch.tensor(problem.start, requires_grad=True)
+    gradient = torch.autograd.grad(problem.loss(u), u)[0]
+    assert gradient[0] != 0 and gradient[1] == 0
+    assert problem.parameters.values(torch.tensor([0.25, 0.9], dtype=torch.float64)).tolist() == [0.25, -0.2]
+    with pytest.raises(RecipeError, match=r"unknowns.friction: .*low < high"):
+        parse_invert_config({"model": "m", "observed": {"dataset": "d"}, "unknowns": {"friction": {"bounds": [0.5, 0.5]}}}, "x")

@@ -49,9 +49,10 @@ class ObservedSpec(_Strict):
     )
 
 
-def _check_bounds(low: float, high: float, initial: float | None, what: str) -> None:
-    if not low < high:
-        raise ValueError(f"{what}bounds must be [low, high] with low < high, got [{low}, {high}]")
+def _check_bounds(low: float, high: float, initial: float | None, what: str, fixed_allowed: bool = False) -> None:
+    if not (low < high or (fixed_allowed and low == high)):
+        relation = "low <= high" if fixed_allowed else "low < high"
+        raise ValueError(f"{what}bounds must be [low, high] with {relation}, got [{low}, {high}]")
     if initial is not None and not low <= initial <= high:
         raise ValueError(f"{what}initial {initial} lies outside its bounds [{low}, {high}]")
 
@@ -79,7 +80,9 @@ class VelocityUnknown(_Strict):
     """The initial velocity (m/s per axis) of the particles of one type: the history is rebuilt from it."""
 
     particle_type: int = Field(ge=0, description="particles that start with the unknown velocity")
-    bounds: list[tuple[float, float]] = Field(description="[[low, high], ...] per axis, dataset length units per second")
+    bounds: list[tuple[float, float]] = Field(
+        description="[[low, high], ...] per axis, dataset length units per second; low = high fixes a known axis"
+    )
     initial: list[float] | None = Field(None, description="starting velocity per axis (default: middle of the bounds)")
 
     @model_validator(mode="after")
@@ -87,7 +90,7 @@ class VelocityUnknown(_Strict):
         if self.initial is not None and len(self.initial) != len(self.bounds):
             raise ValueError(f"initial has {len(self.initial)} entries but bounds has {len(self.bounds)}")
         for axis, (low, high) in enumerate(self.bounds):
-            _check_bounds(low, high, None if self.initial is None else self.initial[axis], f"axis {axis}: ")
+            _check_bounds(low, high, None if self.initial is None else self.initial[axis], f"axis {axis}: ", True)
         return self
 
     @property

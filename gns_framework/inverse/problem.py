@@ -58,7 +58,10 @@ class Parameters:
         return low + u * (high - low)
 
     def scaled(self, values: Sequence[float]) -> np.ndarray:
-        return (np.asarray(values, dtype=np.float64) - self.low) / (self.high - self.low)
+        """``u`` of physical ``values``; an axis fixed by equal bounds sits at 0.5 (its gradient is 0)."""
+        width = self.high - self.low
+        fixed = width == 0
+        return np.where(fixed, 0.5, (np.asarray(values, dtype=np.float64) - self.low) / np.where(fixed, 1.0, width))
 
     def as_record(self, values: Sequence[float], unknowns: dict) -> dict:
         """``{"friction": 0.71, "initial_velocity": [1.2, 0.0]}``: values grouped by unknown."""
