@@ -84,7 +84,9 @@ def test_lagrangebench_files_look_like_lagrangebench(source, tmp_path):
     convert(src, "safe", "lagrangebench", tmp_path / "lb")
     stored = json.loads((tmp_path / "lb" / "metadata.json").read_text())
     assert stored["periodic_boundary_conditions"] == [False, False]
-    assert stored["sequence_length_train"] == original["train"][0].num_steps
+    # LagrangeBench counts steps between frames, per split, and has no plain sequence_length.
+    assert stored["sequence_length_train"] == original["train"][0].num_steps - 1
+    assert stored["num_trajs_train"] == 2 and "sequence_length" not in stored
     assert stored["num_particles_max"] == max(t.num_particles for t in original["train"])
     with h5py.File(tmp_path / "lb" / "train.h5", "r") as handle:
         assert sorted(handle) == ["00000", "00001"]
@@ -116,12 +118,21 @@ def test_sequence_length_disagreeing_with_metadata_names_file_trajectory_and_fie
         load(registry, "tfrecord", tmp_path / "tf")
 
 
-def test_particle_type_out_of_range_is_located(registry, tmp_path):
+def test_negative_particle_type_is_located(registry, tmp_path):
     traj = soft_sphere_trajectory(0, frames=5, block=2)
-    bad = Trajectory(traj.position, np.full(traj.num_particles, 12), key="odd")
+    bad = Trajectory(traj.position, np.full(traj.num_particles, -1), key="odd")
     registry.get("dataset", "lagrangebench").write(tmp_path, synthetic_metadata([traj], 2), {"train": [bad]})
-    with pytest.raises(DatasetError, match=r"train\.h5: trajectory 'odd': particle_type: ids must lie in \[0, 9\)"):
+    with pytest.raises(DatasetError, match=r"train\.h5: trajectory 'odd': particle_type: ids must be >= 0"):
         load(registry, "lagrangebench", tmp_path)
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_any_type_id_a_material_may_take_is_read_back(layout, registry, tmp_path):
+    """A third-party material takes id 9, or 42: the readers accept what the writers wrote."""
+    traj = soft_sphere_trajectory(0, frames=5, block=2, particle_types=(9, 42), key="0")
+    registry.get("dataset", layout).write(tmp_path, synthetic_metadata([traj], 2), {"train": [traj]})
+    _, splits = load(registry, layout, tmp_path)
+    np.testing.assert_array_equal(splits["train"][0].particle_type, traj.particle_type)
 
 
 def test_non_finite_positions_are_located(registry, tmp_path):
