@@ -9,9 +9,15 @@ import numpy as np
 import pytest
 
 from gns_framework.cli import main
+from gns_framework.contracts import Material
 from gns_framework.data.trajectory import Trajectory
-from synthetic import soft_sphere_trajectory, synthetic_metadata
 from gns_framework.errors import DatasetError
+from gns_framework.hookspecs import hookimpl
+from gns_framework.plugins import load_registry
+from gns_framework.recipe import validate_recipe
+from gns_framework.training.trainer import Trainer
+from synthetic import soft_sphere_trajectory, synthetic_metadata
+from tiny import tiny_recipe_mapping
 
 LAYOUTS = ["safe", "npz", "tfrecord", "lagrangebench"]
 
@@ -170,3 +176,35 @@ def test_convert_refuses_a_read_only_or_unknown_layout(source, tmp_path, capsys)
     src, _ = source
     assert main(["convert", str(src), "--from", "safe", "--to", "nope", "--out", str(tmp_path / "x")]) == 2
     assert "unknown dataset 'nope'" in capsys.readouterr().err
+
+
+class _Ochre(Material):
+    """A third-party material: the next free type id after the built-ins and the example clay is 9."""
+
+    name = "ochre"
+    particle_type = 9
+    description = "test material"
+    constitutive_model = "von_mises"
+
+
+class _OchrePlugin:
+    @staticmethod
+    @hookimpl
+    def gns_materials():
+        return [_Ochre]
+
+
+@pytest.mark.parametrize("layout", ["tfrecord", "lagrangebench"])
+def test_a_material_of_type_9_converts_and_trains(layout, tmp_path):
+    registry = load_registry(plugins=[("ochre", _OchrePlugin)])
+    trajectories = [soft_sphere_trajectory(seed, frames=10, block=3, particle_types=(9,), kinematic_floor=True, key=str(seed))
+                    for seed in range(2)]
+    registry.get("dataset", layout).write(tmp_path / "src", synthetic_metadata(trajectories, 2),
+                                          {"train": trajectories[:1], "valid": trajectories[1:]})
+    convert(tmp_path / "src", layout, layout, tmp_path / "out")
+    raw = tiny_recipe_mapping(tmp_path / "out")
+    raw["dataset"]["name"] = layout
+    trainer = Trainer(validate_recipe(raw, registry), registry, run_dir=tmp_path / "run", progress=False)
+    assert trainer.data.scene.particle_types == (3, 9)
+    assert np.isfinite(trainer.train(1)).all()
+    trainer.close()
