@@ -100,7 +100,8 @@ def test_lagrangebench_length_disagreeing_with_its_metadata_is_located(registry,
 
 def test_geoelements_npz_is_read_as_numpy_saved_it(registry):
     metadata, splits = read(registry, "npz", FIXTURES / "geoelements")
-    assert metadata.dim == 2 and list(splits) == ["train", "test"]
+    # geoelements' metadata is DeepMind's: sequence_length 3 counts steps, 4 frames.
+    assert metadata.sequence_length == 4 and metadata.dim == 2 and list(splits) == ["train", "test"]
     first, second = splits["train"]
     assert (first.key, second.key) == ("simulation_trajectory_0", "simulation_trajectory_1")
     np.testing.assert_array_equal(first.particle_type, [6, 6, 3])
@@ -148,3 +149,10 @@ def test_deepmind_layout_refuses_splits_of_other_lengths(tmp_path, capsys):
     assert ("valid.tfrecord: trajectory '00000': position: has 4 frames, but DeepMind's layout holds one "
             "sequence_length for every split and it is 5 frames") in capsys.readouterr().err
     assert not (out / "valid.tfrecord").exists()
+
+
+def test_geoelements_npz_converts_to_deepminds_layout(registry, tmp_path):
+    convert(FIXTURES / "geoelements", "npz", "tfrecord", tmp_path / "tf")
+    assert json.loads((tmp_path / "tf" / "metadata.json").read_text())["sequence_length"] == 3
+    _, splits = read(registry, "tfrecord", tmp_path / "tf")
+    np.testing.assert_allclose(splits["train"][1].position, expected_position(4, 2, 1), rtol=FLOAT32)
