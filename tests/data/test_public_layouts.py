@@ -73,9 +73,9 @@ def test_lagrangebench_is_read_as_lagrangebench_defines_it(registry):
     metadata, splits = read(registry, "lagrangebench", FIXTURES / "lagrangebench")
     # sequence_length_train 4 counts steps: 5 frames; dt is the solver step, frames are write_every steps apart.
     assert metadata.sequence_length == 5
-    assert metadata.dt == pytest.approx(0.0004 * 100, rel=1e-12)
+    assert metadata.dt == pytest.approx(0.0007 * 100, rel=1e-12)
     extra = metadata.model_extra
-    assert extra["solver_dt"] == 0.0004 and extra["write_every"] == 100
+    assert extra["solver_dt"] == 0.0007 and extra["write_every"] == 100
     assert extra["solver"] == "SPH" and extra["dx"] == 0.1 and extra["case"] == "TGV"
     # Three entries in 2D, as LagrangeBench writes them: the first two are the axes.
     assert metadata.periodic_boundary_conditions == [True, True]
