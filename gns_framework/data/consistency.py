@@ -6,7 +6,7 @@ from ..errors import DatasetError
 from .trajectory import Trajectory
 
 
-def checked(trajectory: Trajectory, source: str, dim: int, frames: int | None, promise: str = "") -> Trajectory:
+def checked(trajectory: Trajectory, source: str, dim: int, frames: int | None, promise: str) -> Trajectory:
     """``trajectory`` validated (shapes, dtypes, finite values, ``dim``, type ids >= 0) and holding ``frames`` frames.
 
     ``promise`` quotes the metadata entry that gives ``frames`` in the file's own
