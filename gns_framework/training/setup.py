@@ -54,9 +54,10 @@ def prepare_data(recipe: Recipe, registry: Registry, allow_pickle: Path | None =
 
 
 def plugin_versions(recipe: Recipe, registry: Registry, scene: Scene) -> dict[str, str]:
-    """``kind/name -> distribution version`` of every component the recipe uses and of the scene's materials."""
+    """``kind/name -> distribution version`` of every component the recipe uses and of the installed
+    materials of the scene's particle types (an imported model may have types no material is installed for)."""
     model = recipe.model
     named = [(kind, getattr(model, kind).name) for kind in ("graph_builder", "encoder", "processor", "decoder", "integrator")]
     named.append(("dataset", recipe.dataset.name))
-    named += [("material", registry.material_by_type(t).name) for t in scene.particle_types]
+    named += [("material", e.name) for e in registry.entries("material") if e.cls.particle_type in scene.particle_types]
     return {f"{kind}/{name}": registry.version_of(kind, name) for kind, name in named}
