@@ -77,6 +77,7 @@ class TfRecordDataset(Dataset):
     @classmethod
     def write(cls, path: Path, metadata: DatasetMetadata, splits: dict[str, Sequence[Trajectory]]) -> None:
         path = Path(path)
+        # Checked before any file is written, so a refused dataset leaves no partial copy.
         for split, trajectories in splits.items():
             for traj in trajectories:
                 if traj.num_steps != metadata.sequence_length:
@@ -85,6 +86,7 @@ class TfRecordDataset(Dataset):
                         f"but DeepMind's layout holds one sequence_length for every split and it is "
                         f"{metadata.sequence_length} frames; write this dataset as safe or lagrangebench"
                     )
+        for split, trajectories in splits.items():
             numbers = trajectory_numbers(trajectories)
             records = [_encode(number, traj).serialize() for number, traj in zip(numbers, trajectories)]
             with atomic_path(path / f"{split}.tfrecord") as tmp:
