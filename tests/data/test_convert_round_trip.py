@@ -197,8 +197,10 @@ class _OchrePlugin:
 @pytest.mark.parametrize("layout", ["tfrecord", "lagrangebench"])
 def test_a_material_of_type_9_converts_and_trains(layout, tmp_path):
     registry = load_registry(plugins=[("ochre", _OchrePlugin)])
-    trajectories = [soft_sphere_trajectory(seed, frames=10, block=3, particle_types=(9,), kinematic_floor=True, key=str(seed))
-                    for seed in range(2)]
+    trajectories = [
+        soft_sphere_trajectory(seed, frames=10, block=3, particle_types=(9,), kinematic_floor=True, key=str(seed))
+        for seed in range(2)
+    ]
     registry.get("dataset", layout).write(tmp_path / "src", synthetic_metadata(trajectories, 2),
                                           {"train": trajectories[:1], "valid": trajectories[1:]})
     convert(tmp_path / "src", layout, layout, tmp_path / "out")

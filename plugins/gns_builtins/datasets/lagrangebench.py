@@ -102,7 +102,9 @@ class LagrangeBenchDataset(Dataset):
         metadata = self.metadata()
         steps = self._raw_metadata().get(f"sequence_length_{name}")
         if steps is not None and not (isinstance(steps, int) and steps >= 1):
-            raise DatasetError(f"{self.path / 'metadata.json'}: sequence_length_{name}: expected an integer >= 1, got {steps!r}")
+            raise DatasetError(
+                f"{self.path / 'metadata.json'}: sequence_length_{name}: expected an integer >= 1, got {steps!r}"
+            )
         frames = None if steps is None else steps + 1
         promise = f"sequence_length_{name} = {steps} (steps between frames, as LagrangeBench counts)"
         try:
