@@ -192,6 +192,10 @@ class Recipe(_Strict):
         """The recipe with every default filled in (stored in checkpoints and tracked runs)."""
         return self.model_dump(mode="json")
 
+    def on_dataset(self, path: str | Path) -> "Recipe":
+        """This recipe with its data read from ``path`` (``--dataset``), as a run then records it."""
+        return self.model_copy(update={"dataset": self.dataset.model_copy(update={"path": str(path)})})
+
 
 COMPONENT_SECTIONS = ("graph_builder", "encoder", "processor", "decoder", "integrator")
 

@@ -19,7 +19,10 @@ from .tracking_options import add_tracking_arguments, with_mlflow
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recipe", type=Path, help="recipe YAML file")
     parser.add_argument("--steps", type=positive_int, help="total training steps (overrides training.steps)")
-    parser.add_argument("--dataset", type=Path, help="dataset folder (overrides dataset.path)")
+    parser.add_argument(
+        "--dataset", type=Path,
+        help="dataset folder (overrides dataset.path; recorded as the run's dataset.path, so rollouts use it)",
+    )
     add_allow_pickle(parser)
     parser.add_argument("--out", type=Path, help="run folder (overrides output_dir; default runs/<name>)")
     start = parser.add_mutually_exclusive_group()

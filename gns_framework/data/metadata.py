@@ -28,7 +28,9 @@ class DatasetMetadata(BaseModel):
     model_config = ConfigDict(extra="allow")
 
     bounds: list[tuple[float, float]] = Field(description="(d, 2) lower and upper wall per dimension")
-    sequence_length: int = Field(gt=1, description="frames per trajectory (T - 1 in DeepMind's files)")
+    sequence_length: int = Field(
+        gt=1, description="frames per trajectory (T); DeepMind's, geoelements' and LagrangeBench's files count T - 1"
+    )
     default_connectivity_radius: float = Field(gt=0)
     dim: int = Field(ge=2, le=3)
     dt: float = Field(gt=0, description="seconds between stored frames")

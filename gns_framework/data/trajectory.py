@@ -40,8 +40,8 @@ class Trajectory:
     def dim(self) -> int:
         return int(self.position.shape[2])
 
-    def validated(self, source: str, dim: int | None = None, num_particle_types: int | None = None) -> "Trajectory":
-        """Check shapes, dtypes and values; return a copy with canonical dtypes.
+    def validated(self, source: str, dim: int | None = None) -> "Trajectory":
+        """Check shapes, dtypes and values (type ids >= 0); return a copy with canonical dtypes.
 
         Raises DatasetError naming ``source``, the trajectory key and the field.
         """
@@ -66,9 +66,8 @@ class Trajectory:
             if not np.all(np.equal(np.mod(ptype, 1), 0)):
                 raise DatasetError(f"{where}: particle_type: expected integer ids, got {ptype.dtype}")
         ptype = ptype.astype(np.int64)
-        if ptype.min() < 0 or (num_particle_types is not None and ptype.max() >= num_particle_types):
-            limit = f"[0, {num_particle_types})" if num_particle_types is not None else ">= 0"
-            raise DatasetError(f"{where}: particle_type: ids must lie in {limit}, got [{ptype.min()}, {ptype.max()}]")
+        if ptype.min() < 0:
+            raise DatasetError(f"{where}: particle_type: ids must be >= 0, got [{ptype.min()}, {ptype.max()}]")
         prop = self.material_property
         if prop is not None:
             prop = np.asarray(prop, dtype=np.float32)

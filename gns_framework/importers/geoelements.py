@@ -85,7 +85,7 @@ class ImportedCheckpoint:
             "recipe": recipe.resolved(),
             "scene": scene_to_dict(self.scene),
             "metadata": self.metadata.to_json_dict(),
-            "plugins": plugin_versions(recipe, registry),
+            "plugins": plugin_versions(recipe, registry, self.scene),
         }
         if self.optimizer_state is not None:
             optimizer, scheduler = make_optimizer(

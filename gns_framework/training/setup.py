@@ -42,10 +42,9 @@ class PreparedData:
     scene: Scene
 
 
-def prepare_data(
-    recipe: Recipe, registry: Registry, dataset_path: str | Path | None = None, allow_pickle: Path | None = None
-) -> PreparedData:
-    dataset = open_dataset(recipe.dataset, registry, dataset_path, allow_pickle)
+def prepare_data(recipe: Recipe, registry: Registry, allow_pickle: Path | None = None) -> PreparedData:
+    """The recipe's dataset (at ``dataset.path``), its train and valid splits and the scene they give."""
+    dataset = open_dataset(recipe.dataset, registry, allow_pickle=allow_pickle)
     metadata = dataset.metadata()
     train = dataset.split("train")
     valid = dataset.split("valid") if dataset.has_split("valid") else None
@@ -54,9 +53,11 @@ def prepare_data(
     return PreparedData(dataset, metadata, train, valid, scene)
 
 
-def plugin_versions(recipe: Recipe, registry: Registry) -> dict[str, str]:
-    """``kind/name -> distribution version`` of every component the recipe uses."""
+def plugin_versions(recipe: Recipe, registry: Registry, scene: Scene) -> dict[str, str]:
+    """``kind/name -> distribution version`` of every component the recipe uses and of the installed
+    materials of the scene's particle types (an imported model may have types no material is installed for)."""
     model = recipe.model
     named = [(kind, getattr(model, kind).name) for kind in ("graph_builder", "encoder", "processor", "decoder", "integrator")]
     named.append(("dataset", recipe.dataset.name))
+    named += [("material", e.name) for e in registry.entries("material") if e.cls.particle_type in scene.particle_types]
     return {f"{kind}/{name}": registry.version_of(kind, name) for kind, name in named}

@@ -58,7 +58,8 @@ class Trainer:
         recipe: validated recipe.
         registry: installed components.
         run_dir: output folder (default: the recipe's ``output_dir`` or ``runs/<name>``).
-        dataset_path: overrides ``dataset.path``.
+        dataset_path: overrides ``dataset.path``; the run records it as its recipe's
+            (``recipe.yaml``, ``params.json``, checkpoints), so rollouts find the data trained on.
         allow_pickle: the folder the user's ``--allow-pickle`` names; it lets the dataset
             unpickle anything only if it is the dataset's folder.
         processes: this process's place in a torchrun job (one plain process by
@@ -82,7 +83,7 @@ class Trainer:
         progress: bool = True,
         allow_pickle: Path | None = None,
     ):
-        self.recipe = recipe
+        self.recipe = recipe.on_dataset(dataset_path) if dataset_path is not None else recipe
         self.registry = registry
         self.run_dir = Path(run_dir) if run_dir is not None else recipe.run_dir
         self.checkpoint_dir = self.run_dir / "checkpoints"
@@ -96,7 +97,7 @@ class Trainer:
         set_recompute_activations(recipe.training.recompute_activations)
         self.device = distributed.start(self.processes, resolve_device(recipe.training.device))
 
-        self.data = prepare_data(recipe, registry, dataset_path, allow_pickle)
+        self.data = prepare_data(self.recipe, registry, allow_pickle=allow_pickle)
         self.windows = WindowIndex(self.data.train, recipe.model.history)
         self.order = WindowOrder(len(self.windows), recipe.training.batch_size, recipe.seed, self.rank, self.world_size)
         self.validation_batches = self._validation_batches() if self.processes.is_chief else []
@@ -119,10 +120,20 @@ class Trainer:
             self.tracker = tracker if tracker is not None else JsonlTracker(self.run_dir)
 
     def _validation_batches(self):
-        valid = self.data.valid
-        if valid is None or len(valid) == 0:
+        valid, history = self.data.valid, self.recipe.model.history
+        reason = "no valid split" if valid is None else "an empty valid split" if len(valid) == 0 else None
+        if reason is None:
+            try:
+                index = WindowIndex(valid, history)
+            except ValueError:
+                reason = f"no valid trajectory longer than history = {history} frames"
+        if reason is not None:
+            warnings.warn(
+                f"{self.data.dataset.path}: {reason}: training goes on without validation "
+                f"(no validation losses or rollouts, no {BEST_CHECKPOINT})",
+                stacklevel=3,
+            )
             return []
-        index = WindowIndex(valid, self.recipe.model.history)
         count = min(self.recipe.training.validation_windows, len(index))
         picks = np.unique(np.linspace(0, len(index) - 1, count).round().astype(int))
         size = self.recipe.training.batch_size
@@ -139,7 +150,7 @@ class Trainer:
             "recipe": self.recipe.resolved(),
             "scene": scene_to_dict(self.data.scene),
             "metadata": self.data.metadata.to_json_dict(),
-            "plugins": plugin_versions(self.recipe, self.registry),
+            "plugins": plugin_versions(self.recipe, self.registry, self.data.scene),
             "best": dict(self.best),
         }
 
@@ -360,7 +371,7 @@ class Trainer:
         self.tracker.log_params(
             {
                 "recipe": self.recipe.resolved(),
-                "plugins": plugin_versions(self.recipe, self.registry),
+                "plugins": plugin_versions(self.recipe, self.registry, self.data.scene),
                 "git_commit": git_commit(),
                 "world_size": self.world_size,
             }

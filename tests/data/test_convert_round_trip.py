@@ -9,9 +9,15 @@ import numpy as np
 import pytest
 
 from gns_framework.cli import main
+from gns_framework.contracts import Material
 from gns_framework.data.trajectory import Trajectory
-from synthetic import soft_sphere_trajectory, synthetic_metadata
 from gns_framework.errors import DatasetError
+from gns_framework.hookspecs import hookimpl
+from gns_framework.plugins import load_registry
+from gns_framework.recipe import validate_recipe
+from gns_framework.training.trainer import Trainer
+from synthetic import soft_sphere_trajectory, synthetic_metadata
+from tiny import tiny_recipe_mapping
 
 LAYOUTS = ["safe", "npz", "tfrecord", "lagrangebench"]
 
@@ -84,7 +90,9 @@ def test_lagrangebench_files_look_like_lagrangebench(source, tmp_path):
     convert(src, "safe", "lagrangebench", tmp_path / "lb")
     stored = json.loads((tmp_path / "lb" / "metadata.json").read_text())
     assert stored["periodic_boundary_conditions"] == [False, False]
-    assert stored["sequence_length_train"] == original["train"][0].num_steps
+    # LagrangeBench counts steps between frames, per split, and has no plain sequence_length.
+    assert stored["sequence_length_train"] == original["train"][0].num_steps - 1
+    assert stored["num_trajs_train"] == 2 and "sequence_length" not in stored
     assert stored["num_particles_max"] == max(t.num_particles for t in original["train"])
     with h5py.File(tmp_path / "lb" / "train.h5", "r") as handle:
         assert sorted(handle) == ["00000", "00001"]
@@ -116,12 +124,21 @@ def test_sequence_length_disagreeing_with_metadata_names_file_trajectory_and_fie
         load(registry, "tfrecord", tmp_path / "tf")
 
 
-def test_particle_type_out_of_range_is_located(registry, tmp_path):
+def test_negative_particle_type_is_located(registry, tmp_path):
     traj = soft_sphere_trajectory(0, frames=5, block=2)
-    bad = Trajectory(traj.position, np.full(traj.num_particles, 12), key="odd")
+    bad = Trajectory(traj.position, np.full(traj.num_particles, -1), key="odd")
     registry.get("dataset", "lagrangebench").write(tmp_path, synthetic_metadata([traj], 2), {"train": [bad]})
-    with pytest.raises(DatasetError, match=r"train\.h5: trajectory 'odd': particle_type: ids must lie in \[0, 9\)"):
+    with pytest.raises(DatasetError, match=r"train\.h5: trajectory 'odd': particle_type: ids must be >= 0"):
         load(registry, "lagrangebench", tmp_path)
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_any_type_id_a_material_may_take_is_read_back(layout, registry, tmp_path):
+    """A third-party material takes id 9, or 42: the readers accept what the writers wrote."""
+    traj = soft_sphere_trajectory(0, frames=5, block=2, particle_types=(9, 42), key="0")
+    registry.get("dataset", layout).write(tmp_path, synthetic_metadata([traj], 2), {"train": [traj]})
+    _, splits = load(registry, layout, tmp_path)
+    np.testing.assert_array_equal(splits["train"][0].particle_type, traj.particle_type)
 
 
 def test_non_finite_positions_are_located(registry, tmp_path):
@@ -159,3 +176,37 @@ def test_convert_refuses_a_read_only_or_unknown_layout(source, tmp_path, capsys)
     src, _ = source
     assert main(["convert", str(src), "--from", "safe", "--to", "nope", "--out", str(tmp_path / "x")]) == 2
     assert "unknown dataset 'nope'" in capsys.readouterr().err
+
+
+class _Ochre(Material):
+    """A third-party material: the next free type id after the built-ins and the example clay is 9."""
+
+    name = "ochre"
+    particle_type = 9
+    description = "test material"
+    constitutive_model = "von_mises"
+
+
+class _OchrePlugin:
+    @staticmethod
+    @hookimpl
+    def gns_materials():
+        return [_Ochre]
+
+
+@pytest.mark.parametrize("layout", ["tfrecord", "lagrangebench"])
+def test_a_material_of_type_9_converts_and_trains(layout, tmp_path):
+    registry = load_registry(plugins=[("ochre", _OchrePlugin)])
+    trajectories = [
+        soft_sphere_trajectory(seed, frames=10, block=3, particle_types=(9,), kinematic_floor=True, key=str(seed))
+        for seed in range(2)
+    ]
+    registry.get("dataset", layout).write(tmp_path / "src", synthetic_metadata(trajectories, 2),
+                                          {"train": trajectories[:1], "valid": trajectories[1:]})
+    convert(tmp_path / "src", layout, layout, tmp_path / "out")
+    raw = tiny_recipe_mapping(tmp_path / "out")
+    raw["dataset"]["name"] = layout
+    trainer = Trainer(validate_recipe(raw, registry), registry, run_dir=tmp_path / "run", progress=False)
+    assert trainer.data.scene.particle_types == (3, 9)
+    assert np.isfinite(trainer.train(1)).all()
+    trainer.close()

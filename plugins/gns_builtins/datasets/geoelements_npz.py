@@ -6,6 +6,9 @@ numpy arrays only, so they are read with an unpickler that rebuilds arrays and
 refuses every other global (:mod:`gns_framework.data.array_pickle`). A file that
 needs more is read only when the user grants it for its folder on the command
 line (``--allow-pickle FOLDER``); a recipe or a checkpoint never grants it.
+
+geoelements' ``metadata.json`` is DeepMind's: ``sequence_length`` = T - 1 (steps),
+where gns-framework counts frames (T); the layout converts both ways.
 """
 
 from __future__ import annotations
@@ -30,6 +33,10 @@ class GeoelementsNpzDataset(NpzSplitsDataset):
 
     name = "npz"
     writable = True
+
+    def metadata(self) -> DatasetMetadata:
+        stored = super().metadata()
+        return stored.model_copy(update={"sequence_length": stored.sequence_length + 1})
 
     def split(self, name: str) -> Sequence[Trajectory]:
         file = self.path / f"{name}.npz"
@@ -65,4 +72,5 @@ class GeoelementsNpzDataset(NpzSplitsDataset):
                 arrays[traj.key or f"simulation_trajectory_{index}"] = item
             with atomic_path(path / f"{split}.npz", suffix=".npz") as tmp:
                 np.savez_compressed(tmp, **arrays)
-        write_text_atomic(path / "metadata.json", json.dumps(metadata.to_json_dict(), indent=2) + "\n")
+        document = {**metadata.to_json_dict(), "sequence_length": metadata.sequence_length - 1}
+        write_text_atomic(path / "metadata.json", json.dumps(document, indent=2) + "\n")

@@ -1,27 +1,39 @@
 """LagrangeBench's layout (Toshev et al. 2023): ``<split>.h5`` with one group per trajectory, plus ``metadata.json``.
 
 Each group (``00000``, ``00001``, ...) holds ``position`` (T, N, d) and
-``particle_type`` (N,). LagrangeBench's metadata differs from DeepMind's:
-``dt`` is the solver step and frames are ``write_every`` steps apart,
-sequence lengths are per split (``sequence_length_train``, ...); like ours, they count frames,
-and ``periodic_boundary_conditions`` says which axes wrap. Particle-type ids
-are kept as they are (LagrangeBench: 0 fluid, 1 solid wall, 2 moving wall).
+``particle_type`` (N,). LagrangeBench's metadata differs from DeepMind's, and is
+read as LagrangeBench defines it:
 
-Optional ``material_property`` and ``step_context`` datasets, and a ``key``
-attribute with the trajectory's name, ride along in each group; LagrangeBench
-ignores them.
+* ``dt`` is the solver's time step and frames are ``write_every`` steps apart, so
+  the frame interval gns-framework uses is ``dt * write_every``; the solver step is
+  kept as ``solver_dt`` (with ``write_every``) and written back as ``dt``.
+* Sequence lengths are per split, ``sequence_length_<split>`` = T - 1 (steps
+  between frames, as in DeepMind's files), with ``num_trajs_<split>``;
+  LagrangeBench writes them for train and test only. Where the metadata gives no
+  length for a split, each trajectory's length is taken from the file.
+* ``periodic_boundary_conditions`` holds three entries whatever ``dim`` is; the
+  first ``dim`` say which axes wrap.
+* ``dx``, ``solver``, ``case`` and every other key gns-framework does not use are
+  kept as they are when converting.
+
+Particle-type ids are kept as they are (LagrangeBench: 0 fluid, 1 solid wall,
+2 moving wall). A trajectory named by a number is stored in the group of that
+number. Optional ``material_property`` and ``step_context`` datasets, and a
+``key`` attribute with a trajectory name that is not its group's, ride along in
+each group; LagrangeBench ignores them.
 """
 
 from __future__ import annotations
 
 import json
+import math
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from pydantic import Field
 
-from gns_framework.contracts import Dataset, Params
+from gns_framework.contracts import Dataset
 from gns_framework.data.atomic import atomic_path, write_text_atomic
 from gns_framework.data.consistency import checked
 from gns_framework.data.lazy import TrajectorySequence
@@ -30,7 +42,11 @@ from gns_framework.data.radius import particle_spacing
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
 
+from .numbering import trajectory_numbers
+
 OPTIONAL_FIELDS = ("material_property", "step_context")
+PER_SPLIT_KEYS = ("sequence_length_", "num_trajs_")
+"""Prefixes of the metadata keys that describe the split files; a writer states them afresh."""
 
 
 class LagrangeBenchDataset(Dataset):
@@ -39,17 +55,17 @@ class LagrangeBenchDataset(Dataset):
     name = "lagrangebench"
     writable = True
 
-    class Params(Params):
-        num_particle_types: int = Field(9, ge=1, description="particle-type ids must lie in [0, this)")
-
     def metadata(self) -> DatasetMetadata:
         raw = self._raw_metadata()
-        write_every = raw.get("write_every", 1)
+        write_every = raw.get("write_every")
         if isinstance(raw.get("dt"), (int, float)) and isinstance(write_every, (int, float)):
-            # LagrangeBench's dt is the solver step; frames are write_every steps apart.
-            raw["dt"], raw["write_every"] = raw["dt"] * write_every, 1
-        if "sequence_length" not in raw:
-            raw["sequence_length"] = self._frames()
+            raw["solver_dt"], raw["dt"] = raw["dt"], raw["dt"] * write_every
+        periodic, dim = raw.get("periodic_boundary_conditions"), raw.get("dim")
+        if isinstance(periodic, list) and isinstance(dim, int) and len(periodic) > dim:
+            raw["periodic_boundary_conditions"] = periodic[:dim]
+        # gns-framework's sequence_length counts the frames of the training trajectories.
+        steps = raw.get("sequence_length_train")
+        raw["sequence_length"] = steps + 1 if isinstance(steps, int) else self._frames()
         return parse_metadata(raw, self.path / "metadata.json")
 
     def _raw_metadata(self) -> dict:
@@ -65,7 +81,7 @@ class LagrangeBenchDataset(Dataset):
         return raw
 
     def _frames(self) -> int:
-        """Frames per trajectory, from the first trajectory of the first split on disk."""
+        """Frames of the first trajectory of the first split on disk (train when there is one)."""
         import h5py
 
         for split in self.splits():
@@ -84,10 +100,13 @@ class LagrangeBenchDataset(Dataset):
         if not file.is_file():
             raise DatasetError(f"{file}: split file not found")
         metadata = self.metadata()
-        # LagrangeBench splits may differ in length (one long training run, shorter test runs).
-        length = self._raw_metadata().get(f"sequence_length_{name}")
-        if length is not None:
-            metadata = metadata.model_copy(update={"sequence_length": int(length)})
+        steps = self._raw_metadata().get(f"sequence_length_{name}")
+        if steps is not None and not (isinstance(steps, int) and steps >= 1):
+            raise DatasetError(
+                f"{self.path / 'metadata.json'}: sequence_length_{name}: expected an integer >= 1, got {steps!r}"
+            )
+        frames = None if steps is None else steps + 1
+        promise = f"sequence_length_{name} = {steps} (steps between frames, as LagrangeBench counts)"
         try:
             with h5py.File(file, "r") as handle:
                 keys = sorted(handle)
@@ -111,7 +130,7 @@ class LagrangeBenchDataset(Dataset):
                     optional.get("step_context"),
                     name_attr.decode() if isinstance(name_attr, bytes) else str(name_attr),
                 )
-            return checked(trajectory, metadata, str(file), self.params.num_particle_types)
+            return checked(trajectory, str(file), metadata.dim, frames, promise)
 
         return TrajectorySequence(keys, load, str(file), metadata.dim)
 
@@ -120,26 +139,53 @@ class LagrangeBenchDataset(Dataset):
         import h5py
 
         path = Path(path)
-        extras: dict = {"write_every": 1, "periodic_boundary_conditions": [False] * metadata.dim}
+        document = lagrangebench_metadata(path, metadata, splits)
         for split, trajectories in splits.items():
             with atomic_path(path / f"{split}.h5", suffix=".h5") as tmp:
                 with h5py.File(tmp, "w") as handle:
-                    for index, traj in enumerate(trajectories):
-                        group = handle.create_group(f"{index:05d}")
+                    for number, traj in zip(trajectory_numbers(trajectories), trajectories):
+                        group_name = f"{number:05d}"
+                        group = handle.create_group(group_name)
                         group.create_dataset("position", data=np.asarray(traj.position, dtype=np.float32))
                         group.create_dataset("particle_type", data=np.asarray(traj.particle_type, dtype=np.int64))
                         for name in OPTIONAL_FIELDS:
                             if getattr(traj, name) is not None:
                                 group.create_dataset(name, data=np.asarray(getattr(traj, name), dtype=np.float32))
-                        if traj.key:
+                        if traj.key and traj.key != group_name:
                             group.attrs["key"] = traj.key
-            if trajectories:
-                extras[f"sequence_length_{split}"] = int(trajectories[0].num_steps)
-                extras[f"num_trajs_{split}"] = len(trajectories)
-        everything = [t for trajectories in splits.values() for t in trajectories]
-        if everything:
-            extras["num_particles_max"] = max(t.num_particles for t in everything)
-            if everything[0].num_particles > 1:
-                extras["dx"] = particle_spacing(everything[0].position[0])
-        document = {**metadata.to_json_dict(), **extras}
         write_text_atomic(path / "metadata.json", json.dumps(document, indent=2) + "\n")
+
+
+def lagrangebench_metadata(path: Path, metadata: DatasetMetadata, splits: dict[str, Sequence[Trajectory]]) -> dict:
+    """``metadata`` in LagrangeBench's terms, with the lengths and counts of ``splits`` (to be written under ``path``).
+
+    Every key of ``metadata`` is kept; with ``write_every``, ``dt`` becomes the solver
+    step again (``solver_dt`` when it still gives the frame interval, else ``dt / write_every``).
+    """
+    document = {k: v for k, v in metadata.to_json_dict().items() if not k.startswith(PER_SPLIT_KEYS)}
+    del document["sequence_length"]
+    solver_dt = document.pop("solver_dt", None)
+    write_every = document.get("write_every")
+    if isinstance(write_every, (int, float)) and write_every > 0:
+        # The reader made dt as this very product (exact to an ulp); a frame stride since changes it by a whole factor.
+        consistent = isinstance(solver_dt, (int, float)) and math.isclose(
+            solver_dt * write_every, metadata.dt, rel_tol=4 * sys.float_info.epsilon
+        )
+        document["dt"] = solver_dt if consistent else metadata.dt / write_every
+    document["periodic_boundary_conditions"] = metadata.periodic_boundary_conditions or [False] * metadata.dim
+    for split, trajectories in splits.items():
+        lengths = sorted({traj.num_steps for traj in trajectories})
+        if len(lengths) > 1:
+            raise DatasetError(
+                f"{path / split}.h5: trajectories of {lengths} frames, but LagrangeBench's layout holds one "
+                "sequence length per split; write this dataset as safe"
+            )
+        if lengths:
+            document[f"sequence_length_{split}"] = lengths[0] - 1
+            document[f"num_trajs_{split}"] = len(trajectories)
+    everything = [t for trajectories in splits.values() for t in trajectories]
+    if everything:
+        document["num_particles_max"] = max(document.get("num_particles_max", 0), *(t.num_particles for t in everything))
+        if "dx" not in document and everything[0].num_particles > 1:
+            document["dx"] = particle_spacing(everything[0].position[0])
+    return document

@@ -2,16 +2,20 @@
 
 Each record is one trajectory::
 
-    context        key                int64          trajectory index
+    context        key                int64          trajectory number
                    particle_type      bytes          (N,) int64
     feature_lists  position           T x bytes      (N * d,) float32 per frame
                    step_context       T x bytes      (C,) float32 per frame, optional
 
 DeepMind's ``metadata.json`` gives ``sequence_length`` = T - 1 (steps), where
-gns-framework counts frames (T): the layout converts both ways. Read and written without
-TensorFlow. Two optional context features carry what DeepMind's files lack and
-its reader ignores: ``material_property`` ((N * P,) float32 bytes) and
-``trajectory_key`` (the trajectory's name, utf-8).
+gns-framework counts frames (T): the layout converts both ways. It is one length
+for every split, so trajectories of other lengths are refused when writing. Read
+and written without TensorFlow. Two optional context features carry what
+DeepMind's files lack and its reader ignores: ``material_property`` ((N * P,)
+float32 bytes) and ``trajectory_key`` (the trajectory's name, utf-8, when it is
+not the decimal ``key``). A trajectory keeps its ``key`` number when converted:
+trajectories whose names are all numbers are written under those numbers, others
+are numbered in order.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from gns_framework.data.metadata import DatasetMetadata, load_metadata
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
 
+from .numbering import trajectory_numbers
 from .tfrecord_format import Feature, SequenceExample, read_records, write_records
 
 
@@ -42,7 +47,6 @@ class TfRecordDataset(Dataset):
 
     class Params(Params):
         verify_checksums: bool = Field(True, description="check every record's CRC-32C (slow without google-crc32c)")
-        num_particle_types: int = Field(9, ge=1, description="particle-type ids must lie in [0, this)")
 
     def metadata(self) -> DatasetMetadata:
         stored = load_metadata(self.path)
@@ -65,15 +69,26 @@ class TfRecordDataset(Dataset):
             except (ValueError, UnicodeDecodeError) as exc:
                 raise DatasetError(f"{file}: trajectory {index}: not a SequenceExample: {exc}") from None
             trajectory = _decode(example, metadata.dim, f"{file}: trajectory {index}")
-            return checked(trajectory, metadata, str(file), self.params.num_particle_types)
+            promise = f"sequence_length = {metadata.sequence_length - 1} (steps, as DeepMind counts)"
+            return checked(trajectory, str(file), metadata.dim, metadata.sequence_length, promise)
 
         return TrajectorySequence([str(i) for i in range(len(records))], load, str(file), metadata.dim)
 
     @classmethod
     def write(cls, path: Path, metadata: DatasetMetadata, splits: dict[str, Sequence[Trajectory]]) -> None:
         path = Path(path)
+        # Checked before any file is written, so a refused dataset leaves no partial copy.
         for split, trajectories in splits.items():
-            records = [_encode(index, traj).serialize() for index, traj in enumerate(trajectories)]
+            for traj in trajectories:
+                if traj.num_steps != metadata.sequence_length:
+                    raise DatasetError(
+                        f"{path / split}.tfrecord: trajectory {traj.key!r}: position: has {traj.num_steps} frames, "
+                        f"but DeepMind's layout holds one sequence_length for every split and it is "
+                        f"{metadata.sequence_length} frames; write this dataset as safe or lagrangebench"
+                    )
+        for split, trajectories in splits.items():
+            numbers = trajectory_numbers(trajectories)
+            records = [_encode(number, traj).serialize() for number, traj in zip(numbers, trajectories)]
             with atomic_path(path / f"{split}.tfrecord") as tmp:
                 write_records(tmp, records)
         document = {**metadata.to_json_dict(), "sequence_length": metadata.sequence_length - 1}
@@ -114,14 +129,14 @@ def _decode(example: SequenceExample, dim: int, where: str) -> Trajectory:
     return Trajectory(position, particle_type, material_property, step_context, key)
 
 
-def _encode(index: int, traj: Trajectory) -> SequenceExample:
+def _encode(number: int, traj: Trajectory) -> SequenceExample:
     context = {
-        "key": Feature("int64", np.array([index])),
+        "key": Feature("int64", np.array([number])),
         "particle_type": Feature("bytes", [np.asarray(traj.particle_type, "<i8").tobytes()]),
     }
     if traj.material_property is not None:
         context["material_property"] = Feature("bytes", [np.asarray(traj.material_property, "<f4").tobytes()])
-    if traj.key:
+    if traj.key and traj.key != str(number):
         context["trajectory_key"] = Feature("bytes", [traj.key.encode()])
     lists = {"position": [Feature("bytes", [np.asarray(frame, "<f4").tobytes()]) for frame in traj.position]}
     if traj.step_context is not None:
