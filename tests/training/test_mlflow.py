@@ -74,9 +74,9 @@ def test_training_tracks_to_a_sqlite_store_created_on_first_use_and_compare_read
     plot = tmp_path / "compare.png"
     assert main(["compare", "tiny-exp", "--metrics", "train_loss", "steps_per_s", "--params", "training.steps", "world_size", "--plot", str(plot)]) == 0
     table = capsys.readouterr().out.splitlines()
-    assert table[0].split() == ["run", "id", "status", "training.steps", "world_size", "train_loss", "steps_per_s"]
-    rows = {line.split()[1]: line.split() for line in table[1:3]}
-    assert rows[run_a[:8]][3] == "4" and rows[run_b[:8]][3] == "2"
+    assert table[0].split() == ["run", "experiment", "id", "status", "training.steps", "world_size", "train_loss", "steps_per_s"]
+    rows = {line.split()[2]: line.split() for line in table[1:3]}
+    assert rows[run_a[:8]][4] == "4" and rows[run_b[:8]][4] == "2"
     assert plot.read_bytes().startswith(b"\x89PNG")
 
 
@@ -109,7 +109,7 @@ def test_compare_names_the_choices_for_an_unknown_experiment(tmp_path, uneven_da
     recipe_file = write_recipe(tmp_path / "recipe.yaml", tiny_recipe(uneven_dataset, steps=1))
     train(recipe_file, tmp_path / "run", "--tracking-uri", f"sqlite:///{database}")
     assert main(["compare", "tiny-xp", "--tracking-uri", f"sqlite:///{database}"]) == 2
-    assert "no experiment 'tiny-xp'; experiments: Default, tiny-exp" in capsys.readouterr().err
+    assert "no experiment or run 'tiny-xp'; experiments: Default, tiny-exp" in capsys.readouterr().err
 
 
 def test_import_and_help_never_import_mlflow():
