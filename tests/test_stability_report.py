@@ -17,7 +17,7 @@ from gns_framework.stability import report
 from gns_framework.stability.extreme import tiny_simulator
 from gns_framework.stability.report import Row, chain_drift, chain_limits, format_row, near_collision, rollout_guard
 
-pytestmark = pytest.mark.stability
+pytestmark = [pytest.mark.stability, pytest.mark.usefixtures("one_torch_thread")]
 
 GROUPS = {
     report.chain_limits: "spring chain N=32 k=1e6: dt limit",
@@ -27,14 +27,6 @@ GROUPS = {
     report.rollout_guard: "rollout guard",
 }
 """The start of each section's group names."""
-
-
-@pytest.fixture
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 class SwappedIntegrators:
@@ -54,7 +46,7 @@ class BlindGuard(RolloutGuard):
         return position, []
 
 
-def test_every_section_of_the_full_report_passes_and_gns_stability_exits_0(one_thread, capsys):
+def test_every_section_of_the_full_report_passes_and_gns_stability_exits_0(capsys):
     assert set(GROUPS) == set(report.SECTIONS)
     assert main(["stability"]) == 0
     lines = capsys.readouterr().out.splitlines()
@@ -70,7 +62,7 @@ def test_every_section_of_the_full_report_passes_and_gns_stability_exits_0(one_t
         assert expected in outcomes  # explicit Euler's growth is expected, not a failure
 
 
-def test_a_symplectic_integrator_that_gains_energy_fails_every_integrator_section(one_thread, monkeypatch, capsys):
+def test_a_symplectic_integrator_that_gains_energy_fails_every_integrator_section(monkeypatch, capsys):
     registry = SwappedIntegrators({"velocity_verlet": "explicit_euler"})
     rows = [row for section in (chain_limits, chain_drift, near_collision) for row in section(registry)]
     verlet = [row for row in rows if row.case == "velocity_verlet"]
@@ -86,7 +78,7 @@ def test_a_symplectic_integrator_that_gains_energy_fails_every_integrator_sectio
     assert "FAIL: spring chain: 10000 steps, omega_max dt = 1.0: velocity_verlet: diverged" in out
 
 
-def test_non_finite_predictions_fail_their_rows_and_the_processor_summary(one_thread, monkeypatch):
+def test_non_finite_predictions_fail_their_rows_and_the_processor_summary(monkeypatch):
     simulator = tiny_simulator(load_registry(), 2)
     simulator.output_stats.mean.fill_(math.nan)
     row = report._extreme_row(simulator, "single particle", 2, torch.float32, "interaction_network")
