@@ -20,6 +20,8 @@ from gns_framework.training.distributed import Processes
 from gns_framework.training.optim import learning_rate, make_optimizer
 from tiny import tiny_recipe, tiny_trainer
 
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # restores the count the tiny trainers set to 1
+
 KINEMATIC_TYPE = 3
 """The synthetic datasets' floor particles (tests/synthetic.py), kinematic in the built-in materials."""
 
