@@ -12,6 +12,7 @@ import difflib
 import importlib.metadata
 import inspect
 import os
+import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -55,6 +56,14 @@ def did_you_mean(word: str, choices: Iterable[str]) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
+def disable_one(first: ComponentEntry, second: ComponentEntry) -> str:
+    """How to resolve a clash of two components: which plugins to uninstall or disable, and how."""
+    return (
+        f"uninstall one of them, or disable its plugin with the environment variable "
+        f"{DISABLE_ENV}={second.plugin} (or {DISABLE_ENV}={first.plugin})"
+    )
+
+
 class Registry:
     """Components by kind and name. Built by :func:`load_registry`; immutable afterwards."""
 
@@ -67,8 +76,7 @@ class Registry:
                 raise PluginError(
                     f"two {entry.kind} components are named {entry.name!r}: "
                     f"{first.cls.__module__}.{first.cls.__qualname__} from {first.provider} and "
-                    f"{entry.cls.__module__}.{entry.cls.__qualname__} from {entry.provider}; "
-                    f"uninstall or disable one (environment variable {DISABLE_ENV})"
+                    f"{entry.cls.__module__}.{entry.cls.__qualname__} from {entry.provider}; {disable_one(first, entry)}"
                 )
             of_kind[entry.name] = entry
         self._check_material_types()
@@ -81,7 +89,7 @@ class Registry:
                 other = seen[type_id]
                 raise PluginError(
                     f"materials {other.name!r} from {other.provider} and {entry.name!r} from "
-                    f"{entry.provider} both claim particle type {type_id}"
+                    f"{entry.provider} both claim particle type {type_id}; {disable_one(other, entry)}"
                 )
             seen[type_id] = entry
 
@@ -126,6 +134,19 @@ def _disabled_names() -> set[str]:
     return {n.strip() for n in os.environ.get(DISABLE_ENV, "").split(",") if n.strip()}
 
 
+def _warn_unmatched(disabled: set[str], entry_points: Iterable[importlib.metadata.EntryPoint]) -> None:
+    """Warn about each name in ``$GNS_DISABLE_PLUGINS`` that is neither an entry point nor a distribution."""
+    entry_names = sorted({ep.name for ep in entry_points})
+    distributions = sorted({_distribution_of(ep)[0] for ep in entry_points})
+    for name in sorted(disabled - set(entry_names) - set(distributions)):
+        warnings.warn(
+            f"{DISABLE_ENV}: {name!r} names no installed plugin{did_you_mean(name, entry_names + distributions)}, "
+            f"so nothing was disabled for it; entry points: {', '.join(entry_names)}; "
+            f"distributions: {', '.join(distributions)}",
+            stacklevel=3,
+        )
+
+
 def _distribution_of(ep: importlib.metadata.EntryPoint) -> tuple[str, str]:
     dist = getattr(ep, "dist", None)
     if dist is None:
@@ -151,7 +172,9 @@ def make_plugin_manager(
     origin: dict[str, tuple[str, str]] = {}
     disabled = _disabled_names()
     if load_entry_points and "*" not in disabled:
-        for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        entry_points = importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
+        _warn_unmatched(disabled, entry_points)
+        for ep in entry_points:
             dist, version = _distribution_of(ep)
             if ep.name in disabled or dist in disabled or pm.has_plugin(ep.name):
                 continue

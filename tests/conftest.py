@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import torch
 
 from synthetic import write_synthetic_dataset
 from gns_framework.plugins import load_registry
@@ -19,6 +20,19 @@ def mlflow_store_of_the_session(tmp_path_factory):
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("MLFLOW_TRACKING_URI", uri)
         yield uri
+
+
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """One intra-op thread for a module's tests, and the count before restored after them.
+
+    On shared cores OpenMP workers spin while other jobs hold the cores; one thread keeps
+    the stiff and extreme cases quick. Module-scoped so hypothesis tests can use it.
+    """
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
 
 
 @pytest.fixture(scope="session")

@@ -19,8 +19,7 @@ from gns_framework.cli import main
 from gns_framework.errors import CheckpointError
 from tiny import tiny_recipe, tiny_trainer
 
-pytestmark = pytest.mark.stability
-torch.set_num_threads(1)
+pytestmark = [pytest.mark.stability, pytest.mark.usefixtures("one_torch_thread")]
 
 GNS = Path(sys.executable).parent / "gns"
 

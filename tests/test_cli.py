@@ -1,4 +1,4 @@
-"""End-to-end: the ``gns`` command as a user runs it, in subprocesses."""
+"""End-to-end: the ``gns`` command as a user runs it, in subprocesses (in process where a test looks inside)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import torch
 import yaml
 from tiny import tiny_recipe_mapping
+
+from gns_framework.cli import main
 
 
 def gns(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
@@ -69,11 +72,23 @@ def test_train_resume_rollout_render(dataset_multimaterial, tmp_path):
     rollout_file = tmp_path / "rollouts" / "test_0000.npz"
     with np.load(rollout_file, allow_pickle=False) as z:
         assert z["predicted_rollout"].shape[0] == 4
-    low = gns("rollout", str(checkpoint), "--steps", "4", "--out", str(tmp_path / "low"), "--no-progress",
-              "--precision", "bfloat16")
-    assert low.returncode == 0, low.stderr
+    # In process, to see the dtypes of the Linear layers' products as the rollout runs them.
+    products = []
+
+    def record(module, inputs, output):
+        if isinstance(module, torch.nn.Linear):
+            products.append(output.dtype)
+
+    hook = torch.nn.modules.module.register_module_forward_hook(record)
+    try:
+        low = main(["rollout", str(checkpoint), "--steps", "4", "--out", str(tmp_path / "low"), "--no-progress",
+                    "--precision", "bfloat16"])
+    finally:
+        hook.remove()
+    assert low == 0
+    assert products and set(products) == {torch.bfloat16}, "--precision bfloat16 left products in float32"
     with np.load(rollout_file) as full, np.load(tmp_path / "low" / "test_0000.npz") as bf16:
-        assert bf16["predicted_rollout"].dtype == full["predicted_rollout"].dtype
+        assert bf16["predicted_rollout"].dtype == full["predicted_rollout"].dtype == np.float32
         assert np.allclose(bf16["predicted_rollout"], full["predicted_rollout"], atol=1e-3)
     rendered = gns("render", str(rollout_file), "--gif", str(tmp_path / "r.gif"))
     assert rendered.returncode == 0 and (tmp_path / "r.gif").stat().st_size > 0

@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 import yaml
 
 from gns_framework.checkpoint import save_checkpoint
@@ -23,7 +22,7 @@ from hostile import MEMBER, write_hostile_dataset
 from synthetic import soft_sphere_trajectory, synthetic_metadata
 from tiny import tiny_recipe, tiny_recipe_mapping, tiny_trainer
 
-torch.set_num_threads(1)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def numpy1_npy(item: np.ndarray) -> bytes:

@@ -65,6 +65,7 @@ def test_duplicate_names_are_an_error_naming_both_providers():
     assert "interaction_network" in message
     assert "builtin-processors" in message and "gns-framework" in message
     assert "my-dup" in message
+    assert f"{DISABLE_ENV}=my-dup (or {DISABLE_ENV}=builtin-processors)" in message
 
 
 def test_unknown_name_lists_choices_with_did_you_mean(registry):
@@ -98,8 +99,11 @@ def test_material_type_clash_names_both():
         def gns_materials():
             return [Mud]
 
-    with pytest.raises(PluginError, match="'water'.*'mud'.*particle type 5"):
+    with pytest.raises(PluginError, match="'water'.*'mud'.*particle type 5") as info:
         load_registry(plugins=[("mud", MudPlugin)])
+    message = str(info.value)
+    assert "builtin-materials" in message and "plugin 'mud'" in message
+    assert f"disable its plugin with the environment variable {DISABLE_ENV}=mud (or {DISABLE_ENV}=builtin-materials)" in message
 
 
 @pytest.fixture
@@ -130,6 +134,19 @@ def test_environment_variable_disables_plugins(broken_distribution, monkeypatch)
     # Installed third-party materials (the example clay) stay; the built-in ones are gone.
     assert all(entry.plugin != "builtin-materials" for entry in registry.entries("material"))
     assert "interaction_network" in registry.names("processor")
+
+
+def test_disabling_a_name_that_matches_no_plugin_warns_with_the_names_that_exist(monkeypatch):
+    monkeypatch.setenv(DISABLE_ENV, "builtin-material,builtin-encoders")
+    with pytest.warns(UserWarning) as caught:
+        registry = load_registry()
+    messages = [str(w.message) for w in caught if DISABLE_ENV in str(w.message)]
+    assert len(messages) == 1, messages  # builtin-encoders exists and is disabled without a word
+    assert "'builtin-material' names no installed plugin (did you mean 'builtin-materials'?)" in messages[0]
+    entry_points, distributions = messages[0].split("entry points: ")[1].split("; distributions: ")
+    assert {"builtin-materials", "builtin-processors", "example-clay"} <= set(entry_points.split(", "))
+    assert {"gns-framework", "gns-example-clay"} <= set(distributions.split(", "))
+    assert "water" in registry.names("material") and registry.names("encoder") == []
 
 
 def test_registries_are_independent():

@@ -22,8 +22,7 @@ from gns_framework.rollout_guard import RolloutGuard
 from gns_framework.stability.extreme import extreme_metadata, tiny_simulator
 from tiny import tiny_recipe, tiny_trainer
 
-pytestmark = pytest.mark.stability
-torch.set_num_threads(1)
+pytestmark = [pytest.mark.stability, pytest.mark.usefixtures("one_torch_thread")]
 
 REGISTRY = load_registry()
 BOX = Scene(dim=2, bounds=((0.0, 1.0), (0.0, 2.0)), connectivity_radius=0.1, particle_types=(5,))

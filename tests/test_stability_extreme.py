@@ -12,8 +12,7 @@ from gns_framework.features import safe_norm
 from gns_framework.plugins import load_registry
 from gns_framework.stability.extreme import CASES, check_finite, tiny_simulator
 
-pytestmark = pytest.mark.stability
-torch.set_num_threads(1)
+pytestmark = [pytest.mark.stability, pytest.mark.usefixtures("one_torch_thread")]
 
 REGISTRY = load_registry()
 DTYPES = [torch.float32, torch.bfloat16]

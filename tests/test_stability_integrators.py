@@ -19,8 +19,7 @@ from gns_framework.stability.measure import (
 )
 from gns_framework.stability.problems import RepulsiveCollision, SpringChain
 
-pytestmark = pytest.mark.stability
-torch.set_num_threads(1)
+pytestmark = [pytest.mark.stability, pytest.mark.usefixtures("one_torch_thread")]
 
 REGISTRY = load_registry()
 SYMPLECTIC = ["semi_implicit_euler", "velocity_verlet"]

@@ -26,7 +26,7 @@ COMMANDS: dict[str, str] = {
     "generate": "simulate a scene spec into a dataset of train/valid/test trajectories",
     "convert": "convert a dataset between layouts (safe, npz, tfrecord, lagrangebench)",
     "stability": "run the stiff-integrator and extreme-input cases and print each outcome with its figures",
-    "compare": "compare the tracked runs of an MLflow experiment by chosen metrics and params, with a plot",
+    "compare": "tracked runs of any experiments side by side: metrics, params and differing recipe fields, with a plot",
 }
 """Subcommand name -> one-line help. The module is ``gns_framework.cli.<name>``."""
 

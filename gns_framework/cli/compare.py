@@ -1,34 +1,68 @@
-"""``gns compare``: the runs of an MLflow experiment side by side, as a table and a plot of their curves."""
+"""``gns compare``: tracked runs of any experiments side by side, as a table and a plot of their curves.
+
+The table shows the chosen params and every recipe field that differs between the runs.
+"""
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 DEFAULT_METRICS = ["train_loss", "valid_one_step_position_mse", "steps_per_s"]
-DEFAULT_PARAMS = ["world_size", "model.latent_size", "model.processor.message_passing_steps", "training.batch_size"]
+DEFAULT_PARAMS = ["world_size"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("experiment", help="MLflow experiment name (gns train logs to the recipe's name by default)")
+    parser.add_argument(
+        "runs", nargs="*", metavar="EXPERIMENT_OR_RUN",
+        help="MLflow experiment names (gns train logs to the recipe's name by default) and run ids "
+        "(or their first 8+ hex digits, as the table prints them), in any mix",
+    )
+    parser.add_argument(
+        "--filter", metavar="FILTER",
+        help="MLflow search filter the runs must match, e.g. \"params.recipe.model.latent_size = '32'\" or "
+        "\"tags.team = 'geo'\"; alone, it searches every experiment",
+    )
     parser.add_argument("--metrics", nargs="+", default=DEFAULT_METRICS, metavar="METRIC", help="metric columns and plot panels")
     parser.add_argument(
         "--params", nargs="+", default=DEFAULT_PARAMS, metavar="PARAM",
-        help="param columns: logged names (world_size, git_commit) or recipe keys (model.latent_size)",
+        help="param columns besides the recipe fields that differ between the runs: logged names "
+        "(world_size, git_commit) or recipe keys (model.latent_size)",
     )
     parser.add_argument("--sort", metavar="METRIC", help="sort by this metric, smallest first (default: the first metric)")
-    parser.add_argument("--plot", type=Path, help="plot file (default: <experiment>-compare.png)")
+    parser.add_argument("--plot", type=Path, help="plot file (default: <first experiment or run>-compare.png)")
     parser.add_argument("--tracking-uri", help="MLflow tracking URI (default: as gns train)")
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..training.comparison import experiment_runs, format_table, plot_histories, sort_runs
+    from ..errors import GnsError
+    from ..training.comparison import (
+        differing_recipe_fields, format_table, logged_metrics, plot_histories, select_runs, sort_runs, unlogged,
+    )
     from ..training.mlflow_tracker import default_tracking_uri
 
     uri = args.tracking_uri or default_tracking_uri()
-    runs = experiment_runs(uri, args.experiment, args.metrics, args.params)
-    runs = sort_runs(runs, args.sort or args.metrics[0])
-    print(format_table(runs, args.metrics, args.params))
-    plot = plot_histories(runs, args.metrics, args.plot or Path(f"{args.experiment}-compare.png"), args.experiment)
-    print(f"{len(runs)} runs; plot in {plot}")
+    runs = select_runs(uri, args.runs, args.metrics, args.filter)
+    if not runs:
+        raise GnsError(f"no runs match {' '.join(args.runs)} {args.filter or ''}".rstrip())
+    missing = unlogged(runs, args.metrics)
+    for metric in missing:
+        print(
+            f"gns compare: warning: no run logged metric {metric!r}; logged metrics: {', '.join(logged_metrics(runs))}",
+            file=sys.stderr,
+        )
+    metrics = [metric for metric in args.metrics if metric not in missing]
+    if not metrics:
+        raise GnsError(f"none of the metrics {', '.join(args.metrics)} was logged by these runs")
+    sort = args.sort or metrics[0]
+    if sort in unlogged(runs, [sort]):
+        raise GnsError(f"--sort {sort}: no run logged it; logged metrics: {', '.join(logged_metrics(runs))}")
+    params = args.params + [key for key in differing_recipe_fields(runs) if key not in args.params]
+    print(format_table(sort_runs(runs, sort), metrics, params))
+    title = " ".join(args.runs) or args.filter
+    default_plot = Path(f"{args.runs[0] if args.runs else 'runs'}-compare.png")
+    plot = plot_histories(runs, metrics, args.plot or default_plot, title)
+    experiments = sorted({run.experiment for run in runs})
+    print(f"{len(runs)} runs of {len(experiments)} experiment(s) ({', '.join(experiments)}); plot in {plot}")
     return 0

@@ -44,9 +44,10 @@ def synchronize(device: torch.device | str | None) -> None:
 
 
 def time_call(
-    fn: Callable[[], T], *, repeats: int = 5, warmup: int = 1, device: torch.device | str | None = None
+    fn: Callable[[], T], *, repeats: int = 5, warmup: int = 1, device: torch.device | str | None = None,
+    clock: Callable[[], float] = time.perf_counter,
 ) -> tuple[T, Timing]:
-    """Run ``fn`` ``warmup`` times untimed, then ``repeats`` times timed.
+    """Run ``fn`` ``warmup`` times untimed, then ``repeats`` times timed by ``clock`` (seconds).
 
     The device is synchronised before starting and before stopping each clock,
     so asynchronous GPU work is counted where it happens. Returns the result of
@@ -60,10 +61,10 @@ def time_call(
     result = None
     for _ in range(repeats):
         synchronize(device)
-        start = time.perf_counter()
+        start = clock()
         result = fn()
         synchronize(device)
-        seconds.append(time.perf_counter() - start)
+        seconds.append(clock() - start)
     return result, Timing(tuple(seconds), warmup)
 
 

@@ -72,29 +72,55 @@ def learned(case: Case) -> Prediction:
     return Prediction(torch.as_tensor(case.ground_truth + drift, dtype=torch.float32))
 
 
-def candidates(states):
+class WorkClock:
+    """A clock that only the simulations move: each adds the seconds it is said to cost."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+    def costing(self, seconds: float, simulate):
+        def run(case):
+            self.now += seconds
+            return simulate(case)
+
+        return run
+
+
+COSTS = {"mpm dt/16": 1.6, "mpm dt/2": 0.2, "mpm dt/1": 0.1, "mpm coarse": 0.8, "gns": 0.05}
+"""Seconds per rollout on the work clock: the simulator's in proportion to its substeps and particles."""
+
+
+def candidates(states, clock: WorkClock | None = None):
+    clock = clock or WorkClock()
+    simulations = {
+        "mpm dt/16": ("simulator", simulator(states, 16), "16 substeps"),
+        "mpm dt/2": ("simulator", simulator(states, 2), "2 substeps"),
+        "mpm dt/1": ("simulator", simulator(states, 1), "1 substep"),
+        "mpm coarse": ("simulator", simulator(states, 16, every_other_particle=True), "half the particles"),
+        "gns": ("learned", learned, "model.pt"),
+    }
     return [
-        Candidate("mpm dt/16", "simulator", simulator(states, 16), reference=True, settings="16 substeps"),
-        Candidate("mpm dt/2", "simulator", simulator(states, 2), settings="2 substeps"),
-        Candidate("mpm dt/1", "simulator", simulator(states, 1), settings="1 substep"),
-        Candidate(
-            "mpm coarse", "simulator", simulator(states, 16, every_other_particle=True), settings="half the particles"
-        ),
-        Candidate("gns", "learned", learned, settings="model.pt"),
+        Candidate(name, kind, clock.costing(COSTS[name], simulate), reference=name == "mpm dt/16", settings=settings)
+        for name, (kind, simulate, settings) in simulations.items()
     ]
 
 
 @pytest.fixture
 def report(scenes, tmp_path):
     states, cases = scenes
+    clock = WorkClock()
     return evaluate(
-        candidates(states),
+        candidates(states, clock),
         cases,
         repeats=2,
         warmup=1,
         granular_types={SAND},
         material_names={SAND: "sand"},
         rollout_dir=tmp_path / "rollouts",
+        clock=clock,
     )
 
 
@@ -106,9 +132,9 @@ def test_entries_hold_speedup_and_error_against_the_reference(report):
         0, abs=1e-3
     )
     for entry in report.entries:
-        assert entry.seconds > 0 and entry.speedup == pytest.approx(reference.seconds / entry.seconds)
-    # A coarser time step is faster and less accurate.
-    assert by_name["mpm dt/1"].speedup > 1
+        assert entry.seconds == pytest.approx(COSTS[entry.name])  # the median rollout, warm-up excluded
+        assert entry.speedup == pytest.approx(COSTS["mpm dt/16"] / COSTS[entry.name])
+    # A coarser time step is less accurate.
     assert by_name["mpm dt/1"].metrics["mse_full"] > by_name["mpm dt/2"].metrics["mse_full"] > 0
     # The learned model drifts 0.002 L per step in both components: MSE at step k is (0.002 k)^2.
     assert by_name["gns"].metrics["mse_1"] == pytest.approx(0.002**2, rel=1e-4)

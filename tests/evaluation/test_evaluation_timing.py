@@ -2,28 +2,32 @@
 
 from __future__ import annotations
 
-import time
-
 import pytest
 
 from gns_framework.evaluation.timing import Timing, format_hardware, hardware_description, time_call
 
 
+class ScriptedClock:
+    """A clock that each call of the work advances by the next of ``durations`` seconds."""
+
+    def __init__(self, durations):
+        self.now, self.durations = 100.0, iter(durations)
+
+    def __call__(self) -> float:
+        return self.now
+
+    def work(self) -> float:
+        self.now += next(self.durations)
+        return self.now
+
+
 def test_warmup_runs_are_excluded_and_median_taken():
-    durations = iter([0.05, 0.0, 0.02, 0.0])
-    calls = []
-
-    def work():
-        calls.append(1)
-        time.sleep(next(durations))
-        return len(calls)
-
-    result, timing = time_call(work, repeats=3, warmup=1)
-    assert len(calls) == 4 and result == 4
-    assert len(timing.seconds) == 3 and timing.warmup == 1
-    # The slow first call was the warm-up: the repeats took ~0, 0.02, ~0 s.
-    assert timing.median < 0.015
-    assert timing.spread >= 0.015
+    clock = ScriptedClock([5.0, 0.25, 2.0, 0.5])
+    result, timing = time_call(clock.work, repeats=3, warmup=1, clock=clock)
+    assert result == 107.75  # the last timed call's result
+    # The slow first call was the warm-up: the repeats took 0.25, 2 and 0.5 s.
+    assert timing.seconds == (0.25, 2.0, 0.5) and timing.warmup == 1
+    assert timing.median == 0.5 and timing.spread == 1.75
 
 
 def test_timing_median_and_bad_arguments():
