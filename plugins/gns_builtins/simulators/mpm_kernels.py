@@ -246,8 +246,8 @@ def kernels(dim: int) -> Kernels:
         dt: float,
         time: float,
         gravity: vec,
-        lower: vec,
-        upper: vec,
+        wall_lower: ivec,
+        wall_upper: ivec,
         wall_friction: float,
         obstacle_shape: wp.array(dtype=int),
         obstacle_lower: wp.array(dtype=vec),
@@ -258,7 +258,11 @@ def kernels(dim: int) -> Kernels:
     ):
         """Node velocity = momentum / mass + dt g, then frictional contact with walls and obstacles at ``time``.
 
-        Clears momentum and mass behind itself, ready for the next P2G.
+        Wall nodes are decided by integer index (``wall_lower`` / ``wall_upper``:
+        per axis, the node on or first beyond each wall): comparing float32
+        node positions with the bounds moves a wall by a cell when rounding
+        puts the node on it just outside. Clears momentum and mass behind
+        itself, ready for the next P2G.
         """
         n = wp.tid()
         m = grid_mass[n]
@@ -280,10 +284,10 @@ def kernels(dim: int) -> Kernels:
             pos[a] = origin[a] + float(node[a]) * dx
         for a in range(wp.static(dim)):
             normal = vec()
-            if pos[a] <= lower[a]:
+            if node[a] <= wall_lower[a]:
                 normal[a] = 1.0
                 vel = coulomb_contact(vel, normal, wall_friction)
-            elif pos[a] >= upper[a]:
+            elif node[a] >= wall_upper[a]:
                 normal[a] = -1.0
                 vel = coulomb_contact(vel, normal, wall_friction)
         for k in range(obstacle_shape.shape[0]):

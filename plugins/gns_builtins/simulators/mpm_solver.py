@@ -59,8 +59,12 @@ class MpmSolver:
         upper = np.array([hi for _, hi in scene.domain.bounds])
         self.lower, self.upper = self.k.vec(*lower), self.k.vec(*upper)
         self.origin = self.k.vec(*(lower - GRID_MARGIN * dx))
-        nodes = [math.ceil((hi - lo) / dx - 1e-9) + 2 * GRID_MARGIN + 1 for lo, hi in scene.domain.bounds]
+        cells = [math.ceil((hi - lo) / dx - 1e-9) for lo, hi in scene.domain.bounds]
+        nodes = [c + 2 * GRID_MARGIN + 1 for c in cells]
         self.res = self.k.ivec(*nodes)
+        # The node on each lower wall, and the node on or first beyond each upper wall.
+        self.wall_lower = self.k.ivec(*[GRID_MARGIN] * d)
+        self.wall_upper = self.k.ivec(*[GRID_MARGIN + c for c in cells])
         num_nodes = int(np.prod(nodes))
         self.gravity = self.k.vec(*scene.gravity_vector)
         self.wall_friction = float(scene.domain.wall_friction)
@@ -103,7 +107,7 @@ class MpmSolver:
                                                self.origin, self.inv_dx, self.dt, self.res,
                                                self.grid_momentum, self.grid_mass]),
             record(k.grid_update, self.num_nodes, [self.grid_momentum, self.grid_mass, self.origin, self.dx, self.res,
-                                                   self.dt, 0.0, self.gravity, self.lower, self.upper,
+                                                   self.dt, 0.0, self.gravity, self.wall_lower, self.wall_upper,
                                                    self.wall_friction, *self.obstacles, self.grid_velocity]),
             record(k.g2p, self.num_particles, [self.grid_velocity, self.origin, self.inv_dx, self.res, self.dt,
                                                self.lower, self.upper, self.x, self.v, self.C]),
