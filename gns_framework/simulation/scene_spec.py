@@ -28,7 +28,7 @@ from ..yaml_loading import load_yaml_mapping
 class Spec(BaseModel):
     """Base of every scene-spec section: unknown keys are errors."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, coerce_numbers_to_str=True)
 
 
 class Range(Spec):
