@@ -70,17 +70,65 @@ Value = Annotated[Range, BeforeValidator(_number_or_range)]
 """A number, or ``{range: [low, high], per: trajectory|particle}``."""
 
 
+def _wall_condition(value: Any) -> Any:
+    if isinstance(value, str) and value in ("slip", "no_slip"):
+        return value
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0:
+        return float(value)
+    raise ValueError("expected a Coulomb friction coefficient >= 0, 'slip' or 'no_slip'")
+
+
+WallCondition = Annotated[float | Literal["slip", "no_slip"], BeforeValidator(_wall_condition)]
+"""A face of the domain: a Coulomb friction coefficient, ``slip`` (frictionless) or ``no_slip``."""
+
+FACES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
+"""Domain faces, in the order (axis 0 lower, axis 0 upper, axis 1 lower, ...)."""
+
+
+class Walls(Spec):
+    """Conditions of individual faces of the domain; a face not named keeps ``wall_friction``.
+
+    A friction coefficient mu: approaching motion stops and the tangential
+    velocity loses mu times the removed normal speed (Coulomb). ``slip``: mu = 0.
+    ``no_slip``: the tangential velocity at the face is zero; the fluid may still
+    leave the face.
+    """
+
+    x_min: WallCondition | None = None
+    x_max: WallCondition | None = None
+    y_min: WallCondition | None = None
+    y_max: WallCondition | None = None
+    z_min: WallCondition | None = None
+    z_max: WallCondition | None = None
+
+
 class Domain(Spec):
     """The box particles live in and the background grid that covers it."""
 
     bounds: list[tuple[float, float]] = Field(description="(d, 2) lower and upper wall per axis, metres")
     grid: int = Field(ge=4, le=4096, description="grid cells along the longest axis (cell size dx = longest / grid)")
-    wall_friction: float = Field(default=0.5, ge=0, description="Coulomb friction coefficient of the domain walls")
+    wall_friction: float = Field(
+        default=0.5, ge=0, description="Coulomb friction coefficient of every face that `walls` does not name"
+    )
+    walls: Walls = Field(default_factory=Walls, description="per-face conditions: x_min, x_max, y_min, ... (d faces x 2)")
 
     @property
     def cell_size(self) -> float:
         """dx in metres."""
         return max(hi - lo for lo, hi in self.bounds) / self.grid
+
+    def wall_conditions(self) -> list[tuple[float, bool]]:
+        """(friction coefficient, no-slip) of the 2 d faces, in ``FACES`` order."""
+        conditions = []
+        for face in FACES[: 2 * len(self.bounds)]:
+            condition = getattr(self.walls, face)
+            if condition is None:
+                conditions.append((self.wall_friction, False))
+            elif condition == "no_slip":
+                conditions.append((0.0, True))
+            else:
+                conditions.append((0.0 if condition == "slip" else condition, False))
+        return conditions
 
 
 class Time(Spec):
@@ -180,6 +228,9 @@ class SceneSpec(Spec):
                 found.append((f"domain.bounds[{axis}]", f"lower must be below upper, got {[lo, hi]}"))
                 bounds_ok = False
         need_dim("gravity", self.gravity)
+        for face in FACES[2 * d :]:
+            if getattr(self.domain.walls, face) is not None:
+                found.append((f"domain.walls.{face}", f"a {d}D domain has faces {', '.join(FACES[: 2 * d])} only"))
         for where, body in [(f"blocks[{i}]", b) for i, b in enumerate(self.blocks)] + [
             (f"obstacles[{i}]", o) for i, o in enumerate(self.obstacles)
         ]:

@@ -90,3 +90,47 @@ def test_wall_nodes_are_exactly_the_nodes_on_or_beyond_the_bounds(bounds, grid, 
         for axis in range(scene.dim):
             wrong = np.flatnonzero(stopped[:, axis] != on_wall[:, axis])
             assert wrong.size == 0, f"axis {axis}, sign {sign}: nodes {index[wrong[:3]].tolist()} misclassified"
+
+
+FACE_CONDITIONS = {"x_min": "slip", "x_max": "no_slip", "y_min": 0.3, "z_min": 0.3, "z_max": "slip"}
+"""Per-face conditions of the tests below; the faces not named (y_max) keep wall_friction = 2.0 (sticking)."""
+
+
+def expected_wall_velocity(condition, normal_speed: float, tangential: np.ndarray) -> tuple[float, np.ndarray]:
+    """(normal speed, tangential velocity) after the wall: Coulomb with mu, slip, or no-slip."""
+    if condition == "no_slip":
+        return max(normal_speed, 0.0), tangential * 0.0
+    if normal_speed >= 0:
+        return normal_speed, tangential
+    mu = 0.0 if condition == "slip" else condition
+    norm = np.linalg.norm(tangential)
+    return 0.0, tangential * max(0.0, 1.0 + mu * normal_speed / norm)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("normal_speed", [-1.0, 0.5])
+def test_each_face_applies_its_own_condition(dim, normal_speed, sim_registry):
+    """Nodes moving along a face and towards it (or away from it): each face's condition alone acts on its nodes."""
+    bounds = [[0.0, 1.0], [0.1, 0.6], [-0.2, 0.4]][:dim]
+    walls = {face: c for face, c in FACE_CONDITIONS.items() if face[0] in "xyz"[:dim]}
+    scene, solver = solver_for(scene_in(bounds, 16, wall_friction=2.0, walls=walls), sim_registry)
+    index = node_indices(solver)
+    lower = np.full(dim, 3)
+    upper = np.array([solver.wall_upper[a] for a in range(dim)])
+    for axis in range(dim):
+        for side, face in enumerate(("xyz"[axis] + "_min", "xyz"[axis] + "_max")):
+            outward = np.zeros(dim)
+            outward[axis] = -1.0 if side == 0 else 1.0
+            tangential = np.where(np.arange(dim) == axis, 0.0, 0.8)
+            velocity = -normal_speed * outward + tangential  # normal_speed along the inward normal
+            after = grid_update(solver, np.broadcast_to(velocity, index.shape).copy())
+            others = np.arange(dim) != axis
+            interior = ((index[:, others] > lower[others]) & (index[:, others] < upper[others])).all(axis=1)
+            on_face = (index[:, axis] <= lower[axis]) if side == 0 else (index[:, axis] >= upper[axis])
+            nodes = after[on_face & interior]
+            assert len(nodes) > 0
+            normal, tangent = expected_wall_velocity(walls.get(face, 2.0), normal_speed, tangential)
+            atol = 1e-6
+            np.testing.assert_allclose(-nodes @ outward, normal, atol=atol, err_msg=face)
+            np.testing.assert_allclose(nodes[:, others], np.broadcast_to(tangent[others], (len(nodes), dim - 1)),
+                                       atol=atol, err_msg=face)

@@ -111,3 +111,22 @@ def test_duplicate_yaml_keys_are_errors(tmp_path):
     (tmp_path / "scene.yaml").write_text("dim: 2\ndim: 3\n")
     with pytest.raises(RecipeError, match="duplicate key 'dim'"):
         load_scene(tmp_path / "scene.yaml")
+
+
+def test_wall_conditions_default_to_wall_friction_on_every_face():
+    raw = mixed()
+    raw["domain"]["wall_friction"] = 0.4
+    assert parse_scene(raw).domain.wall_conditions() == [(0.4, False)] * 4
+    raw["domain"]["walls"] = {"y_min": 0.8, "x_min": "slip", "x_max": "no_slip"}
+    assert parse_scene(raw).domain.wall_conditions() == [(0.0, False), (0.0, True), (0.8, False), (0.4, False)]
+
+
+def test_bad_wall_conditions_are_reported_with_their_face():
+    raw = mixed()
+    raw["domain"]["walls"] = {"x_mn": "slip", "y_min": "sticky", "y_max": -0.1}
+    found = problems(raw)
+    assert "did you mean 'x_min'" in found["domain.walls.x_mn"]
+    assert "'slip' or 'no_slip'" in found["domain.walls.y_min"]
+    assert "friction coefficient >= 0" in found["domain.walls.y_max"]
+    raw["domain"]["walls"] = {"z_min": 0.2}
+    assert "faces x_min, x_max, y_min, y_max only" in problems(raw)["domain.walls.z_min"]

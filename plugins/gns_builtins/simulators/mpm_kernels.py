@@ -66,6 +66,12 @@ def coulomb_contact(v_rel: Any, normal: Any, mu: float):
     return vt * (1.0 + mu * vn / vt_norm)
 
 
+@wp.func
+def no_slip_contact(v_rel: Any, normal: Any):
+    """Velocity relative to a no-slip surface: no tangential motion, and only separating normal motion."""
+    return wp.max(wp.dot(v_rel, normal), 0.0) * normal
+
+
 @cache
 def kernels(dim: int) -> Kernels:
     """Compile-once kernels for ``dim`` = 2 or 3."""
@@ -248,7 +254,8 @@ def kernels(dim: int) -> Kernels:
         gravity: vec,
         wall_lower: ivec,
         wall_upper: ivec,
-        wall_friction: float,
+        wall_friction: wp.array(dtype=float),
+        wall_no_slip: wp.array(dtype=int),
         obstacle_shape: wp.array(dtype=int),
         obstacle_lower: wp.array(dtype=vec),
         obstacle_size: wp.array(dtype=vec),
@@ -261,7 +268,9 @@ def kernels(dim: int) -> Kernels:
         Wall nodes are decided by integer index (``wall_lower`` / ``wall_upper``:
         per axis, the node on or first beyond each wall): comparing float32
         node positions with the bounds moves a wall by a cell when rounding
-        puts the node on it just outside. Clears momentum and mass behind
+        puts the node on it just outside. Face ``2 a`` (lower) and ``2 a + 1``
+        (upper) of axis ``a`` has its own Coulomb coefficient ``wall_friction``
+        or is no-slip (``wall_no_slip`` 1). Clears momentum and mass behind
         itself, ready for the next P2G.
         """
         n = wp.tid()
@@ -284,12 +293,18 @@ def kernels(dim: int) -> Kernels:
             pos[a] = origin[a] + float(node[a]) * dx
         for a in range(wp.static(dim)):
             normal = vec()
+            face = int(-1)
             if node[a] <= wall_lower[a]:
                 normal[a] = 1.0
-                vel = coulomb_contact(vel, normal, wall_friction)
+                face = 2 * a
             elif node[a] >= wall_upper[a]:
                 normal[a] = -1.0
-                vel = coulomb_contact(vel, normal, wall_friction)
+                face = 2 * a + 1
+            if face >= 0:
+                if wall_no_slip[face] != 0:
+                    vel = no_slip_contact(vel, normal)
+                else:
+                    vel = coulomb_contact(vel, normal, wall_friction[face])
         for k in range(obstacle_shape.shape[0]):
             half = 0.5 * obstacle_size[k]
             body_velocity = obstacle_velocity[k]

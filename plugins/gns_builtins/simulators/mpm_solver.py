@@ -67,11 +67,15 @@ class MpmSolver:
         self.wall_upper = self.k.ivec(*[GRID_MARGIN + c for c in cells])
         num_nodes = int(np.prod(nodes))
         self.gravity = self.k.vec(*scene.gravity_vector)
-        self.wall_friction = float(scene.domain.wall_friction)
 
         def array(values, dtype):
             return wp.array(np.ascontiguousarray(values), dtype=dtype, device=self.device)
 
+        walls = scene.domain.wall_conditions()
+        self.walls = [
+            array(np.array([friction for friction, _ in walls], dtype=np.float32), float),
+            array(np.array([no_slip for _, no_slip in walls], dtype=np.int32), int),
+        ]
         self.x = array(position.astype(np.float32), self.k.vec)
         self.v = array(velocity.astype(np.float32), self.k.vec)
         self.C = wp.zeros(n, dtype=self.k.mat, device=self.device)
@@ -108,7 +112,7 @@ class MpmSolver:
                                                self.grid_momentum, self.grid_mass]),
             record(k.grid_update, self.num_nodes, [self.grid_momentum, self.grid_mass, self.origin, self.dx, self.res,
                                                    self.dt, 0.0, self.gravity, self.wall_lower, self.wall_upper,
-                                                   self.wall_friction, *self.obstacles, self.grid_velocity]),
+                                                   *self.walls, *self.obstacles, self.grid_velocity]),
             record(k.g2p, self.num_particles, [self.grid_velocity, self.origin, self.inv_dx, self.res, self.dt,
                                                self.lower, self.upper, self.x, self.v, self.C]),
         ]
