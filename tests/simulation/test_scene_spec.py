@@ -10,7 +10,7 @@ import pytest
 from gns_framework.errors import RecipeError
 from gns_framework.simulation.build import build_simulator
 from gns_framework.simulation.scene_spec import load_scene, parse_scene
-from simulation.scenes import mixed
+from simulation.scenes import column_collapse_3d, mixed
 
 SCENES = sorted((Path(__file__).resolve().parents[2] / "scenes").rglob("*.yaml"))
 
@@ -130,3 +130,36 @@ def test_bad_wall_conditions_are_reported_with_their_face():
     assert "friction coefficient >= 0" in found["domain.walls.y_max"]
     raw["domain"]["walls"] = {"z_min": 0.2}
     assert "faces x_min, x_max, y_min, y_max only" in problems(raw)["domain.walls.z_min"]
+
+
+def test_shaped_obstacles_are_checked_for_what_their_shape_needs():
+    raw = mixed()
+    raw["obstacles"] = [
+        {"material": "rigid", "shape": "plane", "position": [0.1, 0.1], "size": [0.1, 0.1], "angle": 95},
+        {"material": "rigid", "shape": "polygon", "position": [0.1, 0.1], "vertices": [[0, 0], [0.1, 0]]},
+        {"material": "rigid", "shape": "box", "position": [0.1, 0.1], "size": [0.1, 0.1], "angle": 10,
+         "velocity": [0.1, 0.0]},
+        {"material": "rigid", "shape": "ellipsoid", "position": [0.1, 0.1]},
+        {"material": "rigid", "shape": "box", "position": [0.1, 0.1], "size": [0.1, 0.1], "vertices": [[0, 0]]},
+    ]
+    found = problems(raw)
+    assert found["obstacles[0].size"] == "a plane takes no size"
+    assert "(-90, 90) degrees" in found["obstacles[0].angle"]
+    assert "at least 3 vertices" in found["obstacles[1].vertices"]
+    assert "static: velocity must be 0" in found["obstacles[2].velocity"]
+    assert "needs size" in found["obstacles[3].size"]
+    assert "only polygons take vertices" in found["obstacles[4].vertices"]
+
+
+def test_polygons_are_2d_and_rotated_blocks_must_stay_in_the_domain():
+    raw = copy.deepcopy(mixed())
+    raw["blocks"][1]["angle"] = {"range": [0, 90]}
+    raw["blocks"][1]["size"] = [0.2, 0.02]
+    raw["blocks"][1]["position"] = [0.2, 0.1]  # the 0.2 m slab stands up to 0.21 + 0.1 m: inside
+    assert parse_scene(raw)
+    raw["blocks"][1]["position"] = [0.2, 0.01]  # turned 90 degrees it reaches below the floor
+    assert "outside the domain" in problems(raw)["blocks[1].position[1]"]
+    raw = {**column_collapse_3d(), "obstacles": [
+        {"material": "rigid", "shape": "polygon", "position": [0.1, 0.1, 0.1], "vertices": [[0, 0], [1, 0], [0, 1]]}
+    ]}
+    assert "polygons are 2D" in problems(raw)["obstacles[0].shape"]
