@@ -23,7 +23,8 @@ def problems(raw, registry=None) -> dict[str, str]:
 
 
 def test_example_scenes_exist():
-    expected = {"sand_collapse_2d", "water_dam_break_2d", "sand_collapse_3d", "multi_material_2d"}
+    expected = {"sand_collapse_2d", "water_dam_break_2d", "sand_collapse_3d", "multi_material_2d",
+                "sand_ramps_2d", "water_ramps_2d", "sand_ramps_3d"}
     assert {p.stem for p in SCENES} >= expected
 
 
