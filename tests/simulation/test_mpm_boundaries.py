@@ -34,7 +34,7 @@ def scene_in(bounds: list[list[float]], grid: int, **domain) -> dict:
 
 
 def solver_for(raw: dict, registry):
-    from plugins.gns_builtins.simulators.mpm_solver import MpmSolver
+    from gns_builtins.simulators.mpm_solver import MpmSolver
 
     scene = parse_scene(raw)
     simulator = build_simulator(scene, registry, "<test>")

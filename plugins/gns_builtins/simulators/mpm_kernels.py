@@ -235,8 +235,8 @@ def kernels(dim: int) -> Kernels:
         """Scatter APIC momentum and the stress impulse -dt V0 (4/dx^2) tau of each particle to its stencil.
 
         Per-model parameters: sand (param_a = Drucker-Prager alpha), fluid
-        (param_a = bulk modulus K, param_b = Tait exponent gamma), goop
-        (param_a = von Mises yield strain).
+        (mu = dynamic viscosity eta, param_a = bulk modulus K, param_b = Tait
+        exponent gamma), goop (param_a = von Mises yield strain).
         """
         p = wp.tid()
         rel = (x[p] - origin) * inv_dx
@@ -254,7 +254,12 @@ def kernels(dim: int) -> Kernels:
             J[p] = Jp
             # Tait equation of state; a free surface cannot pull, so no tension.
             pressure = wp.max(param_a[p] / param_b[p] * (wp.pow(Jp, -param_b[p]) - 1.0), 0.0)
-            tau = wp.identity(n=wp.static(dim), dtype=float) * (-pressure * Jp)
+            # Newtonian viscous stress 2 eta dev(D), D = sym(C) the velocity gradient, on the rest volume:
+            # J ~ 1 in the weakly compressible bulk, and where a free surface tears (J > 1, no pressure)
+            # a Kirchhoff factor J would shrink the explicit viscous limit rho dx^2 / (2 d eta) by J.
+            strain_rate = 0.5 * (Cp + wp.transpose(Cp))
+            shear = strain_rate - wp.identity(n=wp.static(dim), dtype=float) * (wp.trace(Cp) / float(dim))
+            tau = wp.identity(n=wp.static(dim), dtype=float) * (-pressure * Jp) + (2.0 * mu[p]) * shear
         else:
             tau = hencky_stress(grad @ F[p], mu[p], lam[p], kind, param_a[p], F, p)
         affine = (-dt * volume[p] * 4.0 * inv_dx * inv_dx) * tau + mass[p] * Cp
