@@ -60,3 +60,40 @@ def test_poiseuille_flow_has_the_exact_profile_for_the_viscosity(viscosity, sim_
 def test_too_few_substeps_for_the_viscosity_says_how_many(sim_registry):
     found = problems(channel(2000.0), sim_registry)
     assert "viscous limit" in found["time.substeps"] and "use at least" in found["time.substeps"]
+
+
+@pytest.fixture(scope="module")
+def dam_break():
+    """benchmarks/dam_break.py: the Martin & Moyce column and Ritter's reservoir."""
+    import importlib.util
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "dam_break.py"
+    spec = importlib.util.spec_from_file_location("dam_break", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def martin_moyce_fronts(dam_break, sim_registry):
+    """Front Z at Martin & Moyce's times for water (1e-3 Pa s) and a 1000x more viscous liquid, 10 cells across a."""
+    return {
+        eta: np.interp(dam_break.MARTIN_MOYCE_T, *dam_break.run(eta, 10, "no_slip", sim_registry))
+        for eta in (1e-3, 1.0)
+    }
+
+
+def test_water_dam_break_front_follows_martin_and_moyce(dam_break, martin_moyce_fronts):
+    """Within 10 % at every tabulated time (at 20 cells across a: -0.6 % on average, see docs/ground_truth.md)."""
+    np.testing.assert_allclose(martin_moyce_fronts[1e-3], dam_break.MARTIN_MOYCE_Z, rtol=0.1)
+
+
+def test_a_viscous_liquid_runs_out_more_slowly(martin_moyce_fronts):
+    assert martin_moyce_fronts[1.0][-1] < 0.9 * martin_moyce_fronts[1e-3][-1]
+
+
+def test_shallow_dam_break_holds_ritters_depth_at_the_dam(dam_break, sim_registry):
+    """Ritter: the depth at the dam site stays 4/9 h0 until the rarefaction returns (MPM: 0.48 h0)."""
+    _, _, at_dam = dam_break.ritter_run(0.0, sim_registry)
+    assert at_dam / dam_break.RITTER_H0 == pytest.approx(4 / 9, rel=0.15)
