@@ -112,7 +112,9 @@ class Domain(Spec):
     wall_friction: float = Field(
         default=0.5, ge=0, description="Coulomb friction coefficient of every face that `walls` does not name"
     )
-    walls: Walls = Field(default_factory=Walls, description="per-face conditions: x_min, x_max, y_min, ... (d faces x 2)")
+    walls: Walls = Field(
+        default_factory=Walls, description="per-face conditions: x_min, x_max, y_min, ... (2 faces per axis)"
+    )
 
     @property
     def cell_size(self) -> float:
@@ -188,7 +190,9 @@ class Obstacle(Spec):
         "plane: a point on the surface; metres"
     )
     size: list[Value] | None = Field(default=None, description="(d,) edge lengths of a box or ellipsoid, metres")
-    angle: Value = Field(default_factory=_zero, description="rotation (box, ellipsoid, polygon) or slope (plane), degrees")
+    angle: Value = Field(
+        default_factory=_zero, description="rotation (box, ellipsoid, polygon) or slope (plane), degrees"
+    )
     vertices: list[tuple[float, float]] | None = Field(
         default=None, description="(n, 2) polygon corners in the x-y plane relative to position, metres"
     )
@@ -303,7 +307,8 @@ def _shape_problems(where: str, obstacle: Obstacle, dim: int) -> list[tuple[str,
     elif obstacle.vertices is not None:
         found.append((f"{where}.vertices", f"only polygons take vertices, not a {obstacle.shape}"))
     if obstacle.shape == "plane" and not all(-90 < a < 90 for a in obstacle.angle.range):
-        found.append((f"{where}.angle", f"a plane's slope must lie in (-90, 90) degrees, got {list(obstacle.angle.range)}"))
+        slope = list(obstacle.angle.range)
+        found.append((f"{where}.angle", f"a plane's slope must lie in (-90, 90) degrees, got {slope}"))
     moving = obstacle.velocity is not None and any(v.low != 0 or v.high != 0 for v in obstacle.velocity)
     if moving and obstacle.is_static_shape:
         found.append((f"{where}.velocity", "polygons, planes and rotated bodies are static: velocity must be 0"))
@@ -311,7 +316,8 @@ def _shape_problems(where: str, obstacle: Obstacle, dim: int) -> list[tuple[str,
 
 
 def _outside_domain(where: str, body: Block | Obstacle, bounds: list[tuple[float, float]], duration: float):
-    """Axes where a body's box (its swept box for a moving obstacle, its turned box for a rotated block) leaves the domain."""
+    """Axes where a body's box leaves the domain: its swept box for a moving obstacle, its turned box
+    for a rotated block."""
     found = []
     velocity = body.velocity or [_zero()] * len(bounds)
     turned = isinstance(body, Block) and not (body.angle.is_fixed and body.angle.low == 0.0)
@@ -325,7 +331,10 @@ def _outside_domain(where: str, body: Block | Obstacle, bounds: list[tuple[float
             high = pos.high + size.high / 2 + reach[axis]
         if low < lo or high > hi:
             found.append(
-                (f"{where}.position[{axis}]", f"spans [{low:g}, {high:g}] on axis {axis}, outside the domain [{lo:g}, {hi:g}]")
+                (
+                    f"{where}.position[{axis}]",
+                    f"spans [{low:g}, {high:g}] on axis {axis}, outside the domain [{lo:g}, {hi:g}]",
+                )
             )
     return found
 

@@ -34,7 +34,8 @@ def channel(viscosity: float, substeps: int = 15) -> dict:
 
 
 def middle_profile(viscosity: float, registry) -> tuple[np.ndarray, np.ndarray]:
-    """(y bin centres, mean x velocity) at t = 0.5 s (5 viscous time scales h^2 / (pi^2 nu)), away from the slug ends."""
+    """(y bin centres, mean x velocity) at t = 0.5 s (5 viscous time scales h^2 / (pi^2 nu)),
+    away from the slug ends."""
     scene = parse_scene(channel(viscosity))
     position = build_simulator(scene, registry, "<test>").simulate(scene, 0).position
     u = (position[-1, :, 0] - position[-2, :, 0]) / scene.time.frame_dt

@@ -108,7 +108,10 @@ class WeaklyCompressibleFluid(ConstitutiveModel):
     def kernel_parameters(values: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         zeros = np.zeros_like(values["bulk_modulus"])
         return {
-            "mu": values["viscosity"], "lam": zeros, "param_a": values["bulk_modulus"], "param_b": values["eos_exponent"]
+            "mu": values["viscosity"],
+            "lam": zeros,
+            "param_a": values["bulk_modulus"],
+            "param_b": values["eos_exponent"],
         }
 
 

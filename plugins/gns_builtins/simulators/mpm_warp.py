@@ -33,7 +33,8 @@ class MlsMpm(GroundTruthSimulator):
         cfl: float = Field(default=0.5, gt=0, le=1, description="substep dt must stay below cfl * dx / wave speed")
 
     def check(self, scene: SceneSpec) -> list[tuple[str, str]]:
-        """Adds constitutive-parameter validation, the elastic-wave CFL limit and the viscous limit to the generic checks."""
+        """Adds constitutive-parameter validation, the elastic-wave CFL limit and the viscous limit
+        to the generic checks."""
         problems = super().check(scene)
         fastest, fastest_where = 0.0, ""
         viscous, viscous_where = math.inf, ""
