@@ -7,14 +7,13 @@ boundary condition acted on it.
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 import pytest
 
 from gns_framework.simulation.build import build_simulator
 from gns_framework.simulation.sampling import sample_scene
 from gns_framework.simulation.scene_spec import parse_scene
+from gns_framework.simulation.shapes import polygon_contains, rotate_xy
 
 pytest.importorskip("warp")
 
@@ -155,8 +154,6 @@ SHAPED_OBSTACLES = {
 
 def inside_margin(obstacle: dict, points: np.ndarray) -> np.ndarray:
     """(n,) signed depth of each point inside the shape (positive inside), from the spec alone, float64."""
-    from gns_framework.simulation.shapes import rotate_xy
-
     d = points.shape[1]
     angle = obstacle.get("angle", 0.0)
     position = np.array(obstacle["position"], dtype=float)
@@ -168,8 +165,6 @@ def inside_margin(obstacle: dict, points: np.ndarray) -> np.ndarray:
         p = points[:, None, :2]
         t = np.clip(((p - a) * (b - a)).sum(-1) / ((b - a) ** 2).sum(-1), 0, 1)
         gap = np.linalg.norm(p - (a + t[..., None] * (b - a)), axis=-1).min(axis=1)
-        from gns_framework.simulation.shapes import polygon_contains
-
         return np.where(polygon_contains(points, corners), gap, -gap)
     half = np.array(obstacle["size"]) / 2
     local = rotate_xy(points, -angle, position + half) - (position + half)
