@@ -27,9 +27,10 @@ if TYPE_CHECKING:
 
 
 class Params(BaseModel):
-    """Base of every component's ``Params``: unknown keys are errors."""
+    """Base of every component's ``Params``: unknown keys are errors; a number where a string
+    is expected is the text it was written as (see ``yaml_loading``)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", coerce_numbers_to_str=True)
 
 
 @dataclass(frozen=True)

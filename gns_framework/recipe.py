@@ -24,13 +24,14 @@ REFERENCE_NOISE_STD = 6.7e-4
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    # A number where a string is expected is that string (``name: 1e5``, see yaml_loading).
+    model_config = ConfigDict(extra="forbid", coerce_numbers_to_str=True)
 
 
 class ComponentSpec(BaseModel):
     """``name`` of a registered component plus its parameters."""
 
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(extra="allow", coerce_numbers_to_str=True)
     name: str
 
     @property

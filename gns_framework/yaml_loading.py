@@ -1,7 +1,15 @@
-"""YAML reading for recipes and scene specs: duplicate keys are errors, and errors carry line numbers."""
+"""YAML reading for recipes and scene specs: duplicate keys are errors, and errors carry line numbers.
+
+Numbers are read as a user writes them: PyYAML follows YAML 1.1, where
+``3.537e5`` and ``1e-3`` (no sign or no dot in the exponent form) are strings;
+here every YAML 1.2 float is a float. A float keeps the text it was written
+as, so a field that expects a string (a name, a path) gets ``1e5`` back, not
+``100000.0`` (the schemas set ``coerce_numbers_to_str``).
+"""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import yaml
@@ -9,8 +17,36 @@ import yaml
 from .errors import RecipeError
 
 
+class YamlFloat(float):
+    """A float read from YAML that remembers its text; ``str()`` gives the text back."""
+
+    text: str
+
+    def __new__(cls, value: float, text: str) -> "YamlFloat":
+        number = super().__new__(cls, value)
+        number.text = text
+        return number
+
+    def __str__(self) -> str:
+        return self.text
+
+
 class _StrictLoader(yaml.SafeLoader):
     pass
+
+
+# YAML 1.2 core-schema floats with an exponent (1e5, 3.537e5, .5E-3, 2.E+4); dotted
+# numbers without one are floats in YAML 1.1 already.
+_EXPONENT_FLOAT = re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$")
+_StrictLoader.add_implicit_resolver("tag:yaml.org,2002:float", _EXPONENT_FLOAT, list("-+0123456789."))
+
+
+def _float_with_text(loader: _StrictLoader, node: yaml.ScalarNode) -> float:
+    value = loader.construct_yaml_float(node)
+    return YamlFloat(value, node.value) if node.style is None else value
+
+
+_StrictLoader.add_constructor("tag:yaml.org,2002:float", _float_with_text)
 
 
 def _mapping_without_duplicates(loader: _StrictLoader, node: yaml.MappingNode, deep: bool = False) -> dict:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..contracts import Material
+from . import shapes
 from .scene_spec import Block, Obstacle, Range, SceneSpec
 
 
@@ -21,14 +22,17 @@ class BodySample:
     Attributes:
         location: where the body is in the spec (``blocks[0]``), for messages.
         material: registered material name.
-        shape: ``box`` or ``ellipsoid`` (inscribed in the box).
-        lower: (d,) lower corner of the bounding box at t = 0, metres.
-        size: (d,) edge lengths of the bounding box, metres.
+        shape: ``box``, ``ellipsoid`` (inscribed in the box), ``polygon`` or ``plane``.
+        lower: (d,) lower corner of the bounding box before rotation at t = 0;
+            a polygon's vertex origin; a point on a plane's surface; metres.
+        size: (d,) edge lengths of the bounding box (zeros for polygons and planes), metres.
         velocity: (d,) initial (blocks) or constant (obstacles) velocity, m/s.
         position: (n, d) float64 particle positions at t = 0.
         values: property and parameter name -> (n,) float64 per-particle values
             the spec sets for this body.
         friction: Coulomb coefficient of an obstacle's surface (0 for blocks).
+        angle: rotation about the box centre, or a plane's slope, degrees in the x-y plane.
+        vertices: (m, 2) a polygon's corners, counter-clockwise, in the domain's frame, metres.
     """
 
     location: str
@@ -40,6 +44,8 @@ class BodySample:
     position: np.ndarray
     values: dict[str, np.ndarray] = field(default_factory=dict)
     friction: float = 0.0
+    angle: float = 0.0
+    vertices: np.ndarray | None = None
 
     @property
     def num_particles(self) -> int:
@@ -119,6 +125,28 @@ def fill(shape: str, lower: np.ndarray, size: np.ndarray, spacing: float) -> np.
     return points
 
 
+def _particles(
+    body: Block | Obstacle, lower: np.ndarray, size: np.ndarray, angle: float, vertices: np.ndarray | None,
+    scene: SceneSpec,
+) -> np.ndarray:
+    """(n, d) particles of a body at t = 0; a static shaped obstacle keeps those inside the domain.
+
+    Boxes, ellipsoids and polygons are filled; a plane, being unbounded below,
+    is recorded as ``particles_per_cell`` rows under its surface (one cell deep).
+    """
+    spacing = scene.particle_spacing
+    bounds = np.array(scene.domain.bounds, dtype=np.float64)
+    if body.shape == "plane":
+        return shapes.plane_layer(lower, angle, bounds, spacing, scene.particles_per_cell)
+    if body.shape == "polygon":
+        points = shapes.polygon_lattice(vertices, spacing)
+    else:
+        points = shapes.rotate_xy(fill(body.shape, lower, size, spacing), angle, lower + size / 2)
+    if isinstance(body, Obstacle) and body.is_static_shape:
+        points = points[shapes.inside(points, bounds)]
+    return points
+
+
 def _sample_body(
     location: str, body: Block | Obstacle, scene: SceneSpec, rng: np.random.Generator
 ) -> BodySample:
@@ -126,7 +154,12 @@ def _sample_body(
     lower = _draw_vector(body.position, rng, d)
     size = _draw_vector(body.size, rng, d)
     velocity = _draw_vector(body.velocity, rng, d)
-    position = fill(body.shape, lower, size, scene.particle_spacing)
+    angle = float(_draw(body.angle, rng, 1)[0])
+    vertices = None
+    if isinstance(body, Obstacle) and body.vertices is not None:
+        corners = lower[:2] + np.array(body.vertices, dtype=np.float64)
+        vertices = shapes.counter_clockwise(shapes.rotate_xy(corners, angle, lower[:2]))
+    position = _particles(body, lower, size, angle, vertices, scene)
     if scene.jitter > 0 and isinstance(body, Block):
         position = position + rng.uniform(-scene.jitter, scene.jitter, position.shape) * scene.particle_spacing
     values = {}
@@ -136,7 +169,9 @@ def _sample_body(
             values[name] = _draw(value, rng, len(position))
     else:
         friction = float(_draw(body.friction, rng, 1)[0])
-    return BodySample(location, body.material, body.shape, lower, size, velocity, position, values, friction)
+    return BodySample(
+        location, body.material, body.shape, lower, size, velocity, position, values, friction, angle, vertices
+    )
 
 
 def sample_scene(scene: SceneSpec, seed: int) -> SceneSample:

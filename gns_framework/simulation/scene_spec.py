@@ -8,12 +8,14 @@ value per particle, for material properties), which gives a dataset its variety.
 Validation reports every problem at once, each with its location
 (``blocks[1].size: ...``) and a "did you mean" for misspelt keys.
 
-Units are SI: metres, seconds, kilograms; angles never appear (friction is
-given as a coefficient, tan of the friction angle).
+Units are SI: metres, seconds, kilograms; friction is a coefficient (tan of
+the friction angle). Angles of rotated bodies and inclined planes are in
+degrees, counter-clockwise in the x-y plane (about the z axis in 3D, y up).
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -28,7 +30,7 @@ from ..yaml_loading import load_yaml_mapping
 class Spec(BaseModel):
     """Base of every scene-spec section: unknown keys are errors."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, coerce_numbers_to_str=True)
 
 
 class Range(Spec):
@@ -70,17 +72,67 @@ Value = Annotated[Range, BeforeValidator(_number_or_range)]
 """A number, or ``{range: [low, high], per: trajectory|particle}``."""
 
 
+def _wall_condition(value: Any) -> Any:
+    if isinstance(value, str) and value in ("slip", "no_slip"):
+        return value
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0:
+        return float(value)
+    raise ValueError("expected a Coulomb friction coefficient >= 0, 'slip' or 'no_slip'")
+
+
+WallCondition = Annotated[float | Literal["slip", "no_slip"], BeforeValidator(_wall_condition)]
+"""A face of the domain: a Coulomb friction coefficient, ``slip`` (frictionless) or ``no_slip``."""
+
+FACES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
+"""Domain faces, in the order (axis 0 lower, axis 0 upper, axis 1 lower, ...)."""
+
+
+class Walls(Spec):
+    """Conditions of individual faces of the domain; a face not named keeps ``wall_friction``.
+
+    A friction coefficient mu: approaching motion stops and the tangential
+    velocity loses mu times the removed normal speed (Coulomb). ``slip``: mu = 0.
+    ``no_slip``: the tangential velocity at the face is zero; the fluid may still
+    leave the face.
+    """
+
+    x_min: WallCondition | None = None
+    x_max: WallCondition | None = None
+    y_min: WallCondition | None = None
+    y_max: WallCondition | None = None
+    z_min: WallCondition | None = None
+    z_max: WallCondition | None = None
+
+
 class Domain(Spec):
     """The box particles live in and the background grid that covers it."""
 
     bounds: list[tuple[float, float]] = Field(description="(d, 2) lower and upper wall per axis, metres")
     grid: int = Field(ge=4, le=4096, description="grid cells along the longest axis (cell size dx = longest / grid)")
-    wall_friction: float = Field(default=0.5, ge=0, description="Coulomb friction coefficient of the domain walls")
+    wall_friction: float = Field(
+        default=0.5, ge=0, description="Coulomb friction coefficient of every face that `walls` does not name"
+    )
+    walls: Walls = Field(
+        default_factory=Walls, description="per-face conditions: x_min, x_max, y_min, ... (2 faces per axis)"
+    )
 
     @property
     def cell_size(self) -> float:
         """dx in metres."""
         return max(hi - lo for lo, hi in self.bounds) / self.grid
+
+    def wall_conditions(self) -> list[tuple[float, bool]]:
+        """(friction coefficient, no-slip) of the 2 d faces, in ``FACES`` order."""
+        conditions = []
+        for face in FACES[: 2 * len(self.bounds)]:
+            condition = getattr(self.walls, face)
+            if condition is None:
+                conditions.append((self.wall_friction, False))
+            elif condition == "no_slip":
+                conditions.append((0.0, True))
+            else:
+                conditions.append((0.0 if condition == "slip" else condition, False))
+        return conditions
 
 
 class Time(Spec):
@@ -95,13 +147,18 @@ class Time(Spec):
         return self.frame_dt / self.substeps
 
 
+def _zero() -> Range:
+    return Range(range=(0.0, 0.0))
+
+
 class Block(Spec):
     """A body of one material, filled with particles at the start."""
 
     material: str = Field(description="registered material name")
     shape: Literal["box", "ellipsoid"] = Field(default="box", description="ellipsoid: inscribed in the box")
-    position: list[Value] = Field(description="(d,) lower corner of the bounding box, metres")
+    position: list[Value] = Field(description="(d,) lower corner of the bounding box before rotation, metres")
     size: list[Value] = Field(description="(d,) edge lengths of the bounding box, metres")
+    angle: Value = Field(default_factory=_zero, description="rotation about the box centre, degrees, in the x-y plane")
     velocity: list[Value] | None = Field(default=None, description="(d,) initial velocity, m/s")
     properties: dict[str, Value] = Field(
         default_factory=dict, description="material properties, recorded per particle as model inputs"
@@ -111,15 +168,41 @@ class Block(Spec):
     )
 
 
+SHAPED = ("polygon", "plane")
+"""Obstacle shapes that are static and take no ``size``."""
+
+
 class Obstacle(Spec):
-    """A kinematic rigid body: prescribed motion, Coulomb friction, recorded as kinematic particles."""
+    """A kinematic rigid body: prescribed motion, Coulomb friction, recorded as kinematic particles.
+
+    ``box`` and ``ellipsoid`` (a disc or sphere when the sizes are equal) fill
+    the box at ``position`` of edges ``size``, turned by ``angle`` about its
+    centre. ``polygon`` (2D) has ``vertices`` relative to ``position``, turned
+    by ``angle`` about it. ``plane`` is the half-space below the surface through
+    ``position`` that rises at ``angle`` along +x (an inclined plane, a ramp).
+    Only unrotated boxes and ellipsoids may move; the other shapes are static.
+    """
 
     material: str = Field(description="registered kinematic material name")
-    shape: Literal["box", "ellipsoid"] = "box"
-    position: list[Value] = Field(description="(d,) lower corner of the bounding box at t = 0, metres")
-    size: list[Value] = Field(description="(d,) edge lengths of the bounding box, metres")
+    shape: Literal["box", "ellipsoid", "polygon", "plane"] = "box"
+    position: list[Value] = Field(
+        description="(d,) box/ellipsoid: lower corner before rotation at t = 0; polygon: origin of the vertices; "
+        "plane: a point on the surface; metres"
+    )
+    size: list[Value] | None = Field(default=None, description="(d,) edge lengths of a box or ellipsoid, metres")
+    angle: Value = Field(
+        default_factory=_zero, description="rotation (box, ellipsoid, polygon) or slope (plane), degrees"
+    )
+    vertices: list[tuple[float, float]] | None = Field(
+        default=None, description="(n, 2) polygon corners in the x-y plane relative to position, metres"
+    )
     velocity: list[Value] | None = Field(default=None, description="(d,) constant velocity, m/s")
     friction: Value = Field(default_factory=lambda: Range(range=(0.3, 0.3)), description="Coulomb coefficient")
+
+    @property
+    def is_static_shape(self) -> bool:
+        """Whether the body must stay put: a polygon, a plane, or a rotated box or ellipsoid."""
+        return self.shape in SHAPED or not (self.angle.is_fixed and self.angle.low == 0.0)
 
 
 class SceneSpec(Spec):
@@ -180,6 +263,11 @@ class SceneSpec(Spec):
                 found.append((f"domain.bounds[{axis}]", f"lower must be below upper, got {[lo, hi]}"))
                 bounds_ok = False
         need_dim("gravity", self.gravity)
+        for face in FACES[2 * d :]:
+            if getattr(self.domain.walls, face) is not None:
+                found.append((f"domain.walls.{face}", f"a {d}D domain has faces {', '.join(FACES[: 2 * d])} only"))
+        for i, obstacle in enumerate(self.obstacles):
+            found += _shape_problems(f"obstacles[{i}]", obstacle, d)
         for where, body in [(f"blocks[{i}]", b) for i, b in enumerate(self.blocks)] + [
             (f"obstacles[{i}]", o) for i, o in enumerate(self.obstacles)
         ]:
@@ -189,29 +277,87 @@ class SceneSpec(Spec):
                 for axis, value in enumerate(getattr(body, field) or []):
                     if value.per == "particle":
                         found.append((f"{where}.{field}[{axis}]", "per: particle applies to properties only"))
-            for axis, size in enumerate(body.size):
+            for field in ("angle", "friction"):
+                value = getattr(body, field, None)
+                if value is not None and value.per == "particle":
+                    found.append((f"{where}.{field}", "per: particle applies to properties only"))
+            for axis, size in enumerate(body.size or []):
                 if size.low <= 0:
                     found.append((f"{where}.size[{axis}]", f"must be > 0, got {size.low}"))
-            if shaped and bounds_ok:
-                # Obstacles move at constant velocity: their swept box must stay inside too.
-                duration = (self.time.frames - 1) * self.time.frame_dt
-                velocity = body.velocity or [Range(range=(0.0, 0.0))] * d
-                for axis, ((lo, hi), pos, size, vel) in enumerate(
-                    zip(self.domain.bounds, body.position, body.size, velocity)
-                ):
-                    sweep = (0.0, 0.0) if isinstance(body, Block) else (vel.low * duration, vel.high * duration)
-                    low, high = pos.low + min(0.0, sweep[0]), pos.high + size.high + max(0.0, sweep[1])
-                    if low < lo or high > hi:
-                        found.append(
-                            (
-                                f"{where}.position[{axis}]",
-                                f"spans [{low:g}, {high:g}] on axis {axis}, outside the domain [{lo:g}, {hi:g}]",
-                            )
-                        )
-        for i, obstacle in enumerate(self.obstacles):
-            if obstacle.friction.per == "particle":
-                found.append((f"obstacles[{i}].friction", "per: particle applies to properties only"))
+            if isinstance(body, Obstacle) and body.is_static_shape:
+                continue  # static shapes record only their particles inside the domain
+            if shaped and bounds_ok and body.size is not None:
+                found += _outside_domain(where, body, self.domain.bounds, (self.time.frames - 1) * self.time.frame_dt)
         return found
+
+
+def _shape_problems(where: str, obstacle: Obstacle, dim: int) -> list[tuple[str, str]]:
+    """What an obstacle's shape needs: size for boxes and ellipsoids, vertices for polygons, no motion when shaped."""
+    found = []
+    if obstacle.shape in SHAPED:
+        if obstacle.size is not None:
+            found.append((f"{where}.size", f"a {obstacle.shape} takes no size"))
+    elif obstacle.size is None:
+        found.append((f"{where}.size", f"a {obstacle.shape} needs size: (d,) edge lengths"))
+    if obstacle.shape == "polygon":
+        if dim != 2:
+            found.append((f"{where}.shape", "polygons are 2D; in 3D use box, ellipsoid or plane"))
+        if obstacle.vertices is None or len(obstacle.vertices) < 3:
+            found.append((f"{where}.vertices", "a polygon needs at least 3 vertices [[x, y], ...]"))
+    elif obstacle.vertices is not None:
+        found.append((f"{where}.vertices", f"only polygons take vertices, not a {obstacle.shape}"))
+    if obstacle.shape == "plane" and not all(-90 < a < 90 for a in obstacle.angle.range):
+        slope = list(obstacle.angle.range)
+        found.append((f"{where}.angle", f"a plane's slope must lie in (-90, 90) degrees, got {slope}"))
+    moving = obstacle.velocity is not None and any(v.low != 0 or v.high != 0 for v in obstacle.velocity)
+    if moving and obstacle.is_static_shape:
+        found.append((f"{where}.velocity", "polygons, planes and rotated bodies are static: velocity must be 0"))
+    return found
+
+
+def _outside_domain(where: str, body: Block | Obstacle, bounds: list[tuple[float, float]], duration: float):
+    """Axes where a body's box leaves the domain: its swept box for a moving obstacle, its turned box
+    for a rotated block."""
+    found = []
+    velocity = body.velocity or [_zero()] * len(bounds)
+    turned = isinstance(body, Block) and not (body.angle.is_fixed and body.angle.low == 0.0)
+    reach = _rotated_half_extents(body) if turned else None
+    for axis, ((lo, hi), pos, size, vel) in enumerate(zip(bounds, body.position, body.size, velocity)):
+        sweep = (0.0, 0.0) if isinstance(body, Block) else (vel.low * duration, vel.high * duration)
+        low, high = pos.low + min(0.0, sweep[0]), pos.high + size.high + max(0.0, sweep[1])
+        if reach is not None and axis < 2:
+            # The box turns about its centre: it reaches the centre +- the turned half extent.
+            low = pos.low + size.low / 2 - reach[axis]
+            high = pos.high + size.high / 2 + reach[axis]
+        if low < lo or high > hi:
+            found.append(
+                (
+                    f"{where}.position[{axis}]",
+                    f"spans [{low:g}, {high:g}] on axis {axis}, outside the domain [{lo:g}, {hi:g}]",
+                )
+            )
+    return found
+
+
+def _rotated_half_extents(block: Block) -> tuple[float, float]:
+    """Largest x and y half extents of the block's largest box over its angle range.
+
+    Along x the extent a |cos t| + b |sin t| peaks at the ends of the range or
+    where tan t = +-b / a (mod 90 degrees), so those angles are all it needs.
+    """
+    a, b = block.size[0].high / 2, block.size[1].high / 2
+    low, high = block.angle.range
+    candidates = {low, high}
+    for critical in (math.degrees(math.atan2(b, a)), math.degrees(math.atan2(a, b))):
+        for turn in range(math.floor((low - critical) / 90) - 1, math.ceil((high + critical) / 90) + 2):
+            for angle in (turn * 90 + critical, turn * 90 - critical):
+                if low <= angle <= high:
+                    candidates.add(angle)
+    radians = [math.radians(t) for t in candidates]
+    return (
+        max(a * abs(math.cos(t)) + b * abs(math.sin(t)) for t in radians),
+        max(a * abs(math.sin(t)) + b * abs(math.cos(t)) for t in radians),
+    )
 
 
 def parse_scene(raw: Any, source: str | Path = "<scene>") -> SceneSpec:

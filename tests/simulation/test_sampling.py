@@ -69,3 +69,47 @@ def test_importing_and_listing_components_does_not_import_warp():
         "assert 'warp' not in sys.modules, 'warp was imported'\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def _with_obstacle(obstacle: dict) -> dict:
+    raw = mixed()
+    raw["obstacles"] = [{"material": "rigid", **obstacle}]
+    return raw
+
+
+def test_rotated_box_particles_keep_their_count_and_spacing_about_the_centre():
+    flat = sample_scene(parse_scene(_with_obstacle({"position": [0.1, 0.2], "size": [0.25, 0.0625]})), 0).obstacles[0]
+    turned = sample_scene(
+        parse_scene(_with_obstacle({"position": [0.1, 0.2], "size": [0.25, 0.0625], "angle": 90.0})), 0
+    ).obstacles[0]
+    assert turned.num_particles == flat.num_particles
+    np.testing.assert_allclose(turned.position.mean(0), flat.position.mean(0), atol=1e-12)
+    # Turned by 90 degrees the long side stands along y.
+    np.testing.assert_allclose(np.ptp(turned.position, axis=0), np.ptp(flat.position, axis=0)[::-1], atol=1e-12)
+
+
+def test_plane_is_recorded_as_rows_under_its_surface_inside_the_domain():
+    raw = _with_obstacle({"shape": "plane", "position": [0.25, 0.1], "angle": 20.0})
+    scene = parse_scene(raw)
+    plane = sample_scene(scene, 0).obstacles[0]
+    slope = np.tan(np.radians(20.0))
+    below = 0.1 + slope * (plane.position[:, 0] - 0.25) - plane.position[:, 1]  # vertical depth under the surface
+    depth = below * np.cos(np.radians(20.0))
+    assert (depth > 0).all() and depth.max() < scene.domain.cell_size
+    assert np.unique(np.round(depth / scene.particle_spacing - 0.5, 6)).size == scene.particles_per_cell
+    assert (plane.position >= 0).all() and (plane.position <= 0.5).all()
+    # The rows span the domain: first and last particles near the side walls.
+    assert plane.position[:, 0].min() < 2 * scene.particle_spacing
+    assert plane.position[:, 0].max() > 0.5 - 2 * scene.particle_spacing
+
+
+def test_polygon_particles_fill_it_and_its_vertices_turn_counter_clockwise():
+    clockwise = [[0, 0], [0, 0.2], [0.2, 0.2], [0.2, 0]]
+    obstacle = sample_scene(
+        parse_scene(_with_obstacle({"shape": "polygon", "position": [0.1, 0.1], "vertices": clockwise})), 0
+    ).obstacles[0]
+    x, y = obstacle.vertices[:, 0], obstacle.vertices[:, 1]
+    assert np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0
+    spacing = parse_scene(mixed()).particle_spacing
+    assert obstacle.num_particles == round(0.2 / spacing) ** 2
+    assert (obstacle.position > 0.1).all() and (obstacle.position < 0.3).all()

@@ -10,7 +10,7 @@ import pytest
 from gns_framework.errors import RecipeError
 from gns_framework.simulation.build import build_simulator
 from gns_framework.simulation.scene_spec import load_scene, parse_scene
-from simulation.scenes import mixed
+from simulation.scenes import column_collapse_3d, mixed
 
 SCENES = sorted((Path(__file__).resolve().parents[2] / "scenes").rglob("*.yaml"))
 
@@ -23,7 +23,8 @@ def problems(raw, registry=None) -> dict[str, str]:
 
 
 def test_example_scenes_exist():
-    expected = {"sand_collapse_2d", "water_dam_break_2d", "sand_collapse_3d", "multi_material_2d"}
+    expected = {"sand_collapse_2d", "water_dam_break_2d", "sand_collapse_3d", "multi_material_2d",
+                "sand_ramps_2d", "water_ramps_2d", "sand_ramps_3d"}
     assert {p.stem for p in SCENES} >= expected
 
 
@@ -111,3 +112,55 @@ def test_duplicate_yaml_keys_are_errors(tmp_path):
     (tmp_path / "scene.yaml").write_text("dim: 2\ndim: 3\n")
     with pytest.raises(RecipeError, match="duplicate key 'dim'"):
         load_scene(tmp_path / "scene.yaml")
+
+
+def test_wall_conditions_default_to_wall_friction_on_every_face():
+    raw = mixed()
+    raw["domain"]["wall_friction"] = 0.4
+    assert parse_scene(raw).domain.wall_conditions() == [(0.4, False)] * 4
+    raw["domain"]["walls"] = {"y_min": 0.8, "x_min": "slip", "x_max": "no_slip"}
+    assert parse_scene(raw).domain.wall_conditions() == [(0.0, False), (0.0, True), (0.8, False), (0.4, False)]
+
+
+def test_bad_wall_conditions_are_reported_with_their_face():
+    raw = mixed()
+    raw["domain"]["walls"] = {"x_mn": "slip", "y_min": "sticky", "y_max": -0.1}
+    found = problems(raw)
+    assert "did you mean 'x_min'" in found["domain.walls.x_mn"]
+    assert "'slip' or 'no_slip'" in found["domain.walls.y_min"]
+    assert "friction coefficient >= 0" in found["domain.walls.y_max"]
+    raw["domain"]["walls"] = {"z_min": 0.2}
+    assert "faces x_min, x_max, y_min, y_max only" in problems(raw)["domain.walls.z_min"]
+
+
+def test_shaped_obstacles_are_checked_for_what_their_shape_needs():
+    raw = mixed()
+    raw["obstacles"] = [
+        {"material": "rigid", "shape": "plane", "position": [0.1, 0.1], "size": [0.1, 0.1], "angle": 95},
+        {"material": "rigid", "shape": "polygon", "position": [0.1, 0.1], "vertices": [[0, 0], [0.1, 0]]},
+        {"material": "rigid", "shape": "box", "position": [0.1, 0.1], "size": [0.1, 0.1], "angle": 10,
+         "velocity": [0.1, 0.0]},
+        {"material": "rigid", "shape": "ellipsoid", "position": [0.1, 0.1]},
+        {"material": "rigid", "shape": "box", "position": [0.1, 0.1], "size": [0.1, 0.1], "vertices": [[0, 0]]},
+    ]
+    found = problems(raw)
+    assert found["obstacles[0].size"] == "a plane takes no size"
+    assert "(-90, 90) degrees" in found["obstacles[0].angle"]
+    assert "at least 3 vertices" in found["obstacles[1].vertices"]
+    assert "static: velocity must be 0" in found["obstacles[2].velocity"]
+    assert "needs size" in found["obstacles[3].size"]
+    assert "only polygons take vertices" in found["obstacles[4].vertices"]
+
+
+def test_polygons_are_2d_and_rotated_blocks_must_stay_in_the_domain():
+    raw = copy.deepcopy(mixed())
+    raw["blocks"][1]["angle"] = {"range": [0, 90]}
+    raw["blocks"][1]["size"] = [0.2, 0.02]
+    raw["blocks"][1]["position"] = [0.2, 0.1]  # the 0.2 m slab stands up to 0.21 + 0.1 m: inside
+    assert parse_scene(raw)
+    raw["blocks"][1]["position"] = [0.2, 0.01]  # turned 90 degrees it reaches below the floor
+    assert "outside the domain" in problems(raw)["blocks[1].position[1]"]
+    raw = {**column_collapse_3d(), "obstacles": [
+        {"material": "rigid", "shape": "polygon", "position": [0.1, 0.1, 0.1], "vertices": [[0, 0], [1, 0], [0, 1]]}
+    ]}
+    assert "polygons are 2D" in problems(raw)["obstacles[0].shape"]

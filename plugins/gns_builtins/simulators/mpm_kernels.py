@@ -29,6 +29,8 @@ GOOP = wp.constant(2)
 
 BOX = wp.constant(0)
 ELLIPSOID = wp.constant(1)
+POLYGON = wp.constant(2)
+PLANE = wp.constant(3)
 """Obstacle shape ids."""
 
 _OPTIONS = {"enable_backward": False, "deterministic": wp.DeterministicMode.RUN_TO_RUN, "max_unroll": 27}
@@ -64,6 +66,38 @@ def coulomb_contact(v_rel: Any, normal: Any, mu: float):
     if vt_norm <= -mu * vn:
         return vt * 0.0
     return vt * (1.0 + mu * vn / vt_norm)
+
+
+@wp.func
+def no_slip_contact(v_rel: Any, normal: Any):
+    """Velocity relative to a no-slip surface: no tangential motion, and only separating normal motion."""
+    return wp.max(wp.dot(v_rel, normal), 0.0) * normal
+
+
+@wp.func
+def polygon_distance(p: wp.vec2, vertices: wp.array(dtype=wp.vec2), start: int, count: int):
+    """Signed distance from ``p`` to a counter-clockwise polygon (negative inside), and the outward
+    normal of its nearest edge. Inside by the even-odd crossing rule."""
+    best = float(1.0e30)
+    normal = wp.vec2(0.0, 1.0)
+    crossings = int(0)
+    for i in range(count):
+        a = vertices[start + i]
+        b = vertices[start + (i + 1) % count]
+        edge = b - a
+        t = wp.clamp(wp.dot(p - a, edge) / wp.dot(edge, edge), 0.0, 1.0)
+        gap = wp.length(p - (a + t * edge))
+        if gap < best:
+            best = gap
+            normal = wp.normalize(wp.vec2(edge[1], -edge[0]))
+        above_a = a[1] > p[1]
+        above_b = b[1] > p[1]
+        if above_a != above_b:
+            if p[0] < a[0] + (p[1] - a[1]) / (b[1] - a[1]) * edge[0]:
+                crossings += 1
+    if crossings % 2 == 1:
+        best = -best
+    return best, normal
 
 
 @cache
@@ -201,8 +235,8 @@ def kernels(dim: int) -> Kernels:
         """Scatter APIC momentum and the stress impulse -dt V0 (4/dx^2) tau of each particle to its stencil.
 
         Per-model parameters: sand (param_a = Drucker-Prager alpha), fluid
-        (param_a = bulk modulus K, param_b = Tait exponent gamma), goop
-        (param_a = von Mises yield strain).
+        (mu = dynamic viscosity eta, param_a = bulk modulus K, param_b = Tait
+        exponent gamma), goop (param_a = von Mises yield strain).
         """
         p = wp.tid()
         rel = (x[p] - origin) * inv_dx
@@ -220,7 +254,12 @@ def kernels(dim: int) -> Kernels:
             J[p] = Jp
             # Tait equation of state; a free surface cannot pull, so no tension.
             pressure = wp.max(param_a[p] / param_b[p] * (wp.pow(Jp, -param_b[p]) - 1.0), 0.0)
-            tau = wp.identity(n=wp.static(dim), dtype=float) * (-pressure * Jp)
+            # Newtonian viscous stress 2 eta dev(D), D = sym(C) the velocity gradient, on the rest volume:
+            # J ~ 1 in the weakly compressible bulk, and where a free surface tears (J > 1, no pressure)
+            # a Kirchhoff factor J would shrink the explicit viscous limit rho dx^2 / (2 d eta) by J.
+            strain_rate = 0.5 * (Cp + wp.transpose(Cp))
+            shear = strain_rate - wp.identity(n=wp.static(dim), dtype=float) * (wp.trace(Cp) / float(dim))
+            tau = wp.identity(n=wp.static(dim), dtype=float) * (-pressure * Jp) + (2.0 * mu[p]) * shear
         else:
             tau = hencky_stress(grad @ F[p], mu[p], lam[p], kind, param_a[p], F, p)
         affine = (-dt * volume[p] * 4.0 * inv_dx * inv_dx) * tau + mass[p] * Cp
@@ -246,18 +285,35 @@ def kernels(dim: int) -> Kernels:
         dt: float,
         time: float,
         gravity: vec,
-        lower: vec,
-        upper: vec,
-        wall_friction: float,
+        wall_lower: ivec,
+        wall_upper: ivec,
+        wall_friction: wp.array(dtype=float),
+        wall_no_slip: wp.array(dtype=int),
         obstacle_shape: wp.array(dtype=int),
-        obstacle_lower: wp.array(dtype=vec),
-        obstacle_size: wp.array(dtype=vec),
+        obstacle_centre: wp.array(dtype=vec),
+        obstacle_half: wp.array(dtype=vec),
+        obstacle_rotation: wp.array(dtype=wp.vec2),
         obstacle_velocity: wp.array(dtype=vec),
         obstacle_friction: wp.array(dtype=float),
+        obstacle_first_vertex: wp.array(dtype=int),
+        obstacle_vertex_count: wp.array(dtype=int),
+        polygon_vertices: wp.array(dtype=wp.vec2),
         grid_velocity: wp.array(dtype=vec),
     ):
         """Node velocity = momentum / mass + dt g, then frictional contact with walls and obstacles at ``time``.
 
+        Wall nodes are decided by integer index (``wall_lower`` / ``wall_upper``:
+        per axis, the node on or first beyond each wall): comparing float32
+        node positions with the bounds moves a wall by a cell when rounding
+        puts the node on it just outside. Face ``2 a`` (lower) and ``2 a + 1``
+        (upper) of axis ``a`` has its own Coulomb coefficient ``wall_friction``
+        or is no-slip (``wall_no_slip`` 1).
+
+        Obstacle ``k`` is a signed-distance shape in its own frame: centre at
+        t = 0, half extents, rotation (cos, sin) in the x-y plane. A box, an
+        ellipsoid, a plane (the half-space below local y = 0) or a polygon
+        (vertices in the domain frame; centre 0, no rotation). Nodes inside
+        (distance < 0) get Coulomb contact against the surface normal.
         Clears momentum and mass behind itself, ready for the next P2G.
         """
         n = wp.tid()
@@ -280,42 +336,70 @@ def kernels(dim: int) -> Kernels:
             pos[a] = origin[a] + float(node[a]) * dx
         for a in range(wp.static(dim)):
             normal = vec()
-            if pos[a] <= lower[a]:
+            face = int(-1)
+            if node[a] <= wall_lower[a]:
                 normal[a] = 1.0
-                vel = coulomb_contact(vel, normal, wall_friction)
-            elif pos[a] >= upper[a]:
+                face = 2 * a
+            elif node[a] >= wall_upper[a]:
                 normal[a] = -1.0
-                vel = coulomb_contact(vel, normal, wall_friction)
+                face = 2 * a + 1
+            if face >= 0:
+                if wall_no_slip[face] != 0:
+                    vel = no_slip_contact(vel, normal)
+                else:
+                    vel = coulomb_contact(vel, normal, wall_friction[face])
         for k in range(obstacle_shape.shape[0]):
-            half = 0.5 * obstacle_size[k]
+            half = obstacle_half[k]
             body_velocity = obstacle_velocity[k]
-            rel = pos - (obstacle_lower[k] + half + time * body_velocity)
+            rel = pos - (obstacle_centre[k] + time * body_velocity)
+            cs = obstacle_rotation[k]
+            local = vec()
+            for a in range(wp.static(dim)):
+                local[a] = rel[a]
+            local[0] = cs[0] * rel[0] + cs[1] * rel[1]
+            local[1] = -cs[1] * rel[0] + cs[0] * rel[1]
             distance = float(0.0)
-            normal = vec()
-            if obstacle_shape[k] == BOX:
+            local_normal = vec()
+            shape = obstacle_shape[k]
+            if shape == BOX:
                 # Signed distance to a box; inside, the nearest face gives the normal.
                 q = vec()
                 for a in range(wp.static(dim)):
-                    q[a] = wp.abs(rel[a]) - half[a]
+                    q[a] = wp.abs(local[a]) - half[a]
                 distance = q[0]
                 face = int(0)
                 for a in range(wp.static(dim)):
                     if q[a] > distance:
                         distance = q[a]
                         face = a
-                normal[face] = wp.sign(rel[face])
-            else:
-                # Distance to an ellipsoid, first order: scale to the unit sphere.
+                local_normal[face] = wp.sign(local[face])
+            elif shape == ELLIPSOID:
+                # Distance to an ellipsoid, first order: scale to the unit sphere (exact for a sphere).
                 scaled = vec()
                 smallest = half[0]
                 for a in range(wp.static(dim)):
-                    scaled[a] = rel[a] / half[a]
+                    scaled[a] = local[a] / half[a]
                     smallest = wp.min(smallest, half[a])
                 distance = (wp.length(scaled) - 1.0) * smallest
                 for a in range(wp.static(dim)):
-                    normal[a] = scaled[a] / half[a]
-                normal = wp.normalize(normal)
+                    local_normal[a] = scaled[a] / half[a]
+                local_normal = wp.normalize(local_normal)
+            elif shape == PLANE:
+                distance = local[1]
+                local_normal[1] = 1.0
+            else:
+                gap, edge_normal = polygon_distance(
+                    wp.vec2(local[0], local[1]), polygon_vertices, obstacle_first_vertex[k], obstacle_vertex_count[k]
+                )
+                distance = gap
+                local_normal[0] = edge_normal[0]
+                local_normal[1] = edge_normal[1]
             if distance < 0.0:
+                normal = vec()
+                for a in range(wp.static(dim)):
+                    normal[a] = local_normal[a]
+                normal[0] = cs[0] * local_normal[0] - cs[1] * local_normal[1]
+                normal[1] = cs[1] * local_normal[0] + cs[0] * local_normal[1]
                 vel = body_velocity + coulomb_contact(vel - body_velocity, normal, obstacle_friction[k])
         grid_velocity[n] = vel
 

@@ -10,7 +10,7 @@ import warp as wp
 from gns_framework.simulation.sampling import BodySample
 from gns_framework.simulation.scene_spec import SceneSpec
 
-from .mpm_kernels import BOX, ELLIPSOID, kernels
+from .mpm_kernels import BOX, ELLIPSOID, PLANE, POLYGON, kernels
 
 GRID_MARGIN = 3
 """Grid cells beyond each wall, so every particle's 3^d stencil stays on the grid."""
@@ -22,6 +22,29 @@ def resolve_device(name: str) -> str:
     if name == "auto":
         return "cuda:0" if wp.get_cuda_device_count() > 0 else "cpu"
     return name
+
+
+def obstacle_arrays(obstacles: list[BodySample], d: int, vec) -> list[tuple[np.ndarray, type]]:
+    """The grid update's obstacle inputs (see ``grid_update``): per-obstacle shape id, centre at t = 0,
+    half extents, rotation (cos, sin), velocity, friction, first vertex and vertex count, then all
+    polygon vertices (one dummy when there are none: Warp arrays are never empty here)."""
+    shape_ids = {"box": BOX, "ellipsoid": ELLIPSOID, "polygon": POLYGON, "plane": PLANE}
+    centre = [np.zeros(d) if o.shape == "polygon" else o.lower + o.size / 2 for o in obstacles]
+    angle = [0.0 if o.shape == "polygon" else math.radians(o.angle) for o in obstacles]
+    polygons = [o.vertices if o.vertices is not None else np.zeros((0, 2)) for o in obstacles]
+    counts = np.array([len(v) for v in polygons], dtype=np.int32)
+    vertices = np.concatenate([*polygons, np.zeros((1, 2))])
+    return [
+        (np.array([shape_ids[o.shape] for o in obstacles], dtype=np.int32), int),
+        (np.array(centre, dtype=np.float32).reshape(-1, d), vec),
+        (np.array([o.size / 2 for o in obstacles], dtype=np.float32).reshape(-1, d), vec),
+        (np.array([(math.cos(a), math.sin(a)) for a in angle], dtype=np.float32).reshape(-1, 2), wp.vec2),
+        (np.array([o.velocity for o in obstacles], dtype=np.float32).reshape(-1, d), vec),
+        (np.array([o.friction for o in obstacles], dtype=np.float32), float),
+        (np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int32)[: len(obstacles)], int),
+        (counts, int),
+        (vertices.astype(np.float32), wp.vec2),
+    ]
 
 
 class MpmSolver:
@@ -59,15 +82,23 @@ class MpmSolver:
         upper = np.array([hi for _, hi in scene.domain.bounds])
         self.lower, self.upper = self.k.vec(*lower), self.k.vec(*upper)
         self.origin = self.k.vec(*(lower - GRID_MARGIN * dx))
-        nodes = [math.ceil((hi - lo) / dx - 1e-9) + 2 * GRID_MARGIN + 1 for lo, hi in scene.domain.bounds]
+        cells = [math.ceil((hi - lo) / dx - 1e-9) for lo, hi in scene.domain.bounds]
+        nodes = [c + 2 * GRID_MARGIN + 1 for c in cells]
         self.res = self.k.ivec(*nodes)
+        # The node on each lower wall, and the node on or first beyond each upper wall.
+        self.wall_lower = self.k.ivec(*[GRID_MARGIN] * d)
+        self.wall_upper = self.k.ivec(*[GRID_MARGIN + c for c in cells])
         num_nodes = int(np.prod(nodes))
         self.gravity = self.k.vec(*scene.gravity_vector)
-        self.wall_friction = float(scene.domain.wall_friction)
 
         def array(values, dtype):
             return wp.array(np.ascontiguousarray(values), dtype=dtype, device=self.device)
 
+        walls = scene.domain.wall_conditions()
+        self.walls = [
+            array(np.array([friction for friction, _ in walls], dtype=np.float32), float),
+            array(np.array([no_slip for _, no_slip in walls], dtype=np.int32), int),
+        ]
         self.x = array(position.astype(np.float32), self.k.vec)
         self.v = array(velocity.astype(np.float32), self.k.vec)
         self.C = wp.zeros(n, dtype=self.k.mat, device=self.device)
@@ -77,14 +108,7 @@ class MpmSolver:
         self.params = [
             array(particles[name], float) for name in ("mass", "volume", "mu", "lam", "param_a", "param_b")
         ]
-        shapes = {"box": BOX, "ellipsoid": ELLIPSOID}
-        self.obstacles = [
-            array(np.array([shapes[o.shape] for o in obstacles], dtype=np.int32), int),
-            array(np.array([o.lower for o in obstacles], dtype=np.float32).reshape(-1, d), self.k.vec),
-            array(np.array([o.size for o in obstacles], dtype=np.float32).reshape(-1, d), self.k.vec),
-            array(np.array([o.velocity for o in obstacles], dtype=np.float32).reshape(-1, d), self.k.vec),
-            array(np.array([o.friction for o in obstacles], dtype=np.float32), float),
-        ]
+        self.obstacles = [array(values, dtype) for values, dtype in obstacle_arrays(obstacles, d, self.k.vec)]
         self.grid_momentum = wp.zeros(num_nodes, dtype=self.k.vec, device=self.device)
         self.grid_mass = wp.zeros(num_nodes, dtype=float, device=self.device)
         self.grid_velocity = wp.zeros(num_nodes, dtype=self.k.vec, device=self.device)
@@ -103,8 +127,8 @@ class MpmSolver:
                                                self.origin, self.inv_dx, self.dt, self.res,
                                                self.grid_momentum, self.grid_mass]),
             record(k.grid_update, self.num_nodes, [self.grid_momentum, self.grid_mass, self.origin, self.dx, self.res,
-                                                   self.dt, 0.0, self.gravity, self.lower, self.upper,
-                                                   self.wall_friction, *self.obstacles, self.grid_velocity]),
+                                                   self.dt, 0.0, self.gravity, self.wall_lower, self.wall_upper,
+                                                   *self.walls, *self.obstacles, self.grid_velocity]),
             record(k.g2p, self.num_particles, [self.grid_velocity, self.origin, self.inv_dx, self.res, self.dt,
                                                self.lower, self.upper, self.x, self.v, self.C]),
         ]

@@ -33,9 +33,11 @@ class MlsMpm(GroundTruthSimulator):
         cfl: float = Field(default=0.5, gt=0, le=1, description="substep dt must stay below cfl * dx / wave speed")
 
     def check(self, scene: SceneSpec) -> list[tuple[str, str]]:
-        """Adds constitutive-parameter validation and the elastic-wave CFL limit to the generic checks."""
+        """Adds constitutive-parameter validation, the elastic-wave CFL limit and the viscous limit
+        to the generic checks."""
         problems = super().check(scene)
         fastest, fastest_where = 0.0, ""
+        viscous, viscous_where = math.inf, ""
         for i, block in enumerate(scene.blocks):
             where = f"blocks[{i}]"
             material = self.materials.get(block.material)
@@ -66,6 +68,8 @@ class MlsMpm(GroundTruthSimulator):
                     break
                 if params.wave_speed() > fastest:
                     fastest, fastest_where = params.wave_speed(), where
+                if params.viscous_substep_limit(scene.domain.cell_size, scene.dim) < viscous:
+                    viscous, viscous_where = params.viscous_substep_limit(scene.domain.cell_size, scene.dim), where
         if fastest > 0:
             limit = self.params.cfl * scene.domain.cell_size / fastest
             if scene.time.substep_dt > limit:
@@ -78,6 +82,15 @@ class MlsMpm(GroundTruthSimulator):
                         f"in {fastest_where}): use at least {needed} substeps",
                     )
                 )
+        if scene.time.substep_dt > viscous:
+            problems.append(
+                (
+                    "time.substeps",
+                    f"substep dt {scene.time.substep_dt:.3g} s exceeds the viscous limit {viscous:.3g} s "
+                    f"(rho dx^2 / (2 d eta) in {viscous_where}): use at least "
+                    f"{math.ceil(scene.time.frame_dt / viscous)} substeps",
+                )
+            )
         return problems
 
     def _particle_arrays(self, scene: SceneSpec, sample: SceneSample) -> dict[str, np.ndarray]:
