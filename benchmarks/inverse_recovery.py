@@ -40,6 +40,7 @@ import numpy as np
 import torch
 
 GOLDEN = (math.sqrt(5) - 1) / 2
+RECORDED = ("key", "truth", "recovered", "error_pct", "seconds", "iterations", "launch")
 
 
 def seed_of(key: str) -> int:
@@ -174,6 +175,8 @@ def main() -> int:
     parser.add_argument("--mpm-baseline", action="store_true")
     parser.add_argument("--memory", action="store_true")
     parser.add_argument("--picture", type=Path, help="write the first case's convergence plot and GIF into this folder")
+    parser.add_argument("--record", type=Path, help="JSON-lines file of finished cases: each case is appended when "
+                        "done, and cases already there are read instead of inverted again (a stopped run continues)")
     parser.add_argument("--json", action="store_true", help="(the JSON line is always printed last)")
     args = parser.parse_args()
     args.bounds = args.bounds or ([0.4, 1.0] if args.unknown == "friction" else [0.0, 2.0])
@@ -189,21 +192,30 @@ def main() -> int:
     scene = SceneSpec.model_validate(metadata["generated_from"]["scene"])
     cases = []
     print(f"{'case':<18}{'truth':>18}{'recovered':>18}{'error %':>9}{'seconds':>9}{'iterations':>11}")
+    recorded = [json.loads(line) for line in args.record.read_text().splitlines()] if args.record and args.record.exists() else []
     for index in range(args.cases):
-        case = invert_case(args, index, registry)
-        truth = drawn_truth(scene, case["key"], args.unknown)
-        if args.unknown == "initial_velocity":
-            problem = case["inversion"].problem
-            case["launch"] = truth
-            truth = input_frame_velocity(case["inversion"].trajectory.position, problem.simulator.scene.history,
-                                         problem.metadata.dt)
-        error = 100 * float(np.linalg.norm(np.subtract(case["recovered"], truth)) / np.linalg.norm(truth))
-        case.update(truth=truth, error_pct=error)
-        cases.append(case)
+        if index < len(recorded):
+            case = recorded[index]
+            cases.append(case)
+            truth, error = case["truth"], case["error_pct"]
+        else:
+            case = invert_case(args, index, registry)
+            truth = drawn_truth(scene, case["key"], args.unknown)
+            if args.unknown == "initial_velocity":
+                problem = case["inversion"].problem
+                case["launch"] = truth
+                truth = input_frame_velocity(case["inversion"].trajectory.position, problem.simulator.scene.history,
+                                             problem.metadata.dt)
+            error = 100 * float(np.linalg.norm(np.subtract(case["recovered"], truth)) / np.linalg.norm(truth))
+            case.update(truth=truth, error_pct=error)
+            cases.append(case)
+            if args.record:
+                with args.record.open("a") as record:
+                    record.write(json.dumps({k: case[k] for k in RECORDED if k in case}) + "\n")
         fmt = lambda v: ", ".join(f"{x:.3f}" for x in v)  # noqa: E731
         print(f"{case['key']:<18}{fmt(truth):>18}{fmt(case['recovered']):>18}{error:>9.2f}{case['seconds']:>9.1f}"
               f"{case['iterations']:>11}")
-        if index == 0 and args.picture:
+        if index == 0 and args.picture and "inversion" in case:
             from gns_framework.inverse.solve import write_outputs
 
             args.picture.mkdir(parents=True, exist_ok=True)
@@ -216,7 +228,9 @@ def main() -> int:
           f"median {summary['median_seconds']:.1f} s per inversion")
 
     if args.mpm_baseline and args.unknown == "friction":
-        model_recipe = cases[0]["inversion"].model.recipe
+        from gns_framework.loading import load_trained
+
+        model_recipe = load_trained(args.model, registry).recipe
         dataset = open_dataset(model_recipe.dataset, registry, args.data)
         stride = model_recipe.dataset.frame_stride
         simulator = build_simulator(scene, registry, "metadata.json: generated_from")
@@ -243,8 +257,7 @@ def main() -> int:
         print(f"\npeak RSS, one full-length loss and gradient: load only {base:.0f} MiB, without checkpointing "
               f"{whole:.0f} MiB (+{whole - base:.0f}), checkpoint every {args.checkpoint_every} steps {checkpointed:.0f} MiB "
               f"(+{checkpointed - base:.0f})")
-    summary["per_case"] = [{k: c[k] for k in ("key", "truth", "recovered", "error_pct", "seconds", "iterations")}
-                           | {k: c[k] for k in ("mpm", "launch") if k in c} for c in cases]
+    summary["per_case"] = [{k: c[k] for k in (*RECORDED, "mpm") if k in c} for c in cases]
     print(json.dumps(summary))
     return 0
 
