@@ -315,46 +315,14 @@ class GroundTruthSimulator(ABC):
         self.materials = materials
 
     def check(self, scene: "SceneSpec") -> list[tuple[str, str]]:
-        """Problems (location, message) that stop this simulator from running ``scene``.
+        """Problems (location, message) of this simulator's own that stop it from running ``scene``.
 
-        The default checks dimension and constitutive models; simulators add
-        stability limits (time step versus wave speed) and the like.
+        Stability limits (time step versus wave speed) and the like. The checks every
+        simulator shares (dimension, materials and their constitutive models,
+        obstacles, properties) are made before, by
+        :func:`gns_framework.simulation.scene_checks.scene_problems`; none here by default.
         """
-        problems = []
-        if scene.dim not in self.dims:
-            problems.append(("dim", f"simulator {self.name!r} supports dim {self.dims}, got {scene.dim}"))
-        for where, material in scene.material_uses():
-            cls = self.materials.get(material)
-            if cls is None:
-                choices = ", ".join(sorted(self.materials)) or "none installed"
-                problems.append((f"{where}.material", f"unknown material {material!r} (installed: {choices})"))
-            elif cls.constitutive_model not in self.constitutive_models:
-                problems.append(
-                    (
-                        f"{where}.material",
-                        f"material {material!r} has constitutive model {cls.constitutive_model!r}; simulator "
-                        f"{self.name!r} supports {', '.join(self.constitutive_models)}",
-                    )
-                )
-            elif cls.kinematic != where.startswith("obstacles"):
-                kind = "kinematic" if cls.kinematic else "not kinematic"
-                problems.append(
-                    (f"{where}.material", f"material {material!r} is {kind}: obstacles take kinematic materials")
-                )
-        for i, block in enumerate(scene.blocks):
-            if block.material not in self.materials:
-                continue
-            declared = [p.name for p in self.materials[block.material].properties]
-            for name in block.properties:
-                if name not in declared:
-                    problems.append(
-                        (
-                            f"blocks[{i}].properties.{name}",
-                            f"material {block.material!r} has no property {name!r} "
-                            f"(it has: {', '.join(declared) or 'none'})",
-                        )
-                    )
-        return problems
+        return []
 
     @abstractmethod
     def simulate(self, scene: "SceneSpec", seed: int) -> "Trajectory":

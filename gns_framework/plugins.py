@@ -8,7 +8,6 @@ component is known with the plugin that provides it.
 
 from __future__ import annotations
 
-import difflib
 import importlib.metadata
 import inspect
 import os
@@ -21,6 +20,7 @@ import pluggy
 from . import hookspecs
 from .contracts import COMPONENT_KINDS
 from .errors import PluginError
+from .validation import did_you_mean
 
 ENTRY_POINT_GROUP = "gns_framework"
 DISABLE_ENV = "GNS_DISABLE_PLUGINS"
@@ -48,12 +48,6 @@ class ComponentEntry:
     @property
     def provider(self) -> str:
         return f"plugin {self.plugin!r} ({self.distribution} {self.version})"
-
-
-def did_you_mean(word: str, choices: Iterable[str]) -> str:
-    """`` (did you mean 'x'?)`` when a close match exists, else an empty string."""
-    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 def disable_one(first: ComponentEntry, second: ComponentEntry) -> str:

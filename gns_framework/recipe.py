@@ -13,9 +13,10 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from .errors import PluginError, RecipeError
-from .plugins import Registry, did_you_mean
+from .plugins import Registry
 from .precision import Precision
-from .validation import problems_from
+from .specs import ComponentSpec
+from .validation import did_you_mean, problems_from
 from .yaml_loading import load_yaml_mapping
 
 
@@ -26,17 +27,6 @@ REFERENCE_NOISE_STD = 6.7e-4
 class _Strict(BaseModel):
     # A number where a string is expected is that string (``name: 1e5``, see yaml_loading).
     model_config = ConfigDict(extra="forbid", coerce_numbers_to_str=True)
-
-
-class ComponentSpec(BaseModel):
-    """``name`` of a registered component plus its parameters."""
-
-    model_config = ConfigDict(extra="allow", coerce_numbers_to_str=True)
-    name: str
-
-    @property
-    def params(self) -> dict[str, Any]:
-        return dict(self.model_extra or {})
 
 
 PICKLE_GRANT = "allow_pickle"
