@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar, Literal
 
@@ -45,14 +45,12 @@ class Graph:
         displacement: (E, d) float, ``p_sender - p_receiver`` in dataset units
             (minimum image in periodic domains).
         num_nodes: N.
-        truncated: number of neighbours dropped by a neighbour cap (0 when none).
     """
 
     senders: Tensor
     receivers: Tensor
     displacement: Tensor
     num_nodes: int
-    truncated: int = 0
 
     @property
     def num_edges(self) -> int:
@@ -134,7 +132,6 @@ class ModelSizes:
     dim: int
     connectivity_radius: float = 1.0
     """R, the length unit of ``Graph.displacement`` for processors that use geometry."""
-    extras: dict = field(default_factory=dict)
 
 
 class GraphBuilder(ABC):
@@ -221,6 +218,12 @@ class Integrator(ABC):
     name: ClassVar[str]
     Params: ClassVar[type[Params]] = Params
     predicts: ClassVar[Literal["acceleration", "velocity"]] = "acceleration"
+    symplectic: ClassVar[bool] = False
+    """Whether ``advance`` is symplectic: below its stability bound the energy stays bounded, with no drift."""
+    stability_bound: ClassVar[float | None] = None
+    """Largest ``omega dt`` for which ``advance`` is stable on the harmonic oscillator
+    ``a = -omega^2 x`` (2 for symplectic Euler and velocity Verlet); 0 when no step is
+    stable (explicit Euler); None without a physical form. ``gns stability`` checks it."""
 
     def __init__(self, params: Params):
         self.params = params
@@ -243,6 +246,10 @@ class Material(ABC):
     name: ClassVar[str]
     particle_type: ClassVar[int]
     kinematic: ClassVar[bool] = False
+    """Prescribed: its particles follow given paths and are never predicted, nor counted in
+    statistics, losses or error metrics."""
+    granular: ClassVar[bool] = False
+    """A granular material (sand, gravel): rollouts of it are also scored by runout and pile profile."""
     properties: ClassVar[tuple[MaterialProperty, ...]] = ()
     description: ClassVar[str] = ""
     constitutive_model: ClassVar[str | None] = None

@@ -12,11 +12,12 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from .errors import PluginError, RecipeError
+from .contracts import COMPONENT_KINDS
+from .errors import PluginError, RecipeError, did_you_mean
 from .plugins import Registry
 from .precision import Precision
 from .specs import ComponentSpec
-from .validation import did_you_mean, problems_from
+from .validation import problems_from
 from .yaml_loading import load_yaml_mapping
 
 
@@ -188,7 +189,8 @@ class Recipe(_Strict):
         return self.model_copy(update={"dataset": self.dataset.model_copy(update={"path": str(path)})})
 
 
-COMPONENT_SECTIONS = ("graph_builder", "encoder", "processor", "decoder", "integrator")
+COMPONENT_SECTIONS = tuple(kind for kind in COMPONENT_KINDS if kind in ModelSpec.model_fields)
+"""The component kinds a recipe's ``model`` names (graph_builder, encoder, processor, decoder, integrator)."""
 
 
 def validate_recipe(raw: dict, registry: Registry, source: str | Path | None = None) -> Recipe:

@@ -1,20 +1,12 @@
-"""Turning pydantic errors into ``(location, message)`` problems with did-you-mean hints.
-
-It imports nothing else from gns-framework, so every module that reports problems can use it."""
+"""Turning pydantic errors into ``(location, message)`` problems with did-you-mean hints."""
 
 from __future__ import annotations
 
-import difflib
 import typing
-from collections.abc import Iterable
 
 from pydantic import BaseModel, ValidationError
 
-
-def did_you_mean(word: str, choices: Iterable[str]) -> str:
-    """`` (did you mean 'x'?)`` when a close match exists, else an empty string."""
-    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
+from .errors import did_you_mean
 
 
 def format_location(loc: tuple) -> str:

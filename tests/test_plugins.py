@@ -38,7 +38,7 @@ def test_every_kind_has_a_hook():
     from gns_framework import hookspecs
 
     for kind in COMPONENT_KINDS:
-        assert hasattr(hookspecs, hookspecs.HOOK_OF_KIND[kind])
+        assert hasattr(hookspecs, hookspecs.hook_of_kind(kind))
 
 
 class _OtherInteractionNetwork(Processor):
