@@ -237,6 +237,11 @@ class Integrator(ABC):
         """Exact inverse of :meth:`next_position`: the prediction that reaches ``next_position``."""
 
 
+PARTICLE_TYPE_IDS = range(0, 1024)
+"""Valid particle-type ids: the model looks ids up in a table of (largest id + 1) rows
+(``features.py``), so they are small non-negative ints. The public datasets use 0-8."""
+
+
 class Material(ABC):
     """A particle material: its type id, whether it is prescribed, and its properties.
 
