@@ -1,10 +1,10 @@
-"""Every extension point of gns-framework: one hook per component kind, and the metrics hook.
+"""Every extension point of gns-framework: one hook per component kind, the metrics and the commands hook.
 
 A plugin is a module (or object) exposed under the ``gns_framework`` entry-point
-group; it implements any of these hooks with ``@gns_framework.hookimpl`` and
+group; it implements any of these hooks with ``@hookimpl`` (from this module) and
 returns the component classes (or metric records) it provides. Built-in
 components and metrics register the same way, from the ``gns_builtins`` package.
-Commands have their own hook and entry-point group (:mod:`gns_framework.cli.hooks`),
+Commands have their own entry-point group (:mod:`gns_framework.cli.commands`),
 so that ``gns --help`` loads no component.
 
 The kinds are listed once, in :data:`gns_framework.contracts.COMPONENT_KINDS`;

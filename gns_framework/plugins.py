@@ -83,7 +83,8 @@ class Registry:
         for metric, provider in metrics:
             if metric.name in self._metrics:
                 raise PluginError(
-                    f"two metrics are named {metric.name!r}: from {self._metrics[metric.name][1]} and from {provider}"
+                    f"two metrics are named {metric.name!r}: from {self._metrics[metric.name][1]} and from {provider}; "
+                    f"uninstall one of them, or disable its plugin with the environment variable {DISABLE_ENV}"
                 )
             self._metrics[metric.name] = (metric, provider)
 

@@ -14,7 +14,7 @@ from collections.abc import Iterable
 from ..errors import PluginError
 from ..hookspecs import hookimpl
 from ..plugin_types import Command
-from ..plugins import hook_results, make_plugin_manager
+from ..plugins import DISABLE_ENV, hook_results, make_plugin_manager
 
 COMMAND_GROUP = "gns_framework.commands"
 """Entry-point group of plugins that add ``gns`` subcommands."""
@@ -89,7 +89,8 @@ def load_commands(load_entry_points: bool = True, plugins: Iterable[tuple[str, o
                 raise PluginError(f"{where} returned {command!r}, which is not a gns_framework.plugin_types.Command")
             if command.name in commands:
                 raise PluginError(
-                    f"two gns commands are named {command.name!r}: from {provider[command.name]} and from {where}"
+                    f"two gns commands are named {command.name!r}: from {provider[command.name]} and from {where}; "
+                    f"uninstall one of them, or disable its plugin with the environment variable {DISABLE_ENV}"
                 )
             commands[command.name] = command
             provider[command.name] = where

@@ -19,7 +19,7 @@ Shapes: B rollouts, S rolled-out frames, N particles, d spatial dimensions.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Collection, Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
 from functools import cached_property
 
