@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar, Literal
 
@@ -45,14 +45,12 @@ class Graph:
         displacement: (E, d) float, ``p_sender - p_receiver`` in dataset units
             (minimum image in periodic domains).
         num_nodes: N.
-        truncated: number of neighbours dropped by a neighbour cap (0 when none).
     """
 
     senders: Tensor
     receivers: Tensor
     displacement: Tensor
     num_nodes: int
-    truncated: int = 0
 
     @property
     def num_edges(self) -> int:
@@ -134,7 +132,6 @@ class ModelSizes:
     dim: int
     connectivity_radius: float = 1.0
     """R, the length unit of ``Graph.displacement`` for processors that use geometry."""
-    extras: dict = field(default_factory=dict)
 
 
 class GraphBuilder(ABC):
@@ -221,6 +218,12 @@ class Integrator(ABC):
     name: ClassVar[str]
     Params: ClassVar[type[Params]] = Params
     predicts: ClassVar[Literal["acceleration", "velocity"]] = "acceleration"
+    symplectic: ClassVar[bool] = False
+    """Whether ``advance`` is symplectic: below its stability bound the energy stays bounded, with no drift."""
+    stability_bound: ClassVar[float | None] = None
+    """Largest ``omega dt`` for which ``advance`` is stable on the harmonic oscillator
+    ``a = -omega^2 x`` (2 for symplectic Euler and velocity Verlet); 0 when no step is
+    stable (explicit Euler); None without a physical form. ``gns stability`` checks it."""
 
     def __init__(self, params: Params):
         self.params = params
@@ -234,6 +237,11 @@ class Integrator(ABC):
         """Exact inverse of :meth:`next_position`: the prediction that reaches ``next_position``."""
 
 
+PARTICLE_TYPE_IDS = range(0, 1024)
+"""Valid particle-type ids: the model looks ids up in a table of (largest id + 1) rows
+(``features.py``), so they are small non-negative ints. The public datasets use 0-8."""
+
+
 class Material(ABC):
     """A particle material: its type id, whether it is prescribed, and its properties.
 
@@ -243,6 +251,10 @@ class Material(ABC):
     name: ClassVar[str]
     particle_type: ClassVar[int]
     kinematic: ClassVar[bool] = False
+    """Prescribed: its particles follow given paths and are never predicted, nor counted in
+    statistics, losses or error metrics."""
+    granular: ClassVar[bool] = False
+    """A granular material (sand, gravel): rollouts of it are also scored by runout and pile profile."""
     properties: ClassVar[tuple[MaterialProperty, ...]] = ()
     description: ClassVar[str] = ""
     constitutive_model: ClassVar[str | None] = None
@@ -315,46 +327,14 @@ class GroundTruthSimulator(ABC):
         self.materials = materials
 
     def check(self, scene: "SceneSpec") -> list[tuple[str, str]]:
-        """Problems (location, message) that stop this simulator from running ``scene``.
+        """Problems (location, message) of this simulator's own that stop it from running ``scene``.
 
-        The default checks dimension and constitutive models; simulators add
-        stability limits (time step versus wave speed) and the like.
+        Stability limits (time step versus wave speed) and the like. The checks every
+        simulator shares (dimension, materials and their constitutive models,
+        obstacles, properties) are made before, by
+        :func:`gns_framework.simulation.scene_checks.scene_problems`; none here by default.
         """
-        problems = []
-        if scene.dim not in self.dims:
-            problems.append(("dim", f"simulator {self.name!r} supports dim {self.dims}, got {scene.dim}"))
-        for where, material in scene.material_uses():
-            cls = self.materials.get(material)
-            if cls is None:
-                choices = ", ".join(sorted(self.materials)) or "none installed"
-                problems.append((f"{where}.material", f"unknown material {material!r} (installed: {choices})"))
-            elif cls.constitutive_model not in self.constitutive_models:
-                problems.append(
-                    (
-                        f"{where}.material",
-                        f"material {material!r} has constitutive model {cls.constitutive_model!r}; simulator "
-                        f"{self.name!r} supports {', '.join(self.constitutive_models)}",
-                    )
-                )
-            elif cls.kinematic != where.startswith("obstacles"):
-                kind = "kinematic" if cls.kinematic else "not kinematic"
-                problems.append(
-                    (f"{where}.material", f"material {material!r} is {kind}: obstacles take kinematic materials")
-                )
-        for i, block in enumerate(scene.blocks):
-            if block.material not in self.materials:
-                continue
-            declared = [p.name for p in self.materials[block.material].properties]
-            for name in block.properties:
-                if name not in declared:
-                    problems.append(
-                        (
-                            f"blocks[{i}].properties.{name}",
-                            f"material {block.material!r} has no property {name!r} "
-                            f"(it has: {', '.join(declared) or 'none'})",
-                        )
-                    )
-        return problems
+        return []
 
     @abstractmethod
     def simulate(self, scene: "SceneSpec", seed: int) -> "Trajectory":

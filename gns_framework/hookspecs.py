@@ -1,9 +1,14 @@
-"""Every extension point of gns-framework, one hook per component kind.
+"""Every extension point of gns-framework: one hook per component kind, the metrics and the commands hook.
 
 A plugin is a module (or object) exposed under the ``gns_framework`` entry-point
-group; it implements any of these hooks with ``@gns_framework.hookimpl`` and
-returns the component classes it provides. Built-in components register the
-same way, from the ``gns_builtins`` package.
+group; it implements any of these hooks with ``@hookimpl`` (from this module) and
+returns the component classes (or metric records) it provides. Built-in
+components and metrics register the same way, from the ``gns_builtins`` package.
+Commands have their own entry-point group (:mod:`gns_framework.cli.commands`),
+so that ``gns --help`` loads no component.
+
+The kinds are listed once, in :data:`gns_framework.contracts.COMPONENT_KINDS`;
+the hook of kind ``k`` is ``gns_<k>s``.
 """
 
 from __future__ import annotations
@@ -55,13 +60,25 @@ def gns_simulators() -> list[type]:
     """Return :class:`~gns_framework.contracts.GroundTruthSimulator` subclasses."""
 
 
-HOOK_OF_KIND = {
-    "graph_builder": "gns_graph_builders",
-    "encoder": "gns_encoders",
-    "processor": "gns_processors",
-    "decoder": "gns_decoders",
-    "integrator": "gns_integrators",
-    "dataset": "gns_datasets",
-    "material": "gns_materials",
-    "simulator": "gns_simulators",
-}
+@hookspec
+def gns_metrics() -> list:
+    """Return :class:`~gns_framework.plugin_types.Metric` records (name, unit, function).
+
+    ``gns evaluate``, rollout files and validation rollouts report every installed
+    metric; the built-in ones come from ``gns_builtins.metrics`` through this hook.
+    """
+
+
+@hookspec
+def gns_commands() -> list:
+    """Return :class:`~gns_framework.plugin_types.Command` records: ``gns`` subcommands.
+
+    Implemented by plugins of the ``gns_framework.commands`` entry-point group (not
+    ``gns_framework``), so that ``gns --help`` loads no component; the built-in
+    commands come from :mod:`gns_framework.cli.commands` through this hook.
+    """
+
+
+def hook_of_kind(kind: str) -> str:
+    """The hook of a component kind (a key of :data:`gns_framework.contracts.COMPONENT_KINDS`): ``gns_<kind>s``."""
+    return f"gns_{kind}s"

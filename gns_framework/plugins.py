@@ -3,12 +3,14 @@
 Plugins are found through the ``gns_framework`` entry-point group (built-ins
 included). Each is loaded explicitly so a failure names its entry point and
 distribution; every hook implementation is called once, on its own, so each
-component is known with the plugin that provides it.
+component (and metric) is known with the plugin that provides it.
+
+Importing this module loads no component contract (nor torch): the command line
+builds its command manager with :func:`make_plugin_manager` before any command runs.
 """
 
 from __future__ import annotations
 
-import difflib
 import importlib.metadata
 import inspect
 import os
@@ -19,8 +21,8 @@ from dataclasses import dataclass
 import pluggy
 
 from . import hookspecs
-from .contracts import COMPONENT_KINDS
-from .errors import PluginError
+from .errors import PluginError, did_you_mean
+from .plugin_types import Metric
 
 ENTRY_POINT_GROUP = "gns_framework"
 DISABLE_ENV = "GNS_DISABLE_PLUGINS"
@@ -50,12 +52,6 @@ class ComponentEntry:
         return f"plugin {self.plugin!r} ({self.distribution} {self.version})"
 
 
-def did_you_mean(word: str, choices: Iterable[str]) -> str:
-    """`` (did you mean 'x'?)`` when a close match exists, else an empty string."""
-    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
-
-
 def disable_one(first: ComponentEntry, second: ComponentEntry) -> str:
     """How to resolve a clash of two components: which plugins to uninstall or disable, and how."""
     return (
@@ -65,9 +61,12 @@ def disable_one(first: ComponentEntry, second: ComponentEntry) -> str:
 
 
 class Registry:
-    """Components by kind and name. Built by :func:`load_registry`; immutable afterwards."""
+    """Components by kind and name, and metrics by name. Built by :func:`load_registry`; immutable afterwards."""
 
-    def __init__(self, entries: Iterable[ComponentEntry]):
+    def __init__(self, entries: Iterable[ComponentEntry], metrics: Iterable[tuple[Metric, str]] = ()):
+        """``metrics``: (:class:`~gns_framework.plugin_types.Metric`, provider) pairs."""
+        from .contracts import COMPONENT_KINDS
+
         self._entries: dict[str, dict[str, ComponentEntry]] = {kind: {} for kind in COMPONENT_KINDS}
         for entry in entries:
             of_kind = self._entries.setdefault(entry.kind, {})
@@ -80,6 +79,14 @@ class Registry:
                 )
             of_kind[entry.name] = entry
         self._check_material_types()
+        self._metrics: dict[str, tuple[Metric, str]] = {}
+        for metric, provider in metrics:
+            if metric.name in self._metrics:
+                raise PluginError(
+                    f"two metrics are named {metric.name!r}: from {self._metrics[metric.name][1]} and from {provider}; "
+                    f"uninstall one of them, or disable its plugin with the environment variable {DISABLE_ENV}"
+                )
+            self._metrics[metric.name] = (metric, provider)
 
     def _check_material_types(self) -> None:
         seen: dict[int, ComponentEntry] = {}
@@ -125,6 +132,19 @@ class Registry:
         known = ", ".join(f"{e.cls.particle_type}={e.name}" for e in self.entries("material"))
         raise PluginError(f"no installed material has particle type {particle_type}; installed: {known}")
 
+    def kinematic_types(self) -> tuple[int, ...]:
+        """Particle-type ids of the installed kinematic materials (prescribed, never predicted)."""
+        return tuple(sorted(e.cls.particle_type for e in self.entries("material") if e.cls.kinematic))
+
+    def metrics(self) -> list[Metric]:
+        """Every installed :class:`~gns_framework.plugin_types.Metric`, in the order the plugins were registered."""
+        if not self._metrics:
+            raise PluginError(
+                "no metric is installed: the built-in ones come from the entry point builtin-metrics of "
+                "gns-framework (reinstall it: pip install -e .), and $GNS_DISABLE_PLUGINS may disable it"
+            )
+        return [metric for metric, _ in self._metrics.values()]
+
     def version_of(self, kind: str, name: str) -> str:
         entry = self.entry(kind, name)
         return f"{entry.distribution} {entry.version}"
@@ -155,14 +175,15 @@ def _distribution_of(ep: importlib.metadata.EntryPoint) -> tuple[str, str]:
 
 
 def make_plugin_manager(
-    load_entry_points: bool = True, plugins: Iterable[tuple[str, object]] = ()
+    load_entry_points: bool = True, plugins: Iterable[tuple[str, object]] = (), group: str = ENTRY_POINT_GROUP
 ) -> tuple[pluggy.PluginManager, dict[str, tuple[str, str]]]:
     """Build a fresh plugin manager (never a shared singleton).
 
     Args:
-        load_entry_points: load every plugin of the ``gns_framework`` entry-point group,
+        load_entry_points: load every plugin of the entry-point ``group``,
             except those named in ``$GNS_DISABLE_PLUGINS``.
         plugins: extra ``(name, module_or_object)`` plugins to register (tests, embedding).
+        group: ``gns_framework`` (components and metrics) or ``gns_framework.commands``.
 
     Returns:
         The manager and, per registered plugin name, its ``(distribution, version)``.
@@ -172,7 +193,7 @@ def make_plugin_manager(
     origin: dict[str, tuple[str, str]] = {}
     disabled = _disabled_names()
     if load_entry_points and "*" not in disabled:
-        entry_points = importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
+        entry_points = importlib.metadata.entry_points(group=group)
         _warn_unmatched(disabled, entry_points)
         for ep in entry_points:
             dist, version = _distribution_of(ep)
@@ -206,26 +227,45 @@ def _register(pm: pluggy.PluginManager, name: str, plugin: object, described: st
 
 def collect_components(pm: pluggy.PluginManager, origin: dict[str, tuple[str, str]]) -> Registry:
     """Call every hook implementation once and build the registry from what it returns."""
+    from .contracts import COMPONENT_KINDS
+
     entries: list[ComponentEntry] = []
-    for kind, hook_name in hookspecs.HOOK_OF_KIND.items():
-        contract = COMPONENT_KINDS[kind]
-        for impl in getattr(pm.hook, hook_name).get_hookimpls():
-            dist, version = origin.get(impl.plugin_name, ("<unknown distribution>", "?"))
-            where = f"plugin {impl.plugin_name!r} ({dist} {version}), hook {hook_name}"
-            try:
-                classes = impl.function()
-            except Exception as exc:
-                raise PluginError(f"{where} raised {type(exc).__name__}: {exc}") from exc
-            if not isinstance(classes, (list, tuple)):
-                raise PluginError(f"{where} must return a list of classes, got {type(classes).__name__}")
+    for kind, contract in COMPONENT_KINDS.items():
+        hook_name = hookspecs.hook_of_kind(kind)
+        for impl, where, classes in hook_results(pm, origin, hook_name):
             for cls in classes:
                 if not (inspect.isclass(cls) and issubclass(cls, contract)):
                     raise PluginError(f"{where} returned {cls!r}, which is not a subclass of {contract.__name__}")
                 name = getattr(cls, "name", None)
                 if not isinstance(name, str) or not name:
                     raise PluginError(f"{where}: {cls.__qualname__} has no string class attribute 'name'")
+                dist, version = origin.get(impl.plugin_name, ("<unknown distribution>", "?"))
                 entries.append(ComponentEntry(kind, name, cls, impl.plugin_name, dist, version))
-    return Registry(entries)
+    metrics = []
+    for _, where, records in hook_results(pm, origin, "gns_metrics"):
+        for metric in records:
+            if not isinstance(metric, Metric):
+                raise PluginError(f"{where} returned {metric!r}, which is not a gns_framework.plugin_types.Metric")
+            metrics.append((metric, where))
+    return Registry(entries, metrics)
+
+
+def hook_results(
+    pm: pluggy.PluginManager, origin: dict[str, tuple[str, str]], hook_name: str
+) -> list[tuple[object, str, list | tuple]]:
+    """``(implementation, where, returned list)`` of every implementation of ``hook_name``, each called once."""
+    results = []
+    for impl in getattr(pm.hook, hook_name).get_hookimpls():
+        dist, version = origin.get(impl.plugin_name, ("<unknown distribution>", "?"))
+        where = f"plugin {impl.plugin_name!r} ({dist} {version}), hook {hook_name}"
+        try:
+            returned = impl.function()
+        except Exception as exc:
+            raise PluginError(f"{where} raised {type(exc).__name__}: {exc}") from exc
+        if not isinstance(returned, (list, tuple)):
+            raise PluginError(f"{where} must return a list, got {type(returned).__name__}")
+        results.append((impl, where, returned))
+    return results
 
 
 def load_registry(load_entry_points: bool = True, plugins: Iterable[tuple[str, object]] = ()) -> Registry:

@@ -12,9 +12,11 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from .errors import PluginError, RecipeError
-from .plugins import Registry, did_you_mean
+from .contracts import COMPONENT_KINDS
+from .errors import PluginError, RecipeError, did_you_mean
+from .plugins import Registry
 from .precision import Precision
+from .specs import ComponentSpec
 from .validation import problems_from
 from .yaml_loading import load_yaml_mapping
 
@@ -26,17 +28,6 @@ REFERENCE_NOISE_STD = 6.7e-4
 class _Strict(BaseModel):
     # A number where a string is expected is that string (``name: 1e5``, see yaml_loading).
     model_config = ConfigDict(extra="forbid", coerce_numbers_to_str=True)
-
-
-class ComponentSpec(BaseModel):
-    """``name`` of a registered component plus its parameters."""
-
-    model_config = ConfigDict(extra="allow", coerce_numbers_to_str=True)
-    name: str
-
-    @property
-    def params(self) -> dict[str, Any]:
-        return dict(self.model_extra or {})
 
 
 PICKLE_GRANT = "allow_pickle"
@@ -198,7 +189,8 @@ class Recipe(_Strict):
         return self.model_copy(update={"dataset": self.dataset.model_copy(update={"path": str(path)})})
 
 
-COMPONENT_SECTIONS = ("graph_builder", "encoder", "processor", "decoder", "integrator")
+COMPONENT_SECTIONS = tuple(kind for kind in COMPONENT_KINDS if kind in ModelSpec.model_fields)
+"""The component kinds a recipe's ``model`` names (graph_builder, encoder, processor, decoder, integrator)."""
 
 
 def validate_recipe(raw: dict, registry: Registry, source: str | Path | None = None) -> Recipe:

@@ -1,15 +1,14 @@
-"""Autoregressive rollouts, guarded, saved with their ground truth in the pickle-free rollout file.
+"""Autoregressive rollouts, guarded.
 
-Every predicted frame passes a :class:`~gns_framework.rollout_guard.RolloutGuard`,
-and :func:`write_rollout` refuses non-finite predictions unless told otherwise, so
-no NaN reaches a file silently. The file format is documented in
-:mod:`gns_framework.evaluation.rollout_file`.
+Every predicted frame passes a :class:`~gns_framework.rollout_guard.RolloutGuard`;
+:func:`gns_framework.evaluation.rollout_file.write_rollout` saves a result with its
+ground truth and refuses non-finite predictions unless told otherwise, so no NaN
+reaches a file silently.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -17,9 +16,8 @@ from tqdm import tqdm
 
 from .allocator import keep_freed_memory
 from .data.batch import window
-from .data.metadata import DatasetMetadata
 from .data.trajectory import Trajectory
-from .errors import DatasetError, RolloutDiverged
+from .errors import DatasetError
 from .precision import Precision, autocast
 from .rollout_guard import GuardViolation, RolloutGuard
 from .simulator import LearnedSimulator
@@ -104,37 +102,3 @@ def _check_simulates(simulator: LearnedSimulator, trajectory: Trajectory) -> Non
     unknown = sorted(set(np.unique(trajectory.particle_type).tolist()) - set(scene.particle_types))
     if unknown:
         raise DatasetError(f"{where}: particle_type: ids {unknown} are not among the model's {list(scene.particle_types)}")
-
-
-def write_rollout(
-    path: str | Path, result: RolloutResult, metadata: DatasetMetadata, allow_non_finite: bool = False
-) -> Path:
-    """Save a rollout with its ground truth, atomically; an existing file is replaced only on success.
-
-    Non-finite predictions (from a rollout made without a guard) are refused unless
-    ``allow_non_finite`` says a diverged rollout is to be kept as a result.
-    """
-    from .evaluation.rollout_file import Rollout, save_rollout
-
-    finite = np.isfinite(result.predicted).all(axis=(1, 2))
-    if not allow_non_finite and not finite.all():
-        step = int(np.argmin(finite))
-        particles = np.flatnonzero(~np.isfinite(result.predicted[step]).all(axis=-1))
-        raise RolloutDiverged(
-            f"{path}: predicted_rollout: non-finite positions from step {step} on "
-            f"(particles {particles[:5].tolist()}{', ...' if len(particles) > 5 else ''}, {len(particles)} in all); "
-            "not written (pass allow_non_finite=True to keep a diverged rollout)",
-            trajectory=result.trajectory.key, step=step, particles=particles.tolist(), cause="non-finite positions",
-        )
-
-    return save_rollout(
-        path,
-        Rollout(
-            initial_positions=result.initial_positions.astype(np.float32),
-            predicted_rollout=result.predicted.astype(np.float32),
-            ground_truth_rollout=result.ground_truth.astype(np.float32),
-            particle_type=result.trajectory.particle_type.astype(np.int64),
-            metadata=metadata,
-            material_property=result.trajectory.material_property,
-        ),
-    )

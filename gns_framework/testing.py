@@ -15,16 +15,24 @@ The checks use explicit raises, not ``assert``, so they also hold under ``python
 from __future__ import annotations
 
 import inspect
-from collections.abc import Mapping
+import math
+import tempfile
+from collections.abc import Collection, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING
 
+import numpy as np
 import torch
 from torch import Tensor
 
 from .contracts import (
+    PARTICLE_TYPE_IDS,
+    Dataset,
     Decoder,
     Encoder,
     Graph,
     GraphBuilder,
+    GroundTruthSimulator,
     Integrator,
     Material,
     MaterialProperty,
@@ -34,13 +42,18 @@ from .contracts import (
 )
 from .periodic import PeriodicBox
 
+if TYPE_CHECKING:
+    from .simulation.scene_spec import SceneSpec
+
 __all__ = [
+    "check_dataset",
     "check_decoder",
     "check_encoder",
     "check_graph_builder",
     "check_integrator",
     "check_material",
     "check_processor",
+    "check_simulator",
     "small_sizes",
     "small_scene",
 ]
@@ -238,19 +251,171 @@ def check_graph_builder(
     _expect(back == _canonical_edges(graph), f"{name}: edges are not permutation-equivariant")
 
 
-def check_material(cls: type[Material]) -> None:
-    """Declared fields of a material: name, integer type id, kinematic flag, properties."""
+def check_material(cls: type[Material], constitutive_models: Collection[str] | None = None) -> None:
+    """Declared fields of a material: name, type id, flags, properties and what a simulator needs.
+
+    Checks: a non-empty string name; an int ``particle_type`` in
+    :data:`~gns_framework.contracts.PARTICLE_TYPE_IDS`; bool ``kinematic`` and
+    ``granular`` (not both); well-formed ``properties``; a ``constitutive_model``
+    that is None or one of ``constitutive_models`` (default: those the installed
+    ground-truth simulators move); ``physical_parameters`` a mapping of names to
+    finite numbers, with a positive ``density`` where given.
+    """
     _expect(inspect.isclass(cls) and issubclass(cls, Material), f"{cls!r} is not a Material subclass")
     _expect(isinstance(getattr(cls, "name", None), str) and cls.name, f"{cls!r}: needs a non-empty string name")
     _expect(
         isinstance(getattr(cls, "particle_type", None), int) and not isinstance(cls.particle_type, bool)
-        and cls.particle_type >= 0,
-        f"{cls.name}: particle_type must be a non-negative int",
+        and cls.particle_type in PARTICLE_TYPE_IDS,
+        f"{cls.name}: particle_type must be an int in {PARTICLE_TYPE_IDS.start}..{PARTICLE_TYPE_IDS.stop - 1}, "
+        f"got {getattr(cls, 'particle_type', None)!r}",
     )
     _expect(isinstance(cls.kinematic, bool), f"{cls.name}: kinematic must be a bool")
+    _expect(isinstance(cls.granular, bool), f"{cls.name}: granular must be a bool")
+    _expect(not (cls.kinematic and cls.granular), f"{cls.name}: a kinematic material is not granular (it never moves freely)")
     _expect(isinstance(cls.properties, tuple), f"{cls.name}: properties must be a tuple of MaterialProperty")
     names = [p.name for p in cls.properties]
     _expect(len(set(names)) == len(names), f"{cls.name}: duplicate property names {names}")
     for prop in cls.properties:
         _expect(isinstance(prop, MaterialProperty), f"{cls.name}: property {prop!r} is not a MaterialProperty")
         _expect(bool(prop.name) and bool(prop.description), f"{cls.name}: property {prop!r} needs a name and description")
+    if constitutive_models is None:
+        from .plugins import load_registry
+
+        registry = load_registry()
+        constitutive_models = {m for e in registry.entries("simulator") for m in e.cls.constitutive_models}
+    known = ", ".join(sorted(constitutive_models)) or "none installed"
+    _expect(
+        cls.constitutive_model is None or cls.constitutive_model in constitutive_models,
+        f"{cls.name}: unknown constitutive_model {cls.constitutive_model!r}; the installed simulators move: {known} "
+        "(None: no simulator generates it)",
+    )
+    _expect(isinstance(cls.physical_parameters, Mapping), f"{cls.name}: physical_parameters must be a dict")
+    for key, value in cls.physical_parameters.items():
+        _expect(
+            isinstance(key, str) and isinstance(value, (int, float)) and not isinstance(value, bool)
+            and math.isfinite(value),
+            f"{cls.name}: physical_parameters[{key!r}] must be a finite number, got {value!r}",
+        )
+    density = cls.physical_parameters.get("density")
+    _expect(density is None or density > 0, f"{cls.name}: physical_parameters['density'] must be > 0 kg/m^3, got {density!r}")
+
+
+def _random_trajectories(count: int, dim: int, frames: int, types: tuple[int, ...], seed: int) -> list:
+    from .data.trajectory import Trajectory
+
+    rng = np.random.default_rng(seed)
+    return [
+        Trajectory(
+            (0.2 + 0.6 * rng.random((frames, 2 * len(types), dim))).astype(np.float32),
+            np.repeat(np.asarray(types, dtype=np.int64), 2),
+            key=f"trajectory_{i}",
+        )
+        for i in range(count)
+    ]
+
+
+def check_dataset(
+    cls: type[Dataset], params: Mapping | None = None, path: str | Path | None = None, seed: int = 0
+) -> None:
+    """A dataset layout writes what it reads back, and reads a folder consistently.
+
+    A writable layout writes a small random 2D and 3D dataset (train and valid splits)
+    into a temporary folder, and reading it back must give the same metadata (bounds,
+    dt, dim, frame count) and trajectories (positions, type ids, order); ``test``,
+    not written, must be absent. On ``path`` (required for a read-only layout) every
+    split it lists must hold trajectories of the metadata's dimension and frame count.
+    """
+    from .data.metadata import DatasetMetadata, compute_statistics
+
+    _expect(inspect.isclass(cls) and issubclass(cls, Dataset), f"{cls!r} is not a Dataset subclass")
+    _expect(isinstance(getattr(cls, "name", None), str) and cls.name, f"{cls!r}: needs a non-empty string name")
+    _expect(cls.writable or path is not None, f"{cls.name}: a read-only layout is checked on a folder: pass path=")
+    validated = cls.Params.model_validate(dict(params or {}))
+    if cls.writable:
+        for dim in (2, 3):
+            splits = {
+                split: _random_trajectories(count, dim, 7, (3, 5), seed + 10 * dim + i)
+                for i, (split, count) in enumerate((("train", 2), ("valid", 1)))
+            }
+            metadata = DatasetMetadata(
+                bounds=[(0.0, 1.0)] * dim, sequence_length=7, default_connectivity_radius=0.1, dim=dim, dt=0.01,
+                **compute_statistics(splits["train"], kinematic_types=(3,)),
+            )
+            with tempfile.TemporaryDirectory() as folder:
+                cls.write(Path(folder), metadata, splits)
+                dataset = cls(validated, Path(folder))
+                read = dataset.metadata()
+                for key in ("dim", "sequence_length", "dt"):
+                    _expect(getattr(read, key) == getattr(metadata, key), f"{cls.name}: metadata {key} changed on the round trip")
+                _expect(
+                    np.allclose(np.asarray(read.bounds, float), np.asarray(metadata.bounds, float)),
+                    f"{cls.name}: metadata bounds changed on the round trip",
+                )
+                _expect(dataset.splits() == ["train", "valid"], f"{cls.name}: splits() is {dataset.splits()}, wrote train, valid")
+                _expect(not dataset.has_split("test"), f"{cls.name}: has_split('test') but no test split was written")
+                for split, written in splits.items():
+                    back = dataset.split(split)
+                    _expect(len(back) == len(written), f"{cls.name}: {split}: {len(back)} trajectories, wrote {len(written)}")
+                    for i, (a, b) in enumerate(zip(back, written)):
+                        _expect(
+                            np.array_equal(np.asarray(a.position, np.float32), b.position),
+                            f"{cls.name}: {split}[{i}]: positions changed on the round trip ({dim}D)",
+                        )
+                        _expect(
+                            np.array_equal(np.asarray(a.particle_type), b.particle_type),
+                            f"{cls.name}: {split}[{i}]: particle types changed on the round trip",
+                        )
+    if path is not None:
+        dataset = cls(validated, Path(path))
+        metadata = dataset.metadata()
+        for split in dataset.splits():
+            for i, trajectory in enumerate(dataset.split(split)):
+                _expect(trajectory.dim == metadata.dim, f"{cls.name}: {split}[{i}] has dim {trajectory.dim}, metadata {metadata.dim}")
+                _expect(
+                    trajectory.num_steps == metadata.sequence_length,
+                    f"{cls.name}: {split}[{i}] has {trajectory.num_steps} frames, metadata sequence_length "
+                    f"{metadata.sequence_length}",
+                )
+
+
+def check_simulator(
+    cls: type[GroundTruthSimulator],
+    scene: "SceneSpec",
+    materials: Mapping[str, type[Material]],
+    params: Mapping | None = None,
+    seed: int = 0,
+) -> None:
+    """A ground-truth simulator runs a small ``scene`` as its contract says.
+
+    Checks: it has no problem with the scene (shared checks and its own
+    :meth:`~gns_framework.contracts.GroundTruthSimulator.check`); it returns
+    ``scene.time.frames`` frames of float32 positions (T, N, d), finite and inside
+    the scene's bounds, with the type ids of the scene's materials; the same seed
+    gives the same bits.
+    """
+    from .simulation.scene_checks import scene_problems
+
+    _expect(inspect.isclass(cls) and issubclass(cls, GroundTruthSimulator), f"{cls!r} is not a GroundTruthSimulator subclass")
+    simulator = cls(cls.Params.model_validate(dict(params or {})), dict(materials))
+    problems = scene_problems(simulator, scene)
+    _expect(not problems, f"{cls.name}: cannot run the scene: {problems}")
+    first, again = simulator.simulate(scene, seed), simulator.simulate(scene, seed)
+    position = np.asarray(first.position)
+    _expect(position.dtype == np.float32, f"{cls.name}: positions are {position.dtype}, not float32")
+    _expect(
+        position.ndim == 3 and position.shape[0] == scene.time.frames and position.shape[2] == scene.dim,
+        f"{cls.name}: positions {position.shape}, expected ({scene.time.frames}, N, {scene.dim})",
+    )
+    _expect(bool(np.isfinite(position).all()), f"{cls.name}: non-finite positions")
+    bounds = np.asarray(scene.domain.bounds, dtype=np.float64)
+    _expect(
+        bool(((position >= bounds[:, 0]) & (position <= bounds[:, 1])).all()),
+        f"{cls.name}: positions leave the domain {bounds.tolist()}",
+    )
+    used = {materials[name].particle_type for _, name in scene.material_uses()}
+    found = set(np.unique(first.particle_type).tolist())
+    _expect(found <= used, f"{cls.name}: particle types {sorted(found - used)} belong to no material of the scene")
+    _expect(
+        np.array_equal(position, np.asarray(again.position)) and np.array_equal(first.particle_type, again.particle_type),
+        f"{cls.name}: the same seed gave different trajectories",
+    )

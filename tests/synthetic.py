@@ -13,6 +13,7 @@ import numpy as np
 
 from gns_framework.data.metadata import DatasetMetadata, compute_statistics
 from gns_framework.data.trajectory import Trajectory
+from gns_framework.plugins import load_registry
 
 RADIUS = 0.02
 SPACING = 0.04
@@ -80,7 +81,7 @@ def synthetic_metadata(trajectories: list[Trajectory], dim: int) -> DatasetMetad
         default_connectivity_radius=CONNECTIVITY_RADIUS,
         dim=dim,
         dt=0.01,
-        **compute_statistics(trajectories),
+        **compute_statistics(trajectories, load_registry().kinematic_types()),
     )
 
 

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 import yaml
 from tiny import tiny_recipe_mapping
@@ -126,3 +127,52 @@ def test_demo_without_the_pretrained_model_says_where_it_should_be(tmp_path):
     assert result.returncode == 2
     assert "missing.pt: pretrained model not found" in result.stderr
     assert not (tmp_path / "demo").exists()
+
+
+COMMAND_MODULE = '''
+"""A plugin's gns subcommand."""
+
+
+def add_arguments(parser):
+    parser.add_argument("--grains", type=int, default=3)
+
+
+def run(args):
+    print(f"sieved {args.grains} grains")
+    return 0
+'''
+
+
+def test_a_plugin_adds_a_command_that_help_lists_and_gns_runs(tmp_path, monkeypatch, capsys):
+    from gns_framework.cli.commands import load_commands
+    from gns_framework.errors import PluginError
+    from gns_framework.hookspecs import hookimpl
+    from gns_framework.plugin_types import Command
+
+    (tmp_path / "sieve_command.py").write_text(COMMAND_MODULE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+
+    class SievePlugin:
+        @staticmethod
+        @hookimpl
+        def gns_commands():
+            return [Command("sieve", "count the grains", "sieve_command")]
+
+    commands = load_commands(plugins=[("sieve-plugin", SievePlugin)])
+    assert list(commands)[0] == "demo" and list(commands)[-1] == "sieve"  # built-ins first
+    assert main(["sieve", "--grains", "7"], commands=commands) == 0
+    assert "sieved 7 grains" in capsys.readouterr().out
+    try:
+        main(["--help"], commands=commands)
+    except SystemExit:
+        pass
+    assert "count the grains" in capsys.readouterr().out
+
+    class ClashingPlugin:
+        @staticmethod
+        @hookimpl
+        def gns_commands():
+            return [Command("train", "another train", "sieve_command")]
+
+    with pytest.raises(PluginError, match="two gns commands are named 'train'.*clash-plugin"):
+        load_commands(plugins=[("clash-plugin", ClashingPlugin)])

@@ -90,7 +90,7 @@ def test_nan_and_shape_errors_name_the_field():
 def test_statistics_from_data():
     position = np.zeros((4, 2, 2), np.float32)
     position[:, 0, 0] = [0.0, 1.0, 3.0, 6.0]
-    stats = compute_statistics([Trajectory(position, np.array([5, 3]))])
+    stats = compute_statistics([Trajectory(position, np.array([5, 3]))], kinematic_types=[3])
     assert stats["vel_mean"] == [2.0, 0.0]
     assert stats["acc_mean"] == [1.0, 0.0]
     assert stats["acc_std"] == [0.0, 0.0]

@@ -118,4 +118,3 @@ def test_builder_returns_displacements():
     graph = RadiusGraphBuilder(RadiusGraphBuilder.Params(), scene).build(position, torch.zeros(2, dtype=torch.long), 1)
     for s, r, d in zip(graph.senders, graph.receivers, graph.displacement):
         assert torch.equal(d, position[s] - position[r])
-    assert graph.truncated == 0

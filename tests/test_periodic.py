@@ -49,7 +49,8 @@ def wrapped(traj):
 
 def test_periodic_scene_trains_and_rolls_out_inside_the_box(tmp_path):
     splits = {s: [drifting_trajectory(i, f"{s}_{i}") for i in range(n)] for s, n in (("train", 2), ("valid", 1), ("test", 1))}
-    metadata = synthetic_metadata(splits["train"], 2).model_copy(update=compute_statistics(splits["train"]))
+    statistics = compute_statistics(splits["train"], load_registry().kinematic_types())
+    metadata = synthetic_metadata(splits["train"], 2).model_copy(update=statistics)
     metadata = metadata.model_copy(update={"periodic_boundary_conditions": [True, False]})
     registry = load_registry()
     registry.get("dataset", "safe").write(tmp_path / "data", metadata, {s: [wrapped(t) for t in ts] for s, ts in splits.items()})

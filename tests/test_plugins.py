@@ -38,7 +38,7 @@ def test_every_kind_has_a_hook():
     from gns_framework import hookspecs
 
     for kind in COMPONENT_KINDS:
-        assert hasattr(hookspecs, hookspecs.HOOK_OF_KIND[kind])
+        assert hasattr(hookspecs, hookspecs.hook_of_kind(kind))
 
 
 class _OtherInteractionNetwork(Processor):
@@ -154,3 +154,49 @@ def test_registries_are_independent():
     second = load_registry(load_entry_points=False)
     assert first.names("processor") == ["interaction_network"]
     assert second.names("processor") == []
+
+
+# --- metric and command hooks -----------------------------------------------------------------------
+
+
+def _metric_plugin(*metrics):
+    class MetricPlugin:
+        @staticmethod
+        @hookimpl
+        def gns_metrics():
+            return list(metrics)
+
+    return MetricPlugin
+
+
+def test_metric_clashes_and_non_records_name_the_plugin():
+    from gns_framework.plugin_types import Metric
+
+    twin = Metric("sinkhorn_final", "L, another", lambda pair: None)
+    with pytest.raises(PluginError, match="two metrics are named 'sinkhorn_final'.*builtin-metrics.*twin-metric"):
+        load_registry(plugins=[("twin-metric", _metric_plugin(twin))])
+    with pytest.raises(PluginError, match="plugin 'bad-metric'.*not a gns_framework.plugin_types.Metric"):
+        load_registry(plugins=[("bad-metric", _metric_plugin({"name": "x"}))])
+
+
+def test_a_registry_without_metrics_says_how_to_get_them():
+    with pytest.raises(PluginError, match="no metric is installed.*builtin-metrics"):
+        load_registry(load_entry_points=False).metrics()
+
+
+def test_kinematic_types_come_from_the_materials(registry):
+    from gns_framework.contracts import Material
+
+    class Ballast(Material):
+        name = "ballast"
+        particle_type = 11
+        kinematic = True
+
+    class BallastPlugin:
+        @staticmethod
+        @hookimpl
+        def gns_materials():
+            return [Ballast]
+
+    assert registry.kinematic_types() == (3,)
+    assert load_registry(plugins=[("ballast", BallastPlugin)]).kinematic_types() == (3, 11)

@@ -30,13 +30,21 @@ GROUPS = {
 
 
 class SwappedIntegrators:
-    """The installed components, with integrators answering to another's name (an unstable 'velocity_verlet')."""
+    """The installed components, with integrators answering to another's name and claiming its facts
+    (an unstable 'velocity_verlet' that says it is symplectic)."""
 
     def __init__(self, swaps: dict[str, str]):
         self.registry, self.swaps = load_registry(), swaps
 
+    def entries(self, kind: str):
+        return self.registry.entries(kind)
+
     def get(self, kind: str, name: str) -> type:
-        return self.registry.get(kind, self.swaps.get(name, name) if kind == "integrator" else name)
+        if kind != "integrator" or name not in self.swaps:
+            return self.registry.get(kind, name)
+        claimed = self.registry.get(kind, name)
+        facts = {"name": name, "symplectic": claimed.symplectic, "stability_bound": claimed.stability_bound}
+        return type(f"Claiming{claimed.__name__}", (self.registry.get(kind, self.swaps[name]),), facts)
 
 
 class BlindGuard(RolloutGuard):
@@ -90,7 +98,7 @@ def test_non_finite_predictions_fail_their_rows_and_the_processor_summary(monkey
         return simulator
 
     monkeypatch.setattr(report, "tiny_simulator", sabotaged)
-    monkeypatch.setattr(report, "OTHER_PROCESSORS", ("egnn",))
+    monkeypatch.setattr(report, "other_processors", lambda registry: ["egnn"])
     summary = [row for row in report.extreme_inputs(load_registry()) if row.group == "learned simulator, egnn"]
     assert summary[0].failing and summary[0].outcome == "0/14 finite"
 

@@ -15,7 +15,8 @@ from gns_framework.hookspecs import hookimpl
 from gns_framework.loading import load_trained
 from gns_framework.plugins import load_registry
 from gns_framework.recipe import load_recipe, validate_recipe
-from gns_framework.rollout import rollout, write_rollout
+from gns_framework.evaluation.rollout_file import write_rollout
+from gns_framework.rollout import rollout
 from gns_framework.training.trainer import Trainer
 from tiny import tiny_recipe_mapping
 

@@ -138,7 +138,9 @@ def test_frame_stride_keeps_every_kth_frame_and_recomputes_statistics(dataset_2d
     full, thinned = plain.split("valid")[1], strided.split("valid")[1]
     np.testing.assert_array_equal(thinned.position, full.position[::3])
     np.testing.assert_array_equal(thinned.particle_type, full.particle_type)
-    expected = compute_statistics([strided.split("train")[i] for i in range(len(strided.split("train")))])
+    expected = compute_statistics(
+        [strided.split("train")[i] for i in range(len(strided.split("train")))], registry.kinematic_types()
+    )
     assert seen.vel_std == pytest.approx(expected["vel_std"]) and seen.acc_std == pytest.approx(expected["acc_std"])
     # A step over 3 frames: velocities about 3x those between stored frames.
     assert 2 < np.mean(seen.vel_std) / np.mean(stored.vel_std) < 4

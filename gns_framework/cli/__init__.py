@@ -1,7 +1,9 @@
-"""The ``gns`` command line. Each subcommand lives in its own module of this package.
+"""The ``gns`` command line. Each built-in subcommand lives in its own module of this package.
 
-A command module defines ``add_arguments(parser)`` and ``run(args) -> int``; its
-one-line help is its entry in :data:`COMMANDS`. Modules are imported only when their command runs (or for
+A command is a :class:`~gns_framework.plugin_types.Command` record (name, one-line
+help, module) from the ``gns_commands`` hook (:mod:`gns_framework.cli.commands`); a
+plugin adds one the same way. Its module defines ``add_arguments(parser)`` and
+``run(args) -> int`` and is imported only when its command runs (or for its own
 ``--help``), so ``gns --help`` stays fast and imports no heavy optional package.
 """
 
@@ -12,40 +14,32 @@ import importlib
 import sys
 
 from ..errors import GnsError
-
-COMMANDS: dict[str, str] = {
-    "demo": "simulate a small sand dataset, train the reference recipe briefly, roll out, report error vs run time",
-    "plugins": "list installed components by kind, with their source and distribution",
-    "check": "validate recipes and report every problem at once",
-    "train": "train a learned simulator from a recipe",
-    "rollout": "roll a trained simulator out on a dataset split",
-    "evaluate": "report error against run time of trained models and the ground-truth simulator",
-    "invert": "recover material properties or initial velocities from an observed trajectory through a trained model",
-    "render": "write VTK frames and a prediction-vs-truth GIF of a rollout file",
-    "import-geoelements": "convert a geoelements/gns checkpoint (model-<step>.pt) into a gns-framework checkpoint",
-    "generate": "simulate a scene spec into a dataset of train/valid/test trajectories",
-    "convert": "convert a dataset between layouts (safe, npz, tfrecord, lagrangebench)",
-    "stability": "run the stiff-integrator and extreme-input cases and print each outcome with its figures",
-    "compare": "tracked runs of any experiments side by side: metrics, params and differing recipe fields, with a plot",
-}
-"""Subcommand name -> one-line help. The module is ``gns_framework.cli.<name>``."""
+from ..plugin_types import Command
+from .commands import load_commands
 
 
-def _command_module(name: str):
-    return importlib.import_module(f"{__name__}.{name.replace('-', '_')}")
+def _command_module(command: Command):
+    return importlib.import_module(command.module)
 
 
-def build_parser(load_commands: list[str] | None = None) -> argparse.ArgumentParser:
+def build_parser(
+    chosen: list[str] | None = None, commands: dict[str, Command] | None = None
+) -> argparse.ArgumentParser:
+    """The ``gns`` parser; only the ``chosen`` commands' modules are imported (all when None).
+
+    ``commands``: the subcommands by name (default: :func:`~gns_framework.cli.commands.load_commands`).
+    """
+    commands = load_commands() if commands is None else commands
     parser = argparse.ArgumentParser(
         prog="gns",
         description="gns-framework: train, roll out and evaluate learned particle simulators (GNS).",
     )
     parser.add_argument("--version", action="version", version=f"gns-framework {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name, help_text in COMMANDS.items():
-        command_parser = sub.add_parser(name, help=help_text, description=help_text)
-        if load_commands is None or name in load_commands:
-            _command_module(name).add_arguments(command_parser)
+    for name, command in commands.items():
+        command_parser = sub.add_parser(name, help=command.help, description=command.help)
+        if chosen is None or name in chosen:
+            _command_module(command).add_arguments(command_parser)
     return parser
 
 
@@ -55,17 +49,23 @@ def _version() -> str:
     return __version__
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, commands: dict[str, Command] | None = None) -> int:
+    """Run ``gns`` with ``argv``; ``commands`` as in :func:`build_parser`. Returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        commands = load_commands() if commands is None else commands
+    except GnsError as exc:
+        print(f"gns: error: {exc}", file=sys.stderr)
+        return 2
     # Only the chosen command's module is imported; top-level --help imports none.
-    chosen = [a for a in argv if a in COMMANDS][:1]
-    parser = build_parser(load_commands=chosen)
+    chosen = [a for a in argv if a in commands][:1]
+    parser = build_parser(chosen, commands)
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
         return 0
     try:
-        return int(_command_module(args.command).run(args) or 0)
+        return int(_command_module(commands[args.command]).run(args) or 0)
     except GnsError as exc:
         print(f"gns {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -27,7 +27,8 @@ from ..errors import GnsError
 from ..loading import LoadedModel, load_trained
 from ..plugins import load_registry
 from ..recipe import load_recipe
-from ..rollout import rollout, write_rollout
+from ..evaluation.rollout_file import write_rollout
+from ..rollout import rollout
 from ..rollout_guard import RolloutGuard
 from ..simulation.build import build_simulator
 from ..simulation.generate import generate_dataset, is_up_to_date, provenance

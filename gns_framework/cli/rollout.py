@@ -16,7 +16,8 @@ from ..errors import DatasetError
 from ..loading import load_trained
 from ..plugins import load_registry
 from ..precision import PRECISIONS
-from ..rollout import rollout, write_rollout
+from ..evaluation.rollout_file import write_rollout
+from ..rollout import rollout
 from ..rollout_guard import RolloutGuard
 from ..training.mlflow_tracker import log_to_recorded_run
 from ..training.setup import open_dataset

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -12,10 +12,6 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from ..errors import DatasetError
 from .trajectory import Trajectory
-
-KINEMATIC_PARTICLE_TYPE = 3
-"""Particle-type id of kinematic (prescribed) particles in the public datasets."""
-
 
 class DatasetMetadata(BaseModel):
     """The keys of a ``metadata.json`` shared by DeepMind, geoelements and our layouts.
@@ -112,8 +108,12 @@ def load_metadata(path: str | Path, split: str | None = None) -> DatasetMetadata
     return parse_metadata(raw, path, split)
 
 
-def compute_statistics(trajectories: Iterable[Trajectory]) -> dict[str, list[float]]:
+def compute_statistics(trajectories: Iterable[Trajectory], kinematic_types: Collection[int]) -> dict[str, list[float]]:
     """Mean and std of per-frame velocity and acceleration over non-kinematic particles.
+
+    ``kinematic_types`` are the particle types whose material is kinematic (the
+    registry's :meth:`~gns_framework.plugins.Registry.kinematic_types`, or a scene's):
+    their prescribed motion is left out.
 
     Accumulates sums in float64 so long datasets do not lose precision; returns
     ``vel_mean``, ``vel_std``, ``acc_mean``, ``acc_std`` (and ``context_*`` when
@@ -129,7 +129,7 @@ def compute_statistics(trajectories: Iterable[Trajectory]) -> dict[str, list[flo
         acc[2] += (values**2).sum(0)
 
     for traj in trajectories:
-        moving = traj.particle_type != KINEMATIC_PARTICLE_TYPE
+        moving = ~np.isin(traj.particle_type, list(kinematic_types))
         pos = traj.position[:, moving].astype(np.float64)
         if pos.shape[0] >= 3 and pos.shape[1] > 0:
             vel = np.diff(pos, axis=0)

@@ -11,7 +11,7 @@ recomputed from the strided trajectories rather than scaled.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import replace
 
 from ..contracts import Dataset
@@ -52,18 +52,24 @@ class FrameStrideDataset(Dataset):
     split it holds); ``frame_stride`` records the stride applied.
     """
 
-    def __init__(self, dataset: Dataset, stride: int):
+    def __init__(self, dataset: Dataset, stride: int, kinematic_types: Collection[int]):
+        """``kinematic_types``: the particle types the statistics leave out (kinematic materials)."""
         super().__init__(dataset.params, dataset.path, allow_pickle=dataset.allow_pickle)
         self.name = dataset.name
         self.inner = dataset
         self.stride = stride
+        self.kinematic_types = tuple(kinematic_types)
         self._metadata: DatasetMetadata | None = None
 
     def metadata(self) -> DatasetMetadata:
         if self._metadata is None:
             stored = self.inner.metadata()
             splits = self.splits()
-            statistics = compute_statistics(self.split("train" if "train" in splits else splits[0])) if splits else {}
+            statistics = (
+                compute_statistics(self.split("train" if "train" in splits else splits[0]), self.kinematic_types)
+                if splits
+                else {}
+            )
             frames = -(-stored.sequence_length // self.stride)
             self._metadata = stored.model_copy(
                 update={"dt": stored.dt * self.stride, "sequence_length": frames, "frame_stride": self.stride, **statistics}

@@ -65,9 +65,6 @@ class WindowOrder:
             self._epoch = epoch
         return self._permutation
 
-    def epoch_of(self, step: int) -> int:
-        return step * self.batch_size * self.world_size // self.num_windows
-
     def step_positions(self, step: int) -> range:
         """Every process's positions in the global stream of windows at ``step``, in rank order."""
         size = self.batch_size * self.world_size

@@ -140,6 +140,8 @@ def compare(
         error_metric=error_metric,
         granular_types=granular_particle_types(scene, registry),
         material_names={t: registry.material_by_type(t).cls.name for t in scene.particle_types},
+        kinematic_types=scene.kinematic_types,
+        metrics=registry.metrics(),
         rollout_dir=rollout_dir,
     )
 
@@ -147,4 +149,4 @@ def compare(
 def granular_particle_types(scene: Scene, registry: Registry) -> list[int]:
     """The scene's particle types whose material is granular (runout and pile profile are measured on them)."""
     materials = {t: registry.material_by_type(t).cls for t in scene.particle_types}
-    return [t for t, m in materials.items() if m.constitutive_model == "drucker_prager"]
+    return [t for t, m in materials.items() if m.granular]

@@ -1,9 +1,13 @@
 """Error metrics between a predicted and a true rollout, batched, in PyTorch.
 
 Every function takes a batch of B rollouts whose particles are padded to a common
-count N; a boolean ``mask`` marks the real particles. Kinematic particles (type
-:data:`KINEMATIC_PARTICLE_TYPE`) follow prescribed paths in both rollouts, so
-they are left out of every error.
+count N; a boolean ``mask`` marks the real particles. Kinematic particles (those of
+the types whose material is kinematic, ``Scene.kinematic_types``) follow prescribed
+paths in both rollouts, so they are left out of every error.
+
+A metric is a :class:`~gns_framework.plugin_types.Metric` record (name, unit, function of a :class:`RolloutPair`)
+returned by a plugin's ``gns_metrics`` hook; the built-in ones are registered the
+same way (``gns_builtins.metrics``), so a new metric is one record in one place.
 
 Units: L is the dataset's length unit (metres in MPM data), s are seconds
 (frames are ``dt`` seconds apart). Relative errors (``*_pct``) are in percent of
@@ -17,31 +21,19 @@ from __future__ import annotations
 import math
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import torch
 from torch import Tensor
 
-from ..data.metadata import KINEMATIC_PARTICLE_TYPE
+from ..plugin_types import Metric
 
 DEFAULT_HORIZONS = (1, 5, 10, 20, 50, 100)
 """Rollout steps at which position errors are reported (besides the full rollout)."""
 
-METRIC_UNITS: dict[str, str] = {
-    "diverged": "share of rollouts whose prediction left the finite numbers (their errors are inf)",
-    "mse_{h}": "L^2, position MSE averaged over rollout steps 1..h",
-    "mse_full": "L^2, position MSE averaged over the whole rollout",
-    "rmse_full_pct": "%, sqrt(mse_full) as a share of the domain size",
-    "mse_final": "L^2, position MSE at the last frame",
-    "sinkhorn_final": "L, Sinkhorn distance sqrt(2 S_eps) between final particle clouds (~ W2)",
-    "sinkhorn_final_pct": "%, sinkhorn_final as a share of the domain size",
-    "kinetic_energy_error": "L^2/s^2, mean |error| of the kinetic energy per unit mass, averaged per particle",
-    "kinetic_energy_error_pct": "%, kinetic_energy_error as a share of the mean true kinetic energy",
-    "runout_error": "L, |predicted - true| runout distance of the granular particles",
-    "runout_error_pct": "%, runout_error as a share of the true runout distance",
-    "profile_error": "L, RMS error of the final pile surface height over occupied bins",
-    "profile_error_pct": "%, profile_error as a share of the true maximum pile height",
-}
-"""Unit and meaning of every scalar metric :func:`rollout_metrics` returns."""
+DIVERGED = "diverged"
+DIVERGED_UNIT = "share of rollouts whose prediction left the finite numbers (their errors are inf)"
+"""The one value every scoring has: it decides which errors are inf, so it is no plugin's."""
 
 
 @dataclass(frozen=True)
@@ -53,16 +45,25 @@ class ParticleRollout:
         particle_type: (B, N) int64 particle-type ids.
         mask: (B, N) bool, True for real particles (False pads shorter examples).
         start: (B, N, d) the last input frame the rollout starts from, or None.
+        kinematic_types: the particle types whose material is kinematic (prescribed,
+            left out of every error): ``Scene.kinematic_types``.
     """
 
     position: Tensor
     particle_type: Tensor
     mask: Tensor
-    start: Tensor | None = None
+    start: Tensor | None
+    kinematic_types: tuple[int, ...]
 
     @classmethod
     def of(
-        cls, position: Tensor, particle_type: Tensor, mask: Tensor | None = None, start: Tensor | None = None
+        cls,
+        position: Tensor,
+        particle_type: Tensor,
+        mask: Tensor | None = None,
+        start: Tensor | None = None,
+        *,
+        kinematic_types: Collection[int],
     ) -> ParticleRollout:
         """Accept one rollout ((S, N, d), (N,), ...) or a batch; check shapes agree."""
         position = torch.as_tensor(position)
@@ -82,12 +83,13 @@ class ParticleRollout:
             raise ValueError(f"mask: expected bool ({b}, {n}), got {mask.dtype} {tuple(mask.shape)}")
         if start is not None and tuple(start.shape) != (b, n, d):
             raise ValueError(f"start: expected ({b}, {n}, {d}), got {tuple(start.shape)}")
-        return cls(position, particle_type.long(), mask, start)
+        return cls(position, particle_type.long(), mask, start, tuple(sorted(int(t) for t in kinematic_types)))
 
     @property
     def moving(self) -> Tensor:
         """(B, N) bool: real, non-kinematic particles, the ones errors are taken over."""
-        return self.mask & (self.particle_type != KINEMATIC_PARTICLE_TYPE)
+        kinematic = torch.as_tensor(self.kinematic_types, dtype=self.particle_type.dtype, device=self.particle_type.device)
+        return self.mask & ~torch.isin(self.particle_type, kinematic)
 
     def of_types(self, types: Collection[int]) -> Tensor:
         """(B, N) bool: moving particles whose type is in ``types``."""
@@ -150,19 +152,6 @@ def mse_at_horizons(per_step: Tensor, horizons: Sequence[int] = DEFAULT_HORIZONS
         result[f"mse_{h}"] = per_step[..., :h].mean(-1) if h <= steps else None
     result["mse_full"] = per_step.mean(-1)
     return result
-
-
-def one_step_mse(predicted: Tensor, target: Tensor, particle_type: Tensor, mask: Tensor | None = None) -> Tensor:
-    """Position MSE of one predicted step from true history, L^2.
-
-    Shapes:
-        predicted, target: (N, d) or (B, N, d). particle_type, mask: (N,) or (B, N).
-        Returns () or (B,).
-    """
-    rollout = ParticleRollout.of(predicted.unsqueeze(-3), particle_type, mask)
-    truth = ParticleRollout.of(target.unsqueeze(-3), particle_type, mask)
-    error = mse_per_step(rollout, truth)[:, 0]
-    return error if predicted.ndim == 3 else error[0]
 
 
 def sinkhorn_distance(
@@ -301,136 +290,142 @@ def domain_size(bounds: Sequence[Sequence[float]]) -> float:
     return max(float(high) - float(low) for low, high in bounds)
 
 
-def rollout_metrics(
-    predicted: ParticleRollout,
-    target: ParticleRollout,
-    *,
-    dt: float,
-    bounds: Sequence[Sequence[float]],
-    same_particles: bool = True,
-    horizons: Sequence[int] = DEFAULT_HORIZONS,
-    granular_types: Collection[int] = (),
-    material_names: Mapping[int, str] | None = None,
-    vertical_axis: int = -1,
-    runout_axis: int = 0,
-    profile_bins: int = 50,
-    blur_fraction: float = 1e-3,
-) -> dict[str, Tensor | None]:
-    """Every rollout metric of a batch, by name (see :data:`METRIC_UNITS`).
+@dataclass(frozen=True)
+class RolloutPair:
+    """A batch of predicted rollouts beside the true ones, and what metrics need to compare them.
 
-    Position MSEs need particle correspondence: when the rollouts hold
-    different particles (a simulator run at another resolution,
-    ``same_particles=False``) they are ``None``, and the distribution metrics
-    (Sinkhorn, kinetic energy, runout, pile profile) still compare the two. Runout and profile are computed
-    only when ``granular_types`` names the granular particle types.
+    The intermediate results several metrics share (the per-step position error, the
+    final Sinkhorn distance, runouts, pile profiles) are computed once, on first use.
 
-    Args:
-        predicted, target: the rollouts to compare, with the same B and S.
+    Attributes:
+        predicted, target: the rollouts, with the same B and S.
         dt: seconds between frames (the dataset's ``dt``).
         bounds: (d, 2) domain walls, L.
         same_particles: whether particle i of one rollout is particle i of the other.
-        horizons: rollout steps for ``mse_h``; those beyond S are ``None``.
+        horizons: rollout steps for ``mse_h``; those beyond S are None.
         granular_types: particle types whose runout and pile profile are measured.
         material_names: names for per-material keys (``mse_full[sand]``), else ``type=<id>``.
         vertical_axis: the axis gravity acts along (the last one in the public datasets).
         runout_axis: the horizontal axis the runout is measured along.
         profile_bins: bins per horizontal axis of the pile profile.
         blur_fraction: Sinkhorn blur as a fraction of the domain size.
+    """
+
+    predicted: ParticleRollout
+    target: ParticleRollout
+    dt: float
+    bounds: Sequence[Sequence[float]]
+    same_particles: bool = True
+    horizons: Sequence[int] = DEFAULT_HORIZONS
+    granular_types: Collection[int] = ()
+    material_names: Mapping[int, str] | None = None
+    vertical_axis: int = -1
+    runout_axis: int = 0
+    profile_bins: int = 50
+    blur_fraction: float = 1e-3
+
+    @property
+    def domain_size(self) -> float:
+        return domain_size(self.bounds)
+
+    @cached_property
+    def mse_per_step(self) -> Tensor | None:
+        """(B, S) position MSE of every frame, L^2; None when the rollouts hold different particles."""
+        return mse_per_step(self.predicted, self.target) if self.same_particles else None
+
+    @cached_property
+    def sinkhorn_final(self) -> Tensor:
+        size = self.domain_size
+        return sinkhorn_distance(
+            self.predicted.position[:, -1],
+            self.target.position[:, -1],
+            self.predicted.moving,
+            self.target.moving,
+            blur=self.blur_fraction * size,
+            diameter=math.sqrt(len(self.bounds)) * size,
+        )
+
+    @cached_property
+    def kinetic_energy_error(self) -> tuple[Tensor, Tensor]:
+        return kinetic_energy_error(kinetic_energy(self.predicted, self.dt), kinetic_energy(self.target, self.dt))
+
+    @cached_property
+    def runouts(self) -> tuple[Tensor, Tensor] | None:
+        """(predicted, true) runout distances of the granular particles, (B,) each, L; None without granular types."""
+        if not self.granular_types:
+            return None
+        return (
+            runout_distance(self.predicted, self.predicted.of_types(self.granular_types), self.runout_axis),
+            runout_distance(self.target, self.target.of_types(self.granular_types), self.runout_axis),
+        )
+
+    @cached_property
+    def profile_error(self) -> tuple[Tensor, Tensor] | None:
+        """:func:`profile_error` of the final granular piles; None without granular types."""
+        if not self.granular_types:
+            return None
+        return profile_error(
+            *(
+                pile_profile(
+                    rollout.position[:, -1], rollout.of_types(self.granular_types), self.bounds,
+                    self.profile_bins, self.vertical_axis,
+                )
+                for rollout in (self.predicted, self.target)
+            )
+        )
+
+
+def rollout_metrics(pair: RolloutPair, metrics: Sequence[Metric]) -> dict[str, Tensor | None]:
+    """Every metric of ``metrics`` for a batch, by name, plus ``mse_per_step`` and ``diverged``.
+
+    Position MSEs need particle correspondence: when the rollouts hold different
+    particles (a simulator run at another resolution, ``pair.same_particles`` False)
+    they are None, and the metrics that compare clouds (Sinkhorn, kinetic energy,
+    runout, pile profile) still compare the two.
 
     Returns:
-        name -> (B,) tensor, or ``None`` when missing; ``"mse_per_step"`` is (B, S).
-        A prediction with a non-finite moving particle has ``diverged`` 1, an
-        ``inf`` position error in each frame where a particle is non-finite (and
-        in every horizon that includes such a frame), and every other error
-        ``inf``, so averaging over rollouts cannot hide it.
+        name -> (B,) tensor, or None when missing; ``"mse_per_step"`` is (B, S) (None
+        without correspondence). A prediction with a non-finite moving particle has
+        ``diverged`` 1, an ``inf`` position error in each frame where a particle is
+        non-finite (and in every horizon that includes such a frame), and every other
+        error ``inf``, so averaging over rollouts cannot hide it.
     """
+    predicted, target = pair.predicted, pair.target
     if predicted.position.shape[:2] != target.position.shape[:2]:
         raise ValueError(
             f"rollouts must have the same batch size and frame count: "
             f"{tuple(predicted.position.shape[:2])} vs {tuple(target.position.shape[:2])}"
         )
-    size = domain_size(bounds)
-    metrics: dict[str, Tensor | None] = {}
-    if same_particles:
-        per_step = mse_per_step(predicted, target)
-        metrics["mse_per_step"] = per_step
-        metrics.update(mse_at_horizons(per_step, horizons))
-        metrics["rmse_full_pct"] = 100 * metrics["mse_full"].sqrt() / size
-        metrics["mse_final"] = per_step[:, -1]
-        metrics.update(per_material_mse(predicted, target, material_names))
-    else:
-        metrics["mse_per_step"] = None
-        metrics.update({f"mse_{h}": None for h in horizons})
-        metrics.update(mse_full=None, rmse_full_pct=None, mse_final=None)
-
     finite = torch.isfinite(predicted.position).all(-1) | ~predicted.moving[:, None]
     diverged = ~finite.flatten(1).all(-1)
     # A diverged rollout has no meaningful cloud, energy or pile: compute on finite
     # stand-in values (so no NaN reaches the solvers), then mark those errors inf.
-    finite_predicted = replace(
-        predicted, position=torch.nan_to_num(predicted.position, nan=0.0, posinf=0.0, neginf=0.0)
+    stand_in = replace(
+        pair,
+        predicted=replace(predicted, position=torch.nan_to_num(predicted.position, nan=0.0, posinf=0.0, neginf=0.0)),
     )
-    distribution = _distribution_errors(
-        finite_predicted,
-        target,
-        dt=dt,
-        bounds=bounds,
-        granular_types=granular_types,
-        vertical_axis=vertical_axis,
-        runout_axis=runout_axis,
-        profile_bins=profile_bins,
-        blur_fraction=blur_fraction,
-    )
-    for name, value in distribution.items():
-        metrics[name] = None if value is None else torch.where(diverged, torch.inf, value)
-    metrics["diverged"] = diverged.to(predicted.position.dtype)
-    return metrics
+    values: dict[str, Tensor | None] = {"mse_per_step": pair.mse_per_step}
+    for metric in metrics:
+        value = metric.function(pair if metric.pairwise else stand_in)
+        family = value if isinstance(value, Mapping) else {metric.name: value}
+        for name, result in family.items():
+            if result is not None and not metric.pairwise:
+                result = torch.where(diverged, torch.inf, result)
+            values[name] = result
+    values[DIVERGED] = diverged.to(predicted.position.dtype)
+    return values
 
 
-def _distribution_errors(
-    predicted: ParticleRollout,
-    target: ParticleRollout,
-    *,
-    dt: float,
-    bounds: Sequence[Sequence[float]],
-    granular_types: Collection[int],
-    vertical_axis: int,
-    runout_axis: int,
-    profile_bins: int,
-    blur_fraction: float,
-) -> dict[str, Tensor | None]:
-    """The metrics that compare particle clouds and need no particle correspondence."""
-    size = domain_size(bounds)
-    metrics: dict[str, Tensor | None] = {}
-    final_distance = sinkhorn_distance(
-        predicted.position[:, -1],
-        target.position[:, -1],
-        predicted.moving,
-        target.moving,
-        blur=blur_fraction * size,
-        diameter=math.sqrt(len(bounds)) * size,
-    )
-    metrics["sinkhorn_final"] = final_distance
-    metrics["sinkhorn_final_pct"] = 100 * final_distance / size
+def metric_units(metrics: Sequence[Metric]) -> dict[str, str]:
+    """Name (or family pattern) -> unit and meaning, of every value :func:`rollout_metrics` gives."""
+    return {DIVERGED: DIVERGED_UNIT, **{m.name: m.unit for m in metrics}}
 
-    energy_error, energy_pct = kinetic_energy_error(kinetic_energy(predicted, dt), kinetic_energy(target, dt))
-    metrics["kinetic_energy_error"] = energy_error
-    metrics["kinetic_energy_error_pct"] = energy_pct
 
-    if not granular_types:
-        metrics.update(runout_error=None, runout_error_pct=None, profile_error=None, profile_error_pct=None)
-        return metrics
-    predicted_granular, true_granular = predicted.of_types(granular_types), target.of_types(granular_types)
-    predicted_runout = runout_distance(predicted, predicted_granular, runout_axis)
-    true_runout = runout_distance(target, true_granular, runout_axis)
-    runout_error = (predicted_runout - true_runout).abs()
-    metrics["runout_error"] = runout_error
-    metrics["runout_error_pct"] = 100 * runout_error / torch.where(true_runout.abs() > 0, true_runout.abs(), torch.nan)
-    metrics["profile_error"], metrics["profile_error_pct"] = profile_error(
-        pile_profile(predicted.position[:, -1], predicted_granular, bounds, profile_bins, vertical_axis),
-        pile_profile(target.position[:, -1], true_granular, bounds, profile_bins, vertical_axis),
-    )
-    return metrics
+def horizon_mse(pair: RolloutPair) -> dict[str, Tensor | None]:
+    """``mse_h`` for every horizon of ``pair``: None without correspondence or beyond the rollout."""
+    if pair.mse_per_step is None:
+        return {f"mse_{h}": None for h in pair.horizons}
+    return {name: value for name, value in mse_at_horizons(pair.mse_per_step, pair.horizons).items() if name != "mse_full"}
 
 
 def per_material_mse(

@@ -25,7 +25,8 @@ import numpy as np
 import torch
 
 from ..data.metadata import DatasetMetadata
-from .metrics import DEFAULT_HORIZONS, METRIC_UNITS, ParticleRollout, rollout_metrics, summarise
+from ..plugin_types import Metric
+from .metrics import DEFAULT_HORIZONS, ParticleRollout, RolloutPair, metric_units, rollout_metrics, summarise
 from .rollout_file import Rollout, save_rollout
 from .timing import Timing, format_hardware, hardware_description, time_call
 
@@ -111,7 +112,7 @@ class Entry:
     Attributes:
         seconds: mean over cases of the median wall-clock time of one rollout, s.
         spread: mean over cases of (slowest - fastest) repeat, s.
-        metrics: metric name -> mean over cases (None when missing), see METRIC_UNITS.
+        metrics: metric name -> mean over cases (None when missing), see ``Report.metric_units``.
         mse_per_step: (S,) position MSE per rolled-out frame averaged over cases, or None.
         speedup: reference seconds / these seconds, or None without a reference.
         cases: case key -> that case's metrics (the spread a mean hides: the worst collapse matters).
@@ -139,6 +140,8 @@ class Report:
     warmup: int
     dt: float
     hardware: dict[str, str | int] = field(default_factory=dict)
+    metric_units: dict[str, str] = field(default_factory=dict)
+    """Name (or family pattern) -> unit and meaning of every metric reported."""
 
     @property
     def reference(self) -> Entry | None:
@@ -155,6 +158,8 @@ def evaluate(
     horizons: Sequence[int] = DEFAULT_HORIZONS,
     granular_types: Collection[int] = (),
     material_names: Mapping[int, str] | None = None,
+    kinematic_types: Collection[int] | None = None,
+    metrics: Sequence[Metric] | None = None,
     rollout_dir: str | Path | None = None,
     clock: Callable[[], float] = time.perf_counter,
 ) -> Report:
@@ -166,19 +171,21 @@ def evaluate(
         repeats, warmup: timed and untimed runs per case (the median of the timed ones counts).
         error_metric: the metric shown as "error" and plotted against run time.
         horizons, granular_types, material_names: passed to :func:`rollout_metrics`.
+        kinematic_types, metrics: as in :func:`score_prediction`.
         rollout_dir: when given, every rollout that predicts the case's own particles is
             written there as ``<candidate>/<case>.npz`` (for ``gns render``).
         clock: the timings' clock, seconds (tests give one that runs with the work, not the wall).
     """
     if not candidates or not cases:
         raise ValueError("evaluate needs at least one candidate and one case")
+    kinematic_types, metrics = installed(kinematic_types, metrics)
     references = [c.name for c in candidates if c.reference]
     if len(references) > 1:
         raise ValueError(f"at most one reference simulator, got {references}")
     names = [c.name for c in candidates]
     if len(set(names)) != len(names):
         raise ValueError(f"candidate names must be unique, got {names}")
-    known = set(METRIC_UNITS) | {f"mse_{h}" for h in horizons}
+    known = {m.name for m in metrics} | {f"mse_{h}" for h in horizons}
     if error_metric not in known:
         raise ValueError(f"unknown error_metric {error_metric!r}; choose one of {sorted(known)}")
 
@@ -189,10 +196,12 @@ def evaluate(
             prediction, timing = time_call(
                 partial(candidate.simulate, case), repeats=repeats, warmup=warmup, device=candidate.device, clock=clock
             )
-            metrics = score_prediction(prediction, case, horizons, granular_types, material_names)
-            summaries.append(summarise(metrics))
+            scores = score_prediction(
+                prediction, case, horizons, granular_types, material_names, kinematic_types=kinematic_types, metrics=metrics
+            )
+            summaries.append(summarise(scores))
             timings.append(timing)
-            curves.append(None if metrics["mse_per_step"] is None else metrics["mse_per_step"][0].numpy())
+            curves.append(None if scores["mse_per_step"] is None else scores["mse_per_step"][0].numpy())
             if rollout_dir is not None and _same_particles(prediction, case):
                 save_rollout(Path(rollout_dir) / candidate.name / f"{case.key}.npz", _as_rollout(prediction, case))
         entries.append(_entry(candidate, summaries, timings, curves, [case.key for case in cases]))
@@ -201,7 +210,10 @@ def evaluate(
     if reference is not None:
         entries = [_with_speedup(e, reference.seconds) for e in entries]
     gpu = next((c.device for c in candidates if c.device and torch.device(c.device).type == "cuda"), None)
-    return Report(entries, error_metric, len(cases), repeats, warmup, cases[0].metadata.dt, hardware_description(gpu))
+    return Report(
+        entries, error_metric, len(cases), repeats, warmup, cases[0].metadata.dt, hardware_description(gpu),
+        metric_units(metrics),
+    )
 
 
 def score_rollout(
@@ -210,12 +222,30 @@ def score_rollout(
     horizons: Sequence[int] = DEFAULT_HORIZONS,
     granular_types: Collection[int] = (),
     material_names: Mapping[int, str] | None = None,
+    kinematic_types: Collection[int] | None = None,
+    metrics: Sequence[Metric] | None = None,
 ) -> dict[str, float | None]:
     """Every metric of a rollout file's prediction against its ground truth (no timing)."""
-    metrics = score_prediction(
-        Prediction(rollout.predicted_rollout), Case.from_rollout(rollout), horizons, granular_types, material_names
+    scores = score_prediction(
+        Prediction(rollout.predicted_rollout), Case.from_rollout(rollout), horizons, granular_types, material_names,
+        kinematic_types=kinematic_types, metrics=metrics,
     )
-    return summarise(metrics)
+    return summarise(scores)
+
+
+def installed(
+    kinematic_types: Collection[int] | None, metrics: Sequence[Metric] | None
+) -> tuple[Collection[int], Sequence[Metric]]:
+    """``kinematic_types`` and ``metrics``, each that of the installed plugins where None."""
+    if kinematic_types is not None and metrics is not None:
+        return kinematic_types, metrics
+    from ..plugins import load_registry
+
+    registry = load_registry()
+    return (
+        registry.kinematic_types() if kinematic_types is None else kinematic_types,
+        registry.metrics() if metrics is None else metrics,
+    )
 
 
 def _host_float64(values: np.ndarray | torch.Tensor) -> torch.Tensor:
@@ -233,8 +263,17 @@ def score_prediction(
     horizons: Sequence[int] = DEFAULT_HORIZONS,
     granular_types: Collection[int] = (),
     material_names: Mapping[int, str] | None = None,
+    *,
+    kinematic_types: Collection[int] | None = None,
+    metrics: Sequence[Metric] | None = None,
 ) -> dict[str, torch.Tensor | None]:
-    """Every :func:`rollout_metrics` metric of one prediction against its case's ground truth, in float64."""
+    """Every metric of ``metrics`` for one prediction against its case's ground truth, in float64.
+
+    ``kinematic_types``: particle types left out of every error (the scene's
+    ``kinematic_types``); ``metrics``: what is measured. None: those of the installed
+    plugins (:meth:`~gns_framework.plugins.Registry.kinematic_types`, ``.metrics``).
+    """
+    kinematic_types, metrics = installed(kinematic_types, metrics)
     position = _host_float64(prediction.position)
     if position.ndim != 3 or position.shape[0] != case.ground_truth.shape[0]:
         raise ValueError(
@@ -243,13 +282,16 @@ def score_prediction(
         )
     particle_type = case.particle_type if prediction.particle_type is None else prediction.particle_type
     start = case.initial_positions[-1] if prediction.start is None else prediction.start
-    predicted = ParticleRollout.of(position, torch.as_tensor(particle_type), start=_host_float64(start))
+    predicted = ParticleRollout.of(
+        position, torch.as_tensor(particle_type), start=_host_float64(start), kinematic_types=kinematic_types
+    )
     target = ParticleRollout.of(
         torch.as_tensor(case.ground_truth, dtype=torch.float64),
         torch.as_tensor(case.particle_type),
         start=torch.as_tensor(case.initial_positions[-1], dtype=torch.float64),
+        kinematic_types=kinematic_types,
     )
-    return rollout_metrics(
+    pair = RolloutPair(
         predicted,
         target,
         dt=case.metadata.dt,
@@ -259,6 +301,7 @@ def score_prediction(
         granular_types=granular_types,
         material_names=material_names,
     )
+    return rollout_metrics(pair, metrics)
 
 
 def _as_rollout(prediction: Prediction, case: Case) -> Rollout:
@@ -355,7 +398,7 @@ def markdown_table(report: Report) -> str:
         lines.append("| " + " | ".join(row) + " |")
     lines += _spread_over_cases(report)
     lines += ["", "Metrics (L: the dataset's length unit, s: seconds):", ""]
-    lines += [f"- `{name}`: {meaning}" for name, meaning in METRIC_UNITS.items()]
+    lines += [f"- `{name}`: {meaning}" for name, meaning in report.metric_units.items()]
     lines.append("")
     return "\n".join(lines)
 

@@ -24,12 +24,16 @@ import json
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..data.atomic import atomic_path
 from ..data.metadata import DatasetMetadata, parse_metadata
-from ..errors import DatasetError, located
+from ..errors import DatasetError, RolloutDiverged, located
+
+if TYPE_CHECKING:
+    from ..rollout import RolloutResult
 
 REQUIRED_FIELDS = ("initial_positions", "predicted_rollout", "ground_truth_rollout", "particle_type", "metadata_json")
 OPTIONAL_FIELDS = ("material_property",)
@@ -198,4 +202,36 @@ def load_rollout(path: str | Path) -> Rollout:
             material_property=fields.get("material_property"),
             source=src,
         )
+    )
+
+
+def write_rollout(
+    path: str | Path, result: "RolloutResult", metadata: DatasetMetadata, allow_non_finite: bool = False
+) -> Path:
+    """Save a rollout with its ground truth, atomically; an existing file is replaced only on success.
+
+    Non-finite predictions (from a rollout made without a guard) are refused unless
+    ``allow_non_finite`` says a diverged rollout is to be kept as a result.
+    """
+    finite = np.isfinite(result.predicted).all(axis=(1, 2))
+    if not allow_non_finite and not finite.all():
+        step = int(np.argmin(finite))
+        particles = np.flatnonzero(~np.isfinite(result.predicted[step]).all(axis=-1))
+        raise RolloutDiverged(
+            f"{path}: predicted_rollout: non-finite positions from step {step} on "
+            f"(particles {particles[:5].tolist()}{', ...' if len(particles) > 5 else ''}, {len(particles)} in all); "
+            "not written (pass allow_non_finite=True to keep a diverged rollout)",
+            trajectory=result.trajectory.key, step=step, particles=particles.tolist(), cause="non-finite positions",
+        )
+
+    return save_rollout(
+        path,
+        Rollout(
+            initial_positions=result.initial_positions.astype(np.float32),
+            predicted_rollout=result.predicted.astype(np.float32),
+            ground_truth_rollout=result.ground_truth.astype(np.float32),
+            particle_type=result.trajectory.particle_type.astype(np.int64),
+            metadata=metadata,
+            material_property=result.trajectory.material_property,
+        ),
     )

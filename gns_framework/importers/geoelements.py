@@ -22,7 +22,7 @@ import torch
 from torch import Tensor
 
 from ..contracts import Scene
-from ..data.metadata import KINEMATIC_PARTICLE_TYPE, DatasetMetadata, load_metadata, parse_metadata
+from ..data.metadata import DatasetMetadata, load_metadata, parse_metadata
 from ..errors import CheckpointError, GnsError
 from ..plugins import Registry, load_registry
 from ..recipe import ComponentSpec, ModelSpec, validate_recipe
@@ -124,7 +124,8 @@ def import_geoelements_checkpoint(
         train_state: ``train_state-<step>.pt`` (path or loaded dict), optional.
         particle_types: type ids of the scene. Default: every row of the checkpoint's
             embedding (``0 .. nparticle_types-1``); required when the checkpoint has no
-            embedding (``nparticle_types == 1``). Type 3 is kinematic, as in geoelements.
+            embedding (``nparticle_types == 1``). A type is kinematic when its installed material
+            is (type 3, ``rigid``, as in geoelements).
         material_properties: names of the material-property columns (default ``friction``
             when the checkpoint has one).
         noise_std: the ``--noise_std`` the model was trained with.
@@ -152,7 +153,7 @@ def import_geoelements_checkpoint(
         bounds=tuple((float(lo), float(hi)) for lo, hi in metadata.bounds),
         connectivity_radius=float(metadata.default_connectivity_radius),
         particle_types=types,
-        kinematic_types=tuple(t for t in types if t == KINEMATIC_PARTICLE_TYPE),
+        kinematic_types=tuple(t for t in types if t in registry.kinematic_types()),
         property_names=names,
         history=HISTORY,
         boundary_clamp_limit=metadata.boundary_clamp_limit,

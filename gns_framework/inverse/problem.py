@@ -273,8 +273,12 @@ class InverseProblem:
             )
             return 100 * distance[0] / self.domain
         start = state.position_sequence[:, 0]
-        predicted_runout = runout_distance(ParticleRollout.of(final[None], state.particle_type, start=start), self.granular)
+        kinematic = self.simulator.scene.kinematic_types
+        predicted_runout = runout_distance(
+            ParticleRollout.of(final[None], state.particle_type, start=start, kinematic_types=kinematic), self.granular
+        )
         observed_runout = runout_distance(
-            ParticleRollout.of(observed_final[None], state.particle_type, start=self.first_frame), self.granular
+            ParticleRollout.of(observed_final[None], state.particle_type, start=self.first_frame, kinematic_types=kinematic),
+            self.granular,
         )
         return 100 * (predicted_runout - observed_runout).abs()[0] / observed_runout.abs()[0]

@@ -22,9 +22,10 @@ from ..activation_memory import activations_recomputed
 from ..data.atomic import write_text_atomic
 from ..data.trajectory import Trajectory
 from ..evaluation.candidates import granular_particle_types
+from ..evaluation.rollout_file import write_rollout
 from ..loading import LoadedModel, load_trained
 from ..plugins import Registry
-from ..rollout import RolloutResult, write_rollout
+from ..rollout import RolloutResult
 from ..training.setup import open_dataset
 from ..training.tracking import Tracker
 from .config import InvertConfig, PropertyUnknown, VelocityUnknown

@@ -10,6 +10,7 @@ from ..contracts import GroundTruthSimulator
 from ..errors import PluginError, RecipeError
 from ..plugins import Registry
 from ..validation import problems_from
+from .scene_checks import scene_problems
 from .scene_spec import SceneSpec
 
 
@@ -25,7 +26,7 @@ def build_simulator(scene: SceneSpec, registry: Registry, source: str | Path | N
         raise RecipeError(source, problems_from(exc, cls.Params, prefix=("simulator",))) from None
     materials = {name: registry.get("material", name) for name in registry.names("material")}
     simulator = cls(params, materials)
-    problems = simulator.check(scene)
+    problems = scene_problems(simulator, scene)
     if problems:
         raise RecipeError(source, problems)
     return simulator

@@ -8,6 +8,7 @@ existing ones bit for bit, and a dataset is rebuilt exactly from its scene.
 from __future__ import annotations
 
 import json
+from collections.abc import Collection
 from pathlib import Path
 
 import numpy as np
@@ -70,8 +71,12 @@ def simulate_splits(
     return splits
 
 
-def dataset_metadata(scene: SceneSpec, train: list[Trajectory], extras: dict | None = None) -> DatasetMetadata:
+def dataset_metadata(
+    scene: SceneSpec, train: list[Trajectory], kinematic_types: Collection[int], extras: dict | None = None
+) -> DatasetMetadata:
     """metadata.json of a generated dataset: the scene's domain and time step, statistics of ``train``.
+
+    ``kinematic_types``: the particle types of kinematic materials, left out of the statistics.
 
     ``sequence_length`` counts frames (T); DeepMind's files store T - 1, and
     their layout converts.
@@ -83,7 +88,7 @@ def dataset_metadata(scene: SceneSpec, train: list[Trajectory], extras: dict | N
             "default_connectivity_radius": suggest_connectivity_radius(train),
             "dim": scene.dim,
             "dt": scene.time.frame_dt,
-            **compute_statistics(train),
+            **compute_statistics(train, kinematic_types),
             **({"material_properties": list(scene.property_names)} if scene.property_names else {}),
             **(extras or {}),
         }
@@ -102,8 +107,9 @@ def generate_dataset(
     if counts.get("train", 0) < 1:
         raise ValueError("a dataset needs at least one training trajectory (its statistics come from them)")
     splits = simulate_splits(scene, simulator, counts, progress)
+    kinematic_types = [m.particle_type for m in simulator.materials.values() if m.kinematic]
     metadata = dataset_metadata(
-        scene, splits["train"], {"generated_from": provenance(scene, simulator, counts)}
+        scene, splits["train"], kinematic_types, {"generated_from": provenance(scene, simulator, counts)}
     )
     layout.write(Path(out), metadata, splits)
     return metadata

@@ -22,7 +22,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 
 from ..errors import RecipeError
-from ..recipe import ComponentSpec
+from ..specs import ComponentSpec
 from ..validation import problems_from
 from ..yaml_loading import load_yaml_mapping
 

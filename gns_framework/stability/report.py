@@ -5,6 +5,10 @@ them all (well under a minute on one CPU core) and :func:`format_row` prints the
 Each row says whether its outcome is a failure: an outcome is judged against what
 the case must show (a symplectic integrator must keep the energy bounded, explicit
 Euler is expected to gain it), so ``gns stability`` exits non-zero on any failing row.
+
+What each integrator must show comes from its own attributes (``symplectic``,
+``stability_bound``); every installed integrator with a physical form (``advance``)
+and every installed processor is measured, not a list of names.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ import torch
 from ..data.trajectory import Trajectory
 from ..errors import RolloutDiverged
 from ..plugins import Registry
+from ..recipe import ModelSpec
 from ..rollout import rollout
 from ..rollout_guard import RolloutGuard
 from .extreme import CASES, check_finite, tiny_simulator
@@ -38,9 +43,18 @@ COLLISION = RepulsiveCollision(closest_approach=0.5)
 LIMIT_STEPS, LIMIT_GROWTH = 2000, 1e8
 COLLISION_ENERGY_ERROR = 0.01
 DRIFT_STEPS = 10_000
-SYMPLECTIC = ("semi_implicit_euler", "velocity_verlet")
-PHYSICAL = (*SYMPLECTIC, "explicit_euler")
-OTHER_PROCESSORS = ("shared_interaction_network", "graph_attention", "egnn")
+REFERENCE_PROCESSOR = ModelSpec().processor.name
+"""The processor of the extreme-input cases in both dimensions; every other installed one is run in 2D."""
+
+
+def physical_integrators(registry: Registry) -> list[str]:
+    """Installed integrators with a physical form (``advance``): symplectic ones first, then by name."""
+    physical = [e for e in registry.entries("integrator") if hasattr(e.cls, "advance")]
+    return [e.name for e in sorted(physical, key=lambda e: (not e.cls.symplectic, e.name))]
+
+
+def other_processors(registry: Registry) -> list[str]:
+    return [name for name in registry.names("processor") if name != REFERENCE_PROCESSOR]
 
 
 @dataclass(frozen=True)
@@ -54,10 +68,10 @@ class Row:
 
 
 def chain_limits(registry: Registry) -> Iterator[Row]:
-    theory = 2 / CHAIN.highest_frequency
-    for name in PHYSICAL:
-        advance = registry.get("integrator", name).advance
-        if name == "explicit_euler":
+    for name in physical_integrators(registry):
+        integrator = registry.get("integrator", name)
+        advance = integrator.advance
+        if not integrator.stability_bound:
             expected = explicit_euler_horizon_limit(CHAIN, LIMIT_STEPS, LIMIT_GROWTH)
             found = stability_limit(advance, CHAIN, 1e-4 * theory, theory, LIMIT_STEPS, LIMIT_GROWTH)
             failing = found.dt < expected
@@ -65,19 +79,22 @@ def chain_limits(registry: Registry) -> Iterator[Row]:
             figures = (f"no limit; {LIMIT_GROWTH:.0e}x energy in {LIMIT_STEPS} steps at dt = {found.dt:.4g} "
                        f"(omega_max dt = {found.dt * CHAIN.highest_frequency:.3g}; one-mode bound {expected:.4g})")
         else:
+            theory = integrator.stability_bound / CHAIN.highest_frequency
             found = stability_limit(advance, CHAIN, 1e-3 * theory, 2 * theory, LIMIT_STEPS, LIMIT_GROWTH)
             error = found.dt / theory - 1
             failing = not abs(error) < 1e-4
             outcome = "limit differs from theory" if failing else "limit as theory"
-            figures = f"dt_max = {found.dt:.6g} (theory 2/omega_max = {theory:.6g}, {error:+.1e})"
+            figures = (f"dt_max = {found.dt:.6g} (theory {integrator.stability_bound:g}/omega_max = {theory:.6g}, "
+                       f"{error:+.1e})")
         yield Row("spring chain N=32 k=1e6: dt limit", name, outcome, figures, failing)
 
 
 def chain_drift(registry: Registry) -> Iterator[Row]:
     for omega_dt in (0.1, 1.0):
         dt = omega_dt / CHAIN.highest_frequency
-        for name in PHYSICAL:
-            record = energy_record(registry.get("integrator", name).advance, CHAIN, dt, DRIFT_STEPS)
+        for name in physical_integrators(registry):
+            integrator = registry.get("integrator", name)
+            record = energy_record(integrator.advance, CHAIN, dt, DRIFT_STEPS)
             if not record.finite:
                 bounded = False
                 outcome, figures = "diverged", f"energy non-finite at step {record.first_non_finite_step}"
@@ -85,15 +102,16 @@ def chain_drift(registry: Registry) -> Iterator[Row]:
                 bounded = abs(record.drift) < 0.1 * max(record.max_error, 1e-12) + 1e-9
                 outcome = "bounded, no drift" if bounded else "energy grows"
                 figures = f"max |dE/E0| = {record.max_error:.3g}, drift {record.drift:+.2g}"
-            # Below omega dt = 2 a symplectic scheme must keep the energy bounded; explicit Euler gains it.
-            failing = name in SYMPLECTIC and not bounded
+            # Below its stability bound a symplectic scheme must keep the energy bounded; explicit Euler gains it.
+            failing = integrator.symplectic and omega_dt < (integrator.stability_bound or 0) and not bounded
             yield Row(f"spring chain: {DRIFT_STEPS} steps, omega_max dt = {omega_dt}", name, outcome, figures, failing)
 
 
 def near_collision(registry: Registry) -> Iterator[Row]:
     omega = COLLISION.contact_frequency
-    for name in PHYSICAL:
-        advance = registry.get("integrator", name).advance
+    for name in physical_integrators(registry):
+        integrator = registry.get("integrator", name)
+        advance = integrator.advance
         limit = collision_dt_limit(advance, COLLISION)
         fine = collide(advance, COLLISION, 0.1 / omega)
         coarse = collide(advance, COLLISION, 30 / omega)
@@ -101,12 +119,14 @@ def near_collision(registry: Registry) -> Iterator[Row]:
         figures = (f"1% energy error at dt = {limit * omega:.3g}/omega_contact; "
                    f"|dE/E0| = {fine.energy_error:.2g} at 0.1/omega")
         # Resolving the contact (dt = 0.1/omega), a symplectic scheme must hold the energy within 1%.
-        failing = name in SYMPLECTIC and not fine.energy_error < COLLISION_ENERGY_ERROR
+        failing = integrator.symplectic and not fine.energy_error < COLLISION_ENERGY_ERROR
         if failing:
             outcome = f"energy error over {COLLISION_ENERGY_ERROR:.0%} at 0.1/omega"
         yield Row("near-collision r^-12, r_min = sigma/2", name, outcome, figures, failing)
-    yield Row("near-collision r^-12, r_min = sigma/2", "velocity_euler", "n/a",
-              "no physical form: it needs a velocity law, not a force law")
+    for entry in registry.entries("integrator"):
+        if not hasattr(entry.cls, "advance"):
+            yield Row("near-collision r^-12, r_min = sigma/2", entry.name, "n/a",
+                      f"no physical form: it needs a {entry.cls.predicts} law, not a force law")
 
 
 def _extreme_row(simulator, case: str, dim: int, dtype: torch.dtype, label: str) -> Row:
@@ -124,9 +144,9 @@ def extreme_inputs(registry: Registry) -> Iterator[Row]:
         zero_std = tiny_simulator(registry, dim, zero_std=True)
         for dtype in (torch.float32, torch.bfloat16):
             for case in CASES:
-                yield _extreme_row(simulator, case, dim, dtype, "interaction_network")
-            yield _extreme_row(zero_std, "coincident particles", dim, dtype, "interaction_network, zero std")
-    for processor in OTHER_PROCESSORS:
+                yield _extreme_row(simulator, case, dim, dtype, REFERENCE_PROCESSOR)
+            yield _extreme_row(zero_std, "coincident particles", dim, dtype, f"{REFERENCE_PROCESSOR}, zero std")
+    for processor in other_processors(registry):
         simulator = tiny_simulator(registry, 2, processor)
         rows = [_extreme_row(simulator, case, 2, dtype, processor) for case in CASES
                 for dtype in (torch.float32, torch.bfloat16)]

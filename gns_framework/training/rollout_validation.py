@@ -18,6 +18,7 @@ from ..data.metadata import DatasetMetadata
 from ..data.trajectory import Trajectory
 from ..evaluation.candidates import cases_from_split, learned_positions
 from ..evaluation.report import Prediction, score_prediction
+from ..plugins import load_registry
 from ..simulator import LearnedSimulator
 
 METRICS = {
@@ -43,9 +44,13 @@ def validation_rollout_metrics(
     """
     totals: dict[str, list[float]] = {name: [] for name in METRICS}
     cases = cases_from_split(trajectories, metadata, simulator.scene.history)
+    measured = [m for m in load_registry().metrics() if m.name in METRICS.values()]
     for trajectory, case in zip(trajectories, cases):
         prediction = Prediction(learned_positions(simulator, trajectory, device))
-        metrics = score_prediction(prediction, case, granular_types=granular_types)
+        metrics = score_prediction(
+            prediction, case, granular_types=granular_types, kinematic_types=simulator.scene.kinematic_types,
+            metrics=measured,
+        )
         for name, key in METRICS.items():
             value = metrics.get(key)
             if value is not None:

@@ -13,7 +13,7 @@ from ..data.stride import FrameStrideDataset
 from ..data.trajectory import Trajectory
 from ..errors import DatasetError
 from ..plugins import Registry
-from ..recipe import DatasetSpec, Recipe, component
+from ..recipe import COMPONENT_SECTIONS, DatasetSpec, Recipe, component
 from ..scene import scene_from_data
 
 
@@ -30,7 +30,9 @@ def open_dataset(
     if not folder.is_dir():
         raise DatasetError(f"{folder}: dataset folder not found (dataset.path in the recipe, or --dataset)")
     dataset = cls(params, folder, allow_pickle=pickle_granted(folder, allow_pickle))
-    return FrameStrideDataset(dataset, spec.frame_stride) if spec.frame_stride > 1 else dataset
+    if spec.frame_stride == 1:
+        return dataset
+    return FrameStrideDataset(dataset, spec.frame_stride, registry.kinematic_types())
 
 
 @dataclass
@@ -57,7 +59,7 @@ def plugin_versions(recipe: Recipe, registry: Registry, scene: Scene) -> dict[st
     """``kind/name -> distribution version`` of every component the recipe uses and of the installed
     materials of the scene's particle types (an imported model may have types no material is installed for)."""
     model = recipe.model
-    named = [(kind, getattr(model, kind).name) for kind in ("graph_builder", "encoder", "processor", "decoder", "integrator")]
+    named = [(kind, getattr(model, kind).name) for kind in COMPONENT_SECTIONS]
     named.append(("dataset", recipe.dataset.name))
     named += [("material", e.name) for e in registry.entries("material") if e.cls.particle_type in scene.particle_types]
     return {f"{kind}/{name}": registry.version_of(kind, name) for kind, name in named}

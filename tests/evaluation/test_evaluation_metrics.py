@@ -15,17 +15,28 @@ from gns_framework.evaluation.metrics import (
     kinetic_energy_error,
     mse_at_horizons,
     mse_per_step,
-    one_step_mse,
     pile_profile,
     profile_error,
+    RolloutPair,
     rollout_metrics,
     runout_distance,
     sinkhorn_distance,
     summarise,
 )
+from gns_framework.plugins import load_registry
 
 SAND, WATER, KINEMATIC = 6, 5, 3
 UNIT_BOX = [(0.0, 1.0), (0.0, 1.0)]
+METRICS = load_registry().metrics()
+
+
+def rollout_of(position, particle_type, mask=None, start=None) -> ParticleRollout:
+    return ParticleRollout.of(position, particle_type, mask, start, kinematic_types={KINEMATIC})
+
+
+def measure(predicted: ParticleRollout, truth: ParticleRollout, **options):
+    """Every installed metric (the built-ins) of ``predicted`` against ``truth``."""
+    return rollout_metrics(RolloutPair(predicted, truth, **options), METRICS)
 
 
 def offset_rollout(steps: int = 7):
@@ -39,7 +50,7 @@ def offset_rollout(steps: int = 7):
     predicted[:, 0, 0] = torch.arange(1, steps + 1, dtype=torch.float64)
     predicted[:, 2] = 100.0
     particle_type = torch.tensor([SAND, SAND, KINEMATIC])
-    return ParticleRollout.of(predicted, particle_type), ParticleRollout.of(truth, particle_type)
+    return rollout_of(predicted, particle_type), rollout_of(truth, particle_type)
 
 
 def test_mse_per_step_and_horizons_by_hand():
@@ -70,25 +81,15 @@ def test_padded_batch_matches_each_rollout_alone():
     position_p[1, :, 1:] = 1e6
     mask = torch.tensor([[True, True, True], [True, False, False]])
     types = truth.particle_type.expand(2, 3)
-    per_step = mse_per_step(ParticleRollout.of(position_p, types, mask), ParticleRollout.of(position_t, types, mask))
+    per_step = mse_per_step(rollout_of(position_p, types, mask), rollout_of(position_t, types, mask))
     k = torch.arange(1, 5, dtype=torch.float64)
     torch.testing.assert_close(per_step[0], k**2 / 4)
     torch.testing.assert_close(per_step[1], k**2 / 2)
 
 
-def test_one_step_mse_by_hand():
-    target = torch.zeros(4, 2)
-    predicted = torch.tensor([[0.3, 0.4], [0.0, 0.0], [0.0, 0.0], [5.0, 5.0]])
-    particle_type = torch.tensor([SAND, SAND, WATER, KINEMATIC])
-    # Particle 0: (0.09 + 0.16) / 2 = 0.125; three moving particles -> 0.125 / 3.
-    assert one_step_mse(predicted, target, particle_type).item() == pytest.approx(0.125 / 3)
-    batched = one_step_mse(predicted.expand(2, 4, 2), target.expand(2, 4, 2), particle_type.expand(2, 4))
-    assert batched.shape == (2,)
-
-
 def test_position_mse_refuses_rollouts_of_different_particles():
     _, truth = offset_rollout()
-    fewer = ParticleRollout.of(truth.position[0, :, :2], truth.particle_type[0, :2])
+    fewer = rollout_of(truth.position[0, :, :2], truth.particle_type[0, :2])
     with pytest.raises(ValueError, match="same particles"):
         mse_per_step(fewer, truth)
 
@@ -157,7 +158,7 @@ def constant_velocity(step: float, frames: int = 5) -> ParticleRollout:
     """One sand particle moving ``step`` per frame along x, starting at the origin."""
     x = step * torch.arange(1, frames + 1, dtype=torch.float64)
     position = torch.stack([x, torch.zeros_like(x)], dim=-1)[:, None]
-    return ParticleRollout.of(position, torch.tensor([SAND]), start=torch.zeros(1, 2, dtype=torch.float64))
+    return rollout_of(position, torch.tensor([SAND]), start=torch.zeros(1, 2, dtype=torch.float64))
 
 
 def test_kinetic_energy_by_hand():
@@ -165,7 +166,7 @@ def test_kinetic_energy_by_hand():
     energy = kinetic_energy(constant_velocity(0.01), dt=0.01)
     torch.testing.assert_close(energy, torch.full((1, 5), 0.5, dtype=torch.float64))
     # Without a start frame the first velocity is unknown: one value fewer.
-    no_start = ParticleRollout.of(constant_velocity(0.01).position[0], torch.tensor([SAND]))
+    no_start = rollout_of(constant_velocity(0.01).position[0], torch.tensor([SAND]))
     assert kinetic_energy(no_start, dt=0.01).shape == (1, 4)
 
 
@@ -188,7 +189,7 @@ def collapse(final_front: float) -> ParticleRollout:
     position = torch.stack([start, final])
     position = torch.cat([position, wall.expand(2, 2, 2)], dim=1)
     particle_type = torch.tensor([SAND] * 6 + [KINEMATIC] * 2)
-    return ParticleRollout.of(position, particle_type, start=torch.cat([start, wall]))
+    return rollout_of(position, particle_type, start=torch.cat([start, wall]))
 
 
 def test_runout_of_a_constructed_pile():
@@ -196,7 +197,7 @@ def test_runout_of_a_constructed_pile():
     sand = truth.of_types([SAND])
     assert runout_distance(truth, sand).item() == pytest.approx(0.3)
     assert runout_distance(predicted, sand).item() == pytest.approx(0.25)
-    metrics = rollout_metrics(predicted, truth, dt=0.01, bounds=UNIT_BOX, granular_types={SAND})
+    metrics = measure(predicted, truth, dt=0.01, bounds=UNIT_BOX, granular_types={SAND})
     assert metrics["runout_error"].item() == pytest.approx(0.05)
     assert metrics["runout_error_pct"].item() == pytest.approx(100 * 0.05 / 0.3)
 
@@ -232,9 +233,9 @@ def test_per_material_breakdown_names_each_material():
     predicted = truth.clone()
     predicted[:, 2:, 1] = 0.2  # only the sand particles are off
     particle_type = torch.tensor([WATER, WATER, SAND, SAND])
-    metrics = rollout_metrics(
-        ParticleRollout.of(predicted, particle_type),
-        ParticleRollout.of(truth, particle_type),
+    metrics = measure(
+        rollout_of(predicted, particle_type),
+        rollout_of(truth, particle_type),
         dt=0.01,
         bounds=UNIT_BOX,
         material_names={SAND: "sand", WATER: "water"},
@@ -247,12 +248,12 @@ def test_per_material_breakdown_names_each_material():
 
 def test_exact_rollout_has_zero_error_everywhere(make_rollout):
     rollout = make_rollout(steps=8)
-    truth = ParticleRollout.of(
+    truth = rollout_of(
         torch.as_tensor(rollout.ground_truth_rollout, dtype=torch.float64),
         torch.as_tensor(rollout.particle_type),
         start=torch.as_tensor(rollout.initial_positions[-1], dtype=torch.float64),
     )
-    summary = summarise(rollout_metrics(truth, truth, dt=0.01, bounds=UNIT_BOX, granular_types={SAND}))
+    summary = summarise(measure(truth, truth, dt=0.01, bounds=UNIT_BOX, granular_types={SAND}))
     assert summary["mse_50"] is None and summary["mse_100"] is None
     present = {k: v for k, v in summary.items() if v is not None}
     assert present.pop("sinkhorn_final") == pytest.approx(0.0, abs=1e-6)
@@ -262,11 +263,11 @@ def test_exact_rollout_has_zero_error_everywhere(make_rollout):
 
 def test_different_particles_drop_position_errors_but_keep_distribution_metrics(make_rollout):
     rollout = make_rollout(steps=5, particles=12)
-    truth = ParticleRollout.of(
+    truth = rollout_of(
         torch.as_tensor(rollout.ground_truth_rollout, dtype=torch.float64), torch.as_tensor(rollout.particle_type)
     )
-    coarse = ParticleRollout.of(truth.position[0, :, ::2], truth.particle_type[0, ::2])
-    metrics = rollout_metrics(coarse, truth, dt=0.01, bounds=UNIT_BOX, same_particles=False)
+    coarse = rollout_of(truth.position[0, :, ::2], truth.particle_type[0, ::2])
+    metrics = measure(coarse, truth, dt=0.01, bounds=UNIT_BOX, same_particles=False)
     assert metrics["mse_full"] is None and metrics["mse_1"] is None and metrics["mse_per_step"] is None
     assert metrics["sinkhorn_final"].item() > 0
     assert metrics["kinetic_energy_error"] is not None
@@ -277,9 +278,9 @@ def test_diverged_prediction_is_inf_from_its_first_bad_frame_not_averaged_away()
     position = torch.cat([truth.position, predicted.position])
     position[1, 2:, 0, 0] = float("nan")
     types = truth.particle_type.expand(2, 3)
-    metrics = rollout_metrics(
-        ParticleRollout.of(position, types),
-        ParticleRollout.of(torch.cat([truth.position] * 2), types),
+    metrics = measure(
+        rollout_of(position, types),
+        rollout_of(torch.cat([truth.position] * 2), types),
         dt=0.01,
         bounds=UNIT_BOX,
     )

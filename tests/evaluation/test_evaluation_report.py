@@ -11,6 +11,9 @@ from PIL import Image
 
 from gns_framework.evaluation.report import Candidate, Case, Prediction, evaluate, score_rollout, write_report
 from gns_framework.evaluation.rollout_file import load_rollout
+from gns_framework.hookspecs import hookimpl
+from gns_framework.plugin_types import Metric
+from gns_framework.plugins import load_registry
 
 GRAVITY = np.array([0.0, -9.81])
 HISTORY, STEPS, DT = 6, 12, 0.01
@@ -207,3 +210,20 @@ def test_score_rollout_file(make_rollout):
     assert summary["mse_10"] is None
     assert summary["mse_full[sand]"] == pytest.approx(summary["mse_full"])
     assert summary["runout_error"] is not None and summary["diverged"] == 0.0
+
+
+def test_a_plugin_metric_is_measured_beside_the_builtins(make_rollout):
+    moved = Metric("moving_particles", "1, particles the errors are taken over", lambda pair: pair.target.moving.sum(-1).double())
+
+    class MetricPlugin:
+        @staticmethod
+        @hookimpl
+        def gns_metrics():
+            return [moved]
+
+    registry = load_registry(plugins=[("count-metric", MetricPlugin)])
+    names = [m.name for m in registry.metrics()]
+    assert names[-1] == "moving_particles" and "sinkhorn_final" in names
+    summary = score_rollout(make_rollout(steps=8, particles=12), metrics=registry.metrics())
+    assert summary["moving_particles"] == 10  # two of the twelve are kinematic
+    assert summary["sinkhorn_final"] is not None

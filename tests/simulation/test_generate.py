@@ -44,7 +44,7 @@ def test_dataset_has_splits_and_metadata_from_its_train_split(generated, sim_reg
     train = load_split(sim_registry, out, "train")
     assert [len(load_split(sim_registry, out, s)) for s in ("train", "valid", "test")] == [2, 1, 1]
     assert load_metadata(out) == metadata
-    stats = compute_statistics(train)
+    stats = compute_statistics(train, sim_registry.kinematic_types())
     for key, values in stats.items():
         assert getattr(metadata, key) == pytest.approx(values)
     assert metadata.sequence_length == scene.time.frames == train[0].num_steps

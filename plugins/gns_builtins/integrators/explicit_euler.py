@@ -32,6 +32,8 @@ class ExplicitEuler(Integrator):
 
     name = "explicit_euler"
     predicts = "acceleration"
+    symplectic = False
+    stability_bound = 0.0
 
     class Params(Params):
         pass

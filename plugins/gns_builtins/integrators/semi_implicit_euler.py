@@ -23,6 +23,8 @@ class SemiImplicitEuler(Integrator):
 
     name = "semi_implicit_euler"
     predicts = "acceleration"
+    symplectic = True
+    stability_bound = 2.0
 
     class Params(Params):
         pass

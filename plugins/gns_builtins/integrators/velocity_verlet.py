@@ -31,6 +31,8 @@ class VelocityVerlet(Integrator):
 
     name = "velocity_verlet"
     predicts = "acceleration"
+    symplectic = True
+    stability_bound = 2.0
 
     class Params(Params):
         pass

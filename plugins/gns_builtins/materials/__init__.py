@@ -34,6 +34,7 @@ class Water(Material):
 class Sand(Material):
     name = "sand"
     particle_type = 6
+    granular = True
     properties = (FRICTION,)
     description = "granular Drucker-Prager material; friction may vary per particle"
     constitutive_model = "drucker_prager"

@@ -1,0 +1,52 @@
+"""The typed records plugin hooks return besides component classes: metrics and commands.
+
+It imports nothing else from gns-framework (nor torch), so the command line can
+collect commands, and the registry metrics, without loading any component.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One rollout metric, as a plugin's ``gns_metrics`` hook returns it.
+
+    Attributes:
+        name: its key in reports and ``evaluation_*`` tracked metrics; a family's
+            pattern (``mse_{h}``, ``mse_full[<material>]``) when ``function`` returns several.
+        unit: unit, a comma, then what it measures (``"L, RMS error of ..."``), shown in reports.
+        function: the value for a :class:`~gns_framework.evaluation.metrics.RolloutPair`:
+            a (B,) tensor, None when it cannot be taken (missing), or
+            ``{name: (B,) tensor or None}`` for a family.
+        pairwise: compares particle i of the prediction with particle i of the truth
+            (position errors). Such a metric sees the raw prediction (a non-finite
+            position gives an inf error by itself) and must give None when
+            ``pair.same_particles`` is False. Any other metric compares the clouds; it
+            sees finite stand-in positions, and is inf wherever the rollout diverged.
+    """
+
+    name: str
+    unit: str
+    function: Callable[[Any], Any | None | Mapping[str, Any]]
+    pairwise: bool = False
+
+
+@dataclass(frozen=True)
+class Command:
+    """A ``gns`` subcommand, as a plugin's ``gns_commands`` hook returns it.
+
+    Attributes:
+        name: the subcommand (``gns <name>``).
+        help: its one-line help, shown by ``gns --help``.
+        module: dotted name of the module that implements it: ``add_arguments(parser)``
+            and ``run(args) -> int`` (the exit status). It is imported only when the
+            command runs or its own ``--help`` is asked for, so ``gns --help`` stays fast.
+    """
+
+    name: str
+    help: str
+    module: str

@@ -1,0 +1,97 @@
+"""Built-in rollout metrics, registered through the same ``gns_metrics`` hook as a plugin's.
+
+L is the dataset's length unit, s seconds; ``*_pct`` are percent of the stated
+scale. The order here is the order of the report's columns.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from gns_framework.evaluation.metrics import RolloutPair, horizon_mse, per_material_mse
+from gns_framework.hookspecs import hookimpl
+from gns_framework.plugin_types import Metric
+
+
+def _mse_full(pair: RolloutPair):
+    return None if pair.mse_per_step is None else pair.mse_per_step.mean(-1)
+
+
+def _rmse_full_pct(pair: RolloutPair):
+    mse = _mse_full(pair)
+    return None if mse is None else 100 * mse.sqrt() / pair.domain_size
+
+
+def _mse_final(pair: RolloutPair):
+    return None if pair.mse_per_step is None else pair.mse_per_step[:, -1]
+
+
+def _per_material(pair: RolloutPair):
+    return per_material_mse(pair.predicted, pair.target, pair.material_names) if pair.same_particles else {}
+
+
+def _relative(error, scale):
+    """``100 * error / |scale|``, NaN where the scale is 0 (no reference to be a share of)."""
+    return 100 * error / torch.where(scale.abs() > 0, scale.abs(), torch.nan)
+
+
+def _runout_error(pair: RolloutPair):
+    if pair.runouts is None:
+        return None
+    predicted, true = pair.runouts
+    return (predicted - true).abs()
+
+
+def _runout_error_pct(pair: RolloutPair):
+    return None if pair.runouts is None else _relative(_runout_error(pair), pair.runouts[1])
+
+
+BUILTIN_METRICS = (
+    Metric("mse_{h}", "L^2, position MSE averaged over rollout steps 1..h", horizon_mse, pairwise=True),
+    Metric("mse_full", "L^2, position MSE averaged over the whole rollout", _mse_full, pairwise=True),
+    Metric("rmse_full_pct", "%, sqrt(mse_full) as a share of the domain size", _rmse_full_pct, pairwise=True),
+    Metric("mse_final", "L^2, position MSE at the last frame", _mse_final, pairwise=True),
+    Metric(
+        "mse_full[<material>]",
+        "L^2, mse_full and mse_final of one moving material's particles (also mse_final[<material>])",
+        _per_material,
+        pairwise=True,
+    ),
+    Metric(
+        "sinkhorn_final",
+        "L, Sinkhorn distance sqrt(2 S_eps) between final particle clouds (~ W2)",
+        lambda pair: pair.sinkhorn_final,
+    ),
+    Metric(
+        "sinkhorn_final_pct",
+        "%, sinkhorn_final as a share of the domain size",
+        lambda pair: 100 * pair.sinkhorn_final / pair.domain_size,
+    ),
+    Metric(
+        "kinetic_energy_error",
+        "L^2/s^2, mean |error| of the kinetic energy per unit mass, averaged per particle",
+        lambda pair: pair.kinetic_energy_error[0],
+    ),
+    Metric(
+        "kinetic_energy_error_pct",
+        "%, kinetic_energy_error as a share of the mean true kinetic energy",
+        lambda pair: pair.kinetic_energy_error[1],
+    ),
+    Metric("runout_error", "L, |predicted - true| runout distance of the granular particles", _runout_error),
+    Metric("runout_error_pct", "%, runout_error as a share of the true runout distance", _runout_error_pct),
+    Metric(
+        "profile_error",
+        "L, RMS error of the final pile surface height over occupied bins",
+        lambda pair: None if pair.profile_error is None else pair.profile_error[0],
+    ),
+    Metric(
+        "profile_error_pct",
+        "%, profile_error as a share of the true maximum pile height",
+        lambda pair: None if pair.profile_error is None else pair.profile_error[1],
+    ),
+)
+
+
+@hookimpl
+def gns_metrics():
+    return list(BUILTIN_METRICS)
