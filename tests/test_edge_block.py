@@ -34,8 +34,11 @@ def small_chunks(monkeypatch):
 @pytest.mark.parametrize("hidden_layers", [0, 1, 2])
 @pytest.mark.parametrize("use_edge_output", [True, False])
 @pytest.mark.parametrize("recompute", [False, True])
-def test_values_and_gradients_match_autograd(small_chunks, hidden_layers, use_edge_output, recompute, monkeypatch):
+@pytest.mark.parametrize("ordered_sums", [False, True], ids=["index_add", "ordered_sums"])
+def test_values_and_gradients_match_autograd(small_chunks, hidden_layers, use_edge_output, recompute, ordered_sums, monkeypatch):
+    """``ordered_sums`` is the GPUs' path (segment_sum.py), run here on the CPU."""
     monkeypatch.setattr(edge_block_module, "recompute_activations", lambda: recompute)
+    monkeypatch.setattr(edge_block_module, "needs_ordered_sums", lambda device: ordered_sums)
     torch.manual_seed(hidden_layers)
     n, latent, hidden = 11, 6, 5
     receivers = torch.randint(0, n, (40,)).sort().values

@@ -35,6 +35,7 @@ from torch.autograd.function import once_differentiable
 from gns_framework.activation_memory import recompute_activations
 
 from .. import fused_kernels
+from ..segment_sum import needs_ordered_sums, segment_sum_
 from ..chunked import (
     add_product,
     chunk_size,
@@ -64,17 +65,28 @@ def table_rows(senders: Tensor, receivers: Tensor, num_nodes: int) -> Tensor:
 
 
 class Plan(NamedTuple):
-    """How one call runs: edges per chunk, the products' dtype, and whether the receivers are sorted."""
+    """How one call runs: edges per chunk, the products' dtype, whether the receivers are sorted,
+    and whether sums at nodes go through :mod:`~gns_builtins.segment_sum` instead of ``index_add_``."""
 
     chunk_size: int
     products: torch.dtype
     receivers_sorted: bool
+    ordered_sums: bool
 
     @staticmethod
     def of(e: Tensor, receivers: Tensor, products: torch.dtype) -> Plan:
-        # Graph builders sort edges by receiver; the fused CPU kernels rely on it and check it once per call.
+        # Graph builders sort edges by receiver; the fused CPU kernels rely on it and check it once per call
+        # (a read-back, so only on the CPU, where it costs nothing).
         receivers_sorted = e.device.type == "cpu" and bool((receivers[1:] >= receivers[:-1]).all())
-        return Plan(chunk_size(e.device), products, receivers_sorted)
+        return Plan(chunk_size(e.device), products, receivers_sorted, needs_ordered_sums(e.device))
+
+
+def _add_at(out: Tensor, index: Tensor, rows: Tensor, plan: Plan) -> None:
+    """``out[index[k]] += rows[k]``: in a fixed order where ``index_add_`` has none (GPUs)."""
+    if plan.ordered_sums:
+        segment_sum_(out, index, rows)
+    else:
+        out.index_add_(0, index, rows)
 
 
 def _chunk_activations(e, table, rows, weights, biases):
@@ -132,7 +144,7 @@ def _layer_norm_residual(a, bias, norm, e, out, aggregate, receivers, stats, pla
     else:
         update, mean, rstd = torch.layer_norm(a, (a.shape[1],), norm_weight, norm_bias, eps), None, None
     torch.add(e, update, out=out)
-    aggregate.index_add_(0, receivers, update)
+    _add_at(aggregate, receivers, update, plan)
     return mean, rstd
 
 
@@ -223,8 +235,8 @@ class _EdgeBlock(torch.autograd.Function):
             )
             add_product(grad_weights[0], grad_a.t(), e_chunk.to(products))
             grad_a_summed = grad_a.to(e.dtype)
-            grad_table.index_add_(0, chunk_rows[0::2], grad_a_summed)
-            grad_table.index_add_(0, chunk_rows[1::2], grad_a_summed)
+            _add_at(grad_table, chunk_rows[0::2], grad_a_summed, ctx.plan)
+            _add_at(grad_table, chunk_rows[1::2], grad_a_summed, ctx.plan)
             if grad_out is None:
                 product_into(grad_e[lo:hi], grad_a, product_weights[0])
             else:
