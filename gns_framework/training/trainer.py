@@ -24,6 +24,7 @@ from ..data.windows import WindowIndex, WindowOrder, window_noise_generator
 from ..errors import CheckpointError, GnsError
 from ..loss import masked_acceleration_loss, masked_squared_error_sum
 from ..evaluation.candidates import granular_particle_types
+from ..host_sync import avoids_read_backs, read_back
 from ..noise import random_walk_noise, training_noise_std
 from ..plugins import Registry
 from ..precision import autocast, backward_precision
@@ -360,7 +361,7 @@ class Trainer:
             logs = self.step % spec.log_every == 0 or self.step == total
             validates = self.step % spec.validate_every == 0 or self.step == total
             saves = self.step % spec.checkpoint_every == 0 or self.step == total
-            if self.device.type == "cpu" or logs or validates or saves:
+            if not avoids_read_backs(self.device) or logs or validates or saves:
                 read = _read_losses(unread)
                 losses += read
                 bar.update(len(read))
@@ -420,7 +421,7 @@ def _read_losses(unread: list[tuple[int, Tensor]]) -> list[float]:
 
     ``step`` is the step count after the loss's optimiser step, so the loss is that of step ``step - 1``.
     """
-    values = torch.stack([loss for _, loss in unread]).tolist()
+    values = read_back(torch.stack([loss for _, loss in unread]))
     for (step, _), value in zip(unread, values):
         if not math.isfinite(value):
             raise FloatingPointError(f"training loss is {value} at step {step - 1}")

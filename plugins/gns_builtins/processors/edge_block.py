@@ -33,6 +33,7 @@ from torch import Tensor
 from torch.autograd.function import once_differentiable
 
 from gns_framework.activation_memory import recompute_activations
+from gns_framework.host_sync import avoids_read_backs
 
 from .. import fused_kernels
 from ..segment_sum import needs_ordered_sums, segment_sum_
@@ -77,7 +78,7 @@ class Plan(NamedTuple):
     def of(e: Tensor, receivers: Tensor, products: torch.dtype) -> Plan:
         # Graph builders sort edges by receiver; the fused CPU kernels rely on it and check it once per call
         # (a read-back, so only on the CPU, where it costs nothing).
-        receivers_sorted = e.device.type == "cpu" and bool((receivers[1:] >= receivers[:-1]).all())
+        receivers_sorted = not avoids_read_backs(e.device) and bool((receivers[1:] >= receivers[:-1]).all())
         return Plan(chunk_size(e.device), products, receivers_sorted, needs_ordered_sums(e.device))
 
 
