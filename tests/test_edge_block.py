@@ -144,3 +144,32 @@ def test_bfloat16_autocast_is_no_less_accurate_than_autocast_on_the_concatenated
         assert error <= 1.2 * reference_error + 1e-6, (index, error, reference_error)
         if index < 4:  # the outputs and input gradients pass through the products
             assert error > 1e-4, (index, error)
+
+
+@pytest.mark.parametrize("recompute", [False, True])
+def test_under_bfloat16_autocast_the_edge_latents_are_kept_in_bfloat16_with_the_same_gradients(small_chunks, recompute, monkeypatch):
+    """The backward reads e only as a bfloat16 product operand: keeping e in bfloat16 halves it and changes no bit."""
+    monkeypatch.setattr(edge_block_module, "recompute_activations", lambda: recompute)
+    torch.manual_seed(1)
+    n, latent, edges = 9, 16, 50
+    receivers, senders = torch.randint(0, n, (edges,)).sort().values, torch.randint(0, n, (edges,))
+    mlp = NormedMLP(3 * latent, 16, 1, latent)
+    x = torch.randn(n, latent, requires_grad=True)
+    e = torch.randn(edges, latent, requires_grad=True)
+
+    def gradients():
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            table, rows, weights, biases = split_inputs(mlp, x, senders, receivers)
+            e_new, aggregate = edge_block(e, table, rows, receivers, weights, biases, mlp.norm)
+        saved = e_new.grad_fn.saved_tensors[0]
+        return saved, torch.autograd.grad(e_new.square().sum() + aggregate.sum(), [x, e, *mlp.parameters()])
+
+    saved, kept_in_bfloat16 = gradients()
+    assert saved.dtype == torch.bfloat16 and saved.shape == e.shape
+    # The same block with e kept as given: a cast that returns e itself.
+    original_to = torch.Tensor.to
+    monkeypatch.setattr(torch.Tensor, "to", lambda t, *a, **k: t if t is e else original_to(t, *a, **k))
+    saved, kept_as_given = gradients()
+    assert saved.dtype == torch.float32
+    for a, b in zip(kept_in_bfloat16, kept_as_given):
+        assert a.dtype == b.dtype and torch.equal(a, b)
