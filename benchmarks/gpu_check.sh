@@ -54,6 +54,7 @@ part() {
   fi
   echo "gpu_check: part name=$name status=$status seconds=$((SECONDS - started))"
 }
+# skip NAME REASON: a part not run here; REASON is one word.
 skip() {
   PARTS=$((PARTS + 1))
   echo "gpu_check: part name=$1 status=skip reason=$2"
@@ -62,7 +63,7 @@ skip() {
 if [ "$DRY" = 1 ]; then
   STEPS=4; MORE=6; ROLLOUT_STEPS=3
   SCALE=(--sizes 500 --precisions float32 bfloat16 --repeat 1)
-  MPM=(--grid 24 --frames 2)
+  MPM=(--grid 24 --frames 3)
 else
   STEPS=30; MORE=40; ROLLOUT_STEPS=15
   SCALE=(--sizes 10000 100000 1000000 --repeat 5)
@@ -90,7 +91,7 @@ part info 30 "$PYTHON" benchmarks/gpu_check.py info --device "$DEVICE"
 if [ "$DEVICE" = cuda ]; then
   part cuda_tests 90 "$PYTHON" -m pytest -q -p no:cacheprovider -m cuda tests/test_cuda.py
 else
-  skip cuda_tests "no GPU: the cuda-marked tests skip themselves on the CPU"
+  skip cuda_tests cpu_run  # the cuda-marked tests skip themselves on the CPU
 fi
 part data 30 "$PYTHON" benchmarks/gpu_check.py data "$WORK/data"
 part train 50 "$PYTHON" -m gns_framework.cli train "$RECIPE" --out "$WORK/run" --no-progress --no-tracking
@@ -103,7 +104,7 @@ if [ "$DEVICE" = cuda ] && [ "$DRY" = 0 ]; then
   part ddp 60 "$PYTHON" -m torch.distributed.run --nnodes 1 --nproc-per-node "$GPUS" --master-addr 127.0.0.1 \
     --master-port 29533 -m gns_framework.cli train "$RECIPE" --out "$WORK/ddp" --steps 20 --no-progress --no-tracking
 else
-  skip ddp "NCCL needs GPUs (the gloo DDP tests cover the CPU)"
+  skip ddp "$([ "$DEVICE" = cpu ] && echo cpu_run || echo dry_run)"  # NCCL needs GPUs; the gloo DDP tests cover the CPU
 fi
 part scale 110 "$PYTHON" benchmarks/gpu_check.py scale --device "$DEVICE" --budget-s 95 "${SCALE[@]}"
 part mpm 40 "$PYTHON" benchmarks/gpu_check.py mpm --device "$DEVICE" "${MPM[@]}"
