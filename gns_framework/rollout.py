@@ -61,6 +61,11 @@ def rollout(
     frame (default: stop on non-finite positions, no domain check); it raises
     RolloutDiverged, or clamps and records the violations. ``precision`` picks the
     dtype of the model's products (:mod:`gns_framework.precision`); positions stay float32.
+
+    Predicted and ground-truth frames stay on the host; on a GPU each predicted frame
+    is copied without blocking and checked by the guard a few steps later
+    (:class:`HostFrames`), so a ``stop`` names the step where the violation occurred
+    after the model has run a few steps past it.
     """
     _check_simulates(simulator, trajectory)
     guard = guard if guard is not None else RolloutGuard(simulator.scene)
