@@ -67,3 +67,20 @@ def test_throughput_is_timed_between_device_synchronisations(dataset_multimateri
     trainer.close()
     sync = ("sync", "cpu")
     assert events == [sync, ("step", 0), ("step", 1), sync, sync, ("step", 2), ("step", 3), sync]
+
+
+def test_tf32_is_float32_on_the_cpu_and_its_cuda_setting_is_restored(dataset_multimaterial, tmp_path, registry):
+    from gns_framework.precision import _cuda_tf32
+
+    losses = {}
+    for precision in ("float32", "tf32"):
+        recipe = tiny_recipe(dataset_multimaterial, registry)
+        recipe = recipe.model_copy(update={"training": recipe.training.model_copy(update={"precision": precision})})
+        trainer = tiny_trainer(recipe, tmp_path / precision, registry)
+        losses[precision] = trainer.train(2)
+        trainer.close()
+    assert losses["tf32"] == losses["float32"]
+    before = torch.backends.cuda.matmul.fp32_precision
+    with _cuda_tf32():
+        assert torch.backends.cuda.matmul.fp32_precision == "tf32"
+    assert torch.backends.cuda.matmul.fp32_precision == before
