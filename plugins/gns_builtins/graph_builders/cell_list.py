@@ -112,7 +112,8 @@ def radius_pairs(position: Tensor, batch: Tensor, radius: float) -> tuple[Tensor
     starts_t = torch.stack(starts, 1)
     counts_t = torch.stack(counts, 1)
 
-    r2 = torch.tensor(radius * radius, dtype=position.dtype, device=device)
+    # Filled on the device: torch.tensor(value, device=...) would copy it from the host on every call.
+    r2 = torch.full((), radius * radius, dtype=position.dtype, device=device)
     per_receiver = counts_t.sum(1)
     bounds, totals = _chunk_bounds(per_receiver, candidates_per_chunk(device))
     senders_out, receivers_out = [], []
