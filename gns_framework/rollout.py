@@ -82,9 +82,8 @@ def rollout(
     moving = simulator.predicted_mask(state.particle_type)
     # Only the kinematic particles' ground truth goes to the device, all frames at once; every frame
     # stays on the host (12 GB per 1000 frames of 1M particles in 3D would not fit beside the model).
-    kinematic = torch.from_numpy(~moving.cpu().numpy()).nonzero()[:, 0]
-    kinematic_truth = truth[:, kinematic].to(device)
-    kinematic = kinematic.to(device)
+    kinematic = (~moving).nonzero()[:, 0]
+    kinematic_truth = truth[:, kinematic.cpu()].to(device)
     sequence = state.position_sequence
     predicted = torch.empty_like(truth)
     context = None if trajectory.step_context is None else torch.from_numpy(trajectory.step_context).to(device)
