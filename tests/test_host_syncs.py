@@ -137,3 +137,20 @@ def test_the_read_back_free_rollout_equals_the_cpu_one(as_on_a_gpu, dataset_mult
     scale = float(abs(cpu.predicted).max())
     assert abs(gpu_like.predicted - cpu.predicted).max() <= 1e-5 * scale
     assert (gpu_like.predicted[:, ~cpu.predicted_particles] == cpu.ground_truth[:, ~cpu.predicted_particles]).all()
+
+
+def test_the_guard_continues_from_the_frame_its_check_returns(registry, dataset_multimaterial, tmp_path):
+    scene = tiny_trainer(tiny_recipe(dataset_multimaterial, registry), tmp_path, registry).data.scene
+    previous = torch.full((5, scene.dim), 0.5)
+    position = previous + 0.01
+    position[1, 0] = float("nan")
+    position[2, 1] = scene.bounds[1][1] + 0.3  # escaped beyond the margin
+    position[3, 0] = scene.bounds[0][0] - 0.01  # outside, within the margin
+    clamp = RolloutGuard(scene, margin=0.1, on_violation="clamp")
+    checked, violations = clamp.check(0, position.clone(), previous)
+    assert len(violations) == 2
+    assert torch.equal(clamp.continued(position, previous), checked)
+    stop = RolloutGuard(scene, margin=0.1, on_violation="stop")
+    expected = position.clone()
+    expected[1] = previous[1]
+    assert torch.equal(stop.continued(position, previous), expected)
