@@ -8,7 +8,8 @@ in again: ~0.5 ms per MB on a 2-core machine, as long as the arithmetic itself.
 Disabling mmap for large blocks and raising the trim threshold lets the heap
 reuse them, at the price that the resident size never shrinks below its peak.
 
-Applied by the training and rollout entry points; ``GNS_KEEP_FREED_MEMORY=0``
+Applied by training and rollouts on the CPU (on a GPU the host's allocations are
+small and the setting would only pin the process's peak); ``GNS_KEEP_FREED_MEMORY=0``
 opts out (read when first applied).
 """
 

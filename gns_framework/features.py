@@ -67,6 +67,11 @@ class FeatureBuilder(nn.Module):
         self.velocity_stats = velocity_stats
         self.context_stats = context_stats
         self.register_buffer("bounds", torch.tensor(scene.bounds, dtype=torch.float32))
+        # The walled dimensions as index tensors that move with the module: a list index would be
+        # copied from the host on every call.
+        walled = torch.tensor(scene.wall_dims, dtype=torch.long)
+        self.register_buffer("walled_dims", walled, persistent=False)
+        self.register_buffer("walled_bounds", self.bounds[walled], persistent=False)
         self.type_embedding: nn.Embedding | None = None
         if scene.uses_type_embedding:
             self.type_embedding = nn.Embedding(scene.num_particle_types, type_embedding_size)
@@ -87,10 +92,9 @@ class FeatureBuilder(nn.Module):
         velocity_sequence = position_sequence[:, 1:] - position_sequence[:, :-1]
         parts = [self.velocity_stats.normalize(velocity_sequence).reshape(n, -1)]
         if scene.wall_dims:
-            walled = list(scene.wall_dims)
-            most_recent = position_sequence[:, -1, walled]
-            to_lower = most_recent - self.bounds[walled, 0][None]
-            to_upper = self.bounds[walled, 1][None] - most_recent
+            most_recent = position_sequence[:, -1].index_select(1, self.walled_dims)
+            to_lower = most_recent - self.walled_bounds[:, 0][None]
+            to_upper = self.walled_bounds[:, 1][None] - most_recent
             distance = torch.cat([to_lower, to_upper], dim=1) / scene.connectivity_radius
             limit = scene.boundary_clamp_limit
             parts.append(torch.clamp(distance, -limit, limit))

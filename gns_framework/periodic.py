@@ -26,31 +26,40 @@ class PeriodicBox:
         bounds = torch.tensor(scene.bounds, dtype=torch.float64)
         self.lower = bounds[self.dims, 0]
         self.length = bounds[self.dims, 1] - bounds[self.dims, 0]
+        self._on: dict[tuple[torch.device, torch.dtype], tuple[Tensor, Tensor, Tensor]] = {}
 
     @property
     def active(self) -> bool:
         return bool(self.dims)
 
+    def constants(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """``(dims, lower, length)`` on ``like``'s device, the last two in its dtype; made once per device and dtype.
+
+        A host tensor moved to the device on every call would be a copy (and a stream
+        synchronisation on GPUs) per call.
+        """
+        key = (like.device, like.dtype)
+        if key not in self._on:
+            dims = torch.tensor(self.dims, dtype=torch.long, device=like.device)
+            self._on[key] = dims, self.lower.to(like), self.length.to(like)
+        return self._on[key]
+
     def minimum_image(self, difference: Tensor) -> Tensor:
         """(..., d) differences of positions -> the same with periodic components in [-L/2, L/2)."""
         if not self.active:
             return difference
-        length = self.length.to(difference)
-        out = difference.clone()
-        part = difference[..., self.dims]
-        out[..., self.dims] = part - length * torch.floor(part / length + 0.5)
-        return out
+        dims, _, length = self.constants(difference)
+        part = difference.index_select(-1, dims)
+        return difference.index_copy(-1, dims, part - length * torch.floor(part / length + 0.5))
 
     def wrap(self, position: Tensor) -> Tensor:
         """(..., d) positions -> the same with periodic components in [lower, lower + L)."""
         if not self.active:
             return position
-        lower, length = self.lower.to(position), self.length.to(position)
-        out = position.clone()
-        inside = lower + torch.remainder(position[..., self.dims] - lower, length)
+        dims, lower, length = self.constants(position)
+        inside = lower + torch.remainder(position.index_select(-1, dims) - lower, length)
         # remainder(-tiny, L) rounds to L itself: fold that onto the lower face.
-        out[..., self.dims] = torch.where(inside >= lower + length, lower, inside)
-        return out
+        return position.index_copy(-1, dims, torch.where(inside >= lower + length, lower, inside))
 
     def unwrap_history(self, position_sequence: Tensor) -> Tensor:
         """(N, C, d) stored history -> a continuous one that ends at the same (wrapped) frame.

@@ -134,7 +134,9 @@ class TrainingSpec(_Strict):
         False, description="recompute edge activations in the backward: about half the memory, ~10% slower"
     )
     precision: Precision = Field(
-        "float32", description="float32, or bfloat16 matrix products under autocast (faster on AMX CPUs and GPUs)"
+        "float32",
+        description="float32; tf32: float32 products on CUDA tensor cores in TF32 (float32 on CPUs); "
+        "or bfloat16 matrix products under autocast (faster on AMX CPUs and GPUs)",
     )
     validation_rollouts: int = Field(
         0,

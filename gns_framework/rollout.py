@@ -12,12 +12,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
+from torch import Tensor
 from tqdm import tqdm
 
 from .allocator import keep_freed_memory
-from .data.batch import window
+from .data.batch import ParticleBatch, window
 from .data.trajectory import Trajectory
 from .errors import DatasetError
+from .host_sync import avoids_read_backs
 from .precision import Precision, autocast
 from .rollout_guard import GuardViolation, RolloutGuard
 from .simulator import LearnedSimulator
@@ -57,40 +59,130 @@ def rollout(
     frame (default: stop on non-finite positions, no domain check); it raises
     RolloutDiverged, or clamps and records the violations. ``precision`` picks the
     dtype of the model's products (:mod:`gns_framework.precision`); positions stay float32.
+
+    Predicted and ground-truth frames stay on the host; on a GPU each predicted frame
+    is copied without blocking and checked by the guard a few steps later
+    (:class:`HostFrames`), so a ``stop`` names the step where the violation occurred
+    after the model has run a few steps past it.
     """
     _check_simulates(simulator, trajectory)
     guard = guard if guard is not None else RolloutGuard(simulator.scene)
-    keep_freed_memory()
+    device = torch.device(device)
+    if device.type == "cpu":
+        keep_freed_memory()
     history = simulator.scene.history
     available = trajectory.num_steps - history
     steps = available if steps is None else min(steps, available)
     if steps < 1:
         raise ValueError(f"trajectory {trajectory.key!r} has {trajectory.num_steps} frames; rollout needs more than {history}")
     state = window(trajectory, 0, history, with_target=False).to(device)
-    truth = torch.from_numpy(trajectory.position[history : history + steps]).to(device)
-    kinematic = ~simulator.predicted_mask(state.particle_type)[:, None]
+    truth = torch.from_numpy(trajectory.position[history : history + steps])
+    moving = simulator.predicted_mask(state.particle_type)
+    # Only the kinematic particles' ground truth goes to the device, all frames at once; every frame
+    # stays on the host (12 GB per 1000 frames of 1M particles in 3D would not fit beside the model).
+    kinematic = (~moving).nonzero()[:, 0]
+    kinematic_truth = truth[:, kinematic.cpu()].to(device)
     sequence = state.position_sequence
     predicted = torch.empty_like(truth)
     context = None if trajectory.step_context is None else torch.from_numpy(trajectory.step_context).to(device)
     violations: list[GuardViolation] = []
+    frames = HostFrames(device)
+
+    def checked(step: int, raw: Tensor) -> None:
+        """The guard's check of frame ``step`` on the host; it raises under ``stop``."""
+        nonlocal violations
+        previous = predicted[step - 1] if step > 0 else torch.from_numpy(trajectory.position[history - 1])
+        predicted[step], found = guard.check(step, raw, previous, trajectory.key)
+        violations += found
+
     for step in tqdm(range(steps), desc=f"rollout {trajectory.key}", unit="step", disable=not progress):
         frame_context = None if context is None else context[history - 1 + step][None]
         current = replace(state, position_sequence=sequence, context=frame_context)
-        with autocast(precision, device):
-            next_position = simulator.predict_next_position(current, prescribed=truth[step])
-        next_position = next_position.to(predicted.dtype)
-        next_position, found = guard.check(step, next_position, sequence[:, -1], trajectory.key)
-        violations += found
-        predicted[step] = next_position
-        sequence = torch.cat([sequence[:, 1:], next_position[:, None]], dim=1)
+        next_position, continued = rollout_step(simulator, guard, current, kinematic, kinematic_truth[step], precision)
+        for done, raw in frames.push(step, next_position):
+            checked(done, raw)
+        sequence = torch.cat([sequence[:, 1:], continued[:, None]], dim=1)
+    for done, raw in frames.drain():
+        checked(done, raw)
     return RolloutResult(
         initial_positions=trajectory.position[:history],
-        predicted=predicted.cpu().numpy(),
-        ground_truth=truth.cpu().numpy(),
+        predicted=predicted.numpy(),
+        ground_truth=truth.numpy(),
         trajectory=trajectory,
-        predicted_particles=(~kinematic[:, 0]).cpu().numpy(),
+        predicted_particles=moving.cpu().numpy(),
         guard_violations=tuple(violations),
     )
+
+
+def rollout_step(
+    simulator: LearnedSimulator,
+    guard: RolloutGuard,
+    current: ParticleBatch,
+    kinematic: Tensor,
+    kinematic_next: Tensor,
+    precision: Precision,
+) -> tuple[Tensor, Tensor]:
+    """One step on the device: the predicted frame (N, d) float32 and the frame to continue from.
+
+    ``kinematic`` (K,) are the kinematic particles' rows and ``kinematic_next`` (K, d)
+    their prescribed next positions. Nothing here waits for the device but the graph
+    builder's edge count (:mod:`gns_framework.host_sync`); the guard's report on the
+    frame comes later, from its host copy.
+    """
+    last = current.position_sequence[:, -1]
+    prescribed = last.index_copy(0, kinematic, kinematic_next.to(last.dtype))
+    with autocast(precision, last.device):
+        next_position = simulator.predict_next_position(current, prescribed=prescribed)
+    next_position = next_position.to(torch.float32)
+    return next_position, guard.continued(next_position, last)
+
+
+class HostFrames:
+    """Predicted frames copied to the host without making the host wait for each.
+
+    On the CPU a frame is its own host copy and is handed back at once. On a GPU
+    each frame is copied into one of ``lag`` page-locked buffers without blocking;
+    a frame is handed back ``lag`` steps later, when its copy has long finished, so
+    the host runs ahead of the device instead of waiting for it every step.
+    (:func:`~gns_framework.host_sync.avoids_read_backs` picks the way.)
+    """
+
+    def __init__(self, device: torch.device, lag: int = 8):
+        self.device = device
+        self.lag = lag
+        self.pending: list[tuple[int, Tensor, torch.cuda.Event | None]] = []
+        self.free: list[Tensor] = []
+
+    def push(self, step: int, frame: Tensor) -> list[tuple[int, Tensor]]:
+        """Queue frame ``step``; returns the ``(step, host frame)`` pairs now ready, oldest first.
+
+        A host frame handed back is valid until the next call (its buffer is then reused).
+        """
+        if not avoids_read_backs(self.device):
+            return [(step, frame)]
+        cuda = self.device.type == "cuda"
+        buffer = self.free.pop() if self.free else torch.empty(frame.shape, dtype=frame.dtype, pin_memory=cuda)
+        buffer.copy_(frame, non_blocking=cuda)
+        event = None
+        if cuda:
+            event = torch.cuda.Event()
+            event.record()
+        self.pending.append((step, buffer, event))
+        return self._ready(len(self.pending) - self.lag)
+
+    def drain(self) -> list[tuple[int, Tensor]]:
+        """Every frame still queued."""
+        return self._ready(len(self.pending))
+
+    def _ready(self, count: int) -> list[tuple[int, Tensor]]:
+        ready = []
+        for step, buffer, event in self.pending[: max(count, 0)]:
+            if event is not None:
+                event.synchronize()
+            ready.append((step, buffer))
+            self.free.append(buffer)
+        del self.pending[: max(count, 0)]
+        return ready
 
 
 def _check_simulates(simulator: LearnedSimulator, trajectory: Trajectory) -> None:

@@ -62,6 +62,7 @@ class RolloutGuard:
         self.margin = math.inf if margin is None else float(margin)
         self.on_violation = on_violation
         self.history = scene.history
+        self._walled_on: dict[tuple[torch.device, torch.dtype], tuple[Tensor, Tensor, Tensor]] = {}
 
     @classmethod
     def from_spec(cls, scene: Scene, spec: RolloutGuardSpec) -> "RolloutGuard":
@@ -99,22 +100,47 @@ class RolloutGuard:
             )
         return self._clamped(position, previous, non_finite, escaped), violations
 
+    def continued(self, position: Tensor, previous: Tensor) -> Tensor:
+        """The frame a rollout continues from, with no read-back from the device.
+
+        Under ``clamp`` exactly what :meth:`check` returns. Under ``stop`` non-finite
+        positions are replaced by the previous ones, so that the steps run before the
+        (deferred) :meth:`check` of this frame raises never feed NaN to the graph builder.
+        """
+        non_finite = ~torch.isfinite(position).all(dim=-1)
+        position = torch.where(non_finite[:, None], previous, position)
+        if self.on_violation == "stop" or not self.walled:
+            return position
+        escaped = (self._beyond_walls(position) > self.margin) & ~non_finite
+        return self._onto_walls(position, escaped)
+
+    def _walled(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """``(walled dims, lower, upper)`` on ``like``'s device and dtype, made once per device and dtype."""
+        key = (like.device, like.dtype)
+        if key not in self._walled_on:
+            dims = torch.tensor(self.walled, dtype=torch.long, device=like.device)
+            self._walled_on[key] = dims, self.lower.to(like), self.upper.to(like)
+        return self._walled_on[key]
+
     def _beyond_walls(self, position: Tensor) -> Tensor:
         """(N,) largest distance by which a particle is outside a wall (0 inside)."""
         if not self.walled:
             return position.new_zeros(position.shape[0])
-        walled = position[:, self.walled]
-        lower, upper = self.lower.to(position), self.upper.to(position)
+        dims, lower, upper = self._walled(position)
+        walled = position.index_select(1, dims)
         outside = torch.maximum(lower - walled, walled - upper).clamp(min=0)
         return outside.max(dim=-1).values
 
     def _clamped(self, position: Tensor, previous: Tensor, non_finite: Tensor, escaped: Tensor) -> Tensor:
         position = torch.where(non_finite[:, None], previous, position)
-        if escaped.any():
-            walled = position[:, self.walled]
-            onto_walls = torch.minimum(torch.maximum(walled, self.lower.to(position)), self.upper.to(position))
-            position[:, self.walled] = torch.where(escaped[:, None], onto_walls, walled)
-        return position
+        return self._onto_walls(position, escaped) if escaped.any() else position
+
+    def _onto_walls(self, position: Tensor, escaped: Tensor) -> Tensor:
+        """``position`` with the ``escaped`` particles put back onto the walls they passed."""
+        dims, lower, upper = self._walled(position)
+        walled = position.index_select(1, dims)
+        onto_walls = torch.minimum(torch.maximum(walled, lower), upper)
+        return position.index_copy(1, dims, torch.where(escaped[:, None], onto_walls, walled))
 
 
 def _indices(mask: Tensor) -> np.ndarray:

@@ -15,6 +15,7 @@ from .contracts import Decoder, Encoder, Graph, GraphBuilder, Integrator, ModelS
 from .data.batch import ParticleBatch
 from .data.metadata import DatasetMetadata
 from .errors import RecipeError
+from .host_sync import avoids_read_backs
 from .features import FeatureBuilder, edge_feature_size, node_feature_size
 from .noise import training_noise_std
 from .normalization import Stats
@@ -83,7 +84,11 @@ class LearnedSimulator(nn.Module):
     def predict_next_position(self, batch: ParticleBatch, prescribed: Tensor | None = None) -> Tensor:
         """(N, d) next positions: predicted for moving particles, prescribed for kinematic ones.
 
-        Kinematic particles are not integrated and their rows are never decoded.
+        On the CPU kinematic particles are neither decoded nor integrated. On
+        accelerators every row is, and the kinematic rows are then replaced: selecting
+        the moving rows would read their count back from the device at every step.
+        The moving rows' values are the same either way (the decoder and integrator
+        work row by row).
 
         Args:
             batch: the current windows.
@@ -93,10 +98,15 @@ class LearnedSimulator(nn.Module):
         sequence = self.box.unwrap_history(batch.position_sequence)
         moving = self.predicted_mask(batch.particle_type)
         node_latent = self.processed_latent(sequence, batch)
-        next_position = batch.position_sequence[:, -1].clone() if prescribed is None else prescribed.clone()
-        prediction = self.output_stats.denormalize(self.decoder(node_latent[moving]))
-        next_position[moving] = self.box.wrap(self.integrator.next_position(sequence[moving], prediction))
-        return next_position
+        base = batch.position_sequence[:, -1] if prescribed is None else prescribed
+        if not avoids_read_backs(node_latent.device):
+            next_position = base.clone()
+            prediction = self.output_stats.denormalize(self.decoder(node_latent[moving]))
+            next_position[moving] = self.box.wrap(self.integrator.next_position(sequence[moving], prediction))
+            return next_position
+        prediction = self.output_stats.denormalize(self.decoder(node_latent))
+        predicted = self.box.wrap(self.integrator.next_position(sequence, prediction))
+        return torch.where(moving[:, None], predicted.to(base.dtype), base)
 
     def forward(self, batch: ParticleBatch, position_noise: Tensor) -> tuple[Tensor, Tensor]:
         """Training prediction and target on noise-corrupted inputs.

@@ -13,6 +13,18 @@ from gns_framework.plugins import load_registry
 REPO = Path(__file__).resolve().parents[1]
 
 
+def pytest_collection_modifyitems(config, items):
+    """Tests marked ``cuda`` are skipped, saying why, where torch sees no GPU."""
+    import torch
+
+    if torch.cuda.is_available():
+        return
+    reason = pytest.mark.skip(reason=f"needs a CUDA GPU: torch {torch.__version__} sees none (torch.cuda.is_available() is False)")
+    for item in items:
+        if "cuda" in item.keywords:
+            item.add_marker(reason)
+
+
 @pytest.fixture(scope="session", autouse=True)
 def mlflow_store_of_the_session(tmp_path_factory):
     """`gns train` tracks to MLflow by default: keep the tests' runs out of the working directory."""

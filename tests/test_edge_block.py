@@ -34,8 +34,11 @@ def small_chunks(monkeypatch):
 @pytest.mark.parametrize("hidden_layers", [0, 1, 2])
 @pytest.mark.parametrize("use_edge_output", [True, False])
 @pytest.mark.parametrize("recompute", [False, True])
-def test_values_and_gradients_match_autograd(small_chunks, hidden_layers, use_edge_output, recompute, monkeypatch):
+@pytest.mark.parametrize("ordered_sums", [False, True], ids=["index_add", "ordered_sums"])
+def test_values_and_gradients_match_autograd(small_chunks, hidden_layers, use_edge_output, recompute, ordered_sums, monkeypatch):
+    """``ordered_sums`` is the GPUs' path (segment_sum.py), run here on the CPU."""
     monkeypatch.setattr(edge_block_module, "recompute_activations", lambda: recompute)
+    monkeypatch.setattr(edge_block_module, "needs_ordered_sums", lambda device: ordered_sums)
     torch.manual_seed(hidden_layers)
     n, latent, hidden = 11, 6, 5
     receivers = torch.randint(0, n, (40,)).sort().values
@@ -141,3 +144,32 @@ def test_bfloat16_autocast_is_no_less_accurate_than_autocast_on_the_concatenated
         assert error <= 1.2 * reference_error + 1e-6, (index, error, reference_error)
         if index < 4:  # the outputs and input gradients pass through the products
             assert error > 1e-4, (index, error)
+
+
+@pytest.mark.parametrize("recompute", [False, True])
+def test_under_bfloat16_autocast_the_edge_latents_are_kept_in_bfloat16_with_the_same_gradients(small_chunks, recompute, monkeypatch):
+    """The backward reads e only as a bfloat16 product operand: keeping e in bfloat16 halves it and changes no bit."""
+    monkeypatch.setattr(edge_block_module, "recompute_activations", lambda: recompute)
+    torch.manual_seed(1)
+    n, latent, edges = 9, 16, 50
+    receivers, senders = torch.randint(0, n, (edges,)).sort().values, torch.randint(0, n, (edges,))
+    mlp = NormedMLP(3 * latent, 16, 1, latent)
+    x = torch.randn(n, latent, requires_grad=True)
+    e = torch.randn(edges, latent, requires_grad=True)
+
+    def gradients():
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            table, rows, weights, biases = split_inputs(mlp, x, senders, receivers)
+            e_new, aggregate = edge_block(e, table, rows, receivers, weights, biases, mlp.norm)
+        saved = e_new.grad_fn.saved_tensors[0]
+        return saved, torch.autograd.grad(e_new.square().sum() + aggregate.sum(), [x, e, *mlp.parameters()])
+
+    saved, kept_in_bfloat16 = gradients()
+    assert saved.dtype == torch.bfloat16 and saved.shape == e.shape
+    # The same block with e kept as given: a cast that returns e itself.
+    original_to = torch.Tensor.to
+    monkeypatch.setattr(torch.Tensor, "to", lambda t, *a, **k: t if t is e else original_to(t, *a, **k))
+    saved, kept_as_given = gradients()
+    assert saved.dtype == torch.float32
+    for a, b in zip(kept_in_bfloat16, kept_as_given):
+        assert a.dtype == b.dtype and torch.equal(a, b)

@@ -118,3 +118,15 @@ def test_builder_returns_displacements():
     graph = RadiusGraphBuilder(RadiusGraphBuilder.Params(), scene).build(position, torch.zeros(2, dtype=torch.long), 1)
     for s, r, d in zip(graph.senders, graph.receivers, graph.displacement):
         assert torch.equal(d, position[s] - position[r])
+
+
+def test_chunked_search_finds_the_same_edges(monkeypatch):
+    """Chunks of a few candidates (cuts inside and between receivers' ranges) change no edge and no order."""
+    from gns_builtins.graph_builders import cell_list
+
+    position, batch, radius = make(3, [60, 40], 0.3, 7)
+    whole = radius_pairs(position, batch, radius)
+    for size in (1, 37, 500):
+        monkeypatch.setattr(cell_list, "CANDIDATES_PER_CHUNK_CPU", size)
+        for got, expected in zip(radius_pairs(position, batch, radius), whole):
+            assert torch.equal(got, expected), size

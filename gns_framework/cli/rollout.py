@@ -44,7 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--precision", choices=PRECISIONS, default="float32",
-        help="dtype of the model's matrix products; bfloat16 is faster on AMX CPUs and GPUs (default float32)",
+        help="dtype of the model's matrix products: tf32 uses CUDA tensor cores for float32 (float32 on CPUs); "
+        "bfloat16 is faster on AMX CPUs and GPUs (default float32)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 

@@ -38,6 +38,19 @@ class ParticleBatch:
     def num_particles(self) -> int:
         return int(self.position_sequence.shape[0])
 
+    def pinned(self) -> "ParticleBatch":
+        """The same batch in page-locked host memory, so copies to a GPU need not block the host."""
+        pin = lambda t: None if t is None else t.pin_memory()  # noqa: E731
+        return replace(
+            self,
+            position_sequence=pin(self.position_sequence),
+            particle_type=pin(self.particle_type),
+            batch=pin(self.batch),
+            next_position=pin(self.next_position),
+            material_property=pin(self.material_property),
+            context=pin(self.context),
+        )
+
     def to(self, device: torch.device | str) -> "ParticleBatch":
         move = lambda t: None if t is None else t.to(device, non_blocking=True)  # noqa: E731
         return replace(

@@ -82,12 +82,12 @@ class WindowOrder:
         return [self.window_at(p) for p in self.positions(step)]
 
 
-def step_generator(seed: int, step: int) -> torch.Generator:
-    """Noise generator of the global batch of one step, reproducible on resume.
+def window_noise_generator(seed: int, step: int, slot: int) -> torch.Generator:
+    """Noise generator of one window of one step, reproducible on resume.
 
-    Every process draws the whole global batch's noise from it and keeps its own
-    particles' rows, so W processes get exactly the noise of one process training on
-    the same windows. (The 0 is the stream single-process runs have always used.)
+    ``slot`` is the window's place in the step's global batch (rank-major), so each
+    process draws only its own windows' noise and W processes get exactly the noise
+    of one process training on the same windows.
     """
-    state = np.random.SeedSequence([seed, 0, step]).generate_state(2, dtype=np.uint32)
+    state = np.random.SeedSequence([seed, 1, step, slot]).generate_state(2, dtype=np.uint32)
     return torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))

@@ -46,11 +46,19 @@ class Processes:
         """Rank 0: writes checkpoints and logs."""
         return self.rank == 0
 
-    def device(self, requested: torch.device) -> torch.device:
-        """One GPU per process on its node; CPU stays CPU."""
-        if self.distributed and requested.type == "cuda":
-            return torch.device("cuda", self.local_rank)
-        return requested
+    def device(self, requested: torch.device, visible_gpus: int | None = None) -> torch.device:
+        """One GPU per process on its node; CPU stays CPU.
+
+        torchrun shows every rank all the node's GPUs: rank ``local_rank`` takes GPU
+        ``local_rank``. Launchers that bind each rank to its own GPU (SLURM
+        ``--gpus-per-task``, ``CUDA_VISIBLE_DEVICES`` per rank) show it fewer GPUs
+        than ``local_rank + 1``: then its GPU is the first it sees. ``visible_gpus``
+        defaults to ``torch.cuda.device_count()``.
+        """
+        if not (self.distributed and requested.type == "cuda"):
+            return requested
+        visible = torch.cuda.device_count() if visible_gpus is None else visible_gpus
+        return torch.device("cuda", self.local_rank if self.local_rank < visible else 0)
 
     def wrap(self, module: nn.Module, device: torch.device) -> nn.Module:
         """``module`` behind DistributedDataParallel when distributed (its forward averages gradients)."""
@@ -108,8 +116,14 @@ def start(processes: Processes, device: torch.device) -> torch.device:
         # torchrun can keep one store across elastic restarts; without a per-attempt prefix a
         # restarted worker may read a dead worker's address and fail to connect.
         store = dist.PrefixStore(f"gns/attempt-{processes.restart_count}", store)
+        # device_id binds NCCL's communicator to this rank's GPU at once, instead of guessing it
+        # at the first collective (which picks by rank and collides when each rank sees one GPU).
         dist.init_process_group(
-            backend=backend_for(device), store=store, rank=processes.rank, world_size=processes.world_size
+            backend=backend_for(device),
+            store=store,
+            rank=processes.rank,
+            world_size=processes.world_size,
+            device_id=device if device.type == "cuda" else None,
         )
     return device
 

@@ -20,14 +20,14 @@ from ..checkpoint import (
     checkpoint_name, make_room_for_a_fresh_start, prune_checkpoints, resume_point, save_checkpoint, set_aside_damaged,
 )
 from ..data.atomic import write_text_atomic
-from ..data.batch import ParticleBatch
-from ..data.windows import WindowIndex, WindowOrder, step_generator
+from ..data.windows import WindowIndex, WindowOrder, window_noise_generator
 from ..errors import CheckpointError, GnsError
 from ..loss import masked_acceleration_loss, masked_squared_error_sum
 from ..evaluation.candidates import granular_particle_types
+from ..host_sync import avoids_read_backs, read_back
 from ..noise import random_walk_noise, training_noise_std
 from ..plugins import Registry
-from ..precision import autocast
+from ..precision import autocast, backward_precision
 from ..recipe import Recipe
 from ..scene import scene_to_dict
 from ..simulator import build_simulator
@@ -91,11 +91,13 @@ class Trainer:
         self.rank = self.processes.rank
         self.world_size = self.processes.world_size
         self.progress = progress
-        if recipe.training.threads:
-            torch.set_num_threads(recipe.training.threads)
-        keep_freed_memory()
         set_recompute_activations(recipe.training.recompute_activations)
         self.device = distributed.start(self.processes, resolve_device(recipe.training.device))
+        if self.device.type == "cpu":
+            # CPU tuning only: on a GPU the host merely batches and launches kernels.
+            if recipe.training.threads:
+                torch.set_num_threads(recipe.training.threads)
+            keep_freed_memory()
 
         self.data = prepare_data(self.recipe, registry, allow_pickle=allow_pickle)
         self.windows = WindowIndex(self.data.train, recipe.model.history)
@@ -146,7 +148,9 @@ class Trainer:
             "optimizer": self.optimizer.state_dict(),
             "scheduler": self.scheduler.state_dict(),
             "step": self.step,
-            "rng": {"torch": torch.get_rng_state(), "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else []},
+            # Training draws its noise from per-window generators seeded by (seed, step, window) on the
+            # CPU, so no CUDA generator is ever used: only the CPU one is kept, for completeness.
+            "rng": {"torch": torch.get_rng_state()},
             "recipe": self.recipe.resolved(),
             "scene": scene_to_dict(self.data.scene),
             "metadata": self.data.metadata.to_json_dict(),
@@ -178,9 +182,9 @@ class Trainer:
         self.step = int(state["step"])
         if "best" in state and state["best"].get("metric") == self.best["metric"]:
             self.best = dict(state["best"])
+        # A checkpoint's CUDA generator states (older checkpoints have them) are ignored: nothing
+        # draws from them, and restoring them failed with fewer GPUs visible than when it was written.
         torch.set_rng_state(state["rng"]["torch"])
-        if torch.cuda.is_available() and state["rng"]["cuda"]:
-            torch.cuda.set_rng_state_all(state["rng"]["cuda"])
 
     def resume(self, checkpoint: str | Path | None = None) -> Path | None:
         """Resume from ``checkpoint``, or from the newest good one of this run when None.
@@ -236,7 +240,7 @@ class Trainer:
         self.processes.barrier()
         return path
 
-    def train_step(self) -> tuple[float, int]:
+    def train_step(self) -> tuple[Tensor, int]:
         """One optimiser step on this process's windows of the current step.
 
         The loss is the squared error averaged over the predicted particles of the
@@ -246,40 +250,56 @@ class Trainer:
         exactly the step of one process with the same W x B windows, whatever the
         particle counts of the windows.
 
+        Nothing here waits for the device: the batch and its noise are built on the
+        host and copied from pinned memory without blocking when training on a GPU,
+        and the loss stays a device tensor; :meth:`train` reads it back (the one
+        host synchronisation) every step on the CPU and only at logging,
+        validation and checkpoint steps on a GPU. The graph builder's edge count is
+        the other read-back a step needs (``radius_pairs``).
+
         Returns:
-            the global batch's loss and particle count (identical on every rank).
+            the global batch's loss, a float64 scalar tensor on the device, and its
+            particle count (both identical on every rank).
         """
         batch = self.windows.batch(self.order.indices(self.step))
-        noise = self._training_noise(batch)
+        noise = self._training_noise()
+        if self.device.type == "cuda":
+            batch, noise = batch.pinned(), noise.pin_memory()
         batch = batch.to(self.device)
         mask = self.simulator.predicted_mask(batch.particle_type)
-        noise = noise.to(self.device) * mask[:, None, None]
-        with autocast(self.recipe.training.precision, self.device):
+        noise = noise.to(self.device, non_blocking=True) * mask[:, None, None]
+        precision = self.recipe.training.precision
+        with autocast(precision, self.device):
             prediction, target = self.model(batch, noise)
         error_sum = masked_squared_error_sum(prediction.to(target.dtype), target, mask)
-        particles = torch.tensor(batch.num_particles, dtype=torch.float64, device=self.device)
-        local = torch.stack([error_sum.detach().double(), mask.sum().double(), particles])
-        global_error, global_predicted, global_particles = self.processes.sum(local).tolist()
-        loss = error_sum * self.world_size / max(global_predicted, 1.0)
-        global_loss = global_error / max(global_predicted, 1.0)
-        if not math.isfinite(global_loss):
-            raise FloatingPointError(f"training loss is {global_loss} at step {self.step}")
+        local = torch.stack([error_sum.detach().double(), mask.sum().double()])
+        global_error, global_predicted = self.processes.sum(local).unbind()
+        predicted = global_predicted.clamp(min=1.0)
+        loss = error_sum * self.world_size / predicted.to(error_sum.dtype)
         self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
+        with backward_precision(precision, self.device):
+            loss.backward()
         self.optimizer.step()
         self.scheduler.step()
+        global_particles = sum(self.windows.num_particles(self.order.window_at(p)) for p in self.order.step_positions(self.step))
         self.step += 1
-        return global_loss, int(global_particles)
+        return global_error / predicted, global_particles
 
-    def _training_noise(self, batch: ParticleBatch) -> Tensor:
-        """This process's rows of the random-walk noise of the step's global batch, (N, C, d)."""
-        counts = [self.windows.num_particles(self.order.window_at(p)) for p in self.order.step_positions(self.step)]
-        size = self.recipe.training.batch_size
-        first = sum(counts[: self.rank * size])
-        _, history, dim = batch.position_sequence.shape
-        shape = torch.empty((sum(counts), history, dim), dtype=batch.position_sequence.dtype)
-        noise = random_walk_noise(shape, self.noise_std, step_generator(self.recipe.seed, self.step))
-        return noise[first : first + batch.num_particles]
+    def _training_noise(self) -> Tensor:
+        """This process's random-walk noise of the current step on the host, (N, C, d) float32.
+
+        Each window's rows come from its own generator, seeded by (seed, step, the
+        window's place in the step's global batch): every rank draws only its own
+        windows' noise, and W processes of B windows get exactly the noise of one
+        process training on the same W x B windows.
+        """
+        parts = []
+        for position in self.order.positions(self.step):
+            slot = position - self.order.step_positions(self.step).start
+            window = self.order.window_at(position)
+            shape = torch.empty((self.windows.num_particles(window), self.recipe.model.history, self.data.scene.dim))
+            parts.append(random_walk_noise(shape, self.noise_std, window_noise_generator(self.recipe.seed, self.step, slot)))
+        return torch.cat(parts)
 
     @torch.no_grad()
     def validate(self) -> dict[str, float]:
@@ -334,32 +354,48 @@ class Trainer:
         if self.tracker is not None:
             self._track_run()
         bar = tqdm(total=total, initial=self.step, desc="train", unit="step", disable=not self.progress or not self.processes.is_chief)
-        # Throughput over the optimiser steps alone since the last log (not validation or checkpoints).
-        window_steps, window_particles, window_seconds = 0, 0, 0.0
+        # Throughput over the optimiser steps alone since the last log (not validation or checkpoints),
+        # timed from one device synchronisation to the next, so queued GPU work is counted.
+        window_steps, window_particles, window_started = 0, 0, None
+        # Losses still on the device: read back every step on the CPU (it costs nothing there), and on a
+        # GPU only at steps that log, validate or checkpoint, so the host never waits for the device otherwise.
+        unread: list[tuple[int, Tensor]] = []
         self.simulator.train()
         checkpoint = None
         while self.step < total:
-            started = time.perf_counter()
+            if window_started is None:
+                synchronize(self.device)
+                window_started = time.perf_counter()
             loss, step_particles = self.train_step()
-            window_seconds += time.perf_counter() - started
             window_steps, window_particles = window_steps + 1, window_particles + step_particles
-            losses.append(loss)
-            bar.update(1)
-            bar.set_postfix(loss=f"{loss:.4g}")
+            unread.append((self.step, loss))
+            logs = self.step % spec.log_every == 0 or self.step == total
+            validates = self.step % spec.validate_every == 0 or self.step == total
+            saves = self.step % spec.checkpoint_every == 0 or self.step == total
+            if not avoids_read_backs(self.device) or logs or validates or saves:
+                read = _read_losses(unread)
+                losses += read
+                bar.update(len(read))
+                bar.set_postfix(loss=f"{read[-1]:.4g}")
+                unread = []
             metrics = {}
-            if self.step % spec.log_every == 0 or self.step == total:
+            if logs:
+                synchronize(self.device)
+                window_seconds = time.perf_counter() - window_started
                 metrics["train_loss"] = float(np.mean(losses[-spec.log_every :]))
                 metrics["steps_per_s"] = window_steps / window_seconds
                 metrics["particles_per_s"] = window_particles / window_seconds
                 metrics["lr"] = self.scheduler.get_last_lr()[0]
-                window_steps, window_particles, window_seconds = 0, 0, 0.0
-            if self.step % spec.validate_every == 0 or self.step == total:
+                window_steps, window_particles, window_started = 0, 0, None
+            if validates:
+                window_started = None
                 metrics.update(self.validate())
                 if self.keep_if_best(metrics) is not None:
                     metrics["best_step"] = self.step
             if metrics and self.tracker is not None:
                 self.tracker.log_metrics(metrics, self.step)
-            if self.step % spec.checkpoint_every == 0 or self.step == total:
+            if saves:
+                window_started = None
                 checkpoint = self.save()
         bar.close()
         if checkpoint is not None and self.tracker is not None:
@@ -384,3 +420,20 @@ class Trainer:
         if self.tracker is not None:
             self.tracker.close(failed)
 
+
+def synchronize(device: torch.device) -> None:
+    """Wait for the work queued on ``device`` (a no-op on the CPU)."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def _read_losses(unread: list[tuple[int, Tensor]]) -> list[float]:
+    """The losses of ``(step, loss)`` pairs as floats, in one read-back; the first non-finite one is an error.
+
+    ``step`` is the step count after the loss's optimiser step, so the loss is that of step ``step - 1``.
+    """
+    values = read_back(torch.stack([loss for _, loss in unread]))
+    for (step, _), value in zip(unread, values):
+        if not math.isfinite(value):
+            raise FloatingPointError(f"training loss is {value} at step {step - 1}")
+    return values

@@ -67,20 +67,27 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
         return Graph(senders[order], receivers[order], displacement[order], n)
 
     def _ghosts(self, position: Tensor, batch: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """Images of the particles within R of a periodic face, shifted across it."""
+        """Images of the particles within R of a periodic face, shifted across it.
+
+        Which particles are near a face is data: selecting them reads a count back
+        from the device, as the cell list's edge count does.
+        """
         radius = self.scene.connectivity_radius
-        dims = self.box.dims
-        lower = self.box.lower.to(position)
-        length = self.box.length.to(position)
+        dims, lower, length = self.box.constants(position)
         index = torch.arange(position.shape[0], device=position.device)
         positions, owners = [], []
-        for shifts in itertools.product((-1, 0, 1), repeat=len(dims)):
-            if not any(shifts):
-                continue
-            shift = torch.tensor(shifts, dtype=position.dtype, device=position.device)
-            moved = position.clone()
-            moved[:, dims] = position[:, dims] + shift * length
-            near = ((moved[:, dims] > lower - radius) & (moved[:, dims] < lower + length + radius)).all(1)
+        for shift in self._shifts(position):
+            moved = position.index_add(1, dims, (shift * length).expand(position.shape[0], -1))
+            inside = (moved.index_select(1, dims) > lower - radius) & (moved.index_select(1, dims) < lower + length + radius)
+            near = inside.all(1)
             positions.append(moved[near])
             owners.append(index[near])
         return torch.cat(positions), torch.cat(owners), batch[torch.cat(owners)]
+
+    def _shifts(self, like: Tensor) -> Tensor:
+        """(3^p - 1, p) every combination of -1, 0, +1 box lengths along the periodic dimensions but none."""
+        key = (like.device, like.dtype)
+        if getattr(self, "_shift_key", None) != key:
+            combos = [s for s in itertools.product((-1, 0, 1), repeat=len(self.box.dims)) if any(s)]
+            self._shift_table, self._shift_key = torch.tensor(combos, dtype=like.dtype, device=like.device), key
+        return self._shift_table

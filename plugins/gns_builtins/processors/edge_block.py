@@ -33,8 +33,10 @@ from torch import Tensor
 from torch.autograd.function import once_differentiable
 
 from gns_framework.activation_memory import recompute_activations
+from gns_framework.host_sync import avoids_read_backs
 
 from .. import fused_kernels
+from ..segment_sum import needs_ordered_sums, segment_sum_
 from ..chunked import (
     add_product,
     chunk_size,
@@ -64,17 +66,28 @@ def table_rows(senders: Tensor, receivers: Tensor, num_nodes: int) -> Tensor:
 
 
 class Plan(NamedTuple):
-    """How one call runs: edges per chunk, the products' dtype, and whether the receivers are sorted."""
+    """How one call runs: edges per chunk, the products' dtype, whether the receivers are sorted,
+    and whether sums at nodes go through :mod:`~gns_builtins.segment_sum` instead of ``index_add_``."""
 
     chunk_size: int
     products: torch.dtype
     receivers_sorted: bool
+    ordered_sums: bool
 
     @staticmethod
     def of(e: Tensor, receivers: Tensor, products: torch.dtype) -> Plan:
-        # Graph builders sort edges by receiver; the fused CPU kernels rely on it and check it once per call.
-        receivers_sorted = e.device.type == "cpu" and bool((receivers[1:] >= receivers[:-1]).all())
-        return Plan(chunk_size(e.device), products, receivers_sorted)
+        # Graph builders sort edges by receiver; the fused CPU kernels rely on it and check it once per call
+        # (a read-back, so only on the CPU, where it costs nothing).
+        receivers_sorted = not avoids_read_backs(e.device) and bool((receivers[1:] >= receivers[:-1]).all())
+        return Plan(chunk_size(e.device), products, receivers_sorted, needs_ordered_sums(e.device))
+
+
+def _add_at(out: Tensor, index: Tensor, rows: Tensor, plan: Plan) -> None:
+    """``out[index[k]] += rows[k]``: in a fixed order where ``index_add_`` has none (GPUs)."""
+    if plan.ordered_sums:
+        segment_sum_(out, index, rows)
+    else:
+        out.index_add_(0, index, rows)
 
 
 def _chunk_activations(e, table, rows, weights, biases):
@@ -132,7 +145,7 @@ def _layer_norm_residual(a, bias, norm, e, out, aggregate, receivers, stats, pla
     else:
         update, mean, rstd = torch.layer_norm(a, (a.shape[1],), norm_weight, norm_bias, eps), None, None
     torch.add(e, update, out=out)
-    aggregate.index_add_(0, receivers, update)
+    _add_at(aggregate, receivers, update, plan)
     return mean, rstd
 
 
@@ -178,8 +191,10 @@ class _EdgeBlock(torch.autograd.Function):
         aggregate = _forward(
             e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, ctx.plan, ctx.stored
         )
-        ctx.save_for_backward(e, table, rows, receivers, norm_weight, norm_bias, *weights, *biases)
-        ctx.eps, ctx.num_layers = eps, num_layers
+        # The backward reads e only as an operand of products: kept in the products' dtype (bfloat16
+        # under autocast) it gives the same gradients in half the memory, the largest saved tensor.
+        ctx.save_for_backward(e.to(products), table, rows, receivers, norm_weight, norm_bias, *weights, *biases)
+        ctx.eps, ctx.num_layers, ctx.dtype = eps, num_layers, e.dtype
         ctx.set_materialize_grads(False)
         return out, aggregate
 
@@ -191,14 +206,14 @@ class _EdgeBlock(torch.autograd.Function):
         size, products = ctx.plan.chunk_size, ctx.plan.products
         product_table = table.to(products)
         product_weights, product_biases = for_products(products, weights), for_products(products, biases)
-        latent = e.shape[1]
-        grad_e = torch.empty_like(e)
-        grad_table = torch.zeros_like(table, dtype=e.dtype)
+        latent, dtype = e.shape[1], ctx.dtype
+        grad_e = torch.empty(e.shape, dtype=dtype, device=e.device)
+        grad_table = torch.zeros_like(table, dtype=dtype)
         grad_weights = [torch.zeros_like(w) for w in weights]
         grad_biases = [torch.zeros_like(b) for b in biases]
         grad_norm_weight, grad_norm_bias = torch.zeros_like(norm_weight), torch.zeros_like(norm_bias)
         if grad_aggregate is None and grad_out is None:
-            grad_out = torch.zeros_like(e)
+            grad_out = torch.zeros_like(grad_e)
         last_bias = biases[-1] if biases else None
         if grad_aggregate is not None:
             # Often a column slice of the node MLP's input gradient; its rows are gathered per edge.
@@ -207,7 +222,7 @@ class _EdgeBlock(torch.autograd.Function):
             chunk_rows, e_chunk = rows[2 * lo : 2 * hi], e[lo:hi]
             if ctx.stored is None:
                 inputs, a = _chunk_activations(e_chunk, product_table, chunk_rows, product_weights, product_biases)
-                a = a.to(e.dtype)
+                a = a.to(dtype)
                 if last_bias is not None:
                     a += last_bias
                 _, mean, rstd = torch.native_layer_norm(a, (latent,), norm_weight, norm_bias, ctx.eps)
@@ -219,12 +234,12 @@ class _EdgeBlock(torch.autograd.Function):
                 grad_biases[-1] if grad_biases else None,
             )
             grad_a = hidden_backward(
-                grad_a, inputs, product_weights[1:], grad_weights[1:], grad_biases, (products, e.dtype)
+                grad_a, inputs, product_weights[1:], grad_weights[1:], grad_biases, (products, dtype)
             )
             add_product(grad_weights[0], grad_a.t(), e_chunk.to(products))
-            grad_a_summed = grad_a.to(e.dtype)
-            grad_table.index_add_(0, chunk_rows[0::2], grad_a_summed)
-            grad_table.index_add_(0, chunk_rows[1::2], grad_a_summed)
+            grad_a_summed = grad_a.to(dtype)
+            _add_at(grad_table, chunk_rows[0::2], grad_a_summed, ctx.plan)
+            _add_at(grad_table, chunk_rows[1::2], grad_a_summed, ctx.plan)
             if grad_out is None:
                 product_into(grad_e[lo:hi], grad_a, product_weights[0])
             else:

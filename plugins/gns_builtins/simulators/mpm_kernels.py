@@ -10,7 +10,8 @@ Importing this module imports Warp: only a running simulator does.
 Reproducibility: P2G scatters with atomic adds. Warp runs CPU kernels serially,
 so their order is fixed; on CUDA the kernels are compiled in Warp's
 deterministic mode (sort-and-reduce of the atomics), so a seed gives the same
-bits run after run on the same device.
+bits run after run on the same device. Its record buffers hold the 3^d adds
+of every particle thread into each grid array (``deterministic_max_records``).
 """
 
 
@@ -211,7 +212,9 @@ def kernels(dim: int) -> Kernels:
             weight *= w[offset[a], a]
         return weight
 
-    @wp.kernel(module="unique", module_options=_OPTIONS)
+    # Each thread adds exactly once per stencil node into each grid array: the deterministic mode's
+    # record buffers are sized for that, not for a bound inferred from the code.
+    @wp.kernel(module="unique", module_options={**_OPTIONS, "deterministic_max_records": stencil})
     def p2g(
         x: wp.array(dtype=vec),
         v: wp.array(dtype=vec),

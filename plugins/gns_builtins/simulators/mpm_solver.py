@@ -132,12 +132,24 @@ class MpmSolver:
             record(k.g2p, self.num_particles, [self.grid_velocity, self.origin, self.inv_dx, self.res, self.dt,
                                                self.lower, self.upper, self.x, self.v, self.C]),
         ]
+        self.p2g_graph = None
+        if wp.get_device(self.device).is_cuda:
+            # A plain launch of P2G's deterministic atomics reads their record counts and an overflow
+            # flag back to the host after every substep (three waits for the GPU); launched from a
+            # captured graph they reduce their fixed-size record buffers and read nothing back. The
+            # buffers are sized for the 3^d adds every thread makes (mpm_kernels), so none can overflow.
+            with wp.ScopedCapture(device=self.device) as capture:
+                self.launches[0].launch()
+            self.p2g_graph = capture.graph
 
     def substep(self) -> None:
         """One explicit MLS-MPM step of ``dt``: P2G, grid update (obstacles placed at the step's start), G2P."""
         p2g, grid_update, g2p = self.launches
         grid_update.set_param_by_name("time", self.step * self.dt)
-        p2g.launch()
+        if self.p2g_graph is not None:
+            wp.capture_launch(self.p2g_graph)
+        else:
+            p2g.launch()
         grid_update.launch()
         g2p.launch()
         self.step += 1

@@ -1,0 +1,33 @@
+"""Where the hot path may wait for the device, and the choices made to avoid waiting elsewhere.
+
+On a GPU every read of a tensor's value on the host (``item``, ``tolist``,
+``cpu``, ``bool``, boolean-mask selection) waits until the device has run
+everything queued before it, so the host stops queueing work ahead. A training
+or rollout step reads back only:
+
+- the edge count of the graph it builds (``radius_pairs``: the candidate count,
+  and the pairs kept within the radius), which is data and sizes every edge tensor;
+- on logging, validation and checkpoint steps, the losses since the last read.
+
+Explicit reads go through :func:`read_back`, so a test can count them and make
+any other read fail (``tests/test_host_syncs.py``).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+
+def avoids_read_backs(device: torch.device) -> bool:
+    """Whether code on ``device`` takes its read-back-free path (every accelerator).
+
+    On the CPU a read costs nothing, and the CPU paths are the reference ones
+    (bitwise as before): they stay as they are.
+    """
+    return device.type != "cpu"
+
+
+def read_back(tensor: Tensor) -> list:
+    """The values of ``tensor`` as a (nested) list on the host: one of the documented waits for the device."""
+    return tensor.tolist()

@@ -1,0 +1,46 @@
+"""Ordered sums at indices (the GPUs' replacement of index_add_): index_add_'s values, in no particular order's bits."""
+
+from __future__ import annotations
+
+import torch
+
+from gns_builtins.segment_sum import segment_sum_, sorted_segment_sum_
+
+
+def _case(seed: int, rows: int = 500, nodes: int = 37, features: int = 8):
+    generator = torch.Generator().manual_seed(seed)
+    keys = torch.randint(0, nodes, (rows,), generator=generator)
+    values = torch.randn(rows, features, generator=generator) * torch.logspace(-3, 3, features)
+    start = torch.randn(nodes, features, generator=generator)
+    return keys, values, start
+
+
+def test_sums_equal_index_add():
+    keys, values, start = _case(0)
+    expected = start.clone().index_add_(0, keys, values)
+    got = segment_sum_(start.clone(), keys, values)
+    # float32 sums of ~14 rows per node: a few ulp of the largest partial sum.
+    scale = values.abs().sum(0) + start.abs()
+    assert ((got - expected).abs() <= 8 * torch.finfo(torch.float32).eps * scale).all()
+    order = torch.argsort(keys, stable=True)
+    assert torch.equal(sorted_segment_sum_(start.clone(), keys[order], values[order]), got)
+
+
+def test_the_order_of_the_rows_changes_no_bit():
+    """What atomics do to index_add_ on a GPU, done by hand: the rows arrive in another order."""
+    keys, values, start = _case(1)
+    reference = segment_sum_(start.clone(), keys, values)
+    for seed in range(5):
+        shuffle = torch.randperm(keys.numel(), generator=torch.Generator().manual_seed(seed))
+        assert torch.equal(segment_sum_(start.clone(), keys[shuffle], values[shuffle]), reference)
+    in_float32 = start.clone()
+    for k in torch.randperm(keys.numel(), generator=torch.Generator().manual_seed(9)).tolist():
+        in_float32[keys[k]] += values[k]
+    assert not torch.equal(in_float32, reference), "the case is too easy: float32 sums in another order agree"
+
+
+def test_empty_and_single_runs():
+    out = torch.ones(3, 2)
+    assert torch.equal(sorted_segment_sum_(out.clone(), torch.empty(0, dtype=torch.long), torch.empty(0, 2)), out)
+    got = sorted_segment_sum_(torch.zeros(3, 2), torch.tensor([0, 2]), torch.tensor([[1.0, 2.0], [3.0, 4.0]]))
+    assert torch.equal(got, torch.tensor([[1.0, 2.0], [0.0, 0.0], [3.0, 4.0]]))
