@@ -6,8 +6,9 @@ Three measurements, each printed as a table, and one JSON object on the last lin
     dataset, invert the learned model for the unknown and compare with the truth:
     ``friction`` (tan of the friction angle) with the value the scene drew for that
     trajectory (from its seed, which ``gns generate`` records in the trajectory key);
-    ``initial_velocity`` with the block's mean velocity over the model's C input frames
-    in the data (:func:`input_frame_velocity`; its launch velocity is printed beside).
+    ``initial_velocity`` with the block's launch velocity when it starts in free flight
+    (``--gravity``: its input frames are exactly ballistic), else with its mean velocity
+    over the model's C input frames in the data (:func:`input_frame_velocity`).
     Relative error per case (of the vector's norm) and its median.
 
 ``--mpm-baseline``  The same friction recovered without the learned model, by a
@@ -24,6 +25,8 @@ Usage::
 
     python benchmarks/inverse_recovery.py --model models/sand2d_fast.pt --data data/invert_heldout \\
         --unknown friction --cases 6 --mpm-baseline --memory --threads 1
+    python benchmarks/inverse_recovery.py --model models/sand2d_throw.pt --data data/throw_heldout \\
+        --unknown initial_velocity --gravity 0 -9.81 --cases 6 --threads 1
 """
 
 from __future__ import annotations
@@ -69,11 +72,13 @@ def input_frame_velocity(position: np.ndarray, history: int, dt: float) -> list[
     return [float(v) for v in (position[history - 1] - position[0]).mean(0) / ((history - 1) * dt)]
 
 
-def unknown_spec(unknown: str, bounds: list[float], dim: int, sand_type: int) -> dict:
-    if unknown == "friction":
-        return {"friction": {"bounds": bounds}}
-    # Launched horizontally, the blocks settle a little under gravity within the input frames (about -0.1 m/s).
-    return {"initial_velocity": {"particle_type": sand_type, "bounds": [bounds] + [[-0.3, 0.1]] * (dim - 1)}}
+def unknown_spec(args) -> dict:
+    if args.unknown == "friction":
+        return {"friction": {"bounds": args.bounds}}
+    spec = {"particle_type": args.sand_type, "bounds": [args.bounds, args.bounds_y]}
+    if args.gravity:
+        spec["gravity"] = args.gravity
+    return {"initial_velocity": spec}
 
 
 def invert_case(args, index: int, registry) -> dict:
@@ -83,7 +88,7 @@ def invert_case(args, index: int, registry) -> dict:
     raw = {
         "model": str(args.model),
         "observed": {"dataset": str(args.data), "split": args.split, "trajectory": index, "frames": args.frames},
-        "unknowns": unknown_spec(args.unknown, args.bounds, 2, args.sand_type),
+        "unknowns": unknown_spec(args),
         "optimizer": {"name": args.optimizer, "lr": args.lr, "iterations": args.iterations},
         "loss": args.loss,
         "checkpoint_every": args.checkpoint_every,
@@ -162,7 +167,10 @@ def main() -> int:
     parser.add_argument("--data", type=Path, required=True, help="gns generate output of the model's scene, unseen seeds")
     parser.add_argument("--split", default="test")
     parser.add_argument("--unknown", choices=("friction", "initial_velocity"), default="friction")
-    parser.add_argument("--bounds", type=float, nargs=2, default=None, help="default: 0.4 1.0 (friction), 0 2 (velocity x)")
+    parser.add_argument("--bounds", type=float, nargs=2, default=None, help="default: 0.4 1.0 (friction), 0 1.2 (velocity x)")
+    parser.add_argument("--bounds-y", type=float, nargs=2, default=[-0.2, 1.2], help="velocity y bounds (2D scenes)")
+    parser.add_argument("--gravity", type=float, nargs=2, help="gx gy: the block starts in free flight; its input "
+                        "frames are rebuilt ballistically and the truth is its launch velocity")
     parser.add_argument("--sand-type", type=int, default=6)
     parser.add_argument("--cases", type=int, default=5)
     parser.add_argument("--optimizer", choices=("adam", "lbfgs"), default="adam")
@@ -179,7 +187,7 @@ def main() -> int:
                         "done, and cases already there are read instead of inverted again (a stopped run continues)")
     parser.add_argument("--json", action="store_true", help="(the JSON line is always printed last)")
     args = parser.parse_args()
-    args.bounds = args.bounds or ([0.4, 1.0] if args.unknown == "friction" else [0.0, 2.0])
+    args.bounds = args.bounds or ([0.4, 1.0] if args.unknown == "friction" else [0.0, 1.2])
     torch.set_num_threads(args.threads)
 
     from gns_framework.plugins import load_registry
@@ -201,7 +209,7 @@ def main() -> int:
         else:
             case = invert_case(args, index, registry)
             truth = drawn_truth(scene, case["key"], args.unknown)
-            if args.unknown == "initial_velocity":
+            if args.unknown == "initial_velocity" and not args.gravity:
                 problem = case["inversion"].problem
                 case["launch"] = truth
                 truth = input_frame_velocity(case["inversion"].trajectory.position, problem.simulator.scene.history,

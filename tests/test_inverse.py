@@ -33,7 +33,9 @@ MODEL = Path(__file__).resolve().parents[1] / "models" / "sand2d_fast.pt"
 SAND = 6
 UNKNOWNS = {
     "friction": PropertyUnknown(bounds=(0.4, 1.0), initial=0.7),
-    "initial_velocity": VelocityUnknown(particle_type=SAND, bounds=[(-0.5, 0.5), (-0.5, 0.5)], initial=[0.1, -0.05]),
+    "initial_velocity": VelocityUnknown(
+        particle_type=SAND, bounds=[(-0.5, 0.5), (-0.5, 0.5)], initial=[0.1, -0.05], gravity=[0.0, -9.81]
+    ),
 }
 
 
@@ -243,3 +245,21 @@ def test_equal_bounds_fix_a_known_velocity_axis(shipped_float64, observed):
     assert problem.parameters.values(torch.tensor([0.25, 0.9], dtype=torch.float64)).tolist() == [0.25, -0.2]
     with pytest.raises(RecipeError, match=r"unknowns.friction: .*low < high"):
         parse_invert_config({"model": "m", "observed": {"dataset": "d"}, "unknowns": {"friction": {"bounds": [0.5, 0.5]}}}, "x")
+
+
+def test_a_ballistic_start_is_rebuilt_exactly(shipped_float64, observed):
+    """With the scene's gravity the input frames of a body in free flight are those the data holds."""
+    trajectory, metadata = observed
+    dt, launch, gravity = metadata.dt, np.array([0.3, 0.5]), np.array([0.0, -9.81])
+    times = np.arange(trajectory.num_steps)[:, None, None] * dt
+    flight = trajectory.position[0][None] + times * launch + 0.5 * times**2 * gravity
+    flying = replace(trajectory, position=flight.astype(np.float64))
+    unknowns = {"initial_velocity": VelocityUnknown(particle_type=SAND, bounds=[(0.0, 1.0), (0.0, 1.0)],
+                                                    gravity=gravity.tolist())}
+    problem = problem_of(shipped_float64, (flying, metadata), "positions", unknowns=unknowns)
+    u = torch.tensor(problem.parameters.scaled(launch))
+    rebuilt = problem.model_inputs(u).position_sequence.transpose(0, 1).numpy()
+    np.testing.assert_allclose(rebuilt, flight[:6], rtol=0, atol=1e-12)
+    with pytest.raises(RecipeError, match=r"gravity has 3 entries but bounds has 2"):
+        parse_invert_config({"model": "m", "observed": {"dataset": "d"}, "unknowns": {"initial_velocity": {
+            "particle_type": 6, "bounds": [[0, 1], [0, 1]], "gravity": [0, 0, -9.81]}}}, "x")

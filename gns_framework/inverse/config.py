@@ -77,18 +77,30 @@ class PropertyUnknown(_Strict):
 
 
 class VelocityUnknown(_Strict):
-    """The initial velocity (m/s per axis) of the particles of one type: the history is rebuilt from it."""
+    """The initial velocity (m/s per axis) of the particles of one type: their C input frames are rebuilt from it.
+
+    ``p_k = p_0 + v t_k + g t_k^2 / 2`` at ``t_k = k dt`` from the first observed frame
+    ``p_0``, with ``g`` the given ``gravity`` (0 by default).
+    """
 
     particle_type: int = Field(ge=0, description="particles that start with the unknown velocity")
     bounds: list[tuple[float, float]] = Field(
         description="[[low, high], ...] per axis, dataset length units per second; low = high fixes a known axis"
     )
     initial: list[float] | None = Field(None, description="starting velocity per axis (default: middle of the bounds)")
+    gravity: list[float] | None = Field(
+        None,
+        description="acceleration per axis (length units per s^2) of these particles during the C input frames: "
+        "the scene's gravity for a body in free flight, whose input frames are then exactly ballistic; default 0 "
+        "(uniform motion)",
+    )
 
     @model_validator(mode="after")
     def _initial_within_bounds(self) -> "VelocityUnknown":
-        if self.initial is not None and len(self.initial) != len(self.bounds):
-            raise ValueError(f"initial has {len(self.initial)} entries but bounds has {len(self.bounds)}")
+        for name in ("initial", "gravity"):
+            value = getattr(self, name)
+            if value is not None and len(value) != len(self.bounds):
+                raise ValueError(f"{name} has {len(value)} entries but bounds has {len(self.bounds)}")
         for axis, (low, high) in enumerate(self.bounds):
             _check_bounds(low, high, None if self.initial is None else self.initial[axis], f"axis {axis}: ", True)
         return self

@@ -225,9 +225,11 @@ class InverseProblem:
             value = values[index : index + width]
             index += width
             if isinstance(unknown, VelocityUnknown):
-                # C input frames of a body moving at the unknown velocity from the first observed frame.
-                ticks = torch.arange(scene.history, dtype=self.dtype, device=u.device)[:, None]
-                rebuilt = self.first_frame[:, None] + ticks * (value * self.metadata.dt)
+                # C input frames of a body starting at the unknown velocity from the first observed frame,
+                # accelerated by the given gravity (ballistic flight) or not at all (uniform motion).
+                times = torch.arange(scene.history, dtype=self.dtype, device=u.device)[:, None] * self.metadata.dt
+                gravity = torch.tensor(unknown.gravity or [0.0] * scene.dim, dtype=self.dtype, device=u.device)
+                rebuilt = self.first_frame[:, None] + times * value + 0.5 * times.square() * gravity
                 chosen = (self.state.particle_type == unknown.particle_type)[:, None, None]
                 sequence = torch.where(chosen, rebuilt, sequence)
             else:
