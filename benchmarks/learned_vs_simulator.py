@@ -121,14 +121,42 @@ def time_learned(simulator, sample, repeats: int) -> float:
     return float(np.median(times))
 
 
+def plot(rows: list[dict], path: Path) -> None:
+    """Seconds per stored frame against particle count, log-log, one line per simulator."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    particles = [row["particles"] for row in rows]
+    figure, axis = plt.subplots(figsize=(6, 4))
+    for key, label in (("mpm_s_per_frame", "MLS-MPM (substeps grow with the grid: CFL)"),
+                       ("fast_s_per_frame", "learned, 5 x 64, stride 2 (shipped)"),
+                       ("reference_s_per_frame", "learned, 10 x 128, stride 1 (reference)")):
+        axis.loglog(particles, [row[key] for row in rows], marker="o", label=label)
+    axis.set_xlabel("particles")
+    axis.set_ylabel("seconds per stored frame")
+    axis.set_title("2D sand column on 1 CPU thread")
+    axis.grid(True, which="both", alpha=0.3)
+    axis.legend(fontsize=8)
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--particles", type=int, nargs="+", default=[1000, 10000, 100000])
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--frames", type=int, default=2, help="MPM frames timed per size")
+    parser.add_argument("--plot", type=Path, help="also draw time per frame against particles into this PNG")
+    parser.add_argument("--replot", type=Path, help="only draw --plot from the JSON line an earlier run printed (in this file)")
     parser.add_argument("--json", action="store_true", help="(the JSON line is always printed last)")
     args = parser.parse_args()
+    if args.replot:
+        plot(json.loads(args.replot.read_text().strip().splitlines()[-1])["rows"], args.plot)
+        return 0
     torch.set_num_threads(args.threads)
     import warp as wp
 
@@ -157,6 +185,8 @@ def main() -> int:
         rows.append(row)
         print(f"{row['particles']:>9} {row['grid']:>5} {row['substeps']:>8} {mpm:>12.4f} {fast_frame:>13.4f} "
               f"{reference_frame:>12.4f} {mpm / fast_frame:>9.2f} {mpm / reference_frame:>8.2f}", flush=True)
+    if args.plot:
+        plot(rows, args.plot)
     print(json.dumps({"threads": args.threads, "rows": rows}))
     return 0
 
