@@ -4,7 +4,7 @@ The scene is the demo's granular column (scenes/demo_sand_2d.yaml, column 0.15 m
 tan phi 0.7) refined to about ``--particles`` particles: the grid grows as sqrt(N) and,
 to keep the simulator's CFL number, its substeps per frame grow with the grid
 (40 at grid 48, the data's setting). The learned models see the same particles with
-their connectivity radius scaled to the spacing (the same ~20 neighbours each):
+their connectivity radius scaled to the spacing (the same ~13 neighbours each, self included):
 
     fast       the shipped model's architecture (5 x 64, one step per 2 stored frames)
     reference  the paper's (10 x 128, one step per stored frame)
