@@ -263,3 +263,11 @@ def test_a_ballistic_start_is_rebuilt_exactly(shipped_float64, observed):
     with pytest.raises(RecipeError, match=r"gravity has 3 entries but bounds has 2"):
         parse_invert_config({"model": "m", "observed": {"dataset": "d"}, "unknowns": {"initial_velocity": {
             "particle_type": 6, "bounds": [[0, 1], [0, 1]], "gravity": [0, 0, -9.81]}}}, "x")
+
+
+@pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[1] / "inversions").glob("*.yaml")))
+def test_the_example_inversions_name_a_shipped_model_and_validate(path, registry):
+    config, unknowns = parse_invert_config(yaml.safe_load(path.read_text()), path)
+    model = load_trained(Path(__file__).resolve().parents[1] / config.model, registry, "cpu")
+    for name, unknown in unknowns.items():
+        assert name in model.simulator.scene.property_names or isinstance(unknown, VelocityUnknown)
