@@ -14,10 +14,10 @@ from gns_framework.cli import main
 from gns_framework.contracts import Scene
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError, RecipeError, RolloutDiverged
-from gns_framework.evaluation.rollout_file import load_rollout
+from gns_framework.evaluation.rollout_file import load_rollout, write_rollout
 from gns_framework.plugins import load_registry
 from gns_framework.recipe import validate_recipe
-from gns_framework.rollout import rollout, write_rollout
+from gns_framework.rollout import rollout
 from gns_framework.rollout_guard import RolloutGuard
 from gns_framework.stability.extreme import extreme_metadata, tiny_simulator
 from tiny import tiny_recipe, tiny_trainer
