@@ -177,7 +177,7 @@ def main() -> int:
     parser.add_argument("--lr", type=float, default=0.05)
     parser.add_argument("--iterations", type=int, default=40)
     parser.add_argument("--loss", choices=("positions", "runout", "sinkhorn"), default="positions")
-    parser.add_argument("--frames", default="all", help="last or all")
+    parser.add_argument("--frames", default="all", help="last, all, or comma-separated frame indices (6,8,10)")
     parser.add_argument("--checkpoint-every", type=int, default=10)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--mpm-baseline", action="store_true")
@@ -187,6 +187,8 @@ def main() -> int:
                         "done, and cases already there are read instead of inverted again (a stopped run continues)")
     parser.add_argument("--json", action="store_true", help="(the JSON line is always printed last)")
     args = parser.parse_args()
+    if args.frames not in ("last", "all"):
+        args.frames = [int(frame) for frame in args.frames.split(",")]
     args.bounds = args.bounds or ([0.4, 1.0] if args.unknown == "friction" else [0.0, 1.2])
     torch.set_num_threads(args.threads)
 
@@ -229,7 +231,7 @@ def main() -> int:
             args.picture.mkdir(parents=True, exist_ok=True)
             write_outputs(case["inversion"], case["result"], args.picture)
     errors = [c["error_pct"] for c in cases]
-    summary = {"unknown": args.unknown, "loss": args.loss, "optimizer": args.optimizer, "iterations": args.iterations,
+    summary = {"unknown": args.unknown, "loss": args.loss, "frames": args.frames, "optimizer": args.optimizer, "iterations": args.iterations,
                "cases": len(cases), "median_error_pct": float(np.median(errors)), "worst_error_pct": float(max(errors)),
                "median_seconds": float(np.median([c["seconds"] for c in cases]))}
     print(f"median error {summary['median_error_pct']:.2f} %, worst {summary['worst_error_pct']:.2f} %, "
