@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     if config.threads:
         torch.set_num_threads(config.threads)
     inversion = prepare(config, unknowns, args.config, load_registry(), args.allow_pickle)
-    tracker = with_mlflow(args, "invert", out, JsonlTracker(out), resume=False)
+    tracker = with_mlflow(args, "invert", out, JsonlTracker(out), resume=False, activity="the inversion")
     tracker.log_params({"config": config.model_dump(mode="json"), "config_file": str(args.config)})
     names = inversion.problem.parameters.names
     bar = tqdm(total=config.optimizer.iterations, desc="invert", unit="it", disable=args.no_progress)

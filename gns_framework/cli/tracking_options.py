@@ -29,10 +29,13 @@ def add_tracking_arguments(parser: argparse.ArgumentParser, metrics_file: str, d
     )
 
 
-def with_mlflow(args: argparse.Namespace, experiment: str, run_dir: Path, local: Tracker, resume: bool) -> Tracker:
+def with_mlflow(
+    args: argparse.Namespace, experiment: str, run_dir: Path, local: Tracker, resume: bool, activity: str = "training"
+) -> Tracker:
     """``local`` (the run folder's metrics file) plus an MLflow run, unless tracking is off or mlflow is missing.
 
-    ``experiment`` is the default name, used when ``--experiment`` is not given.
+    ``experiment`` is the default name, used when ``--experiment`` is not given; ``activity``
+    names what goes on without a server in the warning.
     """
     from ..training import mlflow_tracker
 
@@ -49,7 +52,7 @@ def with_mlflow(args: argparse.Namespace, experiment: str, run_dir: Path, local:
             raise
         # The command never waits on tracking: without a server at the start, this run is not in MLflow.
         warnings.warn(
-            f"tracking: MLflow at {uri} unreachable ({mlflow_tracker.first_line(error)}); the run goes on without it, "
+            f"tracking: MLflow at {uri} unreachable ({mlflow_tracker.first_line(error)}); {activity} goes on without it, "
             f"the metrics go to {run_dir / 'metrics.jsonl'} only",
             stacklevel=2,
         )
