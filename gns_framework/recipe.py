@@ -138,6 +138,13 @@ class TrainingSpec(_Strict):
         description="float32; tf32: float32 products on CUDA tensor cores in TF32 (float32 on CPUs); "
         "or bfloat16 matrix products under autocast (faster on AMX CPUs and GPUs)",
     )
+    pushforward_steps: int = Field(
+        0,
+        ge=0,
+        description="push-forward training (Brandstetter et al. 2022): before each step the model rolls every window "
+        "k steps on from its ground-truth inputs without gradient, k drawn from 0..pushforward_steps per step, and "
+        "learns the next true frame from its own rolled-out inputs, so it learns to correct its rollouts' drift",
+    )
     validation_rollouts: int = Field(
         0,
         ge=0,

@@ -24,6 +24,8 @@ class ParticleBatch:
         next_position: (N, d) the position after the window (training label), or None.
         material_property: (N, P) float32 or None.
         context: (B, c) float32 global context of each example's last input frame, or None.
+        ahead: (N, m, d) float32 the m true positions after ``next_position`` (push-forward
+            training), or None.
     """
 
     position_sequence: Tensor
@@ -33,6 +35,7 @@ class ParticleBatch:
     next_position: Tensor | None = None
     material_property: Tensor | None = None
     context: Tensor | None = None
+    ahead: Tensor | None = None
 
     @property
     def num_particles(self) -> int:
@@ -49,6 +52,7 @@ class ParticleBatch:
             next_position=pin(self.next_position),
             material_property=pin(self.material_property),
             context=pin(self.context),
+            ahead=pin(self.ahead),
         )
 
     def to(self, device: torch.device | str) -> "ParticleBatch":
@@ -61,12 +65,16 @@ class ParticleBatch:
             next_position=move(self.next_position),
             material_property=move(self.material_property),
             context=move(self.context),
+            ahead=move(self.ahead),
         )
 
 
-def window(trajectory: Trajectory, start: int, history: int, with_target: bool = True) -> ParticleBatch:
-    """The window ``[start, start + history)`` of a trajectory as a batch of one example."""
-    positions = trajectory.position[start : start + history + (1 if with_target else 0)]
+def window(trajectory: Trajectory, start: int, history: int, with_target: bool = True, ahead: int = 0) -> ParticleBatch:
+    """The window ``[start, start + history)`` of a trajectory as a batch of one example.
+
+    With a target, ``ahead`` > 0 also keeps the ``ahead`` true frames after it.
+    """
+    positions = trajectory.position[start : start + history + (1 + ahead if with_target else 0)]
     sequence = torch.from_numpy(np.ascontiguousarray(positions[:history].transpose(1, 0, 2)))
     n = sequence.shape[0]
     return ParticleBatch(
@@ -79,6 +87,9 @@ def window(trajectory: Trajectory, start: int, history: int, with_target: bool =
         context=None
         if trajectory.step_context is None
         else torch.from_numpy(trajectory.step_context[start + history - 1])[None],
+        ahead=torch.from_numpy(np.ascontiguousarray(positions[history + 1 :].transpose(1, 0, 2)))
+        if with_target and ahead
+        else None,
     )
 
 
@@ -94,4 +105,5 @@ def collate(examples: Sequence[ParticleBatch]) -> ParticleBatch:
         next_position=cat("next_position"),
         material_property=cat("material_property"),
         context=cat("context"),
+        ahead=cat("ahead"),
     )

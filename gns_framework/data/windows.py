@@ -12,14 +12,19 @@ from .trajectory import Trajectory
 
 
 class WindowIndex:
-    """Every window ``[start, start + C]`` (C inputs + 1 target) of every trajectory."""
+    """Every window ``[start, start + C + ahead]`` (C inputs, 1 target, ``ahead`` later frames) of every trajectory.
 
-    def __init__(self, trajectories: Sequence[Trajectory], history: int):
+    ``ahead`` > 0 keeps the true frames after the target for push-forward training
+    (``ParticleBatch.ahead``).
+    """
+
+    def __init__(self, trajectories: Sequence[Trajectory], history: int, ahead: int = 0):
         self.trajectories = trajectories
         self.history = history
-        pairs = [(i, s) for i, t in enumerate(trajectories) for s in range(t.num_steps - history)]
+        self.ahead = ahead
+        pairs = [(i, s) for i, t in enumerate(trajectories) for s in range(t.num_steps - history - ahead)]
         if not pairs:
-            raise ValueError(f"no trajectory has more than history = {history} frames")
+            raise ValueError(f"no trajectory has more than history + push-forward = {history + ahead} frames")
         self.pairs = np.asarray(pairs, dtype=np.int64)
         self._particles = np.asarray([t.num_particles for t in trajectories], dtype=np.int64)
 
@@ -32,7 +37,7 @@ class WindowIndex:
 
     def example(self, index: int) -> ParticleBatch:
         trajectory, start = self.pairs[index]
-        return window(self.trajectories[trajectory], int(start), self.history)
+        return window(self.trajectories[trajectory], int(start), self.history, ahead=self.ahead)
 
     def batch(self, indices: Sequence[int]) -> ParticleBatch:
         return collate([self.example(i) for i in indices])

@@ -6,6 +6,7 @@ import json
 import math
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,8 +21,9 @@ from ..checkpoint import (
     checkpoint_name, make_room_for_a_fresh_start, prune_checkpoints, resume_point, save_checkpoint, set_aside_damaged,
 )
 from ..data.atomic import write_text_atomic
+from ..data.batch import ParticleBatch
 from ..data.windows import WindowIndex, WindowOrder, window_noise_generator
-from ..errors import CheckpointError, GnsError
+from ..errors import CheckpointError, GnsError, RecipeError
 from ..loss import masked_acceleration_loss, masked_squared_error_sum
 from ..evaluation.candidates import granular_particle_types
 from ..host_sync import avoids_read_backs, read_back
@@ -100,7 +102,10 @@ class Trainer:
             keep_freed_memory()
 
         self.data = prepare_data(self.recipe, registry, allow_pickle=allow_pickle)
-        self.windows = WindowIndex(self.data.train, recipe.model.history)
+        if recipe.training.pushforward_steps and self.data.scene.context_size:
+            raise RecipeError(None, [("training.pushforward_steps", "push-forward needs data without a per-frame "
+                                      "global context (step_context): set it to 0 for this dataset")])
+        self.windows = WindowIndex(self.data.train, recipe.model.history, recipe.training.pushforward_steps)
         self.order = WindowOrder(len(self.windows), recipe.training.batch_size, recipe.seed, self.rank, self.world_size)
         self.validation_batches = self._validation_batches() if self.processes.is_chief else []
         valid = self.data.valid if self.processes.is_chief and self.data.valid is not None else []
@@ -266,6 +271,9 @@ class Trainer:
         if self.device.type == "cuda":
             batch, noise = batch.pinned(), noise.pin_memory()
         batch = batch.to(self.device)
+        unrolled = self._pushforward_steps()
+        if unrolled:
+            batch = self._pushed_forward(batch, unrolled)
         mask = self.simulator.predicted_mask(batch.particle_type)
         noise = noise.to(self.device, non_blocking=True) * mask[:, None, None]
         precision = self.recipe.training.precision
@@ -284,6 +292,29 @@ class Trainer:
         global_particles = sum(self.windows.num_particles(self.order.window_at(p)) for p in self.order.step_positions(self.step))
         self.step += 1
         return global_error / predicted, global_particles
+
+    def _pushforward_steps(self) -> int:
+        """k of this step's push-forward, uniform in 0..``training.pushforward_steps``, the same on every rank."""
+        most = self.recipe.training.pushforward_steps
+        if not most:
+            return 0
+        return int(np.random.default_rng([self.recipe.seed, 2, self.step]).integers(0, most + 1))
+
+    @torch.no_grad()
+    def _pushed_forward(self, batch: ParticleBatch, steps: int) -> ParticleBatch:
+        """``batch`` with its inputs rolled ``steps`` on by the model itself, and the true frame after them as target.
+
+        No gradient flows through the unrolled steps (the push-forward trick): the
+        model is trained on the inputs its own rollouts produce, as it will meet them,
+        at the cost of ``steps`` extra forward passes. Kinematic particles follow their
+        true positions.
+        """
+        truth = torch.cat([batch.next_position[:, None], batch.ahead], dim=1)
+        sequence = batch.position_sequence
+        for step in range(steps):
+            rolled = self.simulator.predict_next_position(replace(batch, position_sequence=sequence), prescribed=truth[:, step])
+            sequence = torch.cat([sequence[:, 1:], rolled[:, None]], dim=1)
+        return replace(batch, position_sequence=sequence, next_position=truth[:, steps])
 
     def _training_noise(self) -> Tensor:
         """This process's random-walk noise of the current step on the host, (N, C, d) float32.
