@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ..inverse.config import load_invert_config
-    from ..inverse.solve import prepare, solve, track_iteration, write_outputs
+    from ..inverse.solve import iteration_metrics, prepare, solve, write_outputs
     from ..plugins import load_registry
     from ..training.tracking import JsonlTracker
 
@@ -46,13 +46,12 @@ def run(args: argparse.Namespace) -> int:
     inversion = prepare(config, unknowns, args.config, load_registry(), args.allow_pickle)
     tracker = with_mlflow(args, "invert", out, JsonlTracker(out), resume=False, activity="the inversion")
     tracker.log_params({"config": config.model_dump(mode="json"), "config_file": str(args.config)})
-    names = inversion.problem.parameters.names
     bar = tqdm(total=config.optimizer.iterations, desc="invert", unit="it", disable=args.no_progress)
 
     def on_iteration(iterate) -> None:
-        track_iteration(tracker, inversion, iterate)
-        values = inversion.problem.parameters.values(torch.from_numpy(iterate.u)).tolist()
-        bar.set_postfix_str(f"loss {iterate.loss:.4g}, " + ", ".join(f"{n} {v:.4g}" for n, v in zip(names, values)))
+        metrics = iteration_metrics(inversion, iterate)
+        tracker.log_metrics(metrics, iterate.iteration)
+        bar.set_postfix_str(", ".join(f"{name} {value:.4g}" for name, value in metrics.items()))
         bar.update(1)
 
     try:

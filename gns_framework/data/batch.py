@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import torch
@@ -41,32 +41,19 @@ class ParticleBatch:
     def num_particles(self) -> int:
         return int(self.position_sequence.shape[0])
 
-    def pinned(self) -> "ParticleBatch":
-        """The same batch in page-locked host memory, so copies to a GPU need not block the host."""
-        pin = lambda t: None if t is None else t.pin_memory()  # noqa: E731
+    def _map_tensors(self, convert) -> "ParticleBatch":
+        """The same batch with ``convert`` applied to every tensor field (None fields stay None)."""
         return replace(
             self,
-            position_sequence=pin(self.position_sequence),
-            particle_type=pin(self.particle_type),
-            batch=pin(self.batch),
-            next_position=pin(self.next_position),
-            material_property=pin(self.material_property),
-            context=pin(self.context),
-            ahead=pin(self.ahead),
+            **{f.name: convert(value) for f in fields(self) if isinstance(value := getattr(self, f.name), Tensor)},
         )
 
+    def pinned(self) -> "ParticleBatch":
+        """The same batch in page-locked host memory, so copies to a GPU need not block the host."""
+        return self._map_tensors(lambda t: t.pin_memory())
+
     def to(self, device: torch.device | str) -> "ParticleBatch":
-        move = lambda t: None if t is None else t.to(device, non_blocking=True)  # noqa: E731
-        return replace(
-            self,
-            position_sequence=move(self.position_sequence),
-            particle_type=move(self.particle_type),
-            batch=move(self.batch),
-            next_position=move(self.next_position),
-            material_property=move(self.material_property),
-            context=move(self.context),
-            ahead=move(self.ahead),
-        )
+        return self._map_tensors(lambda t: t.to(device, non_blocking=True))
 
 
 def window(trajectory: Trajectory, start: int, history: int, with_target: bool = True, ahead: int = 0) -> ParticleBatch:

@@ -27,7 +27,6 @@ from ..loading import LoadedModel, load_trained
 from ..plugins import Registry
 from ..rollout import RolloutResult
 from ..training.setup import open_dataset
-from ..training.tracking import Tracker
 from .config import InvertConfig, PropertyUnknown, VelocityUnknown
 from .optimize import Iterate, Solution, adam, lbfgs
 from .problem import LOSS_UNITS, InverseProblem, check_against_model, observed_frames
@@ -79,6 +78,8 @@ def prepare(
 
 @dataclass(frozen=True)
 class InversionResult:
+    u: np.ndarray
+    """(k,) the recovered unknowns, scaled to [0, 1] over their bounds."""
     unknowns: dict
     initial: dict
     loss: float
@@ -132,6 +133,7 @@ def solve(inversion: Inversion, on_iteration=lambda iterate: None) -> InversionR
     values = parameters.values(torch.from_numpy(solution.u)).tolist()
     start = parameters.values(torch.from_numpy(problem.start)).tolist()
     return InversionResult(
+        u=solution.u,
         unknowns=parameters.as_record(values, problem.unknowns),
         initial=parameters.as_record(start, problem.unknowns),
         loss=final_loss,
@@ -146,7 +148,7 @@ def solve(inversion: Inversion, on_iteration=lambda iterate: None) -> InversionR
 def recovered_rollout(inversion: Inversion, result: InversionResult) -> RolloutResult:
     """The learned rollout of the whole observed trajectory from the recovered unknowns."""
     problem = inversion.problem
-    u = torch.from_numpy(problem.parameters.scaled(_flat(result.unknowns)))
+    u = torch.from_numpy(result.u)
     trajectory = inversion.trajectory
     history = problem.simulator.scene.history
     device = problem.prescribed.device
@@ -162,10 +164,6 @@ def recovered_rollout(inversion: Inversion, result: InversionResult) -> RolloutR
         trajectory=replace(trajectory, material_property=None if state.material_property is None else state.material_property.cpu().numpy()),
         predicted_particles=problem.moving.cpu().numpy(),
     )
-
-
-def _flat(record: dict) -> list[float]:
-    return [v for value in record.values() for v in (value if isinstance(value, list) else [value])]
 
 
 def plot_convergence(history: list[Iterate], inversion: Inversion, path: Path) -> Path:
@@ -208,7 +206,7 @@ def write_outputs(inversion: Inversion, result: InversionResult, out: Path, gif:
     return paths
 
 
-def track_iteration(tracker: Tracker, inversion: Inversion, iterate: Iterate) -> None:
+def iteration_metrics(inversion: Inversion, iterate: Iterate) -> dict[str, float]:
+    """``{"loss": ..., "friction": ..., "initial_velocity.x": ...}`` of one iterate, in physical units."""
     values = inversion.problem.parameters.values(torch.from_numpy(iterate.u)).tolist()
-    metrics = {"loss": iterate.loss, **dict(zip(inversion.problem.parameters.names, values))}
-    tracker.log_metrics(metrics, iterate.iteration)
+    return {"loss": iterate.loss, **dict(zip(inversion.problem.parameters.names, values))}
