@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
+from gns_framework.assembly.ground_truth import build_ground_truth_simulator
+from gns_framework.ground_truth.scene_spec import load_scene, parse_scene
 from gns_framework.plugins import load_registry
-from gns_framework.simulation.build import build_simulator
-from gns_framework.simulation.scene_spec import load_scene, parse_scene
 
 G = 9.81
 A = 0.05715
@@ -61,7 +61,7 @@ def dam_break(viscosity: float, cells: int, floor: str) -> dict:
 def run(viscosity: float, cells: int, floor: str, registry) -> tuple[np.ndarray, np.ndarray]:
     """(T, Z front), one value per frame."""
     scene = parse_scene(dam_break(viscosity, cells, floor))
-    position = build_simulator(scene, registry, "<dam break>").simulate(scene, 0).position
+    position = build_ground_truth_simulator(scene, registry, "<dam break>").simulate(scene, 0).position
     T = np.arange(scene.time.frames) * scene.time.frame_dt * TIME_SCALE
     return T, np.quantile(position[:, :, 0], 0.995, axis=1) / A
 
@@ -97,7 +97,7 @@ def ritter_run(viscosity: float, registry, cells: int = 10) -> tuple[np.ndarray,
         "blocks": [{"material": "water", "position": [0.0, 0.0], "size": [RITTER_L, RITTER_H0],
                     "parameters": {"viscosity": viscosity}}],
     })
-    position = build_simulator(scene, registry, "<ritter>").simulate(scene, 0).position
+    position = build_ground_truth_simulator(scene, registry, "<ritter>").simulate(scene, 0).position
     times = np.arange(scene.time.frames) * frame_dt
 
     def surface(frame: int, centres: np.ndarray) -> np.ndarray:
@@ -124,7 +124,7 @@ def runup(viscosity: float, floor: str, registry) -> float:
     raw["blocks"][0].update(size=[0.2, 0.4], parameters={"viscosity": viscosity})
     raw["domain"]["walls"] = {"y_min": floor}
     raw["time"]["substeps"] = 40
-    position = build_simulator(parse_scene(raw), registry, "<runup>").simulate(parse_scene(raw), 0).position
+    position = build_ground_truth_simulator(parse_scene(raw), registry, "<runup>").simulate(parse_scene(raw), 0).position
     near = position[:, :, 0] > raw["domain"]["bounds"][0][1] - 0.05
     return max(float(np.quantile(y[m], 0.995)) for y, m in zip(position[:, :, 1], near) if m.sum() > 5)
 

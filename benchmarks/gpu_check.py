@@ -34,13 +34,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from lattice_scene import lattice_scene  # noqa: E402
 
-from gns_framework.activation_memory import set_recompute_activations  # noqa: E402
-from gns_framework.loss import masked_acceleration_loss  # noqa: E402
-from gns_framework.noise import random_walk_noise  # noqa: E402
+from gns_framework.assembly.learned import build_learned_simulator  # noqa: E402
+from gns_framework.config.recipe import ModelSpec, OptimizerSpec  # noqa: E402
+from gns_framework.model.loss import masked_acceleration_loss  # noqa: E402
+from gns_framework.model.noise import random_walk_noise  # noqa: E402
 from gns_framework.plugins import load_registry  # noqa: E402
-from gns_framework.precision import PRECISIONS, autocast, backward_precision  # noqa: E402
-from gns_framework.recipe import ModelSpec, OptimizerSpec  # noqa: E402
-from gns_framework.simulator import build_simulator  # noqa: E402
+from gns_framework.runtime.activation_memory import set_recompute_activations  # noqa: E402
+from gns_framework.runtime.precision import PRECISIONS, autocast, backward_precision  # noqa: E402
 from gns_framework.training.optim import make_optimizer  # noqa: E402
 from gns_framework.training.trainer import synchronize  # noqa: E402
 
@@ -89,7 +89,7 @@ def _timed(step, device: torch.device, repeat: int) -> tuple[float, int]:
 def _case(particles: int, precision: str, phase: str, device: torch.device, repeat: int, recompute: bool) -> dict:
     scene = lattice_scene(particles, dim=3)
     torch.manual_seed(0)
-    simulator = build_simulator(scene.scene, scene.metadata, ModelSpec(), load_registry()).to(device)
+    simulator = build_learned_simulator(scene.scene, scene.metadata, ModelSpec(), load_registry()).to(device)
     batch = scene.batch.to(device)
     mask = simulator.predicted_mask(batch.particle_type)
     set_recompute_activations(recompute)
@@ -152,9 +152,10 @@ def scale(args) -> None:
 
 def mpm(args) -> None:
     """Seconds per frame of the 3D sand column on a ``--grid``-cell-wide grid (particles grow as grid^3), on ``--device``."""
-    from gns_framework.simulation.build import build_simulator as build_ground_truth
-    from gns_framework.simulation.scene_spec import parse_scene
     from simulation.scenes import column_collapse_3d
+
+    from gns_framework.assembly.ground_truth import build_ground_truth_simulator as build_ground_truth
+    from gns_framework.ground_truth.scene_spec import parse_scene
 
     raw = column_collapse_3d()
     raw["simulator"] = {"name": "mls_mpm", "device": args.device}

@@ -22,9 +22,9 @@ import math
 
 import numpy as np
 
+from gns_framework.assembly.ground_truth import build_ground_truth_simulator
+from gns_framework.ground_truth.scene_spec import parse_scene
 from gns_framework.plugins import load_registry
-from gns_framework.simulation.build import build_simulator
-from gns_framework.simulation.scene_spec import parse_scene
 
 G = 9.81
 DURATION = 0.6
@@ -82,7 +82,7 @@ def block_on_plane(angle: float, friction: float, dim: int = 2) -> dict:
 def sliding_speed(angle: float, friction: float, registry, dim: int = 2) -> float:
     """Mean downhill speed of the block over the last ``WINDOW`` s of ``DURATION``, m/s."""
     scene = parse_scene(block_on_plane(angle, friction, dim))
-    trajectory = build_simulator(scene, registry, "<inclined plane>").simulate(scene, 0)
+    trajectory = build_ground_truth_simulator(scene, registry, "<inclined plane>").simulate(scene, 0)
     sand = trajectory.particle_type != 3
     frames = round(WINDOW / scene.time.frame_dt)
     moved = trajectory.position[-1, sand, :2].mean(0) - trajectory.position[-1 - frames, sand, :2].mean(0)

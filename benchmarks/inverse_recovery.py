@@ -54,7 +54,7 @@ def seed_of(key: str) -> int:
 
 def drawn_truth(scene, key: str, unknown: str) -> list[float]:
     """The value the scene drew for this trajectory: friction of block 0, or its launch velocity."""
-    from gns_framework.simulation.sampling import sample_scene
+    from gns_framework.ground_truth.sampling import sample_scene
 
     block = sample_scene(scene, seed_of(key)).blocks[0]
     if unknown == "friction":
@@ -105,7 +105,7 @@ def invert_case(args, index: int, registry) -> dict:
 def golden_section_mpm(scene, simulator, key: str, observed: np.ndarray, stride: int, truth: float, target: float,
                        bounds: list[float]) -> dict:
     """Golden-section search of block 0's friction by MPM runs, until within ``target`` relative error of the truth."""
-    from gns_framework.simulation.scene_spec import Range
+    from gns_framework.ground_truth.scene_spec import Range
 
     seed = seed_of(key)
     evaluations, started = 0, time.perf_counter()
@@ -144,7 +144,7 @@ torch.set_num_threads({args.threads})
 sys.argv = ['x']
 from gns_framework.inverse.config import parse_invert_config
 from gns_framework.inverse.solve import prepare
-from gns_framework.activation_memory import activations_recomputed
+from gns_framework.runtime.activation_memory import activations_recomputed
 from gns_framework.plugins import load_registry
 raw = {{"model": {str(args.model)!r}, "observed": {{"dataset": {str(args.data)!r}, "split": {args.split!r},
        "trajectory": 0, "frames": "all"}}, "unknowns": {{"friction": {{"bounds": [0.4, 1.0]}}}},
@@ -192,10 +192,10 @@ def main() -> int:
     args.bounds = args.bounds or ([0.4, 1.0] if args.unknown == "friction" else [0.0, 1.2])
     torch.set_num_threads(args.threads)
 
+    from gns_framework.assembly.data import open_dataset
+    from gns_framework.assembly.ground_truth import build_ground_truth_simulator
+    from gns_framework.ground_truth.scene_spec import SceneSpec
     from gns_framework.plugins import load_registry
-    from gns_framework.simulation.build import build_simulator
-    from gns_framework.simulation.scene_spec import SceneSpec
-    from gns_framework.training.setup import open_dataset
 
     registry = load_registry()
     metadata = json.loads((args.data / "metadata.json").read_text())
@@ -238,12 +238,12 @@ def main() -> int:
           f"median {summary['median_seconds']:.1f} s per inversion")
 
     if args.mpm_baseline and args.unknown == "friction":
-        from gns_framework.loading import load_trained
+        from gns_framework.assembly.trained import load_trained
 
         model_recipe = load_trained(args.model, registry).recipe
         dataset = open_dataset(model_recipe.dataset, registry, args.data)
         stride = model_recipe.dataset.frame_stride
-        simulator = build_simulator(scene, registry, "metadata.json: generated_from")
+        simulator = build_ground_truth_simulator(scene, registry, "metadata.json: generated_from")
         print(f"\n{'case':<18}{'learned s':>10}{'MPM search s':>13}{'MPM runs':>9}{'MPM error %':>12}{'learned/MPM':>12}")
         ratios = []
         for index, case in enumerate(cases):

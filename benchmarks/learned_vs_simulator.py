@@ -39,8 +39,8 @@ DATA_GRID, DATA_SUBSTEPS = 48, 40
 
 def refined_scene(particles: int):
     """The demo scene with a fixed column, its grid chosen for ~``particles`` particles, CFL kept."""
-    from gns_framework.simulation.sampling import sample_scene
-    from gns_framework.simulation.scene_spec import Range, load_scene
+    from gns_framework.ground_truth.sampling import sample_scene
+    from gns_framework.ground_truth.scene_spec import Range, load_scene
 
     scene = load_scene(ROOT / "scenes" / "demo_sand_2d.yaml")
     block = scene.blocks[0].model_copy(update={
@@ -61,9 +61,9 @@ def refined_scene(particles: int):
 def time_mpm(scene, sample, registry, frames: int) -> float:
     """Seconds per stored frame of the MPM on ``scene`` (after one untimed frame)."""
     from gns_builtins.simulators.mpm_solver import MpmSolver
-    from gns_framework.simulation.build import build_simulator
+    from gns_framework.assembly.ground_truth import build_ground_truth_simulator
 
-    simulator = build_simulator(scene, registry, "benchmark scene")
+    simulator = build_ground_truth_simulator(scene, registry, "benchmark scene")
     solver = MpmSolver(
         scene,
         position=np.concatenate([b.position for b in sample.blocks]),
@@ -82,19 +82,19 @@ def time_mpm(scene, sample, registry, frames: int) -> float:
 
 def learned_model(kind: str, registry, radius_scale: float):
     """(simulator, frames per step) of the shipped architecture or the reference's, radius scaled."""
-    from gns_framework.loading import load_trained
-    from gns_framework.recipe import load_recipe
-    from gns_framework.simulator import build_simulator
+    from gns_framework.assembly.learned import build_learned_simulator
+    from gns_framework.assembly.trained import load_trained
+    from gns_framework.config.recipe import load_recipe
 
     shipped = load_trained(ROOT / "models" / "sand2d_fast.pt", registry)
     scene = replace(shipped.simulator.scene, connectivity_radius=shipped.simulator.scene.connectivity_radius * radius_scale)
     if kind == "fast":
-        simulator = build_simulator(scene, shipped.metadata, shipped.recipe.model, registry)
+        simulator = build_learned_simulator(scene, shipped.metadata, shipped.recipe.model, registry)
         simulator.load_state_dict(shipped.simulator.state_dict())
         return simulator.eval(), shipped.recipe.dataset.frame_stride
     reference = load_recipe(ROOT / "recipes" / "sand2d.yaml", registry)
     # Weights do not change the cost: the reference architecture with its initial parameters.
-    return build_simulator(scene, shipped.metadata, reference.model, registry).eval(), 1
+    return build_learned_simulator(scene, shipped.metadata, reference.model, registry).eval(), 1
 
 
 def time_learned(simulator, sample, repeats: int) -> float:

@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from step_time import Stepper, benchmark_model  # noqa: E402
 
-from gns_framework.activation_memory import set_recompute_activations  # noqa: E402
+from gns_framework.runtime.activation_memory import set_recompute_activations  # noqa: E402
 
 MODES = [
     ("rollout", "float32", False), ("rollout", "bfloat16", False),

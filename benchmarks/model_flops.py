@@ -8,7 +8,7 @@ edge); without it, as the reference does (all 3L columns per edge).
 
 from __future__ import annotations
 
-from gns_framework.simulator import LearnedSimulator
+from gns_framework.model.learned_simulator import LearnedSimulator
 
 
 def _linears(mlp_owner) -> list:

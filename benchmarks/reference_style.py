@@ -19,7 +19,7 @@ from torch_geometric.nn import MessagePassing
 
 from gns_builtins.layers import NormedMLP
 from gns_framework.contracts import Graph
-from gns_framework.simulator import LearnedSimulator
+from gns_framework.model.learned_simulator import LearnedSimulator
 
 
 class ReferenceStyleInteraction(MessagePassing):

@@ -15,10 +15,10 @@ import argparse
 import time
 from pathlib import Path
 
+from gns_framework.assembly.ground_truth import build_ground_truth_simulator
+from gns_framework.config.recipe import ComponentSpec
+from gns_framework.ground_truth.scene_spec import load_scene
 from gns_framework.plugins import load_registry
-from gns_framework.recipe import ComponentSpec
-from gns_framework.simulation.build import build_simulator
-from gns_framework.simulation.scene_spec import load_scene
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 DEFAULT = ["sand_collapse_2d", "water_dam_break_2d", "sand_collapse_3d"]
@@ -36,7 +36,7 @@ def main() -> None:
         scene = load_scene(path)
         chosen = ComponentSpec(name=scene.simulator.name, **{**scene.simulator.params, "device": args.device})
         scene = scene.model_copy(update={"simulator": chosen})
-        simulator = build_simulator(scene, registry, path)
+        simulator = build_ground_truth_simulator(scene, registry, path)
         short = scene.model_copy(update={"time": scene.time.model_copy(update={"frames": 3})})
         simulator.simulate(short, 0)  # compiles (or loads) the kernels
         wall, cpu = time.perf_counter(), time.process_time()

@@ -15,7 +15,7 @@ repeat by repeat, so load from other processes hits them alike. ``--peer`` also
 times the reference-style restatement (benchmarks/reference_style.py) with the
 same parameters, interleaved step by step, and reports the speed-up over it. The
 peer runs in a child process with glibc's default allocator, as the reference
-does; ``--peer-allocator ours`` gives it our setting (gns_framework/allocator.py)
+does; ``--peer-allocator ours`` gives it our setting (gns_framework/runtime/allocator.py)
 instead, which isolates what the allocator alone is worth.
 
 The scene is benchmarks/lattice_scene.py: one example, jittered lattice, radius
@@ -42,14 +42,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from lattice_scene import lattice_scene  # noqa: E402
 from model_flops import forward_flops  # noqa: E402
 
-from gns_framework.activation_memory import recompute_activations, set_recompute_activations  # noqa: E402
-from gns_framework.allocator import keep_freed_memory  # noqa: E402
-from gns_framework.loss import masked_acceleration_loss  # noqa: E402
-from gns_framework.noise import random_walk_noise  # noqa: E402
-from gns_framework.precision import PRECISIONS, autocast  # noqa: E402
+from gns_framework.assembly.learned import build_learned_simulator  # noqa: E402
+from gns_framework.config.recipe import ModelSpec, OptimizerSpec  # noqa: E402
+from gns_framework.model.loss import masked_acceleration_loss  # noqa: E402
+from gns_framework.model.noise import random_walk_noise  # noqa: E402
 from gns_framework.plugins import load_registry  # noqa: E402
-from gns_framework.recipe import ModelSpec, OptimizerSpec  # noqa: E402
-from gns_framework.simulator import build_simulator  # noqa: E402
+from gns_framework.runtime.activation_memory import recompute_activations, set_recompute_activations  # noqa: E402
+from gns_framework.runtime.allocator import keep_freed_memory  # noqa: E402
+from gns_framework.runtime.precision import PRECISIONS, autocast  # noqa: E402
 from gns_framework.training.optim import make_optimizer  # noqa: E402
 
 SUITE = [(992, 2), (3969, 2), (10000, 2), (100000, 2), (8000, 3)]
@@ -106,7 +106,7 @@ def benchmark_model(particles: int, dim: int):
     """The scene and the paper's model on it, with parameters that depend only on the seed."""
     scene = lattice_scene(particles, dim)
     torch.manual_seed(0)
-    return scene, build_simulator(scene.scene, scene.metadata, ModelSpec(), load_registry())
+    return scene, build_learned_simulator(scene.scene, scene.metadata, ModelSpec(), load_registry())
 
 
 class PeerProcess:

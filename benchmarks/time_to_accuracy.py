@@ -34,9 +34,9 @@ from pathlib import Path
 
 import torch
 
+from gns_framework.config.recipe import load_recipe
 from gns_framework.evaluation.candidates import granular_particle_types
 from gns_framework.plugins import load_registry
-from gns_framework.recipe import load_recipe
 from gns_framework.training.rollout_validation import validation_rollout_metrics
 from gns_framework.training.tracking import TrackerGroup
 from gns_framework.training.trainer import Trainer

@@ -23,12 +23,12 @@ from torch import Tensor, nn
 if TYPE_CHECKING:
     from .data.metadata import DatasetMetadata
     from .data.trajectory import Trajectory
-    from .simulation.scene_spec import SceneSpec
+    from .ground_truth.scene_spec import SceneSpec
 
 
 class Params(BaseModel):
     """Base of every component's ``Params``: unknown keys are errors; a number where a string
-    is expected is the text it was written as (see ``yaml_loading``)."""
+    is expected is the text it was written as (see ``gns_framework.config.yaml_files``)."""
 
     model_config = ConfigDict(extra="forbid", coerce_numbers_to_str=True)
 
@@ -332,7 +332,7 @@ class GroundTruthSimulator(ABC):
         Stability limits (time step versus wave speed) and the like. The checks every
         simulator shares (dimension, materials and their constitutive models,
         obstacles, properties) are made before, by
-        :func:`gns_framework.simulation.scene_checks.scene_problems`; none here by default.
+        :func:`gns_framework.ground_truth.scene_checks.scene_problems`; none here by default.
         """
         return []
 

@@ -15,14 +15,19 @@ import importlib.metadata
 import inspect
 import os
 import warnings
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import pluggy
+from pydantic import BaseModel, ValidationError
 
 from . import hookspecs
-from .errors import PluginError, did_you_mean
+from .config.problems import problems_from
+from .errors import PluginError, RecipeError, did_you_mean
 from .plugin_types import Metric
+from .specs import ComponentSpec
 
 ENTRY_POINT_GROUP = "gns_framework"
 DISABLE_ENV = "GNS_DISABLE_PLUGINS"
@@ -124,6 +129,39 @@ class Registry:
 
     def get(self, kind: str, name: str) -> type:
         return self.entry(kind, name).cls
+
+    def resolve(
+        self,
+        kind: str,
+        spec: ComponentSpec | Mapping[str, Any],
+        where: Sequence[str] = (),
+        source: str | Path | None = None,
+    ) -> tuple[type, BaseModel]:
+        """The component class a spec names and its validated ``Params``: the one place names become components.
+
+        Args:
+            kind: component kind (``processor``, ``dataset``, ``simulator``, ...).
+            spec: a :class:`~gns_framework.specs.ComponentSpec`, or a mapping of ``name``
+                and the component's parameters (as read from YAML, before validation).
+            where: the spec's location in its file, e.g. ``("model", "processor")``.
+            source: the file (or command-line option) the spec comes from.
+
+        Raises:
+            RecipeError: at ``<where>.name`` for a name no installed plugin provides (with
+                the installed choices), at ``<where>.<param>`` for each bad parameter.
+        """
+        if isinstance(spec, ComponentSpec):
+            name, params = spec.name, spec.params
+        else:
+            name, params = spec.get("name"), {k: v for k, v in spec.items() if k != "name"}
+        try:
+            cls = self.get(kind, name)
+        except PluginError as exc:
+            raise RecipeError(source, [(".".join((*where, "name")), str(exc))]) from None
+        try:
+            return cls, cls.Params.model_validate(params)
+        except ValidationError as exc:
+            raise RecipeError(source, problems_from(exc, cls.Params, prefix=tuple(where))) from None
 
     def material_by_type(self, particle_type: int) -> ComponentEntry:
         for entry in self._entries.get("material", {}).values():

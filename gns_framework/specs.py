@@ -14,7 +14,7 @@ from pydantic import BaseModel, ConfigDict
 class ComponentSpec(BaseModel):
     """``name`` of a registered component plus its parameters."""
 
-    # A number where a string is expected is that string (``name: 1e5``, see yaml_loading).
+    # A number where a string is expected is that string (``name: 1e5``, see config.yaml_files).
     model_config = ConfigDict(extra="allow", coerce_numbers_to_str=True)
     name: str
 

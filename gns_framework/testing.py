@@ -40,10 +40,10 @@ from .contracts import (
     Processor,
     Scene,
 )
-from .periodic import PeriodicBox
+from .model.periodic import PeriodicBox
 
 if TYPE_CHECKING:
-    from .simulation.scene_spec import SceneSpec
+    from .ground_truth.scene_spec import SceneSpec
 
 __all__ = [
     "check_dataset",
@@ -393,7 +393,7 @@ def check_simulator(
     the scene's bounds, with the type ids of the scene's materials; the same seed
     gives the same bits.
     """
-    from .simulation.scene_checks import scene_problems
+    from .ground_truth.scene_checks import scene_problems
 
     _expect(inspect.isclass(cls) and issubclass(cls, GroundTruthSimulator), f"{cls!r} is not a GroundTruthSimulator subclass")
     simulator = cls(cls.Params.model_validate(dict(params or {})), dict(materials))

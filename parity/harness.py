@@ -19,8 +19,8 @@ from torch import Tensor
 
 from gns_framework.importers.geoelements import ImportedCheckpoint
 from gns_framework.importers.geoelements_layout import EMBEDDING_KEY
-from gns_framework.loss import masked_acceleration_loss
-from gns_framework.rollout import rollout
+from gns_framework.model.loss import masked_acceleration_loss
+from gns_framework.model.rollout import rollout
 
 from . import tolerances as tol
 from .cases import ReferenceCase

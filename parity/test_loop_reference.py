@@ -12,13 +12,14 @@ import torch
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from gns_framework.assembly.learned import build_learned_simulator
+from gns_framework.config.recipe import ComponentSpec, ModelSpec
 from gns_framework.contracts import Scene
 from gns_framework.data.batch import ParticleBatch
 from gns_framework.data.metadata import DatasetMetadata
-from gns_framework.loss import masked_acceleration_loss
+from gns_framework.model.learned_simulator import LearnedSimulator
+from gns_framework.model.loss import masked_acceleration_loss
 from gns_framework.plugins import load_registry
-from gns_framework.recipe import ComponentSpec, ModelSpec
-from gns_framework.simulator import LearnedSimulator, build_simulator
 
 from . import loop_reference as ref
 
@@ -80,7 +81,7 @@ def build(spec: dict):
         processor=ComponentSpec(name="interaction_network", message_passing_steps=spec["steps"]),
     )
     torch.manual_seed(spec["seed"])
-    simulator = build_simulator(scene, metadata, model, REGISTRY)
+    simulator = build_learned_simulator(scene, metadata, model, REGISTRY)
     with torch.no_grad():
         for name, p in simulator.named_parameters():
             # LayerNorm's 1/0 defaults would hide a swapped or missing affine term.

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from gns_framework.assembly.ground_truth import build_ground_truth_simulator
+from gns_framework.ground_truth.scene_spec import load_scene
 from gns_framework.plugins import load_registry
-from gns_framework.simulation.build import build_simulator
-from gns_framework.simulation.scene_spec import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 COLOURS = {3: "0.45", 5: "tab:blue", 6: "goldenrod"}
@@ -41,7 +41,7 @@ def main() -> None:
     fig, axes = plt.subplots(len(runs), len(times), figsize=(2.4 * len(times), 2.4 * len(runs)))
     for row, (name, seed) in zip(axes, runs):
         scene = load_scene(ROOT / "scenes" / f"{name}.yaml")
-        trajectory = build_simulator(scene, registry, name).simulate(scene, seed)
+        trajectory = build_ground_truth_simulator(scene, registry, name).simulate(scene, seed)
         bounds = np.array(scene.domain.bounds)
         for ax, t in zip(row, times):
             frame = min(round(t / scene.time.frame_dt), scene.time.frames - 1)

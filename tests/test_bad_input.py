@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from tiny import tiny_recipe, tiny_trainer
 
-from gns_framework.checkpoint import FORMAT, load_checkpoint
 from gns_framework.cli import main
 from gns_framework.errors import CheckpointError
-from tiny import tiny_recipe, tiny_trainer
+from gns_framework.io.checkpoint import FORMAT, load_checkpoint
 
 pytestmark = [pytest.mark.stability, pytest.mark.usefixtures("one_torch_thread")]
 

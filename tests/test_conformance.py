@@ -11,9 +11,9 @@ import torch
 from gns_framework import testing
 from gns_framework.contracts import GroundTruthSimulator
 from gns_framework.data.trajectory import Trajectory
+from gns_framework.ground_truth.sampling import sample_scene
+from gns_framework.ground_truth.scene_spec import SceneSpec
 from gns_framework.plugins import load_registry
-from gns_framework.simulation.sampling import sample_scene
-from gns_framework.simulation.scene_spec import SceneSpec
 
 REGISTRY = load_registry()
 HAS_TORCH_CLUSTER = importlib.util.find_spec("torch_cluster") is not None

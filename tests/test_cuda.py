@@ -11,16 +11,16 @@ import copy
 import numpy as np
 import pytest
 import torch
-
-from gns_framework.evaluation.candidates import granular_particle_types
-from gns_framework.rollout import rollout
-from gns_framework.simulation.build import build_simulator as build_ground_truth
-from gns_framework.simulation.scene_spec import parse_scene
-from gns_framework.training.rollout_validation import validation_rollout_metrics
-from gns_framework.recipe import validate_recipe
-from gns_framework.training.trainer import Trainer
 from simulation.scenes import mixed
 from tiny import tiny_recipe_mapping
+
+from gns_framework.assembly.ground_truth import build_ground_truth_simulator as build_ground_truth
+from gns_framework.config.recipe import validate_recipe
+from gns_framework.evaluation.candidates import granular_particle_types
+from gns_framework.ground_truth.scene_spec import parse_scene
+from gns_framework.model.rollout import rollout
+from gns_framework.training.rollout_validation import validation_rollout_metrics
+from gns_framework.training.trainer import Trainer
 
 pytestmark = pytest.mark.cuda
 

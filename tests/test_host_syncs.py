@@ -1,4 +1,4 @@
-"""A training step and a rollout step read nothing back from the device but what gns_framework.host_sync documents.
+"""A training step and a rollout step read nothing back from the device but what gns_framework.runtime.host_sync documents.
 
 On the CPU reads cost nothing, so the CPU paths may read; here the accelerators'
 paths are taken on the CPU (``avoids_read_backs`` and ``needs_ordered_sums``
@@ -12,16 +12,17 @@ import contextlib
 
 import pytest
 import torch
+from tiny import tiny_recipe, tiny_trainer
 
-import gns_framework.host_sync as host_sync
+import gns_framework.runtime.host_sync as host_sync
 from gns_builtins.processors import edge_block
 from gns_framework import rollout as rollout_module
-from gns_framework import rollout_guard, simulator as simulator_module
-from gns_framework.rollout import rollout
-from gns_framework.rollout_guard import RolloutGuard
+from gns_framework import rollout_guard
+from gns_framework import simulator as simulator_module
+from gns_framework.model.rollout import rollout
+from gns_framework.model.rollout_guard import RolloutGuard
 from gns_framework.training import trainer as trainer_module
 from gns_framework.training.trainer import Trainer
-from tiny import tiny_recipe, tiny_trainer
 
 READS = ("item", "tolist", "cpu", "numpy", "__bool__", "__int__", "__float__", "__index__")
 ORIGINAL_READS = {name: getattr(torch.Tensor, name) for name in READS}

@@ -8,17 +8,17 @@ from fractions import Fraction
 
 import pytest
 import torch
+from hostile import MEMBER, write_hostile_dataset
+from synthetic import soft_sphere_trajectory, synthetic_metadata
 
-from gns_framework.checkpoint import load_checkpoint
+from gns_framework.assembly.trained import load_trained
 from gns_framework.cli import main
 from gns_framework.data.batch import ParticleBatch
 from gns_framework.errors import CheckpointError
 from gns_framework.importers.geoelements import import_geoelements_checkpoint
 from gns_framework.importers.geoelements_layout import Architecture
-from gns_framework.loading import load_trained
+from gns_framework.io.checkpoint import load_checkpoint
 from gns_framework.plugins import load_registry
-from hostile import MEMBER, write_hostile_dataset
-from synthetic import soft_sphere_trajectory, synthetic_metadata
 
 REGISTRY = load_registry()
 METADATA = {

@@ -20,14 +20,14 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from synthetic import soft_sphere_trajectory, synthetic_metadata
+from tiny import tiny_recipe, tiny_trainer
 
+from gns_framework.assembly.trained import load_trained
 from gns_framework.errors import RecipeError
 from gns_framework.inverse.config import PropertyUnknown, VelocityUnknown, parse_invert_config
 from gns_framework.inverse.optimize import InversionDiverged, adam
 from gns_framework.inverse.problem import InverseProblem
-from gns_framework.loading import load_trained
-from synthetic import soft_sphere_trajectory, synthetic_metadata
-from tiny import tiny_recipe, tiny_trainer
 
 MODEL = Path(__file__).resolve().parents[1] / "models" / "sand2d_fast.pt"
 SAND = 6

@@ -10,8 +10,8 @@ from gns_framework.contracts import Material
 from gns_framework.data.metadata import DatasetMetadata, compute_statistics
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.evaluation.report import score_rollout
-from gns_framework.evaluation.rollout_file import Rollout
 from gns_framework.hookspecs import hookimpl
+from gns_framework.io.rollout_file import Rollout
 from gns_framework.plugins import load_registry
 
 SAND, BALLAST = 6, 11

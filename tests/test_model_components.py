@@ -6,17 +6,17 @@ import copy
 
 import numpy as np
 import torch
+from float_tolerances import assert_close_to_reference
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from float_tolerances import assert_close_to_reference
-from gns_framework.contracts import Graph, ModelSizes, Scene
-from gns_framework.features import FeatureBuilder, node_feature_size
-from gns_framework.normalization import Stats, noise_combined_std
 from gns_builtins.graph_builders.cell_list import radius_pairs
 from gns_builtins.integrators.semi_implicit_euler import SemiImplicitEuler
 from gns_builtins.processors.interaction_network import InteractionNetwork
+from gns_framework.contracts import Graph, ModelSizes, Scene
+from gns_framework.model.features import FeatureBuilder, node_feature_size
+from gns_framework.model.normalization import Stats, noise_combined_std
 
 finite = st.floats(-10, 10, allow_nan=False, width=64)
 

@@ -9,14 +9,14 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
-
-from gns_framework.data.metadata import compute_statistics
-from gns_framework.periodic import PeriodicBox
-from gns_framework.plugins import load_registry
-from gns_framework.rollout import rollout
-from gns_framework.testing import small_scene
 from synthetic import soft_sphere_trajectory, synthetic_metadata
 from tiny import tiny_recipe, tiny_trainer
+
+from gns_framework.data.metadata import compute_statistics
+from gns_framework.model.periodic import PeriodicBox
+from gns_framework.model.rollout import rollout
+from gns_framework.plugins import load_registry
+from gns_framework.testing import small_scene
 
 BOX = PeriodicBox(small_scene(2, periodic=(True, False)))
 
@@ -69,9 +69,9 @@ def test_periodic_scene_trains_and_rolls_out_inside_the_box(tmp_path):
 
 def test_a_periodic_scene_refuses_a_builder_that_ignores_periodicity(tmp_path):
     import pytest
+    from synthetic import write_synthetic_dataset
 
     from gns_framework.errors import RecipeError
-    from synthetic import write_synthetic_dataset
 
     data = write_synthetic_dataset(tmp_path / "data", train=1, valid=0, test=0, frames=12)
     with pytest.raises(RecipeError, match="periodic_radius"):

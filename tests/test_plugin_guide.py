@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from gns_framework import testing
+from gns_framework.assembly.ground_truth import build_ground_truth_simulator
 from gns_framework.evaluation.candidates import granular_particle_types
 from gns_framework.evaluation.report import score_rollout
+from gns_framework.ground_truth.scene_spec import SceneSpec
 from gns_framework.plugins import load_registry
-from gns_framework.simulation.build import build_simulator
-from gns_framework.simulation.scene_spec import SceneSpec
 from gns_framework.testing import small_scene
 
 GUIDE = Path(__file__).resolve().parents[1] / "docs" / "plugin-authors.md"
@@ -57,10 +57,10 @@ def test_the_guide_material_is_simulated_by_the_builtin_mpm(gravel_registry):
                     "properties": {"friction": {"range": [0.6, 0.8]}}}],
     }
     scene = SceneSpec.model_validate(raw)
-    build_simulator(scene, gravel_registry, "<guide scene>")  # every shared and MPM check passes
+    build_ground_truth_simulator(scene, gravel_registry, "<guide scene>")  # every shared and MPM check passes
     materials = {name: gravel_registry.get("material", name) for name in gravel_registry.names("material")}
     testing.check_simulator(gravel_registry.get("simulator", "mls_mpm"), scene, materials)
-    trajectory = build_simulator(scene, gravel_registry).simulate(scene, seed=0)
+    trajectory = build_ground_truth_simulator(scene, gravel_registry).simulate(scene, seed=0)
     assert set(trajectory.particle_type.tolist()) == {9}
     assert trajectory.position[-1, :, 1].mean() < trajectory.position[0, :, 1].mean()  # the column slumps
 
@@ -77,7 +77,7 @@ def test_the_guide_metric_is_measured(make_rollout_2d):
 @pytest.fixture
 def make_rollout_2d():
     from gns_framework.data.metadata import DatasetMetadata
-    from gns_framework.evaluation.rollout_file import Rollout
+    from gns_framework.io.rollout_file import Rollout
 
     rng = np.random.default_rng(0)
     truth = rng.uniform(0.2, 0.8, size=(5, 6, 2))

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from gns_framework.config.recipe import load_recipe, validate_recipe
 from gns_framework.errors import RecipeError
-from gns_framework.recipe import load_recipe, validate_recipe
 
 RECIPES = sorted((Path(__file__).resolve().parents[1] / "recipes").rglob("*.yaml"))
 NEEDS_PACKAGE = {"clay2d.yaml": ("gns_example_clay", "pip install -e plugins/examples/gns-clay")}

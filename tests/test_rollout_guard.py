@@ -8,19 +8,19 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from tiny import tiny_recipe, tiny_trainer
 
-from gns_framework.checkpoint import load_checkpoint, save_checkpoint
 from gns_framework.cli import main
+from gns_framework.config.recipe import validate_recipe
 from gns_framework.contracts import Scene
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError, RecipeError, RolloutDiverged
-from gns_framework.evaluation.rollout_file import load_rollout, write_rollout
+from gns_framework.io.checkpoint import load_checkpoint, save_checkpoint
+from gns_framework.io.rollout_file import load_rollout, write_rollout
+from gns_framework.model.rollout import rollout
+from gns_framework.model.rollout_guard import RolloutGuard
 from gns_framework.plugins import load_registry
-from gns_framework.recipe import validate_recipe
-from gns_framework.rollout import rollout
-from gns_framework.rollout_guard import RolloutGuard
 from gns_framework.stability.extreme import extreme_metadata, tiny_simulator
-from tiny import tiny_recipe, tiny_trainer
 
 pytestmark = [pytest.mark.stability, pytest.mark.usefixtures("one_torch_thread")]
 

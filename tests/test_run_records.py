@@ -7,12 +7,12 @@ import warnings
 
 import pytest
 import yaml
+from synthetic import write_synthetic_dataset
 from tiny import tiny_recipe, tiny_recipe_mapping
 
-from gns_framework.checkpoint import list_checkpoints, load_checkpoint
 from gns_framework.cli import main
+from gns_framework.io.checkpoint import list_checkpoints, load_checkpoint
 from gns_framework.training.trainer import Trainer
-from synthetic import write_synthetic_dataset
 
 
 def test_train_records_the_dataset_option_and_rollout_uses_it(dataset_multimaterial, tmp_path):

@@ -7,12 +7,12 @@ import dataclasses
 import pytest
 import torch
 
+from gns_framework.assembly.learned import build_learned_simulator
+from gns_framework.config.recipe import ModelSpec
 from gns_framework.contracts import Scene
 from gns_framework.data.batch import ParticleBatch
 from gns_framework.data.metadata import DatasetMetadata
 from gns_framework.plugins import load_registry
-from gns_framework.recipe import ModelSpec
-from gns_framework.simulator import build_simulator
 
 REGISTRY = load_registry()
 METADATA = DatasetMetadata(
@@ -41,7 +41,7 @@ EXPECTED_PARAMETERS = {
 
 
 def simulator_for(scene: Scene):
-    return build_simulator(scene, METADATA, PERIODIC_REFERENCE if scene.periodic_dims else REFERENCE, REGISTRY)
+    return build_learned_simulator(scene, METADATA, PERIODIC_REFERENCE if scene.periodic_dims else REFERENCE, REGISTRY)
 
 
 def parameters(module: torch.nn.Module) -> int:
@@ -69,7 +69,7 @@ def test_kinematic_particles_are_not_decoded_nor_integrated():
     scene = SCENES["water + rigid (two types)"]
     model = ModelSpec(latent_size=16, mlp_hidden_size=16, processor={"name": "interaction_network", "message_passing_steps": 2})
     torch.manual_seed(0)
-    simulator = build_simulator(scene, METADATA, model, REGISTRY).eval()
+    simulator = build_learned_simulator(scene, METADATA, model, REGISTRY).eval()
     n = 30
     sequence = torch.rand(n, 1, 2) + 1e-3 * torch.cumsum(torch.randn(n, 6, 2), 1)
     particle_type = torch.where(torch.arange(n) % 3 == 0, 3, 5)

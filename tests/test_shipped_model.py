@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from gns_framework.loading import load_trained
+from gns_framework.assembly.trained import load_trained
 
 REPO = Path(__file__).resolve().parents[1]
 MODEL = REPO / "models" / "sand2d_fast.pt"

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from gns_framework.features import safe_norm
+from gns_framework.model.features import safe_norm
 from gns_framework.plugins import load_registry
 from gns_framework.stability.extreme import CASES, check_finite, tiny_simulator
 

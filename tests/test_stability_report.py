@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from gns_framework.cli import main
+from gns_framework.model.rollout_guard import RolloutGuard
 from gns_framework.plugins import load_registry
-from gns_framework.rollout_guard import RolloutGuard
 from gns_framework.stability import report
 from gns_framework.stability.extreme import tiny_simulator
 from gns_framework.stability.report import Row, chain_drift, chain_limits, format_row, near_collision, rollout_guard

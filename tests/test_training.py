@@ -7,19 +7,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from tiny import tiny_recipe_mapping
 
-from gns_framework.checkpoint import list_checkpoints, load_checkpoint, save_checkpoint
+from gns_framework.assembly.trained import load_trained
+from gns_framework.config.recipe import load_recipe, validate_recipe
 from gns_framework.contracts import Params, Processor
 from gns_framework.errors import CheckpointError
 from gns_framework.hookspecs import hookimpl
-from gns_framework.loading import load_trained
+from gns_framework.io.checkpoint import list_checkpoints, load_checkpoint, save_checkpoint
+from gns_framework.io.rollout_file import write_rollout
+from gns_framework.model.rollout import rollout
 from gns_framework.plugins import load_registry
-from gns_framework.recipe import load_recipe, validate_recipe
-from gns_framework.evaluation.rollout_file import write_rollout
-from gns_framework.rollout import rollout
 from gns_framework.training.trainer import Trainer
-from tiny import tiny_recipe_mapping
-
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -119,7 +118,7 @@ def test_rollout_keeps_kinematic_particles_on_ground_truth(dataset_multimaterial
     scene = loaded.simulator.scene
     assert scene.particle_types == (3, 5, 6) and scene.kinematic_types == (3,)
     assert scene.property_names == ("friction",)
-    from gns_framework.training.setup import open_dataset
+    from gns_framework.assembly.data import open_dataset
 
     trajectory = open_dataset(loaded.recipe.dataset, registry).split("test")[0]
     result = rollout(loaded.simulator, trajectory, steps=5)

@@ -8,19 +8,19 @@ import math
 import numpy as np
 import pytest
 import torch
-
-from gns_framework.checkpoint import load_checkpoint
-from gns_framework.data.metadata import compute_statistics
-from gns_framework.errors import RecipeError
-from gns_framework.loading import load_trained
-from gns_framework.noise import training_noise_std
-from gns_framework.recipe import OptimizerSpec, validate_recipe
-from gns_framework.rollout import rollout
-from gns_framework.training.optim import learning_rate, make_optimizer
-from gns_framework.training.setup import open_dataset
-from gns_framework.training.trainer import Trainer
 from synthetic import write_synthetic_dataset
 from tiny import tiny_recipe_mapping
+
+from gns_framework.assembly.data import open_dataset
+from gns_framework.assembly.trained import load_trained
+from gns_framework.config.recipe import OptimizerSpec, validate_recipe
+from gns_framework.data.metadata import compute_statistics
+from gns_framework.errors import RecipeError
+from gns_framework.io.checkpoint import load_checkpoint
+from gns_framework.model.noise import training_noise_std
+from gns_framework.model.rollout import rollout
+from gns_framework.training.optim import learning_rate, make_optimizer
+from gns_framework.training.trainer import Trainer
 
 
 @pytest.fixture(scope="module")

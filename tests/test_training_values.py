@@ -12,13 +12,13 @@ from dataclasses import dataclass
 
 import pytest
 import torch
+from tiny import tiny_recipe, tiny_trainer
 from torch import nn
 
-from gns_framework.noise import random_walk_noise
-from gns_framework.recipe import OptimizerSpec
+from gns_framework.config.recipe import OptimizerSpec
+from gns_framework.model.noise import random_walk_noise
 from gns_framework.training.distributed import Processes
 from gns_framework.training.optim import learning_rate, make_optimizer
-from tiny import tiny_recipe, tiny_trainer
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # restores the count the tiny trainers set to 1
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from gns_framework.recipe import load_recipe
-from gns_framework.simulation.scene_spec import load_scene
-from gns_framework.yaml_loading import load_yaml_mapping
+from gns_framework.config.recipe import load_recipe
+from gns_framework.config.yaml_files import load_yaml_mapping
+from gns_framework.ground_truth.scene_spec import load_scene
 
 
 @pytest.mark.parametrize(

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from gns_framework.config.recipe import Recipe, validate_recipe
 from gns_framework.plugins import Registry, load_registry
-from gns_framework.recipe import Recipe, validate_recipe
 from gns_framework.training.trainer import Trainer
-
 
 TINY_PROCESSORS = {
     "interaction_network": {"message_passing_steps": 2},

@@ -6,9 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..config.recipe import load_recipe
 from ..errors import RecipeError
 from ..plugins import load_registry
-from ..recipe import load_recipe
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -5,12 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pydantic import ValidationError
-
 from ..data.array_pickle import pickle_granted
-from ..errors import GnsError, RecipeError
+from ..errors import GnsError
 from ..plugins import load_registry
-from ..validation import problems_from
 from .arguments import add_allow_pickle
 
 
@@ -24,17 +21,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     registry = load_registry()
-    source_cls = registry.get("dataset", args.source_layout)
-    target_cls = registry.get("dataset", args.target_layout)
+    source_cls, params = registry.resolve("dataset", {"name": args.source_layout}, source="--from")
+    target_cls, _ = registry.resolve("dataset", {"name": args.target_layout}, source="--to")
     if not target_cls.writable:
         writable = [n for n in registry.names("dataset") if registry.get("dataset", n).writable]
         raise GnsError(f"dataset layout {args.target_layout!r} is read-only; writable: {', '.join(writable)}")
     if args.source.resolve() == args.out.resolve():
         raise GnsError("--out must differ from SOURCE: converting in place could overwrite the files being read")
-    try:
-        params = source_cls.Params.model_validate({})
-    except ValidationError as exc:
-        raise RecipeError(f"--from {args.source_layout}", problems_from(exc, source_cls.Params)) from None
     source = source_cls(params, args.source, allow_pickle=pickle_granted(args.source, args.allow_pickle))
     metadata = source.metadata()
     splits = {name: list(source.split(name)) for name in source.splits()}

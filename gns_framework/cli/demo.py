@@ -23,17 +23,17 @@ from pathlib import Path
 
 import torch
 
+from ..assembly.data import open_dataset
+from ..assembly.ground_truth import build_ground_truth_simulator
+from ..assembly.trained import LoadedModel, load_trained
+from ..config.recipe import load_recipe
 from ..errors import GnsError
-from ..loading import LoadedModel, load_trained
+from ..ground_truth.generate import generate_dataset, is_up_to_date, provenance
+from ..ground_truth.scene_spec import load_scene
+from ..io.rollout_file import write_rollout
+from ..model.rollout import rollout
+from ..model.rollout_guard import RolloutGuard
 from ..plugins import load_registry
-from ..recipe import load_recipe
-from ..evaluation.rollout_file import write_rollout
-from ..rollout import rollout
-from ..rollout_guard import RolloutGuard
-from ..simulation.build import build_simulator
-from ..simulation.generate import generate_dataset, is_up_to_date, provenance
-from ..simulation.scene_spec import load_scene
-from ..training.setup import open_dataset
 from ..training.trainer import BEST_CHECKPOINT, Trainer
 from .arguments import non_negative_int, positive_int
 
@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.model.is_file():
         raise GnsError(f"{args.model}: pretrained model not found (--model; the repository ships models/sand2d_fast.pt)")
     scene = load_scene(args.scene)
-    simulator = build_simulator(scene, registry, args.scene)
+    simulator = build_ground_truth_simulator(scene, registry, args.scene)
     data, held_out = args.out / "data", args.out / "held_out"
     _simulate(scene, simulator, data, TRAINING_COUNTS, registry, progress)
     unseen = scene.model_copy(update={"seed": args.held_out_seed})
@@ -120,7 +120,7 @@ def _by_data_view(models: list[tuple[str, LoadedModel]]) -> list[list[tuple[str,
 def _roll_out_and_report(models, held_out: Path, out: Path, number: int, registry, repeats: int, progress: bool) -> None:
     from ..evaluation.candidates import cases_from_split, compare
     from ..evaluation.report import write_report
-    from ..evaluation.rollout_file import load_rollout
+    from ..io.rollout_file import load_rollout
     from ..viz.animation import animate_rollout
 
     name, first = models[0]

@@ -62,11 +62,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..assembly.data import open_dataset
+    from ..assembly.trained import load_trained
     from ..evaluation.candidates import cases_from_split, compare
     from ..evaluation.report import write_report
-    from ..loading import load_trained
     from ..plugins import load_registry
-    from ..training.setup import open_dataset
     from ..training.trainer import resolve_device
 
     registry = load_registry()
@@ -128,7 +128,7 @@ def _log_to_training_runs(report, models, names: list[str], report_files: list[P
 
 def _render_first_rollouts(args: argparse.Namespace, names: list[str], case_key: str) -> dict[str, Path]:
     """VTK and/or GIF of each model's first rollout; returns the GIFs by model name."""
-    from ..evaluation.rollout_file import load_rollout
+    from ..io.rollout_file import load_rollout
 
     animations = {}
     for name in names:

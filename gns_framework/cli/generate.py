@@ -6,12 +6,12 @@ import argparse
 import time
 from pathlib import Path
 
+from ..assembly.ground_truth import build_ground_truth_simulator
+from ..config.recipe import ComponentSpec
 from ..errors import GnsError
+from ..ground_truth.generate import generate_dataset, is_up_to_date, provenance
+from ..ground_truth.scene_spec import load_scene
 from ..plugins import load_registry
-from ..recipe import ComponentSpec
-from ..simulation.build import build_simulator
-from ..simulation.generate import generate_dataset, is_up_to_date, provenance
-from ..simulation.scene_spec import load_scene
 from .arguments import non_negative_int
 
 
@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     if args.device is not None:
         chosen = ComponentSpec(name=scene.simulator.name, **{**scene.simulator.params, "device": args.device})
         scene = scene.model_copy(update={"simulator": chosen})
-    simulator = build_simulator(scene, registry, args.scene)
+    simulator = build_ground_truth_simulator(scene, registry, args.scene)
     layout = registry.get("dataset", args.layout)
     if not layout.writable:
         writable = [n for n in registry.names("dataset") if registry.get("dataset", n).writable]

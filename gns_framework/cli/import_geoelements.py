@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..checkpoint import checkpoint_name, save_checkpoint
 from ..importers.geoelements import NOISE_STD, import_geoelements_checkpoint
+from ..io.checkpoint import checkpoint_name, save_checkpoint
 from ..plugins import load_registry
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from .arguments import positive_int
 
+
 def _gif_path(value: str) -> Path:
     path = Path(value)
     if path.suffix.lower() != ".gif":
@@ -29,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..evaluation.rollout_file import load_rollout
+    from ..io.rollout_file import load_rollout
 
     if args.vtk is None and args.gif is None:
         print("gns render: error: nothing to do: give --vtk DIR and/or --gif FILE", file=sys.stderr)

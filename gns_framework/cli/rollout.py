@@ -12,15 +12,15 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..assembly.data import open_dataset
+from ..assembly.trained import load_trained
 from ..errors import DatasetError
-from ..loading import load_trained
+from ..io.rollout_file import write_rollout
+from ..model.rollout import rollout
+from ..model.rollout_guard import RolloutGuard
 from ..plugins import load_registry
-from ..precision import PRECISIONS
-from ..evaluation.rollout_file import write_rollout
-from ..rollout import rollout
-from ..rollout_guard import RolloutGuard
+from ..runtime.precision import PRECISIONS
 from ..training.mlflow_tracker import log_to_recorded_run
-from ..training.setup import open_dataset
 from ..training.trainer import resolve_device
 from .arguments import add_allow_pickle, non_negative_float, positive_int
 

@@ -6,9 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..checkpoint import list_checkpoints
+from ..config.recipe import load_recipe
+from ..io.checkpoint import list_checkpoints
 from ..plugins import load_registry
-from ..recipe import load_recipe
 from ..training import distributed
 from ..training.distributed import processes_from_environment
 from ..training.trainer import Trainer

@@ -7,15 +7,15 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+from ..assembly.trained import LoadedModel
 from ..contracts import Scene
 from ..data.metadata import DatasetMetadata
 from ..data.stride import strided
 from ..data.trajectory import Trajectory
 from ..errors import DatasetError, RolloutDiverged
-from ..loading import LoadedModel
+from ..model.learned_simulator import LearnedSimulator
+from ..model.rollout import rollout
 from ..plugins import Registry
-from ..rollout import rollout
-from ..simulator import LearnedSimulator
 from .report import Candidate, Case, Prediction, Report, evaluate
 
 
@@ -64,9 +64,9 @@ def simulator_candidates(
     The unscaled setting is the reference (it reproduces the ground truth). Needs
     the provenance ``gns generate`` stores in metadata.json.
     """
-    from ..simulation.build import build_simulator
-    from ..simulation.generate import trajectory_seeds
-    from ..simulation.scene_spec import SceneSpec
+    from ..assembly.ground_truth import build_ground_truth_simulator
+    from ..ground_truth.generate import trajectory_seeds
+    from ..ground_truth.scene_spec import SceneSpec
 
     provenance = getattr(metadata, "generated_from", None)
     if not isinstance(provenance, dict):
@@ -93,7 +93,7 @@ def simulator_candidates(
                     "time": scene.time.model_copy(update={"substeps": substeps}),
                 }
             )
-            simulator = build_simulator(variant, registry, "metadata.json: generated_from")
+            simulator = build_ground_truth_simulator(variant, registry, "metadata.json: generated_from")
 
             def simulate(case: Case, simulator=simulator, variant=variant) -> Prediction:
                 trajectory = strided(simulator.simulate(variant, seed_of[case.key]), stride)

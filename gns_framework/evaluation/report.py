@@ -25,9 +25,9 @@ import numpy as np
 import torch
 
 from ..data.metadata import DatasetMetadata
+from ..io.rollout_file import Rollout, save_rollout
 from ..plugin_types import Metric
 from .metrics import DEFAULT_HORIZONS, ParticleRollout, RolloutPair, metric_units, rollout_metrics, summarise
-from .rollout_file import Rollout, save_rollout
 from .timing import Timing, format_hardware, hardware_description, time_call
 
 Kind = Literal["learned", "simulator"]

@@ -21,15 +21,15 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from ..assembly.learned import build_learned_simulator, plugin_versions
+from ..assembly.scene import scene_to_dict
+from ..config.recipe import ComponentSpec, ModelSpec, validate_recipe
 from ..contracts import Scene
 from ..data.metadata import DatasetMetadata, load_metadata, parse_metadata
 from ..errors import CheckpointError, GnsError
+from ..model.learned_simulator import LearnedSimulator
 from ..plugins import Registry, load_registry
-from ..recipe import ComponentSpec, ModelSpec, validate_recipe
-from ..scene import scene_to_dict
-from ..simulator import LearnedSimulator, build_simulator
 from ..training.optim import make_optimizer
-from ..training.setup import plugin_versions
 from .geoelements_layout import Architecture, ParameterMap
 
 HISTORY = 6
@@ -67,7 +67,7 @@ class ImportedCheckpoint:
     source: str
 
     def checkpoint_state(self, name: str, dataset: Mapping[str, Any], registry: Registry) -> dict[str, Any]:
-        """The mapping :func:`gns_framework.checkpoint.save_checkpoint` writes.
+        """The mapping :func:`gns_framework.io.checkpoint.save_checkpoint` writes.
 
         Args:
             name: recipe name of the imported run.
@@ -168,7 +168,7 @@ def import_geoelements_checkpoint(
         noise_std=noise_std,
         processor=ComponentSpec(name="interaction_network", message_passing_steps=architecture.message_passing_steps),
     )
-    simulator = build_simulator(scene, metadata, spec, registry)
+    simulator = build_learned_simulator(scene, metadata, spec, registry)
     parameter_map = ParameterMap(architecture, types, walls_width)
     _load_parameters(simulator, parameter_map, reference, source)
     simulator.eval()

@@ -23,9 +23,9 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from ..config.problems import problems_from
+from ..config.yaml_files import load_yaml_mapping
 from ..errors import RecipeError
-from ..validation import problems_from
-from ..yaml_loading import load_yaml_mapping
 
 INITIAL_VELOCITY = "initial_velocity"
 """The key of the initial-velocity unknown; every other key under ``unknowns`` names a material property."""

@@ -27,7 +27,7 @@ from ..data.metadata import DatasetMetadata
 from ..data.trajectory import Trajectory
 from ..errors import RecipeError
 from ..evaluation.metrics import ParticleRollout, domain_size, runout_distance, sinkhorn_distance
-from ..simulator import LearnedSimulator
+from ..model.learned_simulator import LearnedSimulator
 from .config import INITIAL_VELOCITY, InvertConfig, PropertyUnknown, VelocityUnknown
 from .rollout import differentiable_rollout
 

@@ -1,6 +1,6 @@
 """A learned rollout that autograd can differentiate end to end, with gradient checkpointing.
 
-The rollout of :mod:`gns_framework.rollout` runs under ``inference_mode`` and guards
+The rollout of :mod:`gns_framework.model.rollout` runs under ``inference_mode`` and guards
 every frame; this one keeps the graph from the unknowns (material properties, the
 initial history) to every predicted frame. Kept whole, that graph holds every
 message-passing activation of every step; with ``checkpoint_every = K`` only the state
@@ -18,7 +18,7 @@ from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
 from ..data.batch import ParticleBatch
-from ..simulator import LearnedSimulator
+from ..model.learned_simulator import LearnedSimulator
 
 
 def _advance(simulator: LearnedSimulator, state: ParticleBatch, sequence: Tensor, material_property: Tensor | None,
@@ -52,7 +52,7 @@ def differentiable_rollout(
             observed trajectory's frames C .. C + S - 1); moving rows are ignored.
         checkpoint_every: K > 0 keeps only every K-th state and recomputes the steps
             between during the backward; 0 keeps every activation. Run the forward
-            and the backward inside :func:`~gns_framework.activation_memory.activations_recomputed`
+            and the backward inside :func:`~gns_framework.runtime.activation_memory.activations_recomputed`
             so that hand-written backwards do not keep their activations either.
 
     Returns:

@@ -18,15 +18,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..activation_memory import activations_recomputed
+from ..assembly.data import open_dataset
+from ..assembly.trained import LoadedModel, load_trained
 from ..data.atomic import write_text_atomic
 from ..data.trajectory import Trajectory
 from ..evaluation.candidates import granular_particle_types
-from ..evaluation.rollout_file import write_rollout
-from ..loading import LoadedModel, load_trained
+from ..io.rollout_file import write_rollout
+from ..model.rollout import RolloutResult
 from ..plugins import Registry
-from ..rollout import RolloutResult
-from ..training.setup import open_dataset
+from ..runtime.activation_memory import activations_recomputed
 from .config import InvertConfig, PropertyUnknown, VelocityUnknown
 from .optimize import Iterate, Solution, adam, lbfgs
 from .problem import LOSS_UNITS, InverseProblem, check_against_model, observed_frames
@@ -197,7 +197,7 @@ def write_outputs(inversion: Inversion, result: InversionResult, out: Path, gif:
     rollout = recovered_rollout(inversion, result)
     paths["rollout"] = write_rollout(out / "rollout.npz", rollout, inversion.problem.metadata)
     if gif:
-        from ..evaluation.rollout_file import load_rollout
+        from ..io.rollout_file import load_rollout
         from ..viz.animation import animate_rollout
 
         paths["animation"] = animate_rollout(load_rollout(paths["rollout"]), out / "rollout.gif", every=2)

@@ -1,1 +1,1 @@
-"""Writers of simulation output for other tools (VTK for ParaView)."""
+"""Files the framework writes and reads back: checkpoints, rollout files, and VTK for ParaView."""

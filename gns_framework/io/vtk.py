@@ -14,7 +14,7 @@ from xml.etree import ElementTree
 
 import numpy as np
 
-from ..evaluation.rollout_file import Rollout
+from .rollout_file import Rollout
 
 
 def _as_3d(values: np.ndarray) -> np.ndarray:

@@ -19,13 +19,14 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from ..assembly.learned import build_learned_simulator
+from ..config.recipe import ModelSpec
 from ..contracts import Scene
 from ..data.batch import ParticleBatch
 from ..data.metadata import DatasetMetadata
-from ..loss import masked_acceleration_loss
+from ..model.learned_simulator import LearnedSimulator
+from ..model.loss import masked_acceleration_loss
 from ..plugins import Registry
-from ..recipe import ModelSpec
-from ..simulator import LearnedSimulator, build_simulator
 
 RADIUS = 0.1
 HISTORY = 6
@@ -53,7 +54,7 @@ def tiny_simulator(
     model = ModelSpec(latent_size=16, mlp_hidden_size=16, mlp_hidden_layers=1, type_embedding_size=4,
                       noise_std=0.0 if zero_std else 6.7e-4,
                       processor={"name": processor, "message_passing_steps": 2})
-    return build_simulator(extreme_scene(dim), extreme_metadata(dim, zero_std), model, registry)
+    return build_learned_simulator(extreme_scene(dim), extreme_metadata(dim, zero_std), model, registry)
 
 
 def _batch(last: Tensor, velocity: Tensor, particle_type: Tensor | None = None) -> ParticleBatch:

@@ -20,12 +20,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..config.recipe import ModelSpec
 from ..data.trajectory import Trajectory
 from ..errors import RolloutDiverged
+from ..model.rollout import rollout
+from ..model.rollout_guard import RolloutGuard
 from ..plugins import Registry
-from ..recipe import ModelSpec
-from ..rollout import rollout
-from ..rollout_guard import RolloutGuard
 from .extreme import CASES, check_finite, tiny_simulator
 from .measure import (
     collide,

@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from ..recipe import OptimizerSpec
+from ..config.recipe import OptimizerSpec
 
 
 def learning_rate(spec: OptimizerSpec, step: int, total_steps: int) -> float:

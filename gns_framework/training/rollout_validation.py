@@ -18,8 +18,8 @@ from ..data.metadata import DatasetMetadata
 from ..data.trajectory import Trajectory
 from ..evaluation.candidates import cases_from_split, learned_positions
 from ..evaluation.report import Prediction, score_prediction
+from ..model.learned_simulator import LearnedSimulator
 from ..plugins import load_registry
-from ..simulator import LearnedSimulator
 
 METRICS = {
     "valid_rollout_mse": "mse_full",

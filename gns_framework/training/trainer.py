@@ -15,33 +15,37 @@ import yaml
 from torch import Tensor
 from tqdm import tqdm
 
-from ..activation_memory import set_recompute_activations
-from ..allocator import keep_freed_memory
-from ..checkpoint import (
-    checkpoint_name, make_room_for_a_fresh_start, prune_checkpoints, resume_point, save_checkpoint, set_aside_damaged,
-)
+from ..assembly.data import prepare_data
+from ..assembly.learned import build_learned_simulator, plugin_versions
+from ..assembly.scene import scene_to_dict
+from ..config.recipe import Recipe
 from ..data.atomic import write_text_atomic
 from ..data.batch import ParticleBatch
 from ..data.windows import WindowIndex, WindowOrder, window_noise_generator
 from ..errors import CheckpointError, GnsError, RecipeError
-from ..loss import masked_acceleration_loss, masked_squared_error_sum
 from ..evaluation.candidates import granular_particle_types
-from ..host_sync import avoids_read_backs, read_back
-from ..noise import random_walk_noise, training_noise_std
+from ..io.checkpoint import (
+    checkpoint_name,
+    make_room_for_a_fresh_start,
+    prune_checkpoints,
+    resume_point,
+    save_checkpoint,
+    set_aside_damaged,
+)
+from ..model.loss import masked_acceleration_loss, masked_squared_error_sum
+from ..model.noise import random_walk_noise, training_noise_std
 from ..plugins import Registry
-from ..precision import autocast, backward_precision
-from ..recipe import Recipe
-from ..scene import scene_to_dict
-from ..simulator import build_simulator
+from ..runtime.activation_memory import set_recompute_activations
+from ..runtime.allocator import keep_freed_memory
+from ..runtime.host_sync import avoids_read_backs, read_back
+from ..runtime.precision import autocast, backward_precision
 from . import distributed
 from .distributed import Processes
 from .mlflow_tracker import RUN_FILE
 from .optim import make_optimizer
 from .provenance import git_commit
 from .rollout_validation import validation_rollout_metrics
-from .setup import plugin_versions, prepare_data
 from .tracking import JsonlTracker, Tracker
-
 
 BEST_CHECKPOINT = "best.pt"
 """File name, in the run's checkpoint folder, of the checkpoint with the best validation-rollout score."""
@@ -113,7 +117,7 @@ class Trainer:
 
         # Same seed on every rank: identical initial weights (DDP would broadcast rank 0's anyway).
         torch.manual_seed(recipe.seed)
-        self.simulator = build_simulator(self.data.scene, self.data.metadata, recipe.model, registry).to(self.device)
+        self.simulator = build_learned_simulator(self.data.scene, self.data.metadata, recipe.model, registry).to(self.device)
         self.model: torch.nn.Module = self.processes.wrap(self.simulator, self.device)
         self.noise_std = training_noise_std(recipe.model, self.data.metadata)
         self.optimizer, self.scheduler = make_optimizer(

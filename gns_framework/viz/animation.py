@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..evaluation.rollout_file import Rollout
+from ..io.rollout_file import Rollout
 
 
 def frame_indices(num_frames: int, every: int) -> list[int]:

@@ -7,17 +7,17 @@ import json
 import h5py
 import numpy as np
 import pytest
+from synthetic import soft_sphere_trajectory, synthetic_metadata
+from tiny import tiny_recipe_mapping
 
 from gns_framework.cli import main
+from gns_framework.config.recipe import validate_recipe
 from gns_framework.contracts import Material
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
 from gns_framework.hookspecs import hookimpl
 from gns_framework.plugins import load_registry
-from gns_framework.recipe import validate_recipe
 from gns_framework.training.trainer import Trainer
-from synthetic import soft_sphere_trajectory, synthetic_metadata
-from tiny import tiny_recipe_mapping
 
 LAYOUTS = ["safe", "npz", "tfrecord", "lagrangebench"]
 

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gns_framework.data.radius import particle_spacing, radius_for_spacing, suggest_connectivity_radius
+from gns_framework.data.particle_spacing import particle_spacing, radius_for_spacing, suggest_connectivity_radius
 from gns_framework.data.trajectory import Trajectory
 
 

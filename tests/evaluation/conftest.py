@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gns_framework.data.metadata import DatasetMetadata
-from gns_framework.evaluation.rollout_file import Rollout
+from gns_framework.io.rollout_file import Rollout
 
 
 def _metadata(dim: int = 2, dt: float = 0.01) -> DatasetMetadata:

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import yaml
 
+from gns_framework.assembly.data import open_dataset
+from gns_framework.assembly.ground_truth import build_ground_truth_simulator
+from gns_framework.config.recipe import DatasetSpec
 from gns_framework.evaluation.candidates import cases_from_split, simulator_candidates
+from gns_framework.ground_truth.generate import generate_dataset
+from gns_framework.ground_truth.scene_spec import parse_scene
 from gns_framework.plugins import load_registry
-from gns_framework.recipe import DatasetSpec
-from gns_framework.simulation.build import build_simulator
-from gns_framework.simulation.generate import generate_dataset
-from gns_framework.simulation.scene_spec import parse_scene
-from gns_framework.training.setup import open_dataset
 
 SCENE = """
 name: tiny_collapse
@@ -30,7 +30,7 @@ blocks:
 def test_the_reference_setting_reproduces_every_case_whatever_the_key_order(tmp_path):
     registry = load_registry()
     scene = parse_scene(yaml.safe_load(SCENE), "scene")
-    simulator = build_simulator(scene, registry, "scene")
+    simulator = build_ground_truth_simulator(scene, registry, "scene")
     counts = {"train": 1, "valid": 0, "test": 3}
     generate_dataset(scene, simulator, tmp_path, registry.get("dataset", "safe"), counts, progress=False)
     dataset = open_dataset(DatasetSpec(path=str(tmp_path)), registry)

@@ -9,7 +9,7 @@ import sys
 import meshio
 from PIL import Image
 
-from gns_framework.evaluation.rollout_file import save_rollout
+from gns_framework.io.rollout_file import save_rollout
 from gns_framework.io.vtk import read_pvd
 
 HEAVY = ("matplotlib", "meshio", "geomloss", "mlflow")

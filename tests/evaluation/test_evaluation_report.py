@@ -10,8 +10,8 @@ import torch
 from PIL import Image
 
 from gns_framework.evaluation.report import Candidate, Case, Prediction, evaluate, score_rollout, write_report
-from gns_framework.evaluation.rollout_file import load_rollout
 from gns_framework.hookspecs import hookimpl
+from gns_framework.io.rollout_file import load_rollout
 from gns_framework.plugin_types import Metric
 from gns_framework.plugins import load_registry
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gns_framework.errors import DatasetError
-from gns_framework.evaluation.rollout_file import load_rollout, save_rollout
+from gns_framework.io.rollout_file import load_rollout, save_rollout
 
 
 def test_round_trip_keeps_every_field(make_rollout, tmp_path):

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 import yaml
 
+from gns_framework.assembly.ground_truth import build_ground_truth_simulator
 from gns_framework.cli import generate as generate_command
 from gns_framework.cli import main
 from gns_framework.data.metadata import compute_statistics, load_metadata
-from gns_framework.data.radius import suggest_connectivity_radius
-from gns_framework.simulation.build import build_simulator
-from gns_framework.simulation.generate import generate_dataset, trajectory_seeds
-from gns_framework.simulation.scene_spec import parse_scene
+from gns_framework.data.particle_spacing import suggest_connectivity_radius
+from gns_framework.ground_truth.generate import generate_dataset, trajectory_seeds
+from gns_framework.ground_truth.scene_spec import parse_scene
 from simulation.scenes import column_collapse, mixed
 
 
@@ -27,7 +27,7 @@ def test_trajectory_seeds_do_not_depend_on_how_many_are_drawn():
 @pytest.fixture(scope="module")
 def generated(tmp_path_factory, sim_registry):
     scene = parse_scene(mixed(frames=12))
-    simulator = build_simulator(scene, sim_registry)
+    simulator = build_ground_truth_simulator(scene, sim_registry)
     out = tmp_path_factory.mktemp("generated")
     metadata = generate_dataset(scene, simulator, out, sim_registry.get("dataset", "safe"),
                                 {"train": 2, "valid": 1, "test": 1}, progress=False)
@@ -71,7 +71,7 @@ def test_generation_is_reproducible_and_splits_differ(generated, sim_registry, t
 
 def test_scene_without_properties_writes_none(sim_registry, tmp_path):
     scene = parse_scene(column_collapse(0.05, 0.05, 0.6, frames=4))
-    metadata = generate_dataset(scene, build_simulator(scene, sim_registry), tmp_path,
+    metadata = generate_dataset(scene, build_ground_truth_simulator(scene, sim_registry), tmp_path,
                                 sim_registry.get("dataset", "safe"), {"train": 1}, progress=False)
     assert load_split(sim_registry, tmp_path, "train")[0].material_property is None
     assert "material_properties" not in metadata.model_extra

@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gns_framework.simulation.build import build_simulator
-from gns_framework.simulation.sampling import sample_scene
-from gns_framework.simulation.scene_spec import parse_scene
-from gns_framework.simulation.shapes import polygon_contains, rotate_xy
+from gns_framework.assembly.ground_truth import build_ground_truth_simulator
+from gns_framework.ground_truth.sampling import sample_scene
+from gns_framework.ground_truth.scene_spec import parse_scene
+from gns_framework.ground_truth.shapes import polygon_contains, rotate_xy
 
 pytest.importorskip("warp")
 
@@ -36,7 +36,7 @@ def solver_for(raw: dict, registry):
     from gns_builtins.simulators.mpm_solver import MpmSolver
 
     scene = parse_scene(raw)
-    simulator = build_simulator(scene, registry, "<test>")
+    simulator = build_ground_truth_simulator(scene, registry, "<test>")
     sample = sample_scene(scene, 0)
     position = np.concatenate([b.position for b in sample.blocks])
     return scene, MpmSolver(

@@ -12,8 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from gns_framework.simulation.build import build_simulator
-from gns_framework.simulation.scene_spec import parse_scene
+from gns_framework.assembly.ground_truth import build_ground_truth_simulator
+from gns_framework.ground_truth.scene_spec import parse_scene
 from simulation.scenes import column_collapse, column_collapse_3d, dam_break, mixed
 
 G = 9.81
@@ -21,7 +21,7 @@ G = 9.81
 
 def simulate(raw: dict, registry, seed: int = 0):
     scene = parse_scene(raw)
-    return scene, build_simulator(scene, registry, "<test>").simulate(scene, seed)
+    return scene, build_ground_truth_simulator(scene, registry, "<test>").simulate(scene, seed)
 
 
 def front(position: np.ndarray) -> np.ndarray:

@@ -7,14 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from tiny import tiny_recipe_mapping
 
-from gns_framework.checkpoint import latest_good_checkpoint
+from gns_framework.assembly.ground_truth import build_ground_truth_simulator
 from gns_framework.cli import generate as generate_command
 from gns_framework.cli import main
-from gns_framework.simulation.build import build_simulator
-from gns_framework.simulation.sampling import sample_scene
-from gns_framework.simulation.scene_spec import load_scene
-from tiny import tiny_recipe_mapping
+from gns_framework.ground_truth.sampling import sample_scene
+from gns_framework.ground_truth.scene_spec import load_scene
+from gns_framework.io.checkpoint import latest_good_checkpoint
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes"
 RIGID = 3
@@ -28,7 +28,7 @@ def shortened(name: str, frames: int):
 @pytest.mark.parametrize("name", ["sand_ramps_2d", "water_ramps_2d", "sand_ramps_3d"])
 def test_ramps_are_static_boundary_particles_drawn_anew_per_trajectory(name, sim_registry):
     scene = shortened(name, 4)
-    simulator = build_simulator(scene, sim_registry, name)
+    simulator = build_ground_truth_simulator(scene, sim_registry, name)
     first, second = simulator.simulate(scene, 1), simulator.simulate(scene, 2)
     for trajectory in (first, second):
         ramp = trajectory.particle_type == RIGID

@@ -9,8 +9,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gns_framework.simulation.sampling import fill, sample_scene
-from gns_framework.simulation.scene_spec import parse_scene
+from gns_framework.ground_truth.sampling import fill, sample_scene
+from gns_framework.ground_truth.scene_spec import parse_scene
 from simulation.scenes import mixed
 
 

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from gns_framework.assembly.ground_truth import build_ground_truth_simulator
 from gns_framework.errors import RecipeError
-from gns_framework.simulation.build import build_simulator
-from gns_framework.simulation.scene_spec import load_scene, parse_scene
+from gns_framework.ground_truth.scene_spec import load_scene, parse_scene
 from simulation.scenes import column_collapse_3d, mixed
 
 SCENES = sorted((Path(__file__).resolve().parents[2] / "scenes").rglob("*.yaml"))
@@ -18,7 +18,7 @@ SCENES = sorted((Path(__file__).resolve().parents[2] / "scenes").rglob("*.yaml")
 def problems(raw, registry=None) -> dict[str, str]:
     with pytest.raises(RecipeError) as info:
         scene = parse_scene(raw)
-        build_simulator(scene, registry)
+        build_ground_truth_simulator(scene, registry)
     return dict(info.value.problems)
 
 
@@ -31,7 +31,7 @@ def test_example_scenes_exist():
 @pytest.mark.parametrize("path", SCENES, ids=lambda p: p.stem)
 def test_example_scene_is_valid_and_runnable(path, sim_registry):
     scene = load_scene(path)
-    assert build_simulator(scene, sim_registry, path).check(scene) == []
+    assert build_ground_truth_simulator(scene, sim_registry, path).check(scene) == []
 
 
 def test_structural_problems_are_reported_together_with_locations():
@@ -91,7 +91,7 @@ def test_too_few_substeps_for_the_wave_speed_says_how_many(sim_registry):
     needed = int(message.rsplit("use at least ", 1)[1].split()[0])
     raw["time"]["substeps"] = needed
     scene = parse_scene(raw)
-    assert build_simulator(scene, sim_registry).check(scene) == []
+    assert build_ground_truth_simulator(scene, sim_registry).check(scene) == []
 
 
 def test_unknown_simulator_and_bad_simulator_params(sim_registry):

@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gns_framework.simulation.build import build_simulator
-from gns_framework.simulation.scene_spec import parse_scene
+from gns_framework.assembly.ground_truth import build_ground_truth_simulator
+from gns_framework.ground_truth.scene_spec import parse_scene
 from simulation.test_scene_spec import problems
 
 G, H, RHO = 1.0, 0.1, 1000.0
@@ -37,7 +37,7 @@ def middle_profile(viscosity: float, registry) -> tuple[np.ndarray, np.ndarray]:
     """(y bin centres, mean x velocity) at t = 0.5 s (5 viscous time scales h^2 / (pi^2 nu)),
     away from the slug ends."""
     scene = parse_scene(channel(viscosity))
-    position = build_simulator(scene, registry, "<test>").simulate(scene, 0).position
+    position = build_ground_truth_simulator(scene, registry, "<test>").simulate(scene, 0).position
     u = (position[-1, :, 0] - position[-2, :, 0]) / scene.time.frame_dt
     x, y = position[-1, :, 0], position[-1, :, 1]
     middle = (x > x.min() + 0.15) & (x < x.max() - 0.15)

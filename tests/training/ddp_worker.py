@@ -9,8 +9,8 @@ from pathlib import Path
 
 import torch
 
+from gns_framework.config.recipe import validate_recipe
 from gns_framework.plugins import load_registry
-from gns_framework.recipe import validate_recipe
 from gns_framework.training import distributed
 from gns_framework.training.distributed import Processes, processes_from_environment
 from gns_framework.training.trainer import Trainer

@@ -5,9 +5,9 @@ from __future__ import annotations
 import torch
 from conftest import DDP_SNAPSHOTS
 
+from gns_framework.config.recipe import validate_recipe
 from gns_framework.data.windows import WindowOrder
 from gns_framework.plugins import load_registry
-from gns_framework.recipe import validate_recipe
 from gns_framework.training.distributed import backend_for, processes_from_environment
 from gns_framework.training.trainer import Trainer
 

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import torch
+from tiny import tiny_recipe, tiny_trainer
 
-from gns_framework.checkpoint import load_checkpoint, save_checkpoint
+from gns_framework.io.checkpoint import load_checkpoint, save_checkpoint
 from gns_framework.training import distributed
 from gns_framework.training import trainer as trainer_module
 from gns_framework.training.distributed import Processes
-from tiny import tiny_recipe, tiny_trainer
 
 
 def test_resume_ignores_the_cuda_generators_of_a_checkpoint_written_with_more_gpus(
@@ -70,7 +70,7 @@ def test_throughput_is_timed_between_device_synchronisations(dataset_multimateri
 
 
 def test_tf32_is_float32_on_the_cpu_and_its_cuda_setting_is_restored(dataset_multimaterial, tmp_path, registry):
-    from gns_framework.precision import _cuda_tf32
+    from gns_framework.runtime.precision import _cuda_tf32
 
     losses = {}
     for precision in ("float32", "tf32"):

@@ -14,11 +14,16 @@ import urllib.request
 
 import pytest
 from training_support import (
-    free_loopback_port, last_logged_step, subprocess_env, tiny_recipe, wait_until, write_recipe,
+    free_loopback_port,
+    last_logged_step,
+    subprocess_env,
+    tiny_recipe,
+    wait_until,
+    write_recipe,
 )
 
-from gns_framework.checkpoint import checkpoint_name
 from gns_framework.cli import main
+from gns_framework.io.checkpoint import checkpoint_name
 from gns_framework.training.mlflow_tracker import RUN_FILE
 from gns_framework.training.tracking import read_metrics
 

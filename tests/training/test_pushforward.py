@@ -6,9 +6,9 @@ from dataclasses import replace
 
 import pytest
 import torch
+from tiny import tiny_recipe, tiny_recipe_mapping, tiny_trainer
 
 from gns_framework.errors import RecipeError
-from tiny import tiny_recipe, tiny_recipe_mapping, tiny_trainer
 
 
 class Recording(torch.nn.Module):
@@ -64,7 +64,7 @@ def test_the_unrolled_steps_are_drawn_per_step_within_the_bound(dataset_2d, regi
 def test_a_negative_pushforward_is_refused_with_its_location(dataset_2d, registry):
     raw = tiny_recipe_mapping(dataset_2d)
     raw["training"]["pushforward_steps"] = -1
-    from gns_framework.recipe import validate_recipe
+    from gns_framework.config.recipe import validate_recipe
 
     with pytest.raises(RecipeError, match=r"training.pushforward_steps: Input should be greater than or equal to 0"):
         validate_recipe(raw, registry)

@@ -2,8 +2,8 @@
 
 from gns_framework.hookspecs import hookimpl
 
-from .geoelements_npz import GeoelementsNpzDataset
 from .lagrangebench import LagrangeBenchDataset
+from .npz import GeoelementsNpzDataset
 from .safe import SafeDataset
 from .tfrecord import TfRecordDataset
 

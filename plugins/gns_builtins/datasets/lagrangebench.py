@@ -38,7 +38,7 @@ from gns_framework.data.atomic import atomic_path, write_text_atomic
 from gns_framework.data.consistency import checked
 from gns_framework.data.lazy import TrajectorySequence
 from gns_framework.data.metadata import DatasetMetadata, parse_metadata
-from gns_framework.data.radius import particle_spacing
+from gns_framework.data.particle_spacing import particle_spacing
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
 

@@ -6,8 +6,8 @@ import torch
 from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
-from gns_framework.activation_memory import recompute_activations
 from gns_framework.contracts import Encoder, ModelSizes, Params
+from gns_framework.runtime.activation_memory import recompute_activations
 
 from ..layers import NormedMLP
 
@@ -15,7 +15,7 @@ from ..layers import NormedMLP
 class MLPEncoder(Encoder):
     """Node features (N, node_in) -> (N, L) and edge features (E, edge_in) -> (E, L).
 
-    With :func:`~gns_framework.activation_memory.recompute_activations` the edge MLP
+    With :func:`~gns_framework.runtime.activation_memory.recompute_activations` the edge MLP
     is checkpointed: its backward reruns it from the (E, d + 1) features instead of
     keeping its hidden layers, LayerNorm input and output, ~2 KB per edge at the
     paper's sizes in float32 (the same values: the rerun is the same computation).

@@ -9,7 +9,7 @@ from torch import Tensor
 
 from gns_framework.contracts import Graph, GraphBuilder, Params, Scene
 from gns_framework.errors import RecipeError
-from gns_framework.periodic import PeriodicBox
+from gns_framework.model.periodic import PeriodicBox
 
 from .cell_list import radius_pairs
 

@@ -18,7 +18,7 @@ receivers, and their backward) run as a few fused C loops (``fused_kernels.py``)
 with the torch path as the fallback.
 
 The backward is written by hand. It reuses the chunk activations stored by the
-forward, or, with :func:`~gns_framework.activation_memory.recompute_activations`,
+forward, or, with :func:`~gns_framework.runtime.activation_memory.recompute_activations`,
 recomputes them from ``e``, the node table and the weights: then a training step
 keeps one (E, L) tensor per message-passing step (the edge latents, kept anyway)
 instead of four, for a third more matrix-product work in the backward.
@@ -32,11 +32,10 @@ import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
-from gns_framework.activation_memory import recompute_activations
-from gns_framework.host_sync import avoids_read_backs
+from gns_framework.runtime.activation_memory import recompute_activations
+from gns_framework.runtime.host_sync import avoids_read_backs
 
 from .. import fused_kernels
-from ..segment_sum import needs_ordered_sums, segment_sum_
 from ..chunked import (
     add_product,
     chunk_size,
@@ -48,6 +47,7 @@ from ..chunked import (
     product_into,
     widest_dtype,
 )
+from ..segment_sum import needs_ordered_sums, segment_sum_
 
 
 def node_table(x: Tensor, first_weight: Tensor, first_bias: Tensor) -> Tensor:

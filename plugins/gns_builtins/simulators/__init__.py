@@ -2,7 +2,7 @@
 
 from gns_framework.hookspecs import hookimpl
 
-from .mpm_warp import MlsMpm
+from .mls_mpm import MlsMpm
 
 
 @hookimpl

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import warp as wp
 
-from gns_framework.simulation.sampling import BodySample
-from gns_framework.simulation.scene_spec import SceneSpec
+from gns_framework.ground_truth.sampling import BodySample
+from gns_framework.ground_truth.scene_spec import SceneSpec
 
 from .mpm_kernels import BOX, ELLIPSOID, PLANE, POLYGON, kernels
 

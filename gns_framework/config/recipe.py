@@ -8,17 +8,19 @@ Every problem is reported at once with its location.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from .contracts import COMPONENT_KINDS
-from .errors import PluginError, RecipeError, did_you_mean
-from .plugins import Registry
-from .precision import Precision
-from .specs import ComponentSpec
-from .validation import problems_from
-from .yaml_loading import load_yaml_mapping
+from ..contracts import COMPONENT_KINDS
+from ..errors import RecipeError, did_you_mean
+from ..runtime.precision import Precision
+from ..specs import ComponentSpec
+from .problems import problems_from
+from .yaml_files import load_yaml_mapping
+
+if TYPE_CHECKING:
+    from ..plugins import Registry
 
 
 REFERENCE_NOISE_STD = 6.7e-4
@@ -26,7 +28,7 @@ REFERENCE_NOISE_STD = 6.7e-4
 
 
 class _Strict(BaseModel):
-    # A number where a string is expected is that string (``name: 1e5``, see yaml_loading).
+    # A number where a string is expected is that string (``name: 1e5``, see config.yaml_files).
     model_config = ConfigDict(extra="forbid", coerce_numbers_to_str=True)
 
 
@@ -240,14 +242,9 @@ def _component_problems(raw: dict, registry: Registry) -> list[tuple[str, str]]:
         if not isinstance(name, str):
             continue
         try:
-            cls = registry.get(kind, name)
-        except PluginError as exc:
-            problems.append((".".join(loc) + ".name", str(exc)))
-            continue
-        try:
-            cls.Params.model_validate(params)
-        except ValidationError as exc:
-            problems += problems_from(exc, cls.Params, prefix=loc)
+            registry.resolve(kind, {"name": name, **params}, loc)
+        except RecipeError as exc:
+            problems += exc.problems
     materials = model.get("materials")
     if isinstance(materials, list):
         known = registry.names("material")
@@ -284,9 +281,3 @@ def _merged(base: dict, overrides: dict) -> dict:
         else:
             out[key] = value
     return out
-
-
-def component(registry: Registry, kind: str, spec: ComponentSpec):
-    """The component class named by ``spec`` and its validated ``Params``."""
-    cls = registry.get(kind, spec.name)
-    return cls, cls.Params.model_validate(spec.params)

@@ -21,10 +21,10 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 
+from ..config.problems import problems_from
+from ..config.yaml_files import load_yaml_mapping
 from ..errors import RecipeError
 from ..specs import ComponentSpec
-from ..validation import problems_from
-from ..yaml_loading import load_yaml_mapping
 
 
 class Spec(BaseModel):

@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .contracts import Scene
+from ..contracts import Scene
 
 
 class PeriodicBox:

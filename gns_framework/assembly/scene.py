@@ -8,12 +8,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .contracts import Scene
-from .data.metadata import DatasetMetadata
-from .data.trajectory import Trajectory
-from .errors import DatasetError, RecipeError
-from .plugins import Registry
-from .recipe import ModelSpec
+from ..config.recipe import ModelSpec
+from ..contracts import Scene
+from ..data.metadata import DatasetMetadata
+from ..data.trajectory import Trajectory
+from ..errors import DatasetError, RecipeError
+from ..plugins import Registry
 
 
 def scene_from_data(

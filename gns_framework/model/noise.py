@@ -8,8 +8,8 @@ import torch
 from torch import Tensor
 
 if TYPE_CHECKING:
-    from .data.metadata import DatasetMetadata
-    from .recipe import ModelSpec
+    from ..config.recipe import ModelSpec
+    from ..data.metadata import DatasetMetadata
 
 
 def random_walk_noise(

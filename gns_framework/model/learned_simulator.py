@@ -11,17 +11,12 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from .contracts import Decoder, Encoder, Graph, GraphBuilder, Integrator, ModelSizes, Processor, Scene
-from .data.batch import ParticleBatch
-from .data.metadata import DatasetMetadata
-from .errors import RecipeError
-from .host_sync import avoids_read_backs
-from .features import FeatureBuilder, edge_feature_size, node_feature_size
-from .noise import training_noise_std
+from ..contracts import Decoder, Encoder, Graph, GraphBuilder, Integrator, Processor, Scene
+from ..data.batch import ParticleBatch
+from ..runtime.host_sync import avoids_read_backs
+from .features import FeatureBuilder
 from .normalization import Stats
 from .periodic import PeriodicBox
-from .plugins import Registry
-from .recipe import ModelSpec, component
 
 
 class LearnedSimulator(nn.Module):
@@ -129,54 +124,3 @@ class LearnedSimulator(nn.Module):
         next_position_adjusted = next_position + position_noise[:, -1]
         target = self.output_stats.normalize(self.integrator.target(noisy_sequence, next_position_adjusted))
         return prediction, target
-
-
-def model_sizes(scene: Scene, model: ModelSpec) -> ModelSizes:
-    return ModelSizes(
-        node_in=node_feature_size(scene, model.type_embedding_size),
-        edge_in=edge_feature_size(scene),
-        latent=model.latent_size,
-        mlp_hidden=model.mlp_hidden_size,
-        mlp_hidden_layers=model.mlp_hidden_layers,
-        output=scene.dim,
-        dim=scene.dim,
-        connectivity_radius=scene.connectivity_radius,
-    )
-
-
-def build_simulator(scene: Scene, metadata: DatasetMetadata, model: ModelSpec, registry: Registry) -> LearnedSimulator:
-    """Instantiate the components a recipe names, sized from the scene."""
-    sizes = model_sizes(scene, model)
-    builder_cls, builder_params = component(registry, "graph_builder", model.graph_builder)
-    encoder_cls, encoder_params = component(registry, "encoder", model.encoder)
-    processor_cls, processor_params = component(registry, "processor", model.processor)
-    decoder_cls, decoder_params = component(registry, "decoder", model.decoder)
-    integrator_cls, integrator_params = component(registry, "integrator", model.integrator)
-    if scene.periodic_dims and not builder_cls.supports_periodic:
-        periodic_builders = [e.name for e in registry.entries("graph_builder") if e.cls.supports_periodic]
-        raise RecipeError(
-            None,
-            [("model.graph_builder.name",
-              f"{builder_cls.name!r} does not connect across the periodic dimensions {list(scene.periodic_dims)}; "
-              f"use one of: {', '.join(periodic_builders) or 'none installed'}")],
-        )
-    integrator = integrator_cls(integrator_params)
-    noise_std = training_noise_std(model, metadata)
-    velocity_stats = Stats(metadata.vel_mean, metadata.vel_std, noise_std)
-    if integrator.predicts == "acceleration":
-        output_stats = Stats(metadata.acc_mean, metadata.acc_std, noise_std)
-    else:
-        output_stats = Stats(metadata.vel_mean, metadata.vel_std, noise_std)
-    context_stats = None
-    if scene.context_size:
-        context_stats = Stats(metadata.context_mean, metadata.context_std)
-    return LearnedSimulator(
-        scene=scene,
-        features=FeatureBuilder(scene, velocity_stats, model.type_embedding_size, context_stats),
-        graph_builder=builder_cls(builder_params, scene),
-        encoder=encoder_cls(encoder_params, sizes),
-        processor=processor_cls(processor_params, sizes),
-        decoder=decoder_cls(decoder_params, sizes),
-        integrator=integrator,
-        output_stats=output_stats,
-    )

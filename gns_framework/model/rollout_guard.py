@@ -17,9 +17,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .contracts import Scene
-from .errors import RolloutDiverged
-from .recipe import RolloutGuardSpec
+from ..config.recipe import RolloutGuardSpec
+from ..contracts import Scene
+from ..errors import RolloutDiverged
 
 SHOWN_PARTICLES = 5
 """Particle indices listed in a message before the count takes over."""

@@ -1,4 +1,4 @@
-"""Opening a recipe's dataset and deriving its scene: shared by training, rollout and evaluation."""
+"""Opening a recipe's dataset and deriving the scene it gives: shared by training, rollout, evaluation and inversion."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..config.recipe import DatasetSpec, Recipe
 from ..contracts import Dataset, Scene
 from ..data.array_pickle import pickle_granted
 from ..data.metadata import DatasetMetadata
@@ -13,8 +14,7 @@ from ..data.stride import FrameStrideDataset
 from ..data.trajectory import Trajectory
 from ..errors import DatasetError
 from ..plugins import Registry
-from ..recipe import COMPONENT_SECTIONS, DatasetSpec, Recipe, component
-from ..scene import scene_from_data
+from .scene import scene_from_data
 
 
 def open_dataset(
@@ -25,7 +25,7 @@ def open_dataset(
     ``allow_pickle`` is the folder the user's ``--allow-pickle`` names: it lets the
     plugin unpickle anything only if it is this dataset's folder.
     """
-    cls, params = component(registry, "dataset", spec)
+    cls, params = registry.resolve("dataset", spec, ("dataset",))
     folder = Path(path if path is not None else spec.path)
     if not folder.is_dir():
         raise DatasetError(f"{folder}: dataset folder not found (dataset.path in the recipe, or --dataset)")
@@ -53,13 +53,3 @@ def prepare_data(recipe: Recipe, registry: Registry, allow_pickle: Path | None =
     seen = list(train) + (list(valid) if valid is not None else [])
     scene = scene_from_data(metadata, seen, recipe.model, registry, source=str(dataset.path))
     return PreparedData(dataset, metadata, train, valid, scene)
-
-
-def plugin_versions(recipe: Recipe, registry: Registry, scene: Scene) -> dict[str, str]:
-    """``kind/name -> distribution version`` of every component the recipe uses and of the installed
-    materials of the scene's particle types (an imported model may have types no material is installed for)."""
-    model = recipe.model
-    named = [(kind, getattr(model, kind).name) for kind in COMPONENT_SECTIONS]
-    named.append(("dataset", recipe.dataset.name))
-    named += [("material", e.name) for e in registry.entries("material") if e.cls.particle_type in scene.particle_types]
-    return {f"{kind}/{name}": registry.version_of(kind, name) for kind, name in named}

@@ -11,7 +11,7 @@ The norm is :func:`safe_norm`: every self-edge has length 0, where the Euclidean
 norm is not differentiable twice.
 
 Dimensions that wrap around (periodic) have no walls; the history passed in must
-already be continuous there (see :class:`~gns_framework.periodic.PeriodicBox`).
+already be continuous there (see :class:`~gns_framework.model.periodic.PeriodicBox`).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from .contracts import Graph, Scene
+from ..contracts import Graph, Scene
 from .normalization import Stats
 
 

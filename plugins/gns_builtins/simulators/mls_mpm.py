@@ -15,8 +15,8 @@ from pydantic import Field, ValidationError
 
 from gns_framework.contracts import GroundTruthSimulator, Params
 from gns_framework.data.trajectory import Trajectory
-from gns_framework.simulation.sampling import BodySample, SceneSample, sample_scene
-from gns_framework.simulation.scene_spec import SceneSpec
+from gns_framework.ground_truth.sampling import BodySample, SceneSample, sample_scene
+from gns_framework.ground_truth.scene_spec import SceneSpec
 
 from .mpm_models import MODELS, RIGID, ConstitutiveModel
 

@@ -6,7 +6,7 @@ import typing
 
 from pydantic import BaseModel, ValidationError
 
-from .errors import did_you_mean
+from ..errors import did_you_mean
 
 
 def format_location(loc: tuple) -> str:

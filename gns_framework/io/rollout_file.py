@@ -33,7 +33,7 @@ from ..data.metadata import DatasetMetadata, parse_metadata
 from ..errors import DatasetError, RolloutDiverged, located
 
 if TYPE_CHECKING:
-    from ..rollout import RolloutResult
+    from ..model.rollout import RolloutResult
 
 REQUIRED_FIELDS = ("initial_positions", "predicted_rollout", "ground_truth_rollout", "particle_type", "metadata_json")
 OPTIONAL_FIELDS = ("material_property",)

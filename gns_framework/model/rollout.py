@@ -1,7 +1,7 @@
 """Autoregressive rollouts, guarded.
 
-Every predicted frame passes a :class:`~gns_framework.rollout_guard.RolloutGuard`;
-:func:`gns_framework.evaluation.rollout_file.write_rollout` saves a result with its
+Every predicted frame passes a :class:`~gns_framework.model.rollout_guard.RolloutGuard`;
+:func:`gns_framework.io.rollout_file.write_rollout` saves a result with its
 ground truth and refuses non-finite predictions unless told otherwise, so no NaN
 reaches a file silently.
 """
@@ -15,14 +15,14 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from .allocator import keep_freed_memory
-from .data.batch import ParticleBatch, window
-from .data.trajectory import Trajectory
-from .errors import DatasetError
-from .host_sync import avoids_read_backs
-from .precision import Precision, autocast
+from ..data.batch import ParticleBatch, window
+from ..data.trajectory import Trajectory
+from ..errors import DatasetError
+from ..runtime.allocator import keep_freed_memory
+from ..runtime.host_sync import avoids_read_backs
+from ..runtime.precision import Precision, autocast
+from .learned_simulator import LearnedSimulator
 from .rollout_guard import GuardViolation, RolloutGuard
-from .simulator import LearnedSimulator
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,7 @@ def rollout(
     particle only ever sees its own predictions. ``guard`` checks every predicted
     frame (default: stop on non-finite positions, no domain check); it raises
     RolloutDiverged, or clamps and records the violations. ``precision`` picks the
-    dtype of the model's products (:mod:`gns_framework.precision`); positions stay float32.
+    dtype of the model's products (:mod:`gns_framework.runtime.precision`); positions stay float32.
 
     Predicted and ground-truth frames stay on the host; on a GPU each predicted frame
     is copied without blocking and checked by the guard a few steps later
@@ -126,7 +126,7 @@ def rollout_step(
 
     ``kinematic`` (K,) are the kinematic particles' rows and ``kinematic_next`` (K, d)
     their prescribed next positions. Nothing here waits for the device but the graph
-    builder's edge count (:mod:`gns_framework.host_sync`); the guard's report on the
+    builder's edge count (:mod:`gns_framework.runtime.host_sync`); the guard's report on the
     frame comes later, from its host copy.
     """
     last = current.position_sequence[:, -1]
@@ -144,7 +144,7 @@ class HostFrames:
     each frame is copied into one of ``lag`` page-locked buffers without blocking;
     a frame is handed back ``lag`` steps later, when its copy has long finished, so
     the host runs ahead of the device instead of waiting for it every step.
-    (:func:`~gns_framework.host_sync.avoids_read_backs` picks the way.)
+    (:func:`~gns_framework.runtime.host_sync.avoids_read_backs` picks the way.)
     """
 
     def __init__(self, device: torch.device, lag: int = 8):

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import yaml
 
-from .errors import RecipeError
+from ..errors import RecipeError
 
 
 class YamlFloat(float):

@@ -17,7 +17,7 @@ from tqdm import tqdm
 from .. import __version__
 from ..contracts import Dataset, GroundTruthSimulator
 from ..data.metadata import DatasetMetadata, compute_statistics
-from ..data.radius import suggest_connectivity_radius
+from ..data.particle_spacing import suggest_connectivity_radius
 from ..data.trajectory import Trajectory
 from .scene_spec import SceneSpec
 

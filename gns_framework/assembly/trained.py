@@ -7,13 +7,14 @@ from pathlib import Path
 
 import torch
 
-from .checkpoint import load_checkpoint
-from .data.metadata import DatasetMetadata, parse_metadata
-from .errors import CheckpointError, PluginError
-from .plugins import Registry
-from .recipe import Recipe, validate_recipe, without_pickle_grant
+from ..config.recipe import Recipe, validate_recipe, without_pickle_grant
+from ..data.metadata import DatasetMetadata, parse_metadata
+from ..errors import CheckpointError, PluginError
+from ..io.checkpoint import load_checkpoint
+from ..model.learned_simulator import LearnedSimulator
+from ..plugins import Registry
+from .learned import build_learned_simulator
 from .scene import scene_from_dict
-from .simulator import LearnedSimulator, build_simulator
 
 
 @dataclass
@@ -34,7 +35,7 @@ def load_trained(path: str | Path, registry: Registry, device: torch.device | st
     except PluginError as exc:
         raise CheckpointError(f"{path}: needs a component that is not installed: {exc}") from None
     metadata = parse_metadata(state["metadata"], f"{path} (stored metadata)")
-    simulator = build_simulator(scene_from_dict(state["scene"]), metadata, recipe.model, registry)
+    simulator = build_learned_simulator(scene_from_dict(state["scene"]), metadata, recipe.model, registry)
     try:
         simulator.load_state_dict(state["model"])
     except RuntimeError as exc:

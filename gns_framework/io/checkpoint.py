@@ -30,8 +30,8 @@ from typing import Any
 
 import torch
 
-from .data.atomic import atomic_path, fsync_directory
-from .errors import CheckpointError
+from ..data.atomic import atomic_path, fsync_directory
+from ..errors import CheckpointError
 
 FORMAT = "gns-framework/checkpoint-v1"
 _NAME = re.compile(r"^checkpoint-(\d{9})\.pt$")

@@ -1,0 +1,77 @@
+"""A learned simulator from a recipe's ``model`` section, sized for a scene; the versions of what it uses."""
+
+from __future__ import annotations
+
+from ..config.recipe import COMPONENT_SECTIONS, ModelSpec, Recipe
+from ..contracts import ModelSizes, Scene
+from ..data.metadata import DatasetMetadata
+from ..errors import RecipeError
+from ..model.features import FeatureBuilder, edge_feature_size, node_feature_size
+from ..model.learned_simulator import LearnedSimulator
+from ..model.noise import training_noise_std
+from ..model.normalization import Stats
+from ..plugins import Registry
+
+
+def model_sizes(scene: Scene, model: ModelSpec) -> ModelSizes:
+    """Input, latent and output widths of the encoder, processor and decoder for ``scene``."""
+    return ModelSizes(
+        node_in=node_feature_size(scene, model.type_embedding_size),
+        edge_in=edge_feature_size(scene),
+        latent=model.latent_size,
+        mlp_hidden=model.mlp_hidden_size,
+        mlp_hidden_layers=model.mlp_hidden_layers,
+        output=scene.dim,
+        dim=scene.dim,
+        connectivity_radius=scene.connectivity_radius,
+    )
+
+
+def build_learned_simulator(
+    scene: Scene, metadata: DatasetMetadata, model: ModelSpec, registry: Registry
+) -> LearnedSimulator:
+    """Instantiate the components a recipe names, sized from the scene and normalised by the data's statistics."""
+    sizes = model_sizes(scene, model)
+    builder_cls, builder_params = registry.resolve("graph_builder", model.graph_builder, ("model", "graph_builder"))
+    encoder_cls, encoder_params = registry.resolve("encoder", model.encoder, ("model", "encoder"))
+    processor_cls, processor_params = registry.resolve("processor", model.processor, ("model", "processor"))
+    decoder_cls, decoder_params = registry.resolve("decoder", model.decoder, ("model", "decoder"))
+    integrator_cls, integrator_params = registry.resolve("integrator", model.integrator, ("model", "integrator"))
+    if scene.periodic_dims and not builder_cls.supports_periodic:
+        periodic_builders = [e.name for e in registry.entries("graph_builder") if e.cls.supports_periodic]
+        raise RecipeError(
+            None,
+            [("model.graph_builder.name",
+              f"{builder_cls.name!r} does not connect across the periodic dimensions {list(scene.periodic_dims)}; "
+              f"use one of: {', '.join(periodic_builders) or 'none installed'}")],
+        )
+    integrator = integrator_cls(integrator_params)
+    noise_std = training_noise_std(model, metadata)
+    velocity_stats = Stats(metadata.vel_mean, metadata.vel_std, noise_std)
+    if integrator.predicts == "acceleration":
+        output_stats = Stats(metadata.acc_mean, metadata.acc_std, noise_std)
+    else:
+        output_stats = Stats(metadata.vel_mean, metadata.vel_std, noise_std)
+    context_stats = None
+    if scene.context_size:
+        context_stats = Stats(metadata.context_mean, metadata.context_std)
+    return LearnedSimulator(
+        scene=scene,
+        features=FeatureBuilder(scene, velocity_stats, model.type_embedding_size, context_stats),
+        graph_builder=builder_cls(builder_params, scene),
+        encoder=encoder_cls(encoder_params, sizes),
+        processor=processor_cls(processor_params, sizes),
+        decoder=decoder_cls(decoder_params, sizes),
+        integrator=integrator,
+        output_stats=output_stats,
+    )
+
+
+def plugin_versions(recipe: Recipe, registry: Registry, scene: Scene) -> dict[str, str]:
+    """``kind/name -> distribution version`` of every component the recipe uses and of the installed
+    materials of the scene's particle types (an imported model may have types no material is installed for)."""
+    model = recipe.model
+    named = [(kind, getattr(model, kind).name) for kind in COMPONENT_SECTIONS]
+    named.append(("dataset", recipe.dataset.name))
+    named += [("material", e.name) for e in registry.entries("material") if e.cls.particle_type in scene.particle_types]
+    return {f"{kind}/{name}": registry.version_of(kind, name) for kind, name in named}

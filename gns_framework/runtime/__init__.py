@@ -1,0 +1,1 @@
+"""How the computation runs on its device: precision, allocator, host synchronisation and activation memory."""

@@ -1,1 +1,0 @@
-"""Ground truth: scene specs, simulators and dataset generation."""
