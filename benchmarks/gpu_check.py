@@ -152,7 +152,7 @@ def scale(args) -> None:
 
 def mpm(args) -> None:
     """Seconds per frame of the 3D sand column on a ``--grid``-cell-wide grid (particles grow as grid^3), on ``--device``."""
-    from simulation.scenes import column_collapse_3d
+    from scene_builders import column_collapse_3d
 
     from gns_framework.assembly.ground_truth import build_ground_truth_simulator as build_ground_truth
     from gns_framework.ground_truth.scene_spec import parse_scene

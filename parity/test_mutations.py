@@ -11,7 +11,7 @@ import torch
 
 from gns_builtins.graph_builders.radius import RadiusGraphBuilder
 from gns_builtins.processors.interaction_network import InteractionStep
-from gns_framework import normalization
+from gns_framework.model import normalization
 from gns_framework.contracts import Graph
 from gns_framework.importers import geoelements_layout
 

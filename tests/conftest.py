@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from rollouts import small_metadata, small_rollout
 from synthetic import write_synthetic_dataset
 from gns_framework.plugins import load_registry
 
@@ -69,3 +70,26 @@ def dataset_multimaterial(tmp_path_factory) -> Path:
         with_property=True,
         frames=20,
     )
+
+
+@pytest.fixture(scope="session")
+def sim_registry():
+    return load_registry()
+
+
+@pytest.fixture(scope="session")
+def materials(sim_registry):
+    """Every installed material by name, as ground-truth simulators take them."""
+    return {name: sim_registry.get("material", name) for name in sim_registry.names("material")}
+
+
+@pytest.fixture
+def make_metadata():
+    """Factory of unit-box metadata: ``make_metadata(dim=2, dt=0.01)``."""
+    return small_metadata
+
+
+@pytest.fixture
+def make_rollout():
+    """Factory of small rollouts: ``make_rollout(dim=2, steps=8, particles=12, history=6, seed=0)``."""
+    return small_rollout

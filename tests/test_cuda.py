@@ -11,7 +11,7 @@ import copy
 import numpy as np
 import pytest
 import torch
-from simulation.scenes import mixed
+from scene_builders import mixed
 from tiny import tiny_recipe_mapping
 
 from gns_framework.assembly.ground_truth import build_ground_truth_simulator as build_ground_truth

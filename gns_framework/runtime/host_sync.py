@@ -10,7 +10,7 @@ or rollout step reads back only:
 - on logging, validation and checkpoint steps, the losses since the last read.
 
 Explicit reads go through :func:`read_back`, so a test can count them and make
-any other read fail (``tests/test_host_syncs.py``).
+any other read fail (``tests/runtime/test_host_sync.py``).
 """
 
 from __future__ import annotations

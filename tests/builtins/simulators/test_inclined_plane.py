@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "inclined_plane.py"
+SCRIPT = Path(__file__).resolve().parents[3] / "benchmarks" / "inclined_plane.py"
 
 
 @pytest.fixture(scope="module")

@@ -10,16 +10,9 @@ import pytest
 from gns_framework.assembly.ground_truth import build_ground_truth_simulator
 from gns_framework.errors import RecipeError
 from gns_framework.ground_truth.scene_spec import load_scene, parse_scene
-from simulation.scenes import column_collapse_3d, mixed
+from scene_builders import column_collapse_3d, mixed, problems
 
 SCENES = sorted((Path(__file__).resolve().parents[2] / "scenes").rglob("*.yaml"))
-
-
-def problems(raw, registry=None) -> dict[str, str]:
-    with pytest.raises(RecipeError) as info:
-        scene = parse_scene(raw)
-        build_ground_truth_simulator(scene, registry)
-    return dict(info.value.problems)
 
 
 def test_example_scenes_exist():

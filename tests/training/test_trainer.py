@@ -20,7 +20,7 @@ from gns_framework.model.rollout import rollout
 from gns_framework.plugins import load_registry
 from gns_framework.training.trainer import Trainer
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def test_shipped_recipe_lowers_validation_loss(dataset_2d, tmp_path, registry):

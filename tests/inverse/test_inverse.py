@@ -29,7 +29,7 @@ from gns_framework.inverse.config import PropertyUnknown, VelocityUnknown, parse
 from gns_framework.inverse.optimize import InversionDiverged, adam
 from gns_framework.inverse.problem import InverseProblem
 
-MODEL = Path(__file__).resolve().parents[1] / "models" / "sand2d_fast.pt"
+MODEL = Path(__file__).resolve().parents[2] / "models" / "sand2d_fast.pt"
 SAND = 6
 UNKNOWNS = {
     "friction": PropertyUnknown(bounds=(0.4, 1.0), initial=0.7),
@@ -265,9 +265,9 @@ def test_a_ballistic_start_is_rebuilt_exactly(shipped_float64, observed):
             "particle_type": 6, "bounds": [[0, 1], [0, 1]], "gravity": [0, 0, -9.81]}}}, "x")
 
 
-@pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[1] / "inversions").glob("*.yaml")))
+@pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[2] / "inversions").glob("*.yaml")))
 def test_the_example_inversions_name_a_shipped_model_and_validate(path, registry):
     config, unknowns = parse_invert_config(yaml.safe_load(path.read_text()), path)
-    model = load_trained(Path(__file__).resolve().parents[1] / config.model, registry, "cpu")
+    model = load_trained(Path(__file__).resolve().parents[2] / config.model, registry, "cpu")
     for name, unknown in unknowns.items():
         assert name in model.simulator.scene.property_names or isinstance(unknown, VelocityUnknown)

@@ -10,7 +10,7 @@ import pytest
 from gns_framework.config.recipe import load_recipe, validate_recipe
 from gns_framework.errors import RecipeError
 
-RECIPES = sorted((Path(__file__).resolve().parents[1] / "recipes").rglob("*.yaml"))
+RECIPES = sorted((Path(__file__).resolve().parents[2] / "recipes").rglob("*.yaml"))
 NEEDS_PACKAGE = {"clay2d.yaml": ("gns_example_clay", "pip install -e plugins/examples/gns-clay")}
 """Recipes that use a separately installed example package: its module and install command."""
 

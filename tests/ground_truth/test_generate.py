@@ -15,7 +15,7 @@ from gns_framework.data.metadata import compute_statistics, load_metadata
 from gns_framework.data.particle_spacing import suggest_connectivity_radius
 from gns_framework.ground_truth.generate import generate_dataset, trajectory_seeds
 from gns_framework.ground_truth.scene_spec import parse_scene
-from simulation.scenes import column_collapse, mixed
+from scene_builders import column_collapse, mixed
 
 
 def test_trajectory_seeds_do_not_depend_on_how_many_are_drawn():

@@ -1,15 +1,14 @@
-"""Small scenes for the evaluation tests, built in memory (nothing is downloaded)."""
+"""Small rollouts and metadata built in memory, for the evaluation, file and picture tests."""
 
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from gns_framework.data.metadata import DatasetMetadata
 from gns_framework.io.rollout_file import Rollout
 
 
-def _metadata(dim: int = 2, dt: float = 0.01) -> DatasetMetadata:
+def small_metadata(dim: int = 2, dt: float = 0.01) -> DatasetMetadata:
     return DatasetMetadata(
         bounds=[(0.0, 1.0)] * dim,
         sequence_length=20,
@@ -23,7 +22,7 @@ def _metadata(dim: int = 2, dt: float = 0.01) -> DatasetMetadata:
     )
 
 
-def _rollout(dim: int = 2, steps: int = 8, particles: int = 12, history: int = 6, seed: int = 0) -> Rollout:
+def small_rollout(dim: int = 2, steps: int = 8, particles: int = 12, history: int = 6, seed: int = 0) -> Rollout:
     """Particles drifting inside the unit box; the prediction is the truth plus a growing offset.
 
     Types: the last two particles are kinematic (3), the rest sand (6); two material properties.
@@ -42,19 +41,7 @@ def _rollout(dim: int = 2, steps: int = 8, particles: int = 12, history: int = 6
         predicted_rollout=(truth + offset).astype(np.float32),
         ground_truth_rollout=truth.astype(np.float32),
         particle_type=particle_type,
-        metadata=_metadata(dim),
+        metadata=small_metadata(dim),
         material_property=rng.uniform(0.5, 1.0, size=(particles, 2)).astype(np.float32),
         source="memory.npz",
     )
-
-
-@pytest.fixture
-def make_metadata():
-    """Factory of unit-box metadata: ``make_metadata(dim=2, dt=0.01)``."""
-    return _metadata
-
-
-@pytest.fixture
-def make_rollout():
-    """Factory of small rollouts: ``make_rollout(dim=2, steps=8, particles=12, history=6, seed=0)``."""
-    return _rollout

@@ -21,7 +21,7 @@ from gns_builtins.datasets.tfrecord_format import SequenceExample, read_records
 from gns_framework.cli import main
 from gns_framework.errors import DatasetError
 
-FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "public_layouts"
+FIXTURES = Path(__file__).resolve().parents[2] / "fixtures" / "public_layouts"
 FLOAT32 = float(np.finfo(np.float32).eps)
 """Relative resolution of the stored float32 positions (values of order 0.1 to 1)."""
 

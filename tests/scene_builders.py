@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
+
+from gns_framework.assembly.ground_truth import build_ground_truth_simulator
+from gns_framework.errors import RecipeError
+from gns_framework.ground_truth.scene_spec import parse_scene
+
 
 def column_collapse(width: float, height: float, friction: float, frames: int = 240) -> dict:
     """A 2D sand column of ``width`` x ``height`` m against the left wall (dx = 12.5 mm)."""
@@ -65,3 +71,11 @@ def mixed(frames: int = 40) -> dict:
             {"material": "rigid", "position": [0.2, 0.02], "size": [0.1, 0.04], "velocity": [0.2, 0.0]}
         ],
     }
+
+
+def problems(raw, registry=None) -> dict[str, str]:
+    """The ``location -> message`` problems a scene mapping is refused with (the test fails if it is accepted)."""
+    with pytest.raises(RecipeError) as info:
+        scene = parse_scene(raw)
+        build_ground_truth_simulator(scene, registry)
+    return dict(info.value.problems)

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from gns_framework.ground_truth.sampling import fill, sample_scene
 from gns_framework.ground_truth.scene_spec import parse_scene
-from simulation.scenes import mixed
+from scene_builders import mixed
 
 
 @given(

@@ -11,7 +11,7 @@ import pytest
 
 from gns_framework.assembly.ground_truth import build_ground_truth_simulator
 from gns_framework.ground_truth.scene_spec import parse_scene
-from simulation.test_scene_spec import problems
+from scene_builders import problems
 
 G, H, RHO = 1.0, 0.1, 1000.0
 
@@ -69,7 +69,7 @@ def dam_break():
     import importlib.util
     from pathlib import Path
 
-    script = Path(__file__).resolve().parents[2] / "benchmarks" / "dam_break.py"
+    script = Path(__file__).resolve().parents[3] / "benchmarks" / "dam_break.py"
     spec = importlib.util.spec_from_file_location("dam_break", script)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

@@ -13,7 +13,7 @@ import pytest
 import torch
 from float_tolerances import assert_close_to_reference
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "step_time.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "step_time.py"
 REQUIRED = (
     "particles", "edges", "mean_neighbours", "train_step_s", "rollout_step_s",
     "neighbour_search_s", "peak_rss_mb", "efficiency",

@@ -14,7 +14,7 @@ import pytest
 
 from gns_framework.assembly.ground_truth import build_ground_truth_simulator
 from gns_framework.ground_truth.scene_spec import parse_scene
-from simulation.scenes import column_collapse, column_collapse_3d, dam_break, mixed
+from scene_builders import column_collapse, column_collapse_3d, dam_break, mixed
 
 G = 9.81
 

@@ -11,7 +11,7 @@ import yaml
 
 from tiny import tiny_recipe_mapping
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "time_to_accuracy.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "time_to_accuracy.py"
 
 
 def test_both_recipes_train_on_the_same_budget_and_report_ratios(tmp_path):
