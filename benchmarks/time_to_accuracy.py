@@ -19,14 +19,18 @@ out faster, training goes on at ``lr_min`` until the budget is spent. The
 reference recipe keeps its own (exponential, effectively flat) schedule.
 
 The last line of output is one JSON object: per recipe, the evaluation points
-(minutes, step, metrics), and the final ratio reference / ours per metric
-(above 1: ours is better).
+(minutes, step, metrics), the final ratio reference / ours per metric (above 1:
+ours is better), and the same ratio of the medians over the last L evaluations
+(``--late``, default 3). One evaluation of a few rollouts swings a lot from one
+point to the next (a model between two good states can be far off), so the
+ratio of late medians is the steadier figure of the two.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import sys
 import tempfile
 import time
@@ -108,6 +112,32 @@ def run_recipe(recipe_path: Path, data: Path, threads: int, minutes: float, poin
         return {"recipe": str(recipe_path), "name": trainer.recipe.name, "steps": trainer.step, "evaluations": evaluations}
 
 
+def _late_medians(evaluations: list[dict]) -> dict:
+    """Per metric, the median over ``evaluations`` of the values that exist (None when none does)."""
+    medians = {}
+    for name in METRICS:
+        values = [e[name] for e in evaluations if e[name] is not None]
+        medians[name] = statistics.median(values) if values else None
+    return medians
+
+
+def _ratios(errors: dict[str, dict]) -> dict:
+    """Reference / ours per metric (None where either is missing or ours is exactly 0)."""
+    ratios = {}
+    for name in METRICS:
+        theirs, ours = errors["reference"][name], errors["ours"][name]
+        ratios[name] = None if theirs is None or ours is None or ours == 0 else theirs / ours
+    return ratios
+
+
+def _print_table(title: str, errors: dict[str, dict], ratios: dict) -> None:
+    print(f"\n{title:<17}" + "".join(f"{name:>20}" for name in METRICS))
+    for role, values in errors.items():
+        print(f"{role:<17}" + "".join(f"{values[n]:>20.4g}" if values[n] is not None else f"{'-':>20}" for n in METRICS))
+    print(f"{'reference / ours':<17}" + "".join(f"{ratios[n]:>20.2f}" if ratios[n] is not None else f"{'-':>20}"
+                                               for n in METRICS))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--budget-minutes", type=float, required=True, help="training wall clock per recipe")
@@ -118,7 +148,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ours", type=Path, default=REPO / "recipes" / "sand2d_fast.yaml")
     parser.add_argument("--points", type=int, default=5, help="evaluations per run (evenly spaced in wall clock)")
     parser.add_argument("--trajectories", type=int, default=4, help="test trajectories rolled out per evaluation")
+    parser.add_argument("--late", type=int, default=3, help="evaluations at the end whose median gives the steadier ratio (all of them if fewer)")
     args = parser.parse_args(argv)
+    if args.late < 1:
+        parser.error(f"--late must be at least 1, got {args.late}")
+    args.late = min(args.late, args.points)
     torch.set_num_threads(args.threads)
 
     runs = {}
@@ -126,19 +160,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{role}: {path}, {args.budget_minutes} min on {args.threads} thread(s)", flush=True)
         runs[role] = run_recipe(path, args.data, args.threads, args.budget_minutes, args.points, args.trajectories)
     final = {role: run["evaluations"][-1] for role, run in runs.items()}
-    ratios = {}
-    for name in METRICS:
-        theirs, ours = final["reference"][name], final["ours"][name]
-        ratios[name] = None if theirs is None or ours is None or ours == 0 else theirs / ours
-    print("\nfinal errors     " + "".join(f"{name:>20}" for name in METRICS))
-    for role in runs:
-        print(f"{role:<17}" + "".join(f"{final[role][name]:>20.4g}" if final[role][name] is not None else f"{'-':>20}"
-                                      for name in METRICS))
-    print(f"{'reference / ours':<17}" + "".join(f"{ratios[n]:>20.2f}" if ratios[n] is not None else f"{'-':>20}"
-                                               for n in METRICS))
+    late = {role: _late_medians(run["evaluations"][-args.late:]) for role, run in runs.items()}
+    ratios, late_ratios = _ratios(final), _ratios(late)
+    _print_table("final errors", final, ratios)
+    _print_table(f"median of the last {args.late}", late, late_ratios)
     if args.json:
         print(json.dumps({"budget_minutes": args.budget_minutes, "threads": args.threads, "data": str(args.data),
-                          "runs": runs, "ratio_reference_over_ours": ratios}))
+                          "runs": runs, "ratio_reference_over_ours": ratios, "late": args.late,
+                          "late_median": late, "ratio_reference_over_ours_late_median": late_ratios}))
     return 0
 
 

@@ -46,4 +46,10 @@ def test_both_recipes_train_on_the_same_budget_and_report_ratios(tmp_path):
     finals = {role: figures["runs"][role]["evaluations"][-1] for role in ("reference", "ours")}
     for metric, ratio in figures["ratio_reference_over_ours"].items():
         assert ratio == finals["reference"][metric] / finals["ours"][metric]
+    # --late defaults to 3, more than the 2 points here: both evaluations count, the median is their mean.
+    assert figures["late"] == 2
+    for metric, ratio in figures["ratio_reference_over_ours_late_median"].items():
+        medians = {role: sum(e[metric] for e in figures["runs"][role]["evaluations"]) / 2 for role in finals}
+        assert figures["late_median"]["reference"][metric] == medians["reference"]
+        assert abs(ratio - medians["reference"] / medians["ours"]) <= 1e-12 * ratio
     assert "reference / ours" in result.stdout
