@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from gns_framework.data.metadata import DatasetMetadata
-from gns_framework.io.rollout_file import Rollout
+from gns_framework.data.rollout import Rollout
+from gns_framework.data.trajectory import Trajectory
 
 
 def small_metadata(dim: int = 2, dt: float = 0.01) -> DatasetMetadata:
@@ -33,15 +34,13 @@ def small_rollout(dim: int = 2, steps: int = 8, particles: int = 12, history: in
     frames = start + velocity * np.arange(history + steps)[:, None, None]
     particle_type = np.full(particles, 6, dtype=np.int64)
     particle_type[-2:] = 3
-    truth = frames[history:]
     offset = 0.001 * np.arange(1, steps + 1)[:, None, None] * np.ones((1, particles, dim))
     offset[:, -2:] = 0.0
+    material_property = rng.uniform(0.5, 1.0, size=(particles, 2)).astype(np.float32)
     return Rollout(
-        initial_positions=frames[:history].astype(np.float32),
-        predicted_rollout=(truth + offset).astype(np.float32),
-        ground_truth_rollout=truth.astype(np.float32),
-        particle_type=particle_type,
+        truth=Trajectory(frames.astype(np.float32), particle_type, material_property, key="memory"),
+        predicted=(frames[history:] + offset).astype(np.float32),
+        history=history,
         metadata=small_metadata(dim),
-        material_property=rng.uniform(0.5, 1.0, size=(particles, 2)).astype(np.float32),
         source="memory.npz",
     )

@@ -8,10 +8,10 @@ import pytest
 
 from gns_framework.contracts import Material
 from gns_framework.data.metadata import DatasetMetadata, compute_statistics
+from gns_framework.data.rollout import Rollout
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.evaluation.report import score_rollout
 from gns_framework.hookspecs import hookimpl
-from gns_framework.io.rollout_file import Rollout
 from gns_framework.plugins import load_registry
 
 SAND, BALLAST = 6, 11
@@ -66,7 +66,7 @@ def test_metrics_leave_out_a_kinematic_material_of_any_id(registry):
         bounds=[(0.0, 1.0), (0.0, 1.0)], sequence_length=len(position), default_connectivity_radius=0.1, dim=2,
         dt=0.01, vel_mean=[0.0, 0.0], vel_std=[1.0, 1.0], acc_mean=[0.0, 0.0], acc_std=[1.0, 1.0],
     )
-    rollout = Rollout(position[:history], predicted, position[history:], np.array([SAND, SAND, BALLAST, BALLAST]), metadata)
+    rollout = Rollout(Trajectory(position, np.array([SAND, SAND, BALLAST, BALLAST])), predicted, history, metadata)
     summary = score_rollout(rollout, kinematic_types=registry.kinematic_types(), metrics=registry.metrics())
     assert summary["mse_full"] == 0.0 and summary["mse_final"] == 0.0
     assert summary["sinkhorn_final"] == pytest.approx(0.0, abs=1e-6)

@@ -68,7 +68,7 @@ def test_the_guide_material_is_simulated_by_the_builtin_mpm(gravel_registry):
 def test_the_guide_metric_is_measured(make_rollout_2d):
     registry = load_registry(plugins=[("guide-metric", guide_module("guide_metric", "## 5. Metrics"))])
     summary = score_rollout(make_rollout_2d, metrics=registry.metrics())
-    truth, predicted = make_rollout_2d.ground_truth_rollout, make_rollout_2d.predicted_rollout
+    truth, predicted = make_rollout_2d.ground_truth, make_rollout_2d.predicted
     moving = make_rollout_2d.particle_type != 3
     expected = abs(predicted[-1, moving, -1].max() - truth[-1, moving, -1].max())
     assert summary["final_height_error"] == pytest.approx(float(expected), rel=1e-5)
@@ -77,7 +77,8 @@ def test_the_guide_metric_is_measured(make_rollout_2d):
 @pytest.fixture
 def make_rollout_2d():
     from gns_framework.data.metadata import DatasetMetadata
-    from gns_framework.io.rollout_file import Rollout
+    from gns_framework.data.rollout import Rollout
+    from gns_framework.data.trajectory import Trajectory
 
     rng = np.random.default_rng(0)
     truth = rng.uniform(0.2, 0.8, size=(5, 6, 2))
@@ -87,8 +88,8 @@ def make_rollout_2d():
         vel_mean=[0.0] * 2, vel_std=[1.0] * 2, acc_mean=[0.0] * 2, acc_std=[1.0] * 2,
     )
     types_ = np.array([6, 6, 6, 6, 3, 3])
-    return Rollout(truth[:1].repeat(6, 0).astype(np.float32), predicted.astype(np.float32), truth.astype(np.float32),
-                   types_, metadata)
+    frames = np.concatenate([truth[:1].repeat(6, 0), truth]).astype(np.float32)
+    return Rollout(Trajectory(frames, types_), predicted.astype(np.float32), 6, metadata)
 
 
 def test_the_guide_command_record_registers():

@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     trajectories = dataset.split(args.split)
     if args.trajectories:
         trajectories = trajectories[: args.trajectories]
-    cases = cases_from_split(trajectories, metadata, histories.pop())
+    cases = cases_from_split(trajectories)
 
     names = model_labels([m.recipe.name for m in models], args.checkpoints)
     report = compare(

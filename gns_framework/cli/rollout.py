@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         )
         path = write_rollout(out / f"{split_name}_{index:04d}.npz", result, loaded.metadata)
         clamped = f", clamped at {len(result.guard_violations)} check(s)" if result.guard_violations else ""
-        print(f"{path}: {result.predicted.shape[0]} steps, position MSE {result.position_mse:.4g}{clamped}")
+        print(f"{path}: {result.num_steps} steps, position MSE {result.position_mse:.4g}{clamped}")
         for violation in result.guard_violations:
             print(f"gns rollout: warning: {path}: clamped {violation.describe()}", file=sys.stderr)
         errors.append(result.position_mse)

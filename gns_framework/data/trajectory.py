@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -39,6 +39,11 @@ class Trajectory:
     @property
     def dim(self) -> int:
         return int(self.position.shape[2])
+
+    def first_frames(self, count: int) -> "Trajectory":
+        """The first ``count`` frames: position (count, N, d) and step_context (count, C) cut, the rest kept."""
+        context = None if self.step_context is None else self.step_context[:count]
+        return replace(self, position=self.position[:count], step_context=context)
 
     def validated(self, source: str, dim: int | None = None) -> "Trajectory":
         """Check shapes, dtypes and values (type ids >= 0); return a copy with canonical dtypes.

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -16,15 +17,12 @@ from ..errors import DatasetError, RolloutDiverged
 from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import rollout
 from ..plugins import Registry
-from .report import Candidate, Case, Prediction, Report, evaluate
+from .report import Candidate, Prediction, Report, evaluate
 
 
-def cases_from_split(trajectories: Sequence[Trajectory], metadata: DatasetMetadata, history: int) -> list[Case]:
-    """Each test trajectory as a case: its first ``history`` frames in, the rest to predict."""
-    return [
-        Case(t.position[:history], t.position[history:], t.particle_type, metadata, t.material_property, t.key or f"case_{i}")
-        for i, t in enumerate(trajectories)
-    ]
+def cases_from_split(trajectories: Sequence[Trajectory]) -> list[Trajectory]:
+    """Each test trajectory as a case, named ``case_<i>`` where it has no key (report rows and file names)."""
+    return [t if t.key else replace(t, key=f"case_{i}") for i, t in enumerate(trajectories)]
 
 
 def learned_positions(simulator: LearnedSimulator, trajectory: Trajectory, device: torch.device | str) -> np.ndarray:
@@ -43,11 +41,8 @@ def learned_positions(simulator: LearnedSimulator, trajectory: Trajectory, devic
 def learned_candidate(model: LoadedModel, name: str, device: torch.device) -> Candidate:
     """A trained simulator rolled out from each case's input frames (kinematic particles prescribed)."""
 
-    def simulate(case: Case) -> Prediction:
-        trajectory = Trajectory(
-            np.concatenate([case.initial_positions, case.ground_truth]), case.particle_type, case.material_property, key=case.key
-        )
-        return Prediction(learned_positions(model.simulator, trajectory, device))
+    def simulate(case: Trajectory) -> Prediction:
+        return Prediction(learned_positions(model.simulator, case, device))
 
     return Candidate(name, "learned", simulate, settings=f"{model.path.name} (step {model.step})", device=str(device))
 
@@ -55,14 +50,16 @@ def learned_candidate(model: LoadedModel, name: str, device: torch.device) -> Ca
 def simulator_candidates(
     metadata: DatasetMetadata,
     registry: Registry,
-    cases: Sequence[Case],
+    cases: Sequence[Trajectory],
+    history: int,
     grid_scales: Sequence[float],
     substep_scales: Sequence[float],
 ) -> list[Candidate]:
     """The simulator that generated the data, re-run on each case's seed at other grids and time steps.
 
-    The unscaled setting is the reference (it reproduces the ground truth). Needs
-    the provenance ``gns generate`` stores in metadata.json.
+    Each predicts the frames after the first ``history`` of its own run. The unscaled
+    setting is the reference (it reproduces the ground truth). Needs the provenance
+    ``gns generate`` stores in metadata.json.
     """
     from ..assembly.ground_truth import build_ground_truth_simulator
     from ..ground_truth.generate import trajectory_seeds
@@ -78,7 +75,6 @@ def simulator_candidates(
     counts = provenance["trajectories"]
     seeds = trajectory_seeds(scene.seed, counts["train"] + counts["valid"] + counts["test"])[-counts["test"] :]
     seed_of = {case.key: seed for case, seed in zip(cases, seeds)}
-    history = len(cases[0].initial_positions)
     # A model trained with dataset.frame_stride k sees every k-th stored frame (its metadata's dt is k frame_dt).
     stride = max(1, round(metadata.dt / scene.time.frame_dt))
 
@@ -95,7 +91,7 @@ def simulator_candidates(
             )
             simulator = build_ground_truth_simulator(variant, registry, "metadata.json: generated_from")
 
-            def simulate(case: Case, simulator=simulator, variant=variant) -> Prediction:
+            def simulate(case: Trajectory, simulator=simulator, variant=variant) -> Prediction:
                 trajectory = strided(simulator.simulate(variant, seed_of[case.key]), stride)
                 return Prediction(trajectory.position[history:], trajectory.particle_type, trajectory.position[history - 1])
 
@@ -114,7 +110,7 @@ def simulator_candidates(
 
 def compare(
     models: Sequence[tuple[str, LoadedModel]],
-    cases: Sequence[Case],
+    cases: Sequence[Trajectory],
     metadata: DatasetMetadata,
     registry: Registry,
     device: torch.device,
@@ -127,14 +123,19 @@ def compare(
     error_metric: str = "sinkhorn_final_pct",
     rollout_dir=None,
 ) -> Report:
-    """Error against run time of named trained models (and the ground-truth simulator) on ``cases``."""
+    """Error against run time of named trained models (and the ground-truth simulator) on ``cases``.
+
+    The models share one input history C (the first model's); each case's first C frames are the input.
+    """
+    scene = models[0][1].simulator.scene
     candidates = [learned_candidate(model, name, device) for name, model in models]
     if with_simulator:
-        candidates += simulator_candidates(metadata, registry, cases, grid_scales, substep_scales)
-    scene = models[0][1].simulator.scene
+        candidates += simulator_candidates(metadata, registry, cases, scene.history, grid_scales, substep_scales)
     return evaluate(
         candidates,
         cases,
+        metadata,
+        scene.history,
         repeats=repeats,
         warmup=warmup,
         error_metric=error_metric,

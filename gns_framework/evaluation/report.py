@@ -1,9 +1,11 @@
 """Error against run time: roll every candidate out on the test cases, time it, score it, report.
 
-A candidate is anything that turns a test case's input frames into a rollout: a
-learned model from a checkpoint, or the ground-truth simulator run at some
-resolution or time step. One simulator setting is the *reference* (the one that
-made the test data); speed-ups are its run time over each candidate's.
+A test case is a trajectory of the test split: its first C frames are the input,
+the rest the truth to predict. A candidate is anything that turns a test case's
+input frames into a rollout: a learned model from a checkpoint, or the
+ground-truth simulator run at some resolution or time step. One simulator
+setting is the *reference* (the one that made the test data); speed-ups are its
+run time over each candidate's.
 
 The report is a Markdown and a CSV table plus two PNG plots (error against run
 time, log-log; position error over rollout time). matplotlib is imported only
@@ -25,44 +27,14 @@ import numpy as np
 import torch
 
 from ..data.metadata import DatasetMetadata
-from ..io.rollout_file import Rollout, save_rollout
+from ..data.rollout import Rollout
+from ..data.trajectory import Trajectory
+from ..io.rollout_file import save_rollout
 from ..plugin_types import Metric
 from .metrics import DEFAULT_HORIZONS, ParticleRollout, RolloutPair, metric_units, rollout_metrics, summarise
 from .timing import Timing, format_hardware, hardware_description, time_call
 
 Kind = Literal["learned", "simulator"]
-
-
-@dataclass(frozen=True)
-class Case:
-    """One test trajectory: the input frames a candidate starts from and the true frames after.
-
-    Attributes:
-        initial_positions: (C, N, d) input frames, L.
-        ground_truth: (S, N, d) true positions of the following frames, L.
-        particle_type: (N,) int64.
-        metadata: the dataset's metadata (bounds, dt, ...).
-        material_property: (N, P) or None.
-        key: name of the trajectory (file names and messages).
-    """
-
-    initial_positions: np.ndarray
-    ground_truth: np.ndarray
-    particle_type: np.ndarray
-    metadata: DatasetMetadata
-    material_property: np.ndarray | None = None
-    key: str = "case"
-
-    @classmethod
-    def from_rollout(cls, rollout: Rollout, key: str | None = None) -> Case:
-        return cls(
-            rollout.initial_positions,
-            rollout.ground_truth_rollout,
-            rollout.particle_type,
-            rollout.metadata,
-            rollout.material_property,
-            key or Path(rollout.source).stem,
-        )
 
 
 @dataclass(frozen=True)
@@ -73,10 +45,10 @@ class Prediction:
     resolution has its own particles, so it brings their types and start frame.
 
     Attributes:
-        position: (S, N', d) positions of the same S frames as the ground truth, L
+        position: (S, N', d) positions of the S frames after the case's C input frames, L
             (a NumPy array or a tensor on any device).
         particle_type: (N',) int64, or None for the case's particles.
-        start: (N', d) the frame before the first one, or None for the case's last input frame.
+        start: (N', d) the frame before the first one, L, or None for the case's last input frame.
     """
 
     position: np.ndarray | torch.Tensor
@@ -91,7 +63,7 @@ class Candidate:
     Attributes:
         name: row label in the report.
         kind: ``learned`` or ``simulator``.
-        simulate: case -> its rollout; called once per warm-up and repeat, and timed.
+        simulate: case (a test trajectory) -> its rollout; called once per warm-up and repeat, and timed.
         reference: the simulator setting that produced the ground truth (at most one).
         settings: resolution, time step or checkpoint, for the table.
         device: where ``simulate`` computes (synchronised around each timing).
@@ -99,7 +71,7 @@ class Candidate:
 
     name: str
     kind: Kind
-    simulate: Callable[[Case], Prediction]
+    simulate: Callable[[Trajectory], Prediction]
     reference: bool = False
     settings: str = ""
     device: str | None = None
@@ -150,7 +122,9 @@ class Report:
 
 def evaluate(
     candidates: Sequence[Candidate],
-    cases: Sequence[Case],
+    cases: Sequence[Trajectory],
+    metadata: DatasetMetadata,
+    history: int,
     *,
     repeats: int = 3,
     warmup: int = 1,
@@ -168,6 +142,8 @@ def evaluate(
     Args:
         candidates: learned models and simulator settings; at most one is the reference.
         cases: the test split.
+        metadata: the dataset's metadata (bounds, dt, ...).
+        history: C, the input frames of every case; the candidates predict the rest.
         repeats, warmup: timed and untimed runs per case (the median of the timed ones counts).
         error_metric: the metric shown as "error" and plotted against run time.
         horizons, granular_types, material_names: passed to :func:`rollout_metrics`.
@@ -197,13 +173,15 @@ def evaluate(
                 partial(candidate.simulate, case), repeats=repeats, warmup=warmup, device=candidate.device, clock=clock
             )
             scores = score_prediction(
-                prediction, case, horizons, granular_types, material_names, kinematic_types=kinematic_types, metrics=metrics
+                prediction, case, history, metadata, horizons, granular_types, material_names,
+                kinematic_types=kinematic_types, metrics=metrics,
             )
             summaries.append(summarise(scores))
             timings.append(timing)
             curves.append(None if scores["mse_per_step"] is None else scores["mse_per_step"][0].numpy())
-            if rollout_dir is not None and _same_particles(prediction, case):
-                save_rollout(Path(rollout_dir) / candidate.name / f"{case.key}.npz", _as_rollout(prediction, case))
+            if rollout_dir is not None and _same_particles(prediction, case, history):
+                path = Path(rollout_dir) / candidate.name / f"{case.key}.npz"
+                save_rollout(path, _as_rollout(prediction, case, history, metadata))
         entries.append(_entry(candidate, summaries, timings, curves, [case.key for case in cases]))
 
     reference = next((e for e in entries if e.reference), None)
@@ -211,7 +189,7 @@ def evaluate(
         entries = [_with_speedup(e, reference.seconds) for e in entries]
     gpu = next((c.device for c in candidates if c.device and torch.device(c.device).type == "cuda"), None)
     return Report(
-        entries, error_metric, len(cases), repeats, warmup, cases[0].metadata.dt, hardware_description(gpu),
+        entries, error_metric, len(cases), repeats, warmup, metadata.dt, hardware_description(gpu),
         metric_units(metrics),
     )
 
@@ -225,10 +203,12 @@ def score_rollout(
     kinematic_types: Collection[int] | None = None,
     metrics: Sequence[Metric] | None = None,
 ) -> dict[str, float | None]:
-    """Every metric of a rollout file's prediction against its ground truth (no timing)."""
+    """Every metric of a rollout's prediction against its ground truth (no timing); it needs its metadata."""
+    if rollout.metadata is None:
+        raise ValueError(f"{rollout.source}: scoring a rollout needs the dataset's metadata; the rollout has none")
     scores = score_prediction(
-        Prediction(rollout.predicted_rollout), Case.from_rollout(rollout), horizons, granular_types, material_names,
-        kinematic_types=kinematic_types, metrics=metrics,
+        Prediction(rollout.predicted), rollout.truth, rollout.history, rollout.metadata, horizons, granular_types,
+        material_names, kinematic_types=kinematic_types, metrics=metrics,
     )
     return summarise(scores)
 
@@ -253,13 +233,15 @@ def _host_float64(values: np.ndarray | torch.Tensor) -> torch.Tensor:
     return torch.as_tensor(values).detach().to("cpu", torch.float64)
 
 
-def _same_particles(prediction: Prediction, case: Case) -> bool:
-    return prediction.particle_type is None and np.shape(prediction.position) == case.ground_truth.shape
+def _same_particles(prediction: Prediction, case: Trajectory, history: int) -> bool:
+    return prediction.particle_type is None and np.shape(prediction.position) == case.position[history:].shape
 
 
 def score_prediction(
     prediction: Prediction,
-    case: Case,
+    case: Trajectory,
+    history: int,
+    metadata: DatasetMetadata,
     horizons: Sequence[int] = DEFAULT_HORIZONS,
     granular_types: Collection[int] = (),
     material_names: Mapping[int, str] | None = None,
@@ -269,33 +251,36 @@ def score_prediction(
 ) -> dict[str, torch.Tensor | None]:
     """Every metric of ``metrics`` for one prediction against its case's ground truth, in float64.
 
+    The case's first ``history`` frames are the input, the rest the truth; ``metadata``
+    gives the frames' time step and the domain's bounds.
     ``kinematic_types``: particle types left out of every error (the scene's
     ``kinematic_types``); ``metrics``: what is measured. None: those of the installed
     plugins (:meth:`~gns_framework.plugins.Registry.kinematic_types`, ``.metrics``).
     """
     kinematic_types, metrics = installed(kinematic_types, metrics)
     position = _host_float64(prediction.position)
-    if position.ndim != 3 or position.shape[0] != case.ground_truth.shape[0]:
+    ground_truth, last_input = case.position[history:], case.position[history - 1]
+    if position.ndim != 3 or position.shape[0] != ground_truth.shape[0]:
         raise ValueError(
-            f"case {case.key!r}: prediction must be (S, N, d) with S = {case.ground_truth.shape[0]} frames, "
+            f"case {case.key!r}: prediction must be (S, N, d) with S = {ground_truth.shape[0]} frames, "
             f"got {tuple(position.shape)}"
         )
     particle_type = case.particle_type if prediction.particle_type is None else prediction.particle_type
-    start = case.initial_positions[-1] if prediction.start is None else prediction.start
+    start = last_input if prediction.start is None else prediction.start
     predicted = ParticleRollout.of(
         position, torch.as_tensor(particle_type), start=_host_float64(start), kinematic_types=kinematic_types
     )
     target = ParticleRollout.of(
-        torch.as_tensor(case.ground_truth, dtype=torch.float64),
+        torch.as_tensor(ground_truth, dtype=torch.float64),
         torch.as_tensor(case.particle_type),
-        start=torch.as_tensor(case.initial_positions[-1], dtype=torch.float64),
+        start=torch.as_tensor(last_input, dtype=torch.float64),
         kinematic_types=kinematic_types,
     )
     pair = RolloutPair(
         predicted,
         target,
-        dt=case.metadata.dt,
-        bounds=case.metadata.bounds,
+        dt=metadata.dt,
+        bounds=metadata.bounds,
         same_particles=prediction.particle_type is None,
         horizons=horizons,
         granular_types=granular_types,
@@ -304,14 +289,12 @@ def score_prediction(
     return rollout_metrics(pair, metrics)
 
 
-def _as_rollout(prediction: Prediction, case: Case) -> Rollout:
+def _as_rollout(prediction: Prediction, case: Trajectory, history: int, metadata: DatasetMetadata) -> Rollout:
     return Rollout(
-        initial_positions=case.initial_positions,
-        predicted_rollout=_host_float64(prediction.position).numpy().astype(np.float32),
-        ground_truth_rollout=case.ground_truth,
-        particle_type=case.particle_type,
-        metadata=case.metadata,
-        material_property=case.material_property,
+        truth=case,
+        predicted=_host_float64(prediction.position).numpy().astype(np.float32),
+        history=history,
+        metadata=metadata,
         source=case.key,
     )
 

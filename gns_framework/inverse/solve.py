@@ -21,10 +21,10 @@ import torch
 from ..assembly.data import open_dataset
 from ..assembly.trained import LoadedModel, load_trained
 from ..data.atomic import write_text_atomic
+from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..evaluation.candidates import granular_particle_types
 from ..io.rollout_file import write_rollout
-from ..model.rollout import RolloutResult
 from ..plugins import Registry
 from ..runtime.activation_memory import activations_recomputed
 from .config import InvertConfig, PropertyUnknown, VelocityUnknown
@@ -145,8 +145,13 @@ def solve(inversion: Inversion, on_iteration=lambda iterate: None) -> InversionR
     )
 
 
-def recovered_rollout(inversion: Inversion, result: InversionResult) -> RolloutResult:
-    """The learned rollout of the whole observed trajectory from the recovered unknowns."""
+def recovered_rollout(inversion: Inversion, result: InversionResult) -> Rollout:
+    """The learned rollout of the whole observed trajectory from the recovered unknowns.
+
+    Its truth is the observation after the C input frames the recovered unknowns give
+    (an initial velocity changes them), with the recovered material properties: a
+    rollout file holds one set of input frames and properties for both trajectories.
+    """
     problem = inversion.problem
     u = torch.from_numpy(result.u)
     trajectory = inversion.trajectory
@@ -157,11 +162,12 @@ def recovered_rollout(inversion: Inversion, result: InversionResult) -> RolloutR
         state = problem.model_inputs(u)
         predicted = differentiable_rollout(problem.simulator, state, observed)
     initial = state.position_sequence.transpose(0, 1).cpu().numpy()
-    return RolloutResult(
-        initial_positions=initial,
+    recovered = None if state.material_property is None else state.material_property.cpu().numpy()
+    truth = np.concatenate([initial, observed.cpu().numpy()])
+    return Rollout(
+        truth=replace(trajectory, position=truth, material_property=recovered),
         predicted=predicted.cpu().numpy(),
-        ground_truth=observed.cpu().numpy(),
-        trajectory=replace(trajectory, material_property=None if state.material_property is None else state.material_property.cpu().numpy()),
+        history=history,
         predicted_particles=problem.moving.cpu().numpy(),
     )
 

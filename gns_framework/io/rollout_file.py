@@ -16,85 +16,52 @@ field                     shape       meaning
 Positions are float32 in the dataset's length unit; frames are ``metadata.dt``
 seconds apart. Predicted positions may be non-finite (a diverged model is a
 result to report, not a malformed file); every other array must be finite.
+
+In memory a file is a :class:`~gns_framework.data.rollout.Rollout`: its true
+trajectory is ``initial_positions`` followed by ``ground_truth_rollout``, named
+after the file.
 """
 
 from __future__ import annotations
 
 import json
 import zipfile
-from dataclasses import dataclass
+from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..data.atomic import atomic_path
 from ..data.metadata import DatasetMetadata, parse_metadata
+from ..data.rollout import Rollout
+from ..data.trajectory import Trajectory
 from ..errors import DatasetError, RolloutDiverged, located
-
-if TYPE_CHECKING:
-    from ..model.rollout import RolloutResult
 
 REQUIRED_FIELDS = ("initial_positions", "predicted_rollout", "ground_truth_rollout", "particle_type", "metadata_json")
 OPTIONAL_FIELDS = ("material_property",)
 
 
-@dataclass(frozen=True)
-class Rollout:
-    """A validated rollout file in memory (shapes as in the module docstring)."""
+def _validated_fields(
+    src: str, fields: dict[str, np.ndarray | None], metadata: DatasetMetadata
+) -> dict[str, np.ndarray | None]:
+    """Check a rollout file's arrays (every field but ``metadata_json``); return them with canonical dtypes.
 
-    initial_positions: np.ndarray
-    predicted_rollout: np.ndarray
-    ground_truth_rollout: np.ndarray
-    particle_type: np.ndarray
-    metadata: DatasetMetadata
-    material_property: np.ndarray | None = None
-    source: str = "<memory>"
-
-    @property
-    def num_steps(self) -> int:
-        """S, the number of rolled-out frames."""
-        return int(self.predicted_rollout.shape[0])
-
-    @property
-    def num_particles(self) -> int:
-        return int(self.particle_type.shape[0])
-
-    @property
-    def dim(self) -> int:
-        return int(self.initial_positions.shape[2])
-
-    def predicted_trajectory(self) -> np.ndarray:
-        """(C + S, N, d): input frames followed by the prediction."""
-        return np.concatenate([self.initial_positions, self.predicted_rollout])
-
-    def ground_truth_trajectory(self) -> np.ndarray:
-        """(C + S, N, d): input frames followed by the ground truth."""
-        return np.concatenate([self.initial_positions, self.ground_truth_rollout])
-
-
-def validate_rollout(rollout: Rollout) -> Rollout:
-    """Check shapes, dtypes and values; return a copy with canonical dtypes.
-
-    Raises DatasetError naming the source file and the field at fault.
+    Raises DatasetError naming ``src`` (the file) and the field at fault.
     """
-    src = rollout.source
-    initial = np.asarray(rollout.initial_positions)
+    initial = np.asarray(fields["initial_positions"])
     if initial.ndim != 3 or initial.shape[2] not in (2, 3) or initial.shape[0] < 1:
         raise DatasetError(
             located(src, "initial_positions", f"expected shape (C, N, d) with d = 2 or 3, got {initial.shape}")
         )
     _, n, d = initial.shape
-    if d != rollout.metadata.dim:
-        raise DatasetError(
-            located(src, "initial_positions", f"has d = {d} but metadata says dim = {rollout.metadata.dim}")
-        )
+    if d != metadata.dim:
+        raise DatasetError(located(src, "initial_positions", f"has d = {d} but metadata says dim = {metadata.dim}"))
     _require_finite(src, "initial_positions", initial)
-    truth = np.asarray(rollout.ground_truth_rollout)
+    truth = np.asarray(fields["ground_truth_rollout"])
     if truth.ndim != 3 or truth.shape[1:] != (n, d) or truth.shape[0] < 1:
         raise DatasetError(located(src, "ground_truth_rollout", f"expected shape (S, {n}, {d}), got {truth.shape}"))
     _require_finite(src, "ground_truth_rollout", truth)
-    predicted = np.asarray(rollout.predicted_rollout)
+    predicted = np.asarray(fields["predicted_rollout"])
     if not np.issubdtype(predicted.dtype, np.number):
         raise DatasetError(located(src, "predicted_rollout", f"expected numbers, got {predicted.dtype}"))
     if predicted.shape != truth.shape:
@@ -105,14 +72,14 @@ def validate_rollout(rollout: Rollout) -> Rollout:
                 f"expected shape {truth.shape} like ground_truth_rollout, got {predicted.shape}",
             )
         )
-    ptype = np.asarray(rollout.particle_type)
+    ptype = np.asarray(fields["particle_type"])
     if ptype.shape != (n,):
         raise DatasetError(located(src, "particle_type", f"expected shape ({n},), got {ptype.shape}"))
     if not np.issubdtype(ptype.dtype, np.integer):
         raise DatasetError(located(src, "particle_type", f"expected integer ids, got {ptype.dtype}"))
     if ptype.min() < 0:
         raise DatasetError(located(src, "particle_type", f"ids must be >= 0, got {ptype.min()}"))
-    prop = rollout.material_property
+    prop = fields.get("material_property")
     if prop is not None:
         prop = np.asarray(prop, dtype=np.float32)
         if prop.ndim == 1:
@@ -120,15 +87,13 @@ def validate_rollout(rollout: Rollout) -> Rollout:
         if prop.ndim != 2 or prop.shape[0] != n:
             raise DatasetError(located(src, "material_property", f"expected shape ({n}, P), got {prop.shape}"))
         _require_finite(src, "material_property", prop)
-    return Rollout(
-        initial_positions=initial.astype(np.float32, copy=False),
-        predicted_rollout=predicted.astype(np.float32, copy=False),
-        ground_truth_rollout=truth.astype(np.float32, copy=False),
-        particle_type=ptype.astype(np.int64, copy=False),
-        metadata=rollout.metadata,
-        material_property=prop,
-        source=src,
-    )
+    return {
+        "initial_positions": initial.astype(np.float32, copy=False),
+        "predicted_rollout": predicted.astype(np.float32, copy=False),
+        "ground_truth_rollout": truth.astype(np.float32, copy=False),
+        "particle_type": ptype.astype(np.int64, copy=False),
+        "material_property": prop,
+    }
 
 
 def _require_finite(source: str, field: str, values: np.ndarray) -> None:
@@ -140,18 +105,28 @@ def _require_finite(source: str, field: str, values: np.ndarray) -> None:
 
 
 def save_rollout(path: str | Path, rollout: Rollout) -> Path:
-    """Validate ``rollout`` and write it to ``path`` (an ``.npz``, compressed)."""
+    """Validate ``rollout`` (which must carry its metadata) and write it to ``path`` (an ``.npz``, compressed).
+
+    Raises DatasetError naming ``rollout.source`` and the file field at fault.
+    """
     path = Path(path)
-    rollout = validate_rollout(rollout)
-    arrays = {
-        "initial_positions": rollout.initial_positions,
-        "predicted_rollout": rollout.predicted_rollout,
-        "ground_truth_rollout": rollout.ground_truth_rollout,
-        "particle_type": rollout.particle_type,
-        "metadata_json": np.array(json.dumps(rollout.metadata.to_json_dict())),
-    }
-    if rollout.material_property is not None:
-        arrays["material_property"] = rollout.material_property
+    if rollout.metadata is None:
+        raise ValueError(f"{rollout.source}: a rollout file needs the dataset's metadata; the rollout has none")
+    fields = _validated_fields(
+        rollout.source,
+        {
+            "initial_positions": rollout.initial_positions,
+            "predicted_rollout": rollout.predicted,
+            "ground_truth_rollout": rollout.ground_truth,
+            "particle_type": rollout.particle_type,
+            "material_property": rollout.material_property,
+        },
+        rollout.metadata,
+    )
+    material_property = fields.pop("material_property")
+    arrays = {**fields, "metadata_json": np.array(json.dumps(rollout.metadata.to_json_dict()))}
+    if material_property is not None:
+        arrays["material_property"] = material_property
     with atomic_path(path, suffix=".npz") as tmp:
         np.savez_compressed(tmp, **arrays)
     return path
@@ -192,46 +167,33 @@ def load_rollout(path: str | Path) -> Rollout:
     if not isinstance(metadata_dict, dict):
         raise DatasetError(located(src, "metadata_json", f"expected a JSON object, got {type(metadata_dict).__name__}"))
     metadata = parse_metadata(metadata_dict, f"{src}: metadata_json")
-    return validate_rollout(
-        Rollout(
-            initial_positions=fields["initial_positions"],
-            predicted_rollout=fields["predicted_rollout"],
-            ground_truth_rollout=fields["ground_truth_rollout"],
-            particle_type=fields["particle_type"],
-            metadata=metadata,
-            material_property=fields.get("material_property"),
-            source=src,
-        )
+    arrays = _validated_fields(src, fields, metadata)
+    initial = arrays["initial_positions"]
+    truth = Trajectory(
+        np.concatenate([initial, arrays["ground_truth_rollout"]]),
+        arrays["particle_type"],
+        arrays["material_property"],
+        key=path.stem,
     )
+    return Rollout(truth, arrays["predicted_rollout"], len(initial), metadata, source=src)
 
 
 def write_rollout(
-    path: str | Path, result: "RolloutResult", metadata: DatasetMetadata, allow_non_finite: bool = False
+    path: str | Path, rollout: Rollout, metadata: DatasetMetadata, allow_non_finite: bool = False
 ) -> Path:
-    """Save a rollout with its ground truth, atomically; an existing file is replaced only on success.
+    """Save a rollout with ``metadata``, atomically; an existing file is replaced only on success.
 
     Non-finite predictions (from a rollout made without a guard) are refused unless
     ``allow_non_finite`` says a diverged rollout is to be kept as a result.
     """
-    finite = np.isfinite(result.predicted).all(axis=(1, 2))
+    finite = np.isfinite(rollout.predicted).all(axis=(1, 2))
     if not allow_non_finite and not finite.all():
         step = int(np.argmin(finite))
-        particles = np.flatnonzero(~np.isfinite(result.predicted[step]).all(axis=-1))
+        particles = np.flatnonzero(~np.isfinite(rollout.predicted[step]).all(axis=-1))
         raise RolloutDiverged(
             f"{path}: predicted_rollout: non-finite positions from step {step} on "
             f"(particles {particles[:5].tolist()}{', ...' if len(particles) > 5 else ''}, {len(particles)} in all); "
             "not written (pass allow_non_finite=True to keep a diverged rollout)",
-            trajectory=result.trajectory.key, step=step, particles=particles.tolist(), cause="non-finite positions",
+            trajectory=rollout.key, step=step, particles=particles.tolist(), cause="non-finite positions",
         )
-
-    return save_rollout(
-        path,
-        Rollout(
-            initial_positions=result.initial_positions.astype(np.float32),
-            predicted_rollout=result.predicted.astype(np.float32),
-            ground_truth_rollout=result.ground_truth.astype(np.float32),
-            particle_type=result.trajectory.particle_type.astype(np.int64),
-            metadata=metadata,
-            material_property=result.trajectory.material_property,
-        ),
-    )
+    return save_rollout(path, replace(rollout, metadata=metadata))

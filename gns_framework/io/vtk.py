@@ -14,7 +14,7 @@ from xml.etree import ElementTree
 
 import numpy as np
 
-from .rollout_file import Rollout
+from ..data.rollout import Rollout
 
 
 def _as_3d(values: np.ndarray) -> np.ndarray:
@@ -89,7 +89,7 @@ def write_vtk_series(
 def write_rollout_vtk(
     rollout: Rollout, directory: str | Path, property_names: Sequence[str] | None = None
 ) -> dict[str, Path]:
-    """Write the predicted and the true trajectory of a rollout (input frames included).
+    """Write the predicted and the true trajectory of a rollout with its metadata (input frames included).
 
     Returns ``{"predicted": <pvd>, "ground_truth": <pvd>}``; frame times count from
     the first input frame.

@@ -1,14 +1,15 @@
 """Autoregressive rollouts, guarded.
 
 Every predicted frame passes a :class:`~gns_framework.model.rollout_guard.RolloutGuard`;
-:func:`gns_framework.io.rollout_file.write_rollout` saves a result with its
-ground truth and refuses non-finite predictions unless told otherwise, so no NaN
-reaches a file silently.
+the result is a :class:`~gns_framework.data.rollout.Rollout`, the prediction beside
+its ground truth, which :func:`gns_framework.io.rollout_file.write_rollout` saves,
+refusing non-finite predictions unless told otherwise, so no NaN reaches a file
+silently.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -16,6 +17,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from ..data.batch import ParticleBatch, window
+from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..errors import DatasetError
 from ..runtime.allocator import keep_freed_memory
@@ -23,23 +25,6 @@ from ..runtime.host_sync import avoids_read_backs
 from ..runtime.precision import Precision, autocast
 from .learned_simulator import LearnedSimulator
 from .rollout_guard import GuardViolation, RolloutGuard
-
-
-@dataclass(frozen=True)
-class RolloutResult:
-    initial_positions: np.ndarray
-    predicted: np.ndarray
-    ground_truth: np.ndarray
-    trajectory: Trajectory
-    predicted_particles: np.ndarray
-    guard_violations: tuple[GuardViolation, ...] = ()
-    """What the guard clamped (empty when nothing was, or when it stops instead)."""
-
-    @property
-    def position_mse(self) -> float:
-        """MSE over steps, predicted (non-kinematic) particles and dimensions."""
-        moving = self.predicted_particles
-        return float(((self.predicted - self.ground_truth)[:, moving] ** 2).mean())
 
 
 @torch.inference_mode()
@@ -51,8 +36,12 @@ def rollout(
     progress: bool = False,
     guard: RolloutGuard | None = None,
     precision: Precision = "float32",
-) -> RolloutResult:
+) -> Rollout:
     """Predict ``steps`` frames from the first C of ``trajectory``.
+
+    Returns the prediction beside ``trajectory``'s first C + ``steps`` frames, with
+    the particles the model predicts and what the guard clamped (no metadata: the
+    model does not know the dataset's).
 
     Kinematic particles follow their prescribed (ground-truth) positions; every other
     particle only ever sees its own predictions. ``guard`` checks every predicted
@@ -104,11 +93,10 @@ def rollout(
         sequence = torch.cat([sequence[:, 1:], continued[:, None]], dim=1)
     for done, raw in frames.drain():
         checked(done, raw)
-    return RolloutResult(
-        initial_positions=trajectory.position[:history],
+    return Rollout(
+        truth=trajectory.first_frames(history + steps),
         predicted=predicted.numpy(),
-        ground_truth=truth.numpy(),
-        trajectory=trajectory,
+        history=history,
         predicted_particles=moving.cpu().numpy(),
         guard_violations=tuple(violations),
     )

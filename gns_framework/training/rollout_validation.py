@@ -16,7 +16,7 @@ import torch
 
 from ..data.metadata import DatasetMetadata
 from ..data.trajectory import Trajectory
-from ..evaluation.candidates import cases_from_split, learned_positions
+from ..evaluation.candidates import learned_positions
 from ..evaluation.report import Prediction, score_prediction
 from ..model.learned_simulator import LearnedSimulator
 from ..plugins import load_registry
@@ -43,13 +43,12 @@ def validation_rollout_metrics(
     where the scene has granular particles.
     """
     totals: dict[str, list[float]] = {name: [] for name in METRICS}
-    cases = cases_from_split(trajectories, metadata, simulator.scene.history)
     measured = [m for m in load_registry().metrics() if m.name in METRICS.values()]
-    for trajectory, case in zip(trajectories, cases):
+    for trajectory in trajectories:
         prediction = Prediction(learned_positions(simulator, trajectory, device))
         metrics = score_prediction(
-            prediction, case, granular_types=granular_types, kinematic_types=simulator.scene.kinematic_types,
-            metrics=measured,
+            prediction, trajectory, simulator.scene.history, metadata, granular_types=granular_types,
+            kinematic_types=simulator.scene.kinematic_types, metrics=measured,
         )
         for name, key in METRICS.items():
             value = metrics.get(key)

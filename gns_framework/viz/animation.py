@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.rollout_file import Rollout
+from ..data.rollout import Rollout
 
 
 def frame_indices(num_frames: int, every: int) -> list[int]:
@@ -114,7 +114,7 @@ def animate_rollout(
     fps: int = 20,
     material_names: Mapping[int, str] | None = None,
 ) -> Path:
-    """GIF of a rollout file's trajectory, input frames included (see :func:`animate_side_by_side`)."""
+    """GIF of a rollout with its metadata (as loaded from a file), input frames included (:func:`animate_side_by_side`)."""
     return animate_side_by_side(
         path,
         rollout.predicted_trajectory(),
@@ -125,5 +125,5 @@ def animate_rollout(
         every=every,
         fps=fps,
         material_names=material_names,
-        first_rolled_out_frame=len(rollout.initial_positions),
+        first_rolled_out_frame=rollout.history,
     )

@@ -249,7 +249,7 @@ def test_per_material_breakdown_names_each_material():
 def test_exact_rollout_has_zero_error_everywhere(make_rollout):
     rollout = make_rollout(steps=8)
     truth = rollout_of(
-        torch.as_tensor(rollout.ground_truth_rollout, dtype=torch.float64),
+        torch.as_tensor(rollout.ground_truth, dtype=torch.float64),
         torch.as_tensor(rollout.particle_type),
         start=torch.as_tensor(rollout.initial_positions[-1], dtype=torch.float64),
     )
@@ -264,7 +264,7 @@ def test_exact_rollout_has_zero_error_everywhere(make_rollout):
 def test_different_particles_drop_position_errors_but_keep_distribution_metrics(make_rollout):
     rollout = make_rollout(steps=5, particles=12)
     truth = rollout_of(
-        torch.as_tensor(rollout.ground_truth_rollout, dtype=torch.float64), torch.as_tensor(rollout.particle_type)
+        torch.as_tensor(rollout.ground_truth, dtype=torch.float64), torch.as_tensor(rollout.particle_type)
     )
     coarse = rollout_of(truth.position[0, :, ::2], truth.particle_type[0, ::2])
     metrics = measure(coarse, truth, dt=0.01, bounds=UNIT_BOX, same_particles=False)

@@ -9,7 +9,8 @@ import pytest
 import torch
 from PIL import Image
 
-from gns_framework.evaluation.report import Candidate, Case, Prediction, evaluate, score_rollout, write_report
+from gns_framework.data.trajectory import Trajectory
+from gns_framework.evaluation.report import Candidate, Prediction, evaluate, score_rollout, write_report
 from gns_framework.hookspecs import hookimpl
 from gns_framework.io.rollout_file import load_rollout
 from gns_framework.plugin_types import Metric
@@ -42,7 +43,7 @@ def falling_sand(start: np.ndarray, velocity: np.ndarray, substeps: int) -> np.n
 
 @pytest.fixture
 def scenes(make_metadata):
-    """Two test cases made by the reference setting (16 substeps), with their initial states."""
+    """Two test cases made by the reference setting (16 substeps), with their initial states and metadata."""
     metadata = make_metadata(dim=2, dt=DT)
     states, cases = {}, []
     for seed in range(2):
@@ -52,12 +53,12 @@ def scenes(make_metadata):
         frames = falling_sand(start, velocity, substeps=16)
         key = f"case{seed}"
         states[key] = (start, velocity)
-        cases.append(Case(frames[:HISTORY], frames[HISTORY:], np.full(40, SAND), metadata, key=key))
-    return states, cases
+        cases.append(Trajectory(frames, np.full(40, SAND), key=key))
+    return states, cases, metadata
 
 
 def simulator(states, substeps: int, every_other_particle: bool = False):
-    def simulate(case: Case) -> Prediction:
+    def simulate(case: Trajectory) -> Prediction:
         start, velocity = states[case.key]
         if every_other_particle:
             start, velocity = start[::2], velocity[::2]
@@ -69,10 +70,10 @@ def simulator(states, substeps: int, every_other_particle: bool = False):
     return simulate
 
 
-def learned(case: Case) -> Prediction:
+def learned(case: Trajectory) -> Prediction:
     """A model's rollout, as a tensor like a model returns it, drifting 0.002 L per step."""
     drift = 0.002 * np.arange(1, STEPS + 1)[:, None, None]
-    return Prediction(torch.as_tensor(case.ground_truth + drift, dtype=torch.float32))
+    return Prediction(torch.as_tensor(case.position[HISTORY:] + drift, dtype=torch.float32))
 
 
 class WorkClock:
@@ -113,11 +114,13 @@ def candidates(states, clock: WorkClock | None = None):
 
 @pytest.fixture
 def report(scenes, tmp_path):
-    states, cases = scenes
+    states, cases, metadata = scenes
     clock = WorkClock()
     return evaluate(
         candidates(states, clock),
         cases,
+        metadata,
+        HISTORY,
         repeats=2,
         warmup=1,
         granular_types={SAND},
@@ -190,16 +193,17 @@ def test_rollouts_of_the_same_particles_are_saved_for_rendering(report, tmp_path
 
 
 def test_invalid_candidate_lists_are_refused(scenes):
-    states, cases = scenes
+    states, cases, metadata = scenes
     twice = [candidates(states)[0], Candidate("other", "simulator", simulator(states, 2), reference=True)]
     with pytest.raises(ValueError, match="at most one reference"):
-        evaluate(twice, cases)
+        evaluate(twice, cases, metadata, HISTORY)
     with pytest.raises(ValueError, match="unique"):
-        evaluate([candidates(states)[4]] * 2, cases)
+        evaluate([candidates(states)[4]] * 2, cases, metadata, HISTORY)
     with pytest.raises(ValueError, match="unknown error_metric"):
-        evaluate(candidates(states)[4:], cases, error_metric="accuracy")
+        evaluate(candidates(states)[4:], cases, metadata, HISTORY, error_metric="accuracy")
+    short = Candidate("short", "learned", lambda case: Prediction(case.position[HISTORY : HISTORY + 3]))
     with pytest.raises(ValueError, match="S = 12 frames"):
-        evaluate([Candidate("short", "learned", lambda case: Prediction(case.ground_truth[:3]))], cases)
+        evaluate([short], cases, metadata, HISTORY)
 
 
 def test_score_rollout_file(make_rollout):

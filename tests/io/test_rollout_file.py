@@ -15,39 +15,43 @@ from gns_framework.io.rollout_file import load_rollout, save_rollout
 def test_round_trip_keeps_every_field(make_rollout, tmp_path):
     rollout = make_rollout(dim=3)
     loaded = load_rollout(save_rollout(tmp_path / "r.npz", rollout))
-    for field in (
-        "initial_positions",
-        "predicted_rollout",
-        "ground_truth_rollout",
-        "particle_type",
-        "material_property",
-    ):
+    for field in ("initial_positions", "predicted", "ground_truth", "particle_type", "material_property"):
         np.testing.assert_array_equal(getattr(loaded, field), getattr(rollout, field))
     assert loaded.metadata == rollout.metadata
-    assert loaded.particle_type.dtype == np.int64 and loaded.predicted_rollout.dtype == np.float32
+    assert loaded.particle_type.dtype == np.int64 and loaded.predicted.dtype == np.float32
     assert (loaded.num_steps, loaded.num_particles, loaded.dim) == (8, 12, 3)
     assert loaded.predicted_trajectory().shape == (14, 12, 3)
 
 
 def test_diverged_prediction_loads(make_rollout, tmp_path):
     rollout = make_rollout()
-    predicted = rollout.predicted_rollout.copy()
+    predicted = rollout.predicted.copy()
     predicted[-1, 0] = np.nan
-    loaded = load_rollout(save_rollout(tmp_path / "r.npz", replace(rollout, predicted_rollout=predicted)))
-    assert np.isnan(loaded.predicted_rollout[-1, 0]).all()
+    loaded = load_rollout(save_rollout(tmp_path / "r.npz", replace(rollout, predicted=predicted)))
+    assert np.isnan(loaded.predicted[-1, 0]).all()
 
 
 def write_fields(path, rollout, **changes):
     fields = {
         "initial_positions": rollout.initial_positions,
-        "predicted_rollout": rollout.predicted_rollout,
-        "ground_truth_rollout": rollout.ground_truth_rollout,
+        "predicted_rollout": rollout.predicted,
+        "ground_truth_rollout": rollout.ground_truth,
         "particle_type": rollout.particle_type,
         "metadata_json": np.array(json.dumps(rollout.metadata.to_json_dict())),
     }
     fields.update(changes)
     np.savez(path, **{k: v for k, v in fields.items() if v is not None})
     return path
+
+
+def test_a_file_written_field_by_field_loads_as_its_truth_and_prediction(make_rollout, tmp_path):
+    """The file's layout is fixed: one written without the record (files from earlier versions) loads the same."""
+    rollout = make_rollout()
+    loaded = load_rollout(write_fields(tmp_path / "earlier.npz", rollout, material_property=rollout.material_property))
+    np.testing.assert_array_equal(loaded.truth.position, rollout.truth.position)
+    np.testing.assert_array_equal(loaded.predicted, rollout.predicted)
+    np.testing.assert_array_equal(loaded.material_property, rollout.material_property)
+    assert (loaded.history, loaded.key, loaded.source) == (6, "earlier", str(tmp_path / "earlier.npz"))
 
 
 @pytest.mark.parametrize(

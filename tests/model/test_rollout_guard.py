@@ -113,7 +113,7 @@ def test_write_rollout_refuses_nan_and_leaves_the_old_file(tmp_path):
         write_rollout(path, bad, metadata)
     assert path.read_bytes() == before
     write_rollout(path, bad, metadata, allow_non_finite=True)
-    assert np.isnan(load_rollout(path).predicted_rollout[1, 4]).all()
+    assert np.isnan(load_rollout(path).predicted[1, 4]).all()
 
 
 def test_recipe_guard_section_is_validated():
@@ -155,7 +155,7 @@ def test_gns_rollout_with_clamp_writes_the_clamped_rollout_and_says_so(nan_check
     assert code == 0
     assert "clamped at 3 check(s)" in captured.out
     assert "warning:" in captured.err and "step 2 (frame 8)" in captured.err
-    assert np.isfinite(load_rollout(tmp_path / "test_0000.npz").predicted_rollout).all()
+    assert np.isfinite(load_rollout(tmp_path / "test_0000.npz").predicted).all()
 
 
 def test_rollout_refuses_trajectories_the_model_was_not_built_for():
