@@ -69,7 +69,12 @@ class MaterialProperty:
 
 @dataclass(frozen=True)
 class Scene:
-    """What the model must know of the scenes it simulates; sizes follow from it.
+    """What a learned model must know of the scenes it simulates; its sizes follow from it.
+
+    Derived from the training data (:mod:`gns_framework.assembly.scene`) and stored in
+    every checkpoint. A scene *file* (``scenes/*.yaml``, read into
+    :class:`gns_framework.ground_truth.scene_spec.SceneSpec`) is what the ground-truth
+    simulator runs; this is the learned model's summary of the scenes in its data.
 
     Attributes:
         dim: spatial dimensions d (2 or 3).

@@ -22,7 +22,7 @@ COMMAND_GROUP = "gns_framework.commands"
 BUILTIN_COMMANDS = (
     Command(
         "demo",
-        "simulate a small sand dataset, train the reference recipe briefly, roll out, report error vs run time",
+        "roll the pretrained model out on sand collapses it never saw, train a short model, report error vs run time",
         "gns_framework.cli.demo",
     ),
     Command("plugins", "list installed components by kind, with their source and distribution", "gns_framework.cli.plugins"),
