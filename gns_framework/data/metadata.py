@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from ..errors import DatasetError
 from .trajectory import Trajectory
 
+
 class DatasetMetadata(BaseModel):
     """The keys of a ``metadata.json`` shared by DeepMind, geoelements and our layouts.
 

@@ -114,3 +114,22 @@ def test_failing_rows_are_marked_and_every_column_printed():
     row = Row("g", "c", "energy grows", "figures", failing=True)
     assert format_row(row).split() == ["g", "c", "FAIL:", "energy", "grows", "figures"]
     assert format_row(Row("g", "c", "finite", "")).split() == ["g", "c", "finite"]
+
+
+class OnlyIntegrator(SwappedIntegrators):
+    """The installed components with a single integrator, so its row is the first the report computes."""
+
+    def __init__(self, name: str):
+        super().__init__({})
+        self.only = name
+
+    def entries(self, kind: str):
+        entries = self.registry.entries(kind)
+        return [e for e in entries if e.name == self.only] if kind == "integrator" else entries
+
+
+def test_an_integrator_without_a_stability_bound_is_searched_on_its_own():
+    """Its dt search needs no bounded integrator computed before it (each row stands alone)."""
+    (row,) = chain_limits(OnlyIntegrator("explicit_euler"))
+    assert row.case == "explicit_euler" and not row.failing
+    assert row.outcome == "unstable for every dt" and "one-mode bound" in row.figures
