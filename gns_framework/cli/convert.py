@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from ..data.array_pickle import pickle_granted
-from ..errors import GnsError
+from ..errors import GnsError, RecipeError
 from ..plugins import load_registry
 from .arguments import add_allow_pickle
 
@@ -21,8 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     registry = load_registry()
-    source_cls, params = registry.resolve("dataset", {"name": args.source_layout}, source="--from")
-    target_cls, _ = registry.resolve("dataset", {"name": args.target_layout}, source="--to")
+    source_cls, params = _layout(registry, args.source_layout, "--from")
+    target_cls, _ = _layout(registry, args.target_layout, "--to")
     if not target_cls.writable:
         writable = [n for n in registry.names("dataset") if registry.get("dataset", n).writable]
         raise GnsError(f"dataset layout {args.target_layout!r} is read-only; writable: {', '.join(writable)}")
@@ -37,3 +37,11 @@ def run(args: argparse.Namespace) -> int:
     counts = ", ".join(f"{name} {len(trajectories)}" for name, trajectories in splits.items())
     print(f"converted {args.source} ({args.source_layout}) to {args.out} ({args.target_layout}): {counts}")
     return 0
+
+
+def _layout(registry, name: str, option: str):
+    """The dataset plugin a command-line option names, with its default parameters."""
+    try:
+        return registry.resolve("dataset", {"name": name})
+    except RecipeError as exc:
+        raise GnsError(f"{option} {name}: " + "; ".join(message for _, message in exc.problems)) from None

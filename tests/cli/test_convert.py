@@ -175,7 +175,10 @@ def test_a_record_that_is_not_a_trajectory_is_located(registry, tmp_path):
 def test_convert_refuses_a_read_only_or_unknown_layout(source, tmp_path, capsys):
     src, _ = source
     assert main(["convert", str(src), "--from", "safe", "--to", "nope", "--out", str(tmp_path / "x")]) == 2
-    assert "unknown dataset 'nope'" in capsys.readouterr().err
+    assert "--to nope: unknown dataset 'nope'" in capsys.readouterr().err
+    assert main(["convert", str(src), "--from", "saf", "--to", "npz", "--out", str(tmp_path / "x")]) == 2
+    assert "--from saf: unknown dataset 'saf' (did you mean 'safe'?)" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
 
 
 class _Ochre(Material):
