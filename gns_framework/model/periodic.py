@@ -12,6 +12,7 @@ import torch
 from torch import Tensor
 
 from ..contracts import Scene
+from ..runtime.host_sync import PerDevice
 
 
 class PeriodicBox:
@@ -26,23 +27,19 @@ class PeriodicBox:
         bounds = torch.tensor(scene.bounds, dtype=torch.float64)
         self.lower = bounds[self.dims, 0]
         self.length = bounds[self.dims, 1] - bounds[self.dims, 0]
-        self._on: dict[tuple[torch.device, torch.dtype], tuple[Tensor, Tensor, Tensor]] = {}
+        self._constants = PerDevice(self._make_constants)
 
     @property
     def active(self) -> bool:
         return bool(self.dims)
 
     def constants(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """``(dims, lower, length)`` on ``like``'s device, the last two in its dtype; made once per device and dtype.
+        """``(dims, lower, length)`` on ``like``'s device, the last two in its dtype; made once per device and dtype."""
+        return self._constants(like)
 
-        A host tensor moved to the device on every call would be a copy (and a stream
-        synchronisation on GPUs) per call.
-        """
-        key = (like.device, like.dtype)
-        if key not in self._on:
-            dims = torch.tensor(self.dims, dtype=torch.long, device=like.device)
-            self._on[key] = dims, self.lower.to(like), self.length.to(like)
-        return self._on[key]
+    def _make_constants(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        dims = torch.tensor(self.dims, dtype=torch.long, device=like.device)
+        return dims, self.lower.to(like), self.length.to(like)
 
     def minimum_image(self, difference: Tensor) -> Tensor:
         """(..., d) differences of positions -> the same with periodic components in [-L/2, L/2)."""

@@ -20,6 +20,7 @@ from torch import Tensor
 from ..config.recipe import RolloutGuardSpec
 from ..contracts import Scene
 from ..errors import RolloutDiverged
+from ..runtime.host_sync import PerDevice
 
 SHOWN_PARTICLES = 5
 """Particle indices listed in a message before the count takes over."""
@@ -62,7 +63,7 @@ class RolloutGuard:
         self.margin = math.inf if margin is None else float(margin)
         self.on_violation = on_violation
         self.history = scene.history
-        self._walled_on: dict[tuple[torch.device, torch.dtype], tuple[Tensor, Tensor, Tensor]] = {}
+        self._walled = PerDevice(self._make_walled)
 
     @classmethod
     def from_spec(cls, scene: Scene, spec: RolloutGuardSpec) -> "RolloutGuard":
@@ -114,13 +115,10 @@ class RolloutGuard:
         escaped = (self._beyond_walls(position) > self.margin) & ~non_finite
         return self._onto_walls(position, escaped)
 
-    def _walled(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """``(walled dims, lower, upper)`` on ``like``'s device and dtype, made once per device and dtype."""
-        key = (like.device, like.dtype)
-        if key not in self._walled_on:
-            dims = torch.tensor(self.walled, dtype=torch.long, device=like.device)
-            self._walled_on[key] = dims, self.lower.to(like), self.upper.to(like)
-        return self._walled_on[key]
+    def _make_walled(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """``(walled dims, lower, upper)`` on ``like``'s device and dtype (kept per device and dtype by ``_walled``)."""
+        dims = torch.tensor(self.walled, dtype=torch.long, device=like.device)
+        return dims, self.lower.to(like), self.upper.to(like)
 
     def _beyond_walls(self, position: Tensor) -> Tensor:
         """(N,) largest distance by which a particle is outside a wall (0 inside)."""

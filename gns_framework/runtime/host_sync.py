@@ -15,8 +15,13 @@ any other read fail (``tests/runtime/test_host_sync.py``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Generic, TypeVar
+
 import torch
 from torch import Tensor
+
+T = TypeVar("T")
 
 
 def avoids_read_backs(device: torch.device) -> bool:
@@ -31,3 +36,22 @@ def avoids_read_backs(device: torch.device) -> bool:
 def read_back(tensor: Tensor) -> list:
     """The values of ``tensor`` as a (nested) list on the host: one of the documented waits for the device."""
     return tensor.tolist()
+
+
+class PerDevice(Generic[T]):
+    """What ``make(like)`` returns, made the first time ``like``'s device and dtype are met and kept.
+
+    Constants built on the host (index lists, box bounds) and moved to the device on
+    every call would be a copy, and on a GPU a stream synchronisation, per call; made
+    once per device and dtype they cost nothing after the first step.
+    """
+
+    def __init__(self, make: Callable[[Tensor], T]):
+        self._make = make
+        self._made: dict[tuple[torch.device, torch.dtype], T] = {}
+
+    def __call__(self, like: Tensor) -> T:
+        key = (like.device, like.dtype)
+        if key not in self._made:
+            self._made[key] = self._make(like)
+        return self._made[key]

@@ -10,6 +10,7 @@ from torch import Tensor
 from gns_framework.contracts import Graph, GraphBuilder, Params, Scene
 from gns_framework.errors import RecipeError
 from gns_framework.model.periodic import PeriodicBox
+from gns_framework.runtime.host_sync import PerDevice
 
 from .cell_list import radius_pairs
 
@@ -37,6 +38,7 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
     def __init__(self, params: Params, scene: Scene):
         super().__init__(params, scene)
         self.box = PeriodicBox(scene)
+        self._shifts = PerDevice(self._make_shifts)
         short = [
             (k, float(length)) for k, length in zip(self.box.dims, self.box.length)
             if not length > 2 * scene.connectivity_radius
@@ -84,10 +86,7 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
             owners.append(index[near])
         return torch.cat(positions), torch.cat(owners), batch[torch.cat(owners)]
 
-    def _shifts(self, like: Tensor) -> Tensor:
+    def _make_shifts(self, like: Tensor) -> Tensor:
         """(3^p - 1, p) every combination of -1, 0, +1 box lengths along the periodic dimensions but none."""
-        key = (like.device, like.dtype)
-        if getattr(self, "_shift_key", None) != key:
-            combos = [s for s in itertools.product((-1, 0, 1), repeat=len(self.box.dims)) if any(s)]
-            self._shift_table, self._shift_key = torch.tensor(combos, dtype=like.dtype, device=like.device), key
-        return self._shift_table
+        combos = [s for s in itertools.product((-1, 0, 1), repeat=len(self.box.dims)) if any(s)]
+        return torch.tensor(combos, dtype=like.dtype, device=like.device)
