@@ -9,7 +9,7 @@ import torch
 
 from ..config.recipe import Recipe, validate_recipe, without_pickle_grant
 from ..data.metadata import DatasetMetadata, parse_metadata
-from ..errors import CheckpointError, PluginError
+from ..errors import CheckpointError
 from ..io.checkpoint import load_checkpoint
 from ..model.learned_simulator import LearnedSimulator
 from ..plugins import Registry
@@ -30,10 +30,8 @@ def load_trained(path: str | Path, registry: Registry, device: torch.device | st
     """The simulator stored in a checkpoint, with the recipe and metadata it was trained with."""
     path = Path(path)
     state = load_checkpoint(path, map_location="cpu")
-    try:
-        recipe = validate_recipe(without_pickle_grant(state["recipe"]), registry, f"{path} (stored recipe)")
-    except PluginError as exc:
-        raise CheckpointError(f"{path}: needs a component that is not installed: {exc}") from None
+    # A component that is not installed is a located problem of the stored recipe (RecipeError).
+    recipe = validate_recipe(without_pickle_grant(state["recipe"]), registry, f"{path} (stored recipe)")
     metadata = parse_metadata(state["metadata"], f"{path} (stored metadata)")
     simulator = build_learned_simulator(scene_from_dict(state["scene"]), metadata, recipe.model, registry)
     try:

@@ -7,11 +7,11 @@ import time
 from pathlib import Path
 
 from ..assembly.ground_truth import build_ground_truth_simulator
-from ..config.recipe import ComponentSpec
 from ..errors import GnsError
 from ..ground_truth.generate import generate_dataset, is_up_to_date, provenance
 from ..ground_truth.scene_spec import load_scene
 from ..plugins import load_registry
+from ..specs import ComponentSpec
 from .arguments import non_negative_int
 
 

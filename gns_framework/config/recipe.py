@@ -226,9 +226,10 @@ def _component_problems(raw: dict, registry: Registry) -> list[tuple[str, str]]:
     for loc, kind, spec in sections:
         if spec is None or not isinstance(spec, dict):
             continue
+        component = spec
         if kind == "dataset":
-            name = spec.get("name", "safe")
             params = {k: v for k, v in spec.items() if k not in DatasetSpec.model_fields and k != PICKLE_GRANT}
+            component = {"name": spec.get("name", "safe"), **params}
             if PICKLE_GRANT in spec:
                 problems.append((
                     f"dataset.{PICKLE_GRANT}",
@@ -236,13 +237,10 @@ def _component_problems(raw: dict, registry: Registry) -> list[tuple[str, str]]:
                     "data): remove the key and, only for data you trust, give the command --allow-pickle FOLDER; "
                     "geoelements .npz files of numpy arrays read without it",
                 ))
-        else:
-            name = spec.get("name")
-            params = {k: v for k, v in spec.items() if k != "name"}
-        if not isinstance(name, str):
+        if not isinstance(component.get("name"), str):
             continue
         try:
-            registry.resolve(kind, {"name": name, **params}, loc)
+            registry.resolve(kind, component, loc)
         except RecipeError as exc:
             problems += exc.problems
     materials = model.get("materials")

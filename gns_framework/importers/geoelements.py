@@ -23,12 +23,13 @@ from torch import Tensor
 
 from ..assembly.learned import build_learned_simulator, plugin_versions
 from ..assembly.scene import scene_to_dict
-from ..config.recipe import ComponentSpec, ModelSpec, validate_recipe
+from ..config.recipe import ModelSpec, validate_recipe
 from ..contracts import Scene
 from ..data.metadata import DatasetMetadata, load_metadata, parse_metadata
 from ..errors import CheckpointError, GnsError
 from ..model.learned_simulator import LearnedSimulator
 from ..plugins import Registry, load_registry
+from ..specs import ComponentSpec
 from ..training.optim import make_optimizer
 from .geoelements_layout import Architecture, ParameterMap
 

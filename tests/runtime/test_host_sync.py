@@ -16,9 +16,8 @@ from tiny import tiny_recipe, tiny_trainer
 
 import gns_framework.runtime.host_sync as host_sync
 from gns_builtins.processors import edge_block
-from gns_framework.model import rollout as rollout_module
-from gns_framework.model import rollout_guard
 from gns_framework.model import learned_simulator as simulator_module
+from gns_framework.model import rollout as rollout_module
 from gns_framework.model.rollout import rollout
 from gns_framework.model.rollout_guard import RolloutGuard
 from gns_framework.training import trainer as trainer_module
