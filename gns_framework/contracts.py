@@ -89,6 +89,9 @@ class Scene:
         boundary_clamp_limit: wall distances / R are clipped to +-this.
         periodic: per dimension, whether the domain wraps around there (minimum-image
             displacements, no walls); empty means no periodic dimension.
+        wall_conditions: whether each walled face's Coulomb friction coefficient is a node
+            feature (from the data's per-trajectory ``walls``), so one model learns rough
+            and slip walls.
     """
 
     dim: int
@@ -102,6 +105,7 @@ class Scene:
     walls: bool = True
     boundary_clamp_limit: float = 1.0
     periodic: tuple[bool, ...] = ()
+    wall_conditions: bool = False
 
     @property
     def num_particle_types(self) -> int:

@@ -73,6 +73,8 @@ def scene_from_data(
         raise RecipeError(None, [("model.periodic", f"has {len(periodic)} entries but the data has dim = {metadata.dim}")])
     periodic = tuple(bool(p) for p in periodic) if periodic and any(periodic) else ()
 
+    wall_conditions = _wall_conditions(trajectories, model.wall_conditions, bool(model.wall_features), source)
+
     return Scene(
         dim=metadata.dim,
         bounds=tuple((float(lo), float(hi)) for lo, hi in metadata.bounds),
@@ -85,7 +87,38 @@ def scene_from_data(
         boundary_clamp_limit=metadata.boundary_clamp_limit,
         walls=model.wall_features,
         periodic=periodic,
+        wall_conditions=wall_conditions,
     )
+
+
+def _wall_conditions(trajectories: Sequence[Trajectory], asked: bool | None, wall_features: bool, source: str) -> bool:
+    """Whether the model takes the walls' friction as inputs: as asked, or when the data's walls differ.
+
+    Walls that are the same in every training trajectory teach the model nothing about
+    friction, so by default a scene pays for the inputs only when they vary.
+    """
+    recorded = [t.walls for t in trajectories if t.walls is not None]
+    if asked is None:
+        asked = wall_features and len(recorded) == len(trajectories) and any(
+            not np.array_equal(w, recorded[0]) for w in recorded
+        )
+    if not asked:
+        return False
+    if not wall_features:
+        raise RecipeError(None, [("model.wall_conditions", "needs model.wall_features: true (the walls' distances)")])
+    missing = [t.key for t in trajectories if t.walls is None]
+    if missing:
+        raise DatasetError(
+            f"{source}: walls: model.wall_conditions needs every trajectory's face conditions; "
+            f"{len(missing)} trajectory(ies) record none (first: {missing[0]!r}); generate the data with `gns generate`"
+        )
+    no_slip = [t.key for t in trajectories if (t.walls[:, 1] > 0).any()]
+    if no_slip:
+        raise DatasetError(
+            f"{source}: walls: trajectory {no_slip[0]!r} has a no-slip face; wall conditions as model inputs "
+            "cover Coulomb friction (slip = 0) only"
+        )
+    return True
 
 
 def scene_to_dict(scene: Scene) -> dict:

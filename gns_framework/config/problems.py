@@ -10,8 +10,11 @@ from ..errors import did_you_mean
 
 
 def format_location(loc: tuple) -> str:
+    """``blocks[0].size[1]`` from pydantic's location; tags of discriminated unions (``@...``) are left out."""
     out = ""
     for part in loc:
+        if isinstance(part, str) and part.startswith("@"):
+            continue
         out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
     return out
 
@@ -22,7 +25,7 @@ def _model_at(model: type[BaseModel], path: tuple) -> type[BaseModel] | None:
     for part in path:
         if current is None:
             return None
-        if isinstance(part, int):
+        if isinstance(part, int) or part.startswith("@"):
             continue
         field = current.model_fields.get(part)
         if field is None:

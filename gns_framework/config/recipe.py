@@ -81,6 +81,11 @@ class ModelSpec(_Strict):
         None, description="per dimension, whether the domain wraps around; default: the metadata's periodic_boundary_conditions"
     )
     wall_features: bool = Field(True, description="distance-to-wall node features for the non-periodic dimensions")
+    wall_conditions: bool | None = Field(
+        None,
+        description="each wall's friction coefficient as a node feature; default: when the training "
+        "trajectories record walls that differ between them",
+    )
     graph_builder: ComponentSpec = ComponentSpec(name="radius")
     encoder: ComponentSpec = ComponentSpec(name="mlp")
     processor: ComponentSpec = ComponentSpec(name="interaction_network")

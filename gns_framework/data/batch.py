@@ -26,6 +26,8 @@ class ParticleBatch:
         context: (B, c) float32 global context of each example's last input frame, or None.
         ahead: (N, m, d) float32 the m true positions after ``next_position`` (push-forward
             training), or None.
+        bounds: (B, d, 2) float32 each example's domain (its walls), or None (the model's bounds).
+        walls: (B, 2d, 2) float32 each example's face conditions (friction, no-slip flag), or None.
     """
 
     position_sequence: Tensor
@@ -36,6 +38,8 @@ class ParticleBatch:
     material_property: Tensor | None = None
     context: Tensor | None = None
     ahead: Tensor | None = None
+    bounds: Tensor | None = None
+    walls: Tensor | None = None
 
     @property
     def num_particles(self) -> int:
@@ -77,6 +81,8 @@ def window(trajectory: Trajectory, start: int, history: int, with_target: bool =
         ahead=torch.from_numpy(np.ascontiguousarray(positions[history + 1 :].transpose(1, 0, 2)))
         if with_target and ahead
         else None,
+        bounds=None if trajectory.bounds is None else torch.from_numpy(np.asarray(trajectory.bounds, np.float32))[None],
+        walls=None if trajectory.walls is None else torch.from_numpy(np.asarray(trajectory.walls, np.float32))[None],
     )
 
 
@@ -93,4 +99,20 @@ def collate(examples: Sequence[ParticleBatch]) -> ParticleBatch:
         material_property=cat("material_property"),
         context=cat("context"),
         ahead=cat("ahead"),
+        bounds=_cat_per_example(examples, "bounds"),
+        walls=_cat_per_example(examples, "walls"),
     )
+
+
+def _cat_per_example(examples: Sequence[ParticleBatch], name: str) -> Tensor | None:
+    """Per-example rows of ``name`` stacked; None when no example has them.
+
+    Examples from datasets that record their domain mix only with others that do: a batch
+    where some examples have bounds and some not would give the model two kinds of walls.
+    """
+    present = [getattr(e, name) is not None for e in examples]
+    if not any(present):
+        return None
+    if not all(present):
+        raise ValueError(f"collate: some examples have {name} and some not; every example needs its own {name}")
+    return torch.cat([getattr(e, name) for e in examples])

@@ -20,6 +20,10 @@ class Trajectory:
         material_property: (N, P) float32 per-particle material properties, or None.
         step_context: (T, C) float32 global context per frame, or None.
         key: identifier of the trajectory inside its file (for error messages).
+        bounds: (d, 2) float32 lower and upper wall per axis of this trajectory's domain, or
+            None (the dataset's ``metadata.bounds``).
+        walls: (2d, 2) float32 condition of each face (x_min, x_max, y_min, ...): its Coulomb
+            friction coefficient and 1 if no-slip else 0; or None (not recorded).
     """
 
     position: np.ndarray
@@ -27,6 +31,8 @@ class Trajectory:
     material_property: np.ndarray | None = None
     step_context: np.ndarray | None = None
     key: str = ""
+    bounds: np.ndarray | None = None
+    walls: np.ndarray | None = None
 
     @property
     def num_steps(self) -> int:
@@ -91,4 +97,20 @@ class Trajectory:
                 raise DatasetError(f"{where}: step_context: expected shape ({t}, C), got {ctx.shape}")
             if not np.isfinite(ctx).all():
                 raise DatasetError(f"{where}: step_context: contains NaN or Inf")
-        return Trajectory(pos.astype(np.float32, copy=False), ptype, prop, ctx, self.key)
+        bounds = self.bounds
+        if bounds is not None:
+            bounds = np.asarray(bounds, dtype=np.float32)
+            if bounds.shape != (d, 2):
+                raise DatasetError(f"{where}: bounds: expected shape ({d}, 2), got {bounds.shape}")
+            if not np.isfinite(bounds).all() or not (bounds[:, 0] < bounds[:, 1]).all():
+                raise DatasetError(f"{where}: bounds: expected finite [lower, upper] with lower < upper, got {bounds.tolist()}")
+        walls = self.walls
+        if walls is not None:
+            walls = np.asarray(walls, dtype=np.float32)
+            if walls.shape != (2 * d, 2):
+                raise DatasetError(f"{where}: walls: expected shape ({2 * d}, 2) (friction, no-slip per face), got {walls.shape}")
+            if not np.isfinite(walls).all() or (walls[:, 0] < 0).any() or not np.isin(walls[:, 1], (0, 1)).all():
+                raise DatasetError(
+                    f"{where}: walls: expected friction >= 0 and a no-slip flag 0 or 1 per face, got {walls.tolist()}"
+                )
+        return Trajectory(pos.astype(np.float32, copy=False), ptype, prop, ctx, self.key, bounds, walls)

@@ -1,7 +1,12 @@
 """Draw one concrete scene from a spec: random ranges resolved, bodies filled with particles.
 
 Any ground-truth simulator can start from this; the draws depend only on the
-spec and the seed, in a fixed order, so a seed always gives the same particles.
+spec and the seed, in a fixed order, so a seed always gives the same particles:
+the domain's extent and face conditions first (axis by axis, face by face), then
+each block and obstacle in the spec's order (its count, then each copy's
+position, size, velocity, angle and values). A value that is fixed draws nothing,
+so a scene without ranges always gives the same particles, and adding a range
+to one body leaves the draws of the bodies before it as they were.
 """
 
 from __future__ import annotations
@@ -11,8 +16,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..contracts import Material
+from ..errors import GnsError
 from . import shapes
-from .scene_spec import Block, Obstacle, Range, SceneSpec
+from .scene_spec import FACES, Block, OneOf, Obstacle, Range, SceneSpec, Span, WallChoice, WallRange
+
+PLACEMENT_TRIES = 200
+"""Draws of one body under ``no_overlap`` before the whole scene's bodies are drawn again."""
+
+SCENE_TRIES = 50
+"""Draws of all bodies under ``no_overlap`` before the scene is declared unplaceable."""
 
 
 @dataclass(frozen=True)
@@ -54,11 +66,26 @@ class BodySample:
 
 @dataclass(frozen=True)
 class SceneSample:
-    """A drawn scene: blocks' particles first, then obstacles' (kinematic) particles."""
+    """A drawn scene: blocks' particles first, then obstacles' (kinematic) particles.
+
+    ``scene`` is the spec with its domain drawn (extent and face conditions fixed):
+    what a simulator runs for this trajectory.
+    """
 
     blocks: list[BodySample]
     obstacles: list[BodySample]
     property_names: tuple[str, ...]
+    scene: SceneSpec | None = None
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """(d, 2) float32 lower and upper wall per axis of the drawn domain, metres."""
+        return np.asarray(self.scene.domain.bounds, dtype=np.float32)
+
+    @property
+    def walls(self) -> np.ndarray:
+        """(2d, 2) float32 per face (``FACES`` order): Coulomb friction coefficient, 1 if no-slip else 0."""
+        return np.asarray(self.scene.domain.wall_conditions(), dtype=np.float32)
 
     @property
     def bodies(self) -> list[BodySample]:
@@ -95,8 +122,18 @@ class SceneSample:
         return np.stack(columns, axis=1).astype(np.float32)
 
 
-def _draw(value: Range, rng: np.random.Generator, count: int) -> np.ndarray:
-    """(count,) draws; one shared draw unless the range is per particle."""
+def _pick(options: list, weights: list[float] | None, rng: np.random.Generator):
+    """One of ``options`` (probabilities ``weights``, default equal); a single option draws nothing."""
+    if len(options) == 1:
+        return options[0]
+    p = None if weights is None else np.asarray(weights, dtype=np.float64) / sum(weights)
+    return options[int(rng.choice(len(options), p=p))]
+
+
+def _draw(value: Range | Span | OneOf, rng: np.random.Generator, count: int) -> np.ndarray:
+    """(count,) draws; one shared draw unless the range is per particle. A span draws its fraction."""
+    if isinstance(value, OneOf):
+        value = _pick(value.one_of, value.weights, rng)
     if value.is_fixed:
         return np.full(count, value.low)
     if value.per == "particle":
@@ -104,10 +141,45 @@ def _draw(value: Range, rng: np.random.Generator, count: int) -> np.ndarray:
     return np.full(count, rng.uniform(value.low, value.high))
 
 
-def _draw_vector(values: list[Range] | None, rng: np.random.Generator, dim: int) -> np.ndarray:
+def _draw_vector(values: list | None, rng: np.random.Generator, dim: int) -> np.ndarray:
     if values is None:
         return np.zeros(dim)
     return np.array([_draw(v, rng, 1)[0] for v in values])
+
+
+def _draw_position(values: list, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(d,) drawn coordinates and (d,) whether each is a span fraction (placed once the size is known)."""
+    coordinates, spanned = [], []
+    for value in values:
+        if isinstance(value, OneOf):
+            value = _pick(value.one_of, value.weights, rng)
+        coordinates.append(_draw(value, rng, 1)[0])
+        spanned.append(isinstance(value, Span))
+    return np.array(coordinates), np.array(spanned, dtype=bool)
+
+
+def _draw_face(condition, rng: np.random.Generator) -> float | str:
+    """A face's condition for one trajectory: a friction coefficient, ``slip`` or ``no_slip``."""
+    if isinstance(condition, WallChoice):
+        condition = _pick(condition.one_of, condition.weights, rng)
+    if isinstance(condition, WallRange):
+        low, high = condition.range
+        return low if low == high else float(rng.uniform(low, high))
+    return condition
+
+
+def draw_domain(scene: SceneSpec, rng: np.random.Generator) -> SceneSpec:
+    """``scene`` with its domain's extent and face conditions drawn; ``scene`` itself when it draws none."""
+    domain = scene.domain
+    if not domain.is_drawn:
+        return scene
+    extent = None if domain.extent is None else [float(_draw(e, rng, 1)[0]) for e in domain.extent]
+    walls = {}
+    for face in FACES[: 2 * scene.dim]:
+        condition = getattr(domain.walls, face)
+        if isinstance(condition, (WallChoice, WallRange)):
+            walls[face] = _draw_face(condition, rng)
+    return scene.model_copy(update={"domain": domain.drawn(extent, walls)})
 
 
 def fill(shape: str, lower: np.ndarray, size: np.ndarray, spacing: float) -> np.ndarray:
@@ -151,10 +223,17 @@ def _sample_body(
     location: str, body: Block | Obstacle, scene: SceneSpec, rng: np.random.Generator
 ) -> BodySample:
     d = scene.dim
-    lower = _draw_vector(body.position, rng, d)
+    lower, spanned = _draw_position(body.position, rng)
     size = _draw_vector(body.size, rng, d)
     velocity = _draw_vector(body.velocity, rng, d)
     angle = float(_draw(body.angle, rng, 1)[0])
+    if spanned.any():
+        lower = _placed(lower, spanned, _extent_of(body, size), scene)
+        if isinstance(body, Obstacle) and body.vertices is not None:
+            # A polygon's position is its vertices' origin: shift it so their box starts where placed.
+            offset = np.zeros(d)
+            offset[:2] = np.array(body.vertices, dtype=np.float64).min(axis=0)
+            lower = np.where(spanned, lower - offset, lower)
     vertices = None
     if isinstance(body, Obstacle) and body.vertices is not None:
         corners = lower[:2] + np.array(body.vertices, dtype=np.float64)
@@ -174,9 +253,83 @@ def _sample_body(
     )
 
 
+def _extent_of(body: Block | Obstacle, size: np.ndarray) -> np.ndarray:
+    """(d,) edge lengths of a body's box before rotation; a polygon's are its corners' spread."""
+    if isinstance(body, Obstacle) and body.vertices is not None:
+        corners = np.array(body.vertices, dtype=np.float64)
+        spread = np.zeros_like(size)
+        spread[:2] = corners.max(axis=0) - corners.min(axis=0)
+        return spread
+    return size
+
+
+def _placed(lower: np.ndarray, spanned: np.ndarray, extent: np.ndarray, scene: SceneSpec) -> np.ndarray:
+    """``lower`` with each span fraction u turned into ``wall + u * (room - extent)`` on its axis."""
+    bounds = np.array(scene.domain.bounds, dtype=np.float64)
+    room = bounds[:, 1] - bounds[:, 0] - extent
+    return np.where(spanned, bounds[:, 0] + lower * np.maximum(room, 0.0), lower)
+
+
+def _box_of(sample: BodySample) -> tuple[np.ndarray, np.ndarray] | None:
+    """(lower, upper) of the axis-aligned box a drawn body occupies; None for planes (unbounded)."""
+    if sample.shape == "plane":
+        return None
+    points = sample.position
+    if sample.vertices is not None:  # polygons are 2D
+        return sample.vertices.min(axis=0), sample.vertices.max(axis=0)
+    if sample.angle == 0.0:
+        return sample.lower, sample.lower + sample.size
+    if len(points) == 0:
+        return None
+    return points.min(axis=0), points.max(axis=0)
+
+
+def _apart(box: tuple[np.ndarray, np.ndarray] | None, placed: list, gap: float) -> bool:
+    """Whether ``box`` keeps at least ``gap`` from every box in ``placed`` along some axis."""
+    if box is None:
+        return True
+    lower, upper = box
+    for other in placed:
+        if other is not None and np.all(lower < other[1] + gap) and np.all(other[0] < upper + gap):
+            return False
+    return True
+
+
+def _sample_bodies(scene: SceneSpec, rng: np.random.Generator) -> tuple[list[BodySample], list[BodySample]] | None:
+    """Every block and obstacle drawn (counts first); None when ``no_overlap`` could not place one."""
+    blocks: list[BodySample] = []
+    obstacles: list[BodySample] = []
+    boxes: list = []
+    gap = scene.particle_spacing
+    for location, body in scene.bodies_with_location():
+        count = int(round(body.count.low)) if body.count.is_fixed else int(rng.integers(body.count.low, body.count.high + 1))
+        for copy in range(count):
+            where = location if body.count.is_fixed and body.count.low == 1 else f"{location}[{copy}]"
+            for _ in range(PLACEMENT_TRIES if scene.no_overlap else 1):
+                sample = _sample_body(where, body, scene, rng)
+                box = _box_of(sample)
+                if not scene.no_overlap or _apart(box, boxes, gap):
+                    break
+            else:
+                return None
+            boxes.append(box)
+            (blocks if isinstance(body, Block) else obstacles).append(sample)
+    return blocks, obstacles
+
+
 def sample_scene(scene: SceneSpec, seed: int) -> SceneSample:
-    """Resolve every random range of ``scene`` with ``seed`` and fill its bodies with particles."""
+    """Resolve every random value of ``scene`` with ``seed`` and fill its bodies with particles.
+
+    Raises GnsError when ``no_overlap`` cannot place the bodies apart in the drawn domain.
+    """
     rng = np.random.default_rng(seed)
-    blocks = [_sample_body(f"blocks[{i}]", b, scene, rng) for i, b in enumerate(scene.blocks)]
-    obstacles = [_sample_body(f"obstacles[{i}]", o, scene, rng) for i, o in enumerate(scene.obstacles)]
-    return SceneSample(blocks, obstacles, scene.property_names)
+    drawn = draw_domain(scene, rng)
+    for _ in range(SCENE_TRIES if scene.no_overlap else 1):
+        bodies = _sample_bodies(drawn, rng)
+        if bodies is not None:
+            return SceneSample(*bodies, scene.property_names, drawn)
+    raise GnsError(
+        f"scene {scene.name!r}, seed {seed}: no_overlap could not place the bodies a particle spacing apart in "
+        f"the drawn domain {drawn.domain.bounds} ({SCENE_TRIES} tries of {PLACEMENT_TRIES} per body): "
+        "make the bodies smaller or fewer, or the domain larger"
+    )

@@ -4,6 +4,13 @@ A scene names its domain, grid, time stepping, material blocks and kinematic
 obstacles. Any number in a block or obstacle may instead be a random range
 ``{range: [low, high]}`` drawn once per trajectory (``per: particle`` draws one
 value per particle, for material properties), which gives a dataset its variety.
+``{one_of: [a, b, ...]}`` picks one of its options (numbers or ranges) per
+trajectory. A position along an axis may be ``{span: [low, high]}``, a fraction
+of the room the body leaves free there (0: against the lower wall, 1: against the
+upper one), so bodies stay inside domains whose size is itself drawn
+(``domain.extent``). A block or obstacle with ``count`` is drawn that many times
+(a range of integers draws the count), and ``no_overlap`` keeps bodies apart.
+Each face of the domain may draw its condition (``{one_of: [slip, {range: [0.3, 0.6]}]}``).
 
 Validation reports every problem at once, each with its location
 (``blocks[1].size: ...``) and a "did you mean" for misspelt keys.
@@ -19,7 +26,16 @@ import math
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    ValidationError,
+    model_validator,
+)
 
 from ..config.problems import problems_from
 from ..config.yaml_files import load_yaml_mapping
@@ -58,18 +74,137 @@ class Range(Spec):
         return self.range[0] == self.range[1]
 
 
+class Span(Spec):
+    """A position along one axis as a fraction of the room a body leaves free there.
+
+    The body's lower corner is ``lower wall + u * (domain extent - body size)`` with
+    ``u`` drawn from ``[low, high]`` within [0, 1]: 0 puts it against the lower wall,
+    1 against the upper one. Only positions take spans.
+    """
+
+    span: tuple[float, float]
+
+    @model_validator(mode="before")
+    @classmethod
+    def _scalar(cls, data: Any) -> Any:
+        if isinstance(data, dict) and isinstance(data.get("span"), (int, float)) and not isinstance(data["span"], bool):
+            return {**data, "span": (data["span"], data["span"])}
+        return data
+
+    @model_validator(mode="after")
+    def _fraction(self) -> "Span":
+        if not 0.0 <= self.span[0] <= self.span[1] <= 1.0:
+            raise ValueError(f"span must be [low, high] with 0 <= low <= high <= 1, got {list(self.span)}")
+        return self
+
+    per: Literal["trajectory"] = "trajectory"
+
+    @property
+    def low(self) -> float:
+        return self.span[0]
+
+    @property
+    def high(self) -> float:
+        return self.span[1]
+
+    @property
+    def is_fixed(self) -> bool:
+        return self.span[0] == self.span[1]
+
+
 def _number_or_range(value: Any) -> Any:
     if isinstance(value, bool):
-        raise ValueError(f"expected a number or {{range: [low, high]}}, got {value!r}")
+        raise ValueError(f"expected a number, {{range: [low, high]}} or {{span: [low, high]}}, got {value!r}")
     if isinstance(value, (int, float)):
         return {"range": (value, value)}
-    if isinstance(value, (dict, Range)):
+    if isinstance(value, (dict, Range, Span)):
         return value
-    raise ValueError(f"expected a number or {{range: [low, high]}}, got {value!r}")
+    raise ValueError(f"expected a number, {{range: [low, high]}} or {{span: [low, high]}}, got {value!r}")
 
 
-Value = Annotated[Range, BeforeValidator(_number_or_range)]
-"""A number, or ``{range: [low, high], per: trajectory|particle}``."""
+def _single_kind(value: Any) -> str:
+    """Which of Range and Span a mapping is (by its key), so errors speak of that one only.
+
+    Tags start with ``@``, which problem locations leave out (:mod:`gns_framework.config.problems`).
+    """
+    if isinstance(value, Span) or (isinstance(value, dict) and "span" in value):
+        return "@span"
+    return "@range"
+
+
+Single = Annotated[
+    Annotated[Range, Tag("@range")] | Annotated[Span, Tag("@span")],
+    Discriminator(_single_kind),
+    BeforeValidator(_number_or_range),
+]
+"""A number, ``{range: [low, high], per: trajectory|particle}`` or ``{span: [low, high]}``."""
+
+
+class OneOf(Spec):
+    """One of several options (numbers, ranges or spans), picked per trajectory, then drawn.
+
+    ``weights`` (default: equal) are the options' probabilities, normalised.
+    """
+
+    one_of: list[Single] = Field(min_length=1)
+    weights: list[float] | None = None
+
+    @model_validator(mode="after")
+    def _weights(self) -> "OneOf":
+        if self.weights is not None:
+            if len(self.weights) != len(self.one_of):
+                raise ValueError(f"weights: expected {len(self.one_of)} values (one per option), got {len(self.weights)}")
+            if min(self.weights) < 0 or sum(self.weights) <= 0:
+                raise ValueError(f"weights must be >= 0 with a positive sum, got {self.weights}")
+        return self
+
+    per: Literal["trajectory"] = "trajectory"
+
+    @property
+    def low(self) -> float:
+        return min(option.low for option in self.one_of)
+
+    @property
+    def high(self) -> float:
+        return max(option.high for option in self.one_of)
+
+    @property
+    def is_fixed(self) -> bool:
+        return len(self.one_of) == 1 and self.one_of[0].is_fixed
+
+    @property
+    def has_span(self) -> bool:
+        return any(isinstance(option, Span) for option in self.one_of)
+
+
+def _value_kind(value: Any) -> str:
+    if isinstance(value, OneOf) or (isinstance(value, dict) and "one_of" in value):
+        return "@one_of"
+    return _single_kind(value)
+
+
+Value = Annotated[
+    Annotated[Range, Tag("@range")] | Annotated[Span, Tag("@span")] | Annotated[OneOf, Tag("@one_of")],
+    Discriminator(_value_kind),
+    BeforeValidator(_number_or_range),
+]
+"""A number, ``{range: [low, high], per: trajectory|particle}``, ``{span: [low, high]}`` (positions)
+or ``{one_of: [option, ...], weights: [...]}``."""
+
+
+def is_spanned(value: Range | Span | OneOf) -> bool:
+    """Whether a value is (or may pick) a span, a position relative to the domain."""
+    return isinstance(value, Span) or (isinstance(value, OneOf) and value.has_span)
+
+
+def _number_of_bodies(value: Any) -> Any:
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return {"range": (value, value)}
+    return value
+
+
+Count = Annotated[Range, BeforeValidator(_number_of_bodies)]
+"""A whole number of bodies, or ``{range: [low, high]}`` of whole numbers drawn per trajectory."""
 
 
 def _wall_condition(value: Any) -> Any:
@@ -82,6 +217,53 @@ def _wall_condition(value: Any) -> Any:
 
 WallCondition = Annotated[float | Literal["slip", "no_slip"], BeforeValidator(_wall_condition)]
 """A face of the domain: a Coulomb friction coefficient, ``slip`` (frictionless) or ``no_slip``."""
+
+
+class WallRange(Spec):
+    """A face's Coulomb friction coefficient drawn per trajectory from ``[low, high]``."""
+
+    range: tuple[float, float]
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "WallRange":
+        if not 0 <= self.range[0] <= self.range[1]:
+            raise ValueError(f"range must be [low, high] with 0 <= low <= high, got {list(self.range)}")
+        return self
+
+
+def _wall_kind(value: Any) -> str:
+    if isinstance(value, WallChoice) or (isinstance(value, dict) and "one_of" in value):
+        return "@one_of"
+    if isinstance(value, (WallRange, dict)):
+        return "@range"
+    return "@condition"
+
+
+WallOption = Annotated[
+    Annotated[WallRange, Tag("@range")] | Annotated[WallCondition, Tag("@condition")], Discriminator(_wall_kind)
+]
+
+
+class WallChoice(Spec):
+    """One of several face conditions picked per trajectory (``weights``: their probabilities)."""
+
+    one_of: list[WallOption] = Field(min_length=1)
+    weights: list[float] | None = None
+
+    @model_validator(mode="after")
+    def _weights(self) -> "WallChoice":
+        if self.weights is not None and (
+            len(self.weights) != len(self.one_of) or min(self.weights) < 0 or sum(self.weights) <= 0
+        ):
+            raise ValueError(f"weights: expected {len(self.one_of)} values >= 0 with a positive sum, got {self.weights}")
+        return self
+
+
+WallDraw = Annotated[
+    Annotated[WallChoice, Tag("@one_of")] | Annotated[WallRange, Tag("@range")] | Annotated[WallCondition, Tag("@condition")],
+    Discriminator(_wall_kind),
+]
+"""A face condition, ``{range: [low, high]}`` of friction, or ``{one_of: [slip, {range: ...}, ...]}``."""
 
 FACES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 """Domain faces, in the order (axis 0 lower, axis 0 upper, axis 1 lower, ...)."""
@@ -96,33 +278,70 @@ class Walls(Spec):
     leave the face.
     """
 
-    x_min: WallCondition | None = None
-    x_max: WallCondition | None = None
-    y_min: WallCondition | None = None
-    y_max: WallCondition | None = None
-    z_min: WallCondition | None = None
-    z_max: WallCondition | None = None
+    x_min: WallDraw | None = None
+    x_max: WallDraw | None = None
+    y_min: WallDraw | None = None
+    y_max: WallDraw | None = None
+    z_min: WallDraw | None = None
+    z_max: WallDraw | None = None
+
+    @property
+    def is_drawn(self) -> bool:
+        """Whether some face draws its condition per trajectory."""
+        return any(isinstance(getattr(self, face), (WallChoice, WallRange)) for face in FACES)
 
 
 class Domain(Spec):
-    """The box particles live in and the background grid that covers it."""
+    """The box particles live in and the background grid that covers it.
 
-    bounds: list[tuple[float, float]] = Field(description="(d, 2) lower and upper wall per axis, metres")
-    grid: int = Field(ge=4, le=4096, description="grid cells along the longest axis (cell size dx = longest / grid)")
+    With ``extent`` the domain's size is drawn per trajectory: it spans
+    ``[lower, lower + extent]`` on each axis, inside ``bounds`` (the largest domain),
+    on a grid of the same cell size. Faces whose condition is drawn and drawn extents
+    make a *drawn* domain per trajectory (:meth:`drawn`), fixed in every respect.
+    """
+
+    bounds: list[tuple[float, float]] = Field(
+        description="(d, 2) lower and upper wall per axis, metres; with extent, the largest domain"
+    )
+    grid: int = Field(
+        ge=4, le=4096, description="grid cells along the longest axis of bounds (cell size dx = longest / grid)"
+    )
+    extent: list[Value] | None = Field(
+        default=None, description="(d,) edge lengths drawn per trajectory (at most the bounds'), metres"
+    )
     wall_friction: float = Field(
         default=0.5, ge=0, description="Coulomb friction coefficient of every face that `walls` does not name"
     )
     walls: Walls = Field(
         default_factory=Walls, description="per-face conditions: x_min, x_max, y_min, ... (2 faces per axis)"
     )
+    cell_size_override: float | None = Field(
+        default=None, gt=0, description="dx of a drawn domain, metres (set by drawing; keeps the scene's dx)"
+    )
 
     @property
     def cell_size(self) -> float:
         """dx in metres."""
+        if self.cell_size_override is not None:
+            return self.cell_size_override
         return max(hi - lo for lo, hi in self.bounds) / self.grid
 
+    @property
+    def is_drawn(self) -> bool:
+        """Whether each trajectory draws its own domain (size or face conditions)."""
+        return self.extent is not None or self.walls.is_drawn
+
+    @property
+    def smallest_bounds(self) -> list[tuple[float, float]]:
+        """(d, 2) the smallest domain ``extent`` can draw (``bounds`` when it draws none)."""
+        if self.extent is None or len(self.extent) != len(self.bounds):
+            return list(self.bounds)
+        return [(lo, lo + e.low) for (lo, _), e in zip(self.bounds, self.extent)]
+
     def wall_conditions(self) -> list[tuple[float, bool]]:
-        """(friction coefficient, no-slip) of the 2 d faces, in ``FACES`` order."""
+        """(friction coefficient, no-slip) of the 2 d faces, in ``FACES`` order; a fixed domain only."""
+        if self.walls.is_drawn:
+            raise ValueError("wall_conditions of a domain that draws its faces: draw the domain first (Domain.drawn)")
         conditions = []
         for face in FACES[: 2 * len(self.bounds)]:
             condition = getattr(self.walls, face)
@@ -133,6 +352,25 @@ class Domain(Spec):
             else:
                 conditions.append((0.0 if condition == "slip" else condition, False))
         return conditions
+
+    def drawn(self, extent: list[float] | None, walls: dict[str, float | str]) -> "Domain":
+        """This domain with its extent and face conditions fixed: what one trajectory runs in.
+
+        A drawn extent is rounded to whole cells (at least one), so that each wall lies on a
+        grid node as it does in a fixed domain, and the recorded bounds are the simulated walls.
+        """
+        dx = self.cell_size
+        bounds = self.bounds
+        if extent is not None:
+            bounds = [(lo, lo + max(1, round(e / dx)) * dx) for (lo, _), e in zip(self.bounds, extent)]
+        return self.model_copy(
+            update={
+                "bounds": [tuple(b) for b in bounds],
+                "extent": None,
+                "walls": Walls(**{face: walls.get(face, getattr(self.walls, face)) for face in FACES}),
+                "cell_size_override": self.cell_size,
+            }
+        )
 
 
 class Time(Spec):
@@ -155,6 +393,10 @@ class Block(Spec):
     """A body of one material, filled with particles at the start."""
 
     material: str = Field(description="registered material name")
+    count: Count = Field(
+        default_factory=lambda: Range(range=(1, 1)),
+        description="how many such blocks, each drawn on its own; {range: [low, high]} draws the number",
+    )
     shape: Literal["box", "ellipsoid"] = Field(default="box", description="ellipsoid: inscribed in the box")
     position: list[Value] = Field(description="(d,) lower corner of the bounding box before rotation, metres")
     size: list[Value] = Field(description="(d,) edge lengths of the bounding box, metres")
@@ -184,6 +426,10 @@ class Obstacle(Spec):
     """
 
     material: str = Field(description="registered kinematic material name")
+    count: Count = Field(
+        default_factory=lambda: Range(range=(1, 1)),
+        description="how many such obstacles, each drawn on its own; {range: [0, 1]} makes one optional",
+    )
     shape: Literal["box", "ellipsoid", "polygon", "plane"] = "box"
     position: list[Value] = Field(
         description="(d,) box/ellipsoid: lower corner before rotation at t = 0; polygon: origin of the vertices; "
@@ -221,6 +467,10 @@ class SceneSpec(Spec):
     )
     blocks: list[Block] = Field(min_length=1)
     obstacles: list[Obstacle] = Field(default_factory=list)
+    no_overlap: bool = Field(
+        default=False,
+        description="draw bodies again until their boxes are a particle spacing apart (planes excepted)",
+    )
 
     @property
     def gravity_vector(self) -> tuple[float, ...]:
@@ -266,6 +516,14 @@ class SceneSpec(Spec):
         for face in FACES[2 * d :]:
             if getattr(self.domain.walls, face) is not None:
                 found.append((f"domain.walls.{face}", f"a {d}D domain has faces {', '.join(FACES[: 2 * d])} only"))
+        if self.domain.extent is not None and need_dim("domain.extent", self.domain.extent) and bounds_ok:
+            for axis, (value, (lo, hi)) in enumerate(zip(self.domain.extent, self.domain.bounds)):
+                where = f"domain.extent[{axis}]"
+                if is_spanned(value) or value.per == "particle":
+                    found.append((where, "an extent is a length in metres: a number, {range: ...} or {one_of: ...}"))
+                elif value.low <= 0 or value.high > hi - lo + 1e-12:
+                    found.append((where, f"must lie in (0, {hi - lo:g}] (the bounds' extent), got [{value.low:g}, {value.high:g}]"))
+        found += self._count_problems()
         for i, obstacle in enumerate(self.obstacles):
             found += _shape_problems(f"obstacles[{i}]", obstacle, d)
         for where, body in [(f"blocks[{i}]", b) for i, b in enumerate(self.blocks)] + [
@@ -277,18 +535,51 @@ class SceneSpec(Spec):
                 for axis, value in enumerate(getattr(body, field) or []):
                     if value.per == "particle":
                         found.append((f"{where}.{field}[{axis}]", "per: particle applies to properties only"))
+                    if field != "position" and is_spanned(value):
+                        found.append((f"{where}.{field}[{axis}]", "span applies to positions only"))
             for field in ("angle", "friction"):
                 value = getattr(body, field, None)
                 if value is not None and value.per == "particle":
                     found.append((f"{where}.{field}", "per: particle applies to properties only"))
+                if value is not None and is_spanned(value):
+                    found.append((f"{where}.{field}", "span applies to positions only"))
+            for field in ("properties", "parameters"):
+                for name, value in (getattr(body, field, None) or {}).items():
+                    if is_spanned(value):
+                        found.append((f"{where}.{field}.{name}", "span applies to positions only"))
+            spanned = any(is_spanned(v) for v in body.position)
+            if spanned and not (body.angle.is_fixed and body.angle.low == 0.0):
+                found.append((f"{where}.position", "a span places a body's unrotated box: it takes no angle"))
+            if spanned and isinstance(body, Obstacle) and body.shape == "plane":
+                found.append((f"{where}.position", "a plane is unbounded: place it with numbers or ranges, not spans"))
             for axis, size in enumerate(body.size or []):
                 if size.low <= 0:
                     found.append((f"{where}.size[{axis}]", f"must be > 0, got {size.low}"))
             if isinstance(body, Obstacle) and body.is_static_shape:
                 continue  # static shapes record only their particles inside the domain
             if shaped and bounds_ok and body.size is not None:
-                found += _outside_domain(where, body, self.domain.bounds, (self.time.frames - 1) * self.time.frame_dt)
+                duration = (self.time.frames - 1) * self.time.frame_dt
+                found += _outside_domain(where, body, self.domain.smallest_bounds, duration)
         return found
+
+    def _count_problems(self) -> list[tuple[str, str]]:
+        """Counts are whole numbers >= 0, and every trajectory has at least one block."""
+        found = []
+        for where, body in self.bodies_with_location():
+            low, high = body.count.range
+            if low < 0 or low != int(low) or high != int(high) or body.count.per == "particle":
+                found.append((f"{where}.count", f"expected a whole number >= 0 or {{range: [low, high]}} of them, got {[low, high]}"))
+        if found:
+            return found
+        if sum(int(block.count.low) for block in self.blocks) < 1:
+            found.append(("blocks", "every trajectory needs a block: some block's count must be at least 1"))
+        return found
+
+    def bodies_with_location(self) -> list[tuple[str, "Block | Obstacle"]]:
+        """(location, body) of every block and obstacle, in drawing order."""
+        return [(f"blocks[{i}]", b) for i, b in enumerate(self.blocks)] + [
+            (f"obstacles[{i}]", o) for i, o in enumerate(self.obstacles)
+        ]
 
 
 def _shape_problems(where: str, obstacle: Obstacle, dim: int) -> list[tuple[str, str]]:
@@ -323,6 +614,10 @@ def _outside_domain(where: str, body: Block | Obstacle, bounds: list[tuple[float
     turned = isinstance(body, Block) and not (body.angle.is_fixed and body.angle.low == 0.0)
     reach = _rotated_half_extents(body) if turned else None
     for axis, ((lo, hi), pos, size, vel) in enumerate(zip(bounds, body.position, body.size, velocity)):
+        if is_spanned(pos):
+            if size.high > hi - lo:
+                found.append((f"{where}.size[{axis}]", f"up to {size.high:g} does not fit the domain's {hi - lo:g} on axis {axis}"))
+            continue  # a span keeps the body inside by construction
         sweep = (0.0, 0.0) if isinstance(body, Block) else (vel.low * duration, vel.high * duration)
         low, high = pos.low + min(0.0, sweep[0]), pos.high + size.high + max(0.0, sweep[1])
         if reach is not None and axis < 2:

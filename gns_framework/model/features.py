@@ -3,6 +3,7 @@
 Node features, in column order (N rows):
     1. normalised velocity history, time-major ``[v0x, v0y, v1x, ...]``   (C-1)*d
     2. wall distances ``[p - lower, upper - p] / R`` clipped to +-clamp  2w   (w dims with walls)
+       each walled face's friction coefficient, same face order         2w   (wall conditions)
     3. learned particle-type embedding                                   emb  (more than one type)
     4. per-particle material properties                                  P    (scenes with properties)
     5. normalised global context of the frame                            c    (scenes with context)
@@ -12,6 +13,10 @@ norm is not differentiable twice.
 
 Dimensions that wrap around (periodic) have no walls; the history passed in must
 already be continuous there (see :class:`~gns_framework.model.periodic.PeriodicBox`).
+
+The walls are the model's bounds unless the data gives each example its own domain
+(``bounds`` per particle, from its trajectory): one model then rolls out in boxes
+of other sizes, since a particle sees a wall only within ``clamp * R`` of it.
 """
 
 from __future__ import annotations
@@ -43,7 +48,7 @@ def safe_norm(vector: Tensor) -> Tensor:
 
 def node_feature_size(scene: Scene, type_embedding_size: int) -> int:
     size = (scene.history - 1) * scene.dim
-    size += 2 * len(scene.wall_dims)
+    size += 2 * len(scene.wall_dims) * (2 if scene.wall_conditions else 1)
     size += type_embedding_size if scene.uses_type_embedding else 0
     return size + len(scene.property_names) + scene.context_size
 
@@ -72,6 +77,9 @@ class FeatureBuilder(nn.Module):
         walled = torch.tensor(scene.wall_dims, dtype=torch.long)
         self.register_buffer("walled_dims", walled, persistent=False)
         self.register_buffer("walled_bounds", self.bounds[walled], persistent=False)
+        # Faces of the walled dimensions in the order of the distance features: lower faces, then upper.
+        faces = torch.cat([2 * walled, 2 * walled + 1])
+        self.register_buffer("walled_faces", faces, persistent=False)
         self.type_embedding: nn.Embedding | None = None
         if scene.uses_type_embedding:
             self.type_embedding = nn.Embedding(scene.num_particle_types, type_embedding_size)
@@ -85,19 +93,32 @@ class FeatureBuilder(nn.Module):
         particle_type: Tensor,
         material_property: Tensor | None = None,
         context: Tensor | None = None,
+        bounds: Tensor | None = None,
+        walls: Tensor | None = None,
     ) -> Tensor:
-        """(N, C, d) history [+ (N,) types, (N, P) properties, (N, c) context] -> (N, node_in)."""
+        """(N, C, d) history [+ (N,) types, (N, P) properties, (N, c) context] -> (N, node_in).
+
+        ``bounds`` (N, d, 2): each particle's domain (default: the model's); ``walls``
+        (N, 2d, 2): its domain's face conditions, needed when the scene has wall conditions.
+        """
         scene = self.scene
         n = position_sequence.shape[0]
         velocity_sequence = position_sequence[:, 1:] - position_sequence[:, :-1]
         parts = [self.velocity_stats.normalize(velocity_sequence).reshape(n, -1)]
         if scene.wall_dims:
             most_recent = position_sequence[:, -1].index_select(1, self.walled_dims)
-            to_lower = most_recent - self.walled_bounds[:, 0][None]
-            to_upper = self.walled_bounds[:, 1][None] - most_recent
-            distance = torch.cat([to_lower, to_upper], dim=1) / scene.connectivity_radius
+            if bounds is None:
+                lower, upper = self.walled_bounds[:, 0][None], self.walled_bounds[:, 1][None]
+            else:
+                walled = bounds.index_select(1, self.walled_dims).to(most_recent.dtype)
+                lower, upper = walled[..., 0], walled[..., 1]
+            distance = torch.cat([most_recent - lower, upper - most_recent], dim=1) / scene.connectivity_radius
             limit = scene.boundary_clamp_limit
             parts.append(torch.clamp(distance, -limit, limit))
+            if scene.wall_conditions:
+                if walls is None:
+                    raise ValueError("the model takes wall conditions as inputs, but the data records no walls")
+                parts.append(walls[:, :, 0].index_select(1, self.walled_faces).to(most_recent.dtype))
         if self.type_embedding is not None:
             parts.append(self.type_embedding(self.type_row[particle_type]))
         if scene.property_names:

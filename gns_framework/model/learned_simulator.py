@@ -57,8 +57,15 @@ class LearnedSimulator(nn.Module):
     def encode_inputs(self, position_sequence: Tensor, batch: ParticleBatch) -> tuple[Tensor, Tensor, Graph]:
         """Node features (N, node_in), edge features (E, edge_in) and the graph."""
         graph = self.build_graph(position_sequence, batch)
-        context = None if batch.context is None else batch.context[batch.batch]
-        nodes = self.features.node_features(position_sequence, batch.particle_type, batch.material_property, context)
+        per_node = lambda field: None if field is None else field[batch.batch]  # noqa: E731
+        nodes = self.features.node_features(
+            position_sequence,
+            batch.particle_type,
+            batch.material_property,
+            per_node(batch.context),
+            bounds=per_node(batch.bounds),
+            walls=per_node(batch.walls) if self.scene.wall_conditions else None,
+        )
         return nodes, self.features.edge_features(graph), graph
 
     def processed_latent(self, position_sequence: Tensor, batch: ParticleBatch) -> Tensor:

@@ -56,6 +56,8 @@ def rollout(
     """
     _check_simulates(simulator, trajectory)
     guard = guard if guard is not None else RolloutGuard(simulator.scene)
+    if trajectory.bounds is not None:
+        guard = guard.with_bounds(trajectory.bounds)  # its own domain's walls, not the training data's
     device = torch.device(device)
     if device.type == "cpu":
         keep_freed_memory()

@@ -10,6 +10,8 @@ particles back and records what it did.
 
 from __future__ import annotations
 
+import copy
+
 import math
 from dataclasses import dataclass
 
@@ -68,6 +70,15 @@ class RolloutGuard:
     @classmethod
     def from_spec(cls, scene: Scene, spec: RolloutGuardSpec) -> "RolloutGuard":
         return cls(scene, spec.margin, spec.on_violation)
+
+    def with_bounds(self, bounds) -> "RolloutGuard":
+        """This guard for a trajectory with its own domain: (d, 2) lower and upper walls."""
+        guard = copy.copy(self)
+        walls = torch.as_tensor(np.asarray(bounds), dtype=torch.float64)
+        guard.lower = walls[self.walled, 0]
+        guard.upper = walls[self.walled, 1]
+        guard._walled = PerDevice(guard._make_walled)
+        return guard
 
     def check(self, step: int, position: Tensor, previous: Tensor, trajectory: str = "") -> tuple[Tensor, list[GuardViolation]]:
         """Check the predicted frame ``position`` (N, d); ``previous`` (N, d) is the frame before it.

@@ -37,7 +37,7 @@ def test_structural_problems_are_reported_together_with_locations():
     found = problems(raw)
     assert "unknown key (did you mean 'wall_friction'?)" in found["domain.wal_friction"]
     assert "did you mean 'size'" in found["blocks[0].sise"]
-    assert "expected a number or {range: [low, high]}" in found["blocks[1].size[1]"]
+    assert "expected a number, {range: [low, high]} or {span: [low, high]}" in found["blocks[1].size[1]"]
     assert "low <= high" in found["blocks[2].position[1]"]
     assert "time.frames" in found
     assert len(found) == 5

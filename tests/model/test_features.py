@@ -36,3 +36,37 @@ def test_node_features_column_order():
     torch.testing.assert_close(features[:, 10:14], walls.clamp(-1, 1))
     torch.testing.assert_close(features[:, 14:18], builder.type_embedding.weight)
     torch.testing.assert_close(features[:, 18], torch.tensor([0.5, 0.7]))
+
+
+def test_walls_come_from_each_example_domain_when_the_data_gives_one():
+    """Two particles at the same place in boxes of other sizes see their own walls."""
+    scene = _scene(boundary_clamp_limit=20.0)
+    builder = FeatureBuilder(scene, Stats([0.0, 0.0], [1.0, 1.0]), 4)
+    sequence = torch.full((2, 6, 2), 0.4)
+    bounds = torch.tensor([[[0.0, 0.5], [0.0, 0.5]], [[0.0, 2.0], [0.0, 1.0]]])
+    features = builder.node_features(sequence, torch.tensor([5, 5]), bounds=bounds)
+    expected = torch.tensor([[0.4, 0.4, 0.1, 0.1], [0.4, 0.4, 1.6, 0.6]]) / 0.1
+    torch.testing.assert_close(features[:, 10:14], expected)
+    default = builder.node_features(sequence, torch.tensor([5, 5]))
+    torch.testing.assert_close(default[:, 10:14], torch.tensor([[0.4, 0.4, 0.6, 0.6]] * 2) / 0.1)
+
+
+def test_wall_conditions_follow_the_distance_columns_face_by_face():
+    scene = _scene(wall_conditions=True)
+    assert node_feature_size(scene, 16) == 10 + 4 + 4
+    builder = FeatureBuilder(scene, Stats([0.0, 0.0], [1.0, 1.0]), 4)
+    walls = torch.tensor([[[0.1, 0], [0.2, 0], [0.3, 0], [0.4, 0]]] * 3)  # x_min, x_max, y_min, y_max
+    features = builder.node_features(torch.rand(3, 6, 2), torch.tensor([5, 5, 5]), walls=walls)
+    # distance columns are [x lower, y lower, x upper, y upper]; the friction columns follow that order
+    torch.testing.assert_close(features[:, 14:18], torch.tensor([[0.1, 0.3, 0.2, 0.4]] * 3))
+    periodic_x = FeatureBuilder(_scene(wall_conditions=True, periodic=(True, False)), Stats([0.0, 0.0], [1.0, 1.0]), 4)
+    features = periodic_x.node_features(torch.rand(3, 6, 2), torch.tensor([5, 5, 5]), walls=walls)
+    torch.testing.assert_close(features[:, 12:14], torch.tensor([[0.3, 0.4]] * 3))
+
+
+def test_wall_conditions_without_recorded_walls_are_refused():
+    builder = FeatureBuilder(_scene(wall_conditions=True), Stats([0.0, 0.0], [1.0, 1.0]), 4)
+    import pytest
+
+    with pytest.raises(ValueError, match="records no walls"):
+        builder.node_features(torch.rand(3, 6, 2), torch.tensor([5, 5, 5]))

@@ -6,6 +6,8 @@ Layout of ``<split>.npz`` (one group of members per trajectory, keys sorted)::
     <key>/particle_type      (N,) int64
     <key>/material_property  (N, P) float32   optional
     <key>/step_context       (T, C) float32   optional
+    <key>/bounds             (d, 2) float32   optional: this trajectory's domain (default metadata.bounds)
+    <key>/walls              (2d, 2) float32  optional: friction and no-slip flag of each face
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from gns_framework.errors import DatasetError
 
 from .npz_common import NpzSplitsDataset, open_npz, read_member
 
-FIELDS = ("position", "particle_type", "material_property", "step_context")
+FIELDS = ("position", "particle_type", "material_property", "step_context", "bounds", "walls")
 
 
 class SafeDataset(NpzSplitsDataset):
@@ -54,7 +56,10 @@ class SafeDataset(NpzSplitsDataset):
         def load(key: str) -> Trajectory:
             fields = groups[key]
             get = lambda f: read_member(archive, file, f"{key}/{f}") if f in fields else None  # noqa: E731
-            return Trajectory(get("position"), get("particle_type"), get("material_property"), get("step_context"), key)
+            return Trajectory(
+                get("position"), get("particle_type"), get("material_property"), get("step_context"), key,
+                get("bounds"), get("walls"),
+            )
 
         # File order is the order the trajectories were written in (``gns generate``: seed order), which
         # re-simulating a test case relies on; sorting the keys would lose it.
@@ -71,8 +76,9 @@ class SafeDataset(NpzSplitsDataset):
                 arrays[f"{key}/particle_type"] = np.asarray(traj.particle_type, dtype=np.int64)
                 if traj.material_property is not None:
                     arrays[f"{key}/material_property"] = np.asarray(traj.material_property, dtype=np.float32)
-                if traj.step_context is not None:
-                    arrays[f"{key}/step_context"] = np.asarray(traj.step_context, dtype=np.float32)
+                for name in ("step_context", "bounds", "walls"):
+                    if getattr(traj, name) is not None:
+                        arrays[f"{key}/{name}"] = np.asarray(getattr(traj, name), dtype=np.float32)
             with atomic_path(path / f"{split}.npz", suffix=".npz") as tmp:
                 np.savez_compressed(tmp, **arrays)
         write_text_atomic(path / "metadata.json", json.dumps(metadata.to_json_dict(), indent=2) + "\n")

@@ -122,6 +122,7 @@ class MlsMpm(GroundTruthSimulator):
         from .mpm_solver import MpmSolver
 
         sample = sample_scene(scene, seed)
+        scene = sample.scene  # this trajectory's domain: extent and face conditions drawn
         solver = MpmSolver(
             scene,
             position=np.concatenate([b.position for b in sample.blocks]),
@@ -142,6 +143,8 @@ class MlsMpm(GroundTruthSimulator):
             particle_type=sample.particle_type(self.materials),
             material_property=sample.material_property(self.materials),
             key=f"seed_{seed}",
+            bounds=sample.bounds,
+            walls=sample.walls,
         )
 
 

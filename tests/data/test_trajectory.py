@@ -1,0 +1,58 @@
+"""The trajectory record: validated shapes and values, its own domain and walls kept through every copy."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from gns_framework.data.batch import collate, window
+from gns_framework.data.stride import strided
+from gns_framework.data.trajectory import Trajectory
+from gns_framework.errors import DatasetError
+
+
+def _trajectory(**fields) -> Trajectory:
+    base = dict(
+        position=np.random.default_rng(0).uniform(0.1, 0.4, (8, 5, 2)).astype(np.float32),
+        particle_type=np.full(5, 6),
+        key="t",
+        bounds=np.array([[0.0, 0.5], [0.0, 0.75]]),
+        walls=np.array([[0.3, 0], [0.0, 0], [0.5, 0], [0.0, 0]]),
+    )
+    return Trajectory(**{**base, **fields})
+
+
+def test_domain_and_walls_survive_validation_striding_and_windows():
+    trajectory = _trajectory().validated("data")
+    assert trajectory.bounds.dtype == np.float32 and trajectory.walls.shape == (4, 2)
+    assert strided(trajectory, 2).bounds is trajectory.bounds
+    example = window(trajectory, 0, 6)
+    torch.testing.assert_close(example.bounds, torch.tensor([[[0.0, 0.5], [0.0, 0.75]]]))
+    batch = collate([example, window(_trajectory(bounds=np.array([[0.0, 2.0], [0.0, 1.0]])).validated("d"), 1, 6)])
+    assert batch.bounds.shape == (2, 2, 2) and batch.walls.shape == (2, 4, 2)
+    assert batch.bounds[1, 0, 1] == 2.0
+
+
+def test_examples_with_and_without_their_own_domain_do_not_mix():
+    with_domain = window(_trajectory().validated("d"), 0, 6)
+    without = window(_trajectory(bounds=None, walls=None).validated("d"), 0, 6)
+    with pytest.raises(ValueError, match="some examples have bounds and some not"):
+        collate([with_domain, without])
+
+
+@pytest.mark.parametrize(
+    "fields, message",
+    [
+        (dict(bounds=np.zeros((3, 2))), r"bounds: expected shape \(2, 2\)"),
+        (dict(bounds=np.array([[0.0, 0.5], [0.5, 0.5]])), "lower < upper"),
+        (dict(bounds=np.array([[0.0, np.inf], [0.0, 1.0]])), "bounds: expected finite"),
+        (dict(walls=np.zeros((2, 2))), r"walls: expected shape \(4, 2\)"),
+        (dict(walls=np.array([[-0.1, 0], [0, 0], [0, 0], [0, 0]])), "friction >= 0"),
+        (dict(walls=np.array([[0.1, 0.5], [0, 0], [0, 0], [0, 0]])), "no-slip flag 0 or 1"),
+    ],
+)
+def test_bad_domain_or_walls_name_the_file_trajectory_and_field(fields, message):
+    with pytest.raises(DatasetError, match=message) as info:
+        _trajectory(**fields).validated("data/train.npz")
+    assert "data/train.npz: trajectory 't'" in str(info.value)
