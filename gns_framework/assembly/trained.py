@@ -11,6 +11,7 @@ from ..config.recipe import Recipe, validate_recipe, without_pickle_grant
 from ..data.metadata import DatasetMetadata, parse_metadata
 from ..errors import CheckpointError
 from ..io.checkpoint import load_checkpoint
+from ..model.envelope import Envelope
 from ..model.learned_simulator import LearnedSimulator
 from ..plugins import Registry
 from .learned import build_learned_simulator
@@ -24,6 +25,8 @@ class LoadedModel:
     metadata: DatasetMetadata
     step: int
     path: Path
+    envelope: Envelope | None = None
+    """What the model was trained on; None for checkpoints written before envelopes were recorded."""
 
 
 def load_trained(path: str | Path, registry: Registry, device: torch.device | str = "cpu") -> LoadedModel:
@@ -39,4 +42,10 @@ def load_trained(path: str | Path, registry: Registry, device: torch.device | st
     except RuntimeError as exc:
         raise CheckpointError(f"{path}: model: parameters do not fit the stored recipe: {exc}") from None
     simulator.eval()
-    return LoadedModel(simulator.to(device), recipe, metadata, int(state["step"]), path)
+    envelope = None
+    if "envelope" in state:
+        try:
+            envelope = Envelope.from_dict(state["envelope"])
+        except TypeError as exc:
+            raise CheckpointError(f"{path}: envelope: not an envelope record ({exc})") from None
+    return LoadedModel(simulator.to(device), recipe, metadata, int(state["step"]), path, envelope)

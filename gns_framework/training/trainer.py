@@ -18,6 +18,7 @@ from tqdm import tqdm
 from ..assembly.data import prepare_data
 from ..assembly.learned import build_learned_simulator, plugin_versions
 from ..assembly.scene import scene_to_dict
+from ..model.envelope import measure_envelope
 from ..config.recipe import Recipe
 from ..data.atomic import write_text_atomic
 from ..data.batch import ParticleBatch
@@ -114,6 +115,18 @@ class Trainer:
         self.validation_batches = self._validation_batches() if self.processes.is_chief else []
         valid = self.data.valid if self.processes.is_chief and self.data.valid is not None else []
         self.validation_trajectories = [valid[i] for i in range(min(recipe.training.validation_rollouts, len(valid)))]
+        self.envelope = (
+            measure_envelope(
+                self.data.metadata,
+                self.data.train,
+                self.data.scene,
+                {t: registry.material_by_type(t).name for t in self.data.scene.particle_types},
+                recipe.dataset.frame_stride,
+            )
+            if self.processes.is_chief
+            else None
+        )
+        """What the model is trained on, recorded in every checkpoint (rollouts refuse data outside it)."""
 
         # Same seed on every rank: identical initial weights (DDP would broadcast rank 0's anyway).
         torch.manual_seed(recipe.seed)
@@ -165,6 +178,7 @@ class Trainer:
             "metadata": self.data.metadata.to_json_dict(),
             "plugins": plugin_versions(self.recipe, self.registry, self.data.scene),
             "best": dict(self.best),
+            **({"envelope": self.envelope.to_dict()} if self.envelope is not None else {}),
         }
 
     def load_state(self, state: dict, source: str) -> None:

@@ -1,0 +1,298 @@
+"""What a learned simulator was trained on, and the check that refuses data outside it.
+
+A GNS learns the dynamics of the particles it saw: their spacing (the connectivity
+radius is a few spacings), the time step (its accelerations are per step), their
+materials and property values, how close to which walls they came, how fast they
+moved. Outside that it extrapolates, and nothing in its output says so. Each
+checkpoint therefore records its :class:`Envelope`, measured on the training
+trajectories (as the model saw them, every ``frame_stride``-th frame), and every
+command that rolls a model out checks its data against it first
+(:func:`outside_envelope`): quantity by quantity, with the value found and the
+range trained on.
+
+Rollout length is not part of the envelope: a model runs as long as the data asks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from ..contracts import Scene
+from ..data.metadata import DatasetMetadata
+from ..data.particle_spacing import particle_spacing
+from ..data.trajectory import Trajectory
+from ..errors import GnsError
+
+SPACING_TOLERANCE = 0.10
+"""Relative difference of particle spacing accepted: the lattice jitter of generated data moves it by a few %."""
+
+DT_TOLERANCE = 1e-3
+"""Relative difference of the learned step's duration accepted (rounding of stored time steps)."""
+
+PROPERTY_SLACK = 0.02
+"""Fraction of a trained property range (or of its value, for a single value) accepted beyond its ends."""
+
+SPEED_SLACK = 1.25
+"""Input speeds up to this multiple of the largest trained speed are accepted."""
+
+COUNT_SLACK = (0.5, 1.5)
+"""Particle counts accepted, as multiples of the smallest and largest trained count."""
+
+WALL_SLACK = 0.01
+"""Friction coefficients accepted beyond the ends of a trained wall-friction range."""
+
+FACE_NAMES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
+
+
+class OutsideEnvelope(GnsError):
+    """Data outside what a model was trained on; ``problems`` lists each quantity."""
+
+    def __init__(self, message: str, problems: list[str]):
+        super().__init__(message)
+        self.problems = problems
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """The training data's range, quantity by quantity (SI units when the data is in metres and seconds).
+
+    Attributes:
+        dim: spatial dimensions.
+        particle_spacing: median nearest-neighbour distance at frame 0 (median over trajectories).
+        step_dt: seconds per learned step (stored frame step x frame stride).
+        frame_stride: stored frames per learned step.
+        particle_types: type ids in the data.
+        materials: material name of each type id (as registered when training).
+        properties: material property name -> [lowest, highest] value of any particle.
+        extent: per axis [smallest, largest] domain edge length.
+        walls: per face (``x_min``, ...) ``{"friction": [low, high] of the rough faces or None,
+            "slip": seen frictionless, "no_slip": seen no-slip}``; None when the data recorded no walls.
+        max_speed: the largest particle speed between two consecutive (strided) frames, per second.
+        particle_count: [fewest, most] particles in a trajectory.
+        frames: (strided) frames per training trajectory, [fewest, most]; informational.
+    """
+
+    dim: int
+    particle_spacing: float
+    step_dt: float
+    frame_stride: int
+    particle_types: list[int]
+    materials: dict[str, str]
+    properties: dict[str, list[float]]
+    extent: list[list[float]]
+    walls: dict[str, dict] | None
+    max_speed: float
+    particle_count: list[int]
+    frames: list[int] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, raw: dict) -> "Envelope":
+        return cls(**raw)
+
+    def rows(self) -> list[tuple[str, str]]:
+        """(quantity, trained range) in words, for model cards and ``gns info``."""
+        axes = "xyz"
+        rows = [
+            ("dimension", f"{self.dim}D"),
+            ("particle spacing", f"{self.particle_spacing:.4g} m (+-{SPACING_TOLERANCE:.0%})"),
+            ("learned step", f"{self.step_dt:.4g} s ({self.frame_stride} stored frame(s) of {self.step_dt / self.frame_stride:.4g} s)"),
+            ("materials", ", ".join(f"{name} (type {t})" for t, name in sorted(self.materials.items(), key=lambda kv: int(kv[0])))),
+        ]
+        rows += [(f"property {name}", f"{lo:.4g} .. {hi:.4g}") for name, (lo, hi) in self.properties.items()]
+        rows += [(f"domain {axes[a]} extent", f"{lo:.4g} .. {hi:.4g} m") for a, (lo, hi) in enumerate(self.extent)]
+        for face, seen in (self.walls or {}).items():
+            kinds = (["slip"] if seen["slip"] else []) + (["no-slip"] if seen["no_slip"] else [])
+            if seen["friction"] is not None:
+                lo, hi = seen["friction"]
+                kinds.append(f"friction {lo:.3g} .. {hi:.3g}")
+            rows.append((f"wall {face}", " or ".join(kinds)))
+        rows += [
+            ("largest speed", f"{self.max_speed:.3g} m/s (inputs up to {SPEED_SLACK:g}x)"),
+            ("particles per scene", f"{self.particle_count[0]} .. {self.particle_count[1]}"),
+        ]
+        return rows
+
+
+def _extent(trajectory: Trajectory, metadata: DatasetMetadata) -> np.ndarray:
+    """(d,) edge lengths of a trajectory's domain: its own bounds, else the dataset's."""
+    bounds = np.asarray(trajectory.bounds if trajectory.bounds is not None else metadata.bounds, dtype=np.float64)
+    return bounds[:, 1] - bounds[:, 0]
+
+
+def _speed(position: np.ndarray, moving: np.ndarray, dt: float) -> float:
+    """The largest speed of the ``moving`` particles between consecutive frames of (T, N, d) ``position``."""
+    if position.shape[0] < 2 or not moving.any():
+        return 0.0
+    steps = np.linalg.norm(np.diff(position[:, moving], axis=0), axis=-1)
+    return float(steps.max()) / dt
+
+
+def measure_envelope(
+    metadata: DatasetMetadata,
+    trajectories: Sequence[Trajectory],
+    scene: Scene,
+    materials: dict[int, str],
+    frame_stride: int,
+) -> Envelope:
+    """The envelope of ``trajectories`` as the model sees them (already strided; ``metadata.dt`` is per learned step)."""
+    spacings, counts, frames, speed = [], [], [], 0.0
+    extents = []
+    properties: dict[str, list[float]] = {}
+    faces: dict[str, dict] | None = {}
+    types: set[int] = set()
+    kinematic = np.asarray(scene.kinematic_types, dtype=np.int64)
+    for trajectory in trajectories:
+        spacings.append(particle_spacing(trajectory.position[0]))
+        counts.append(trajectory.num_particles)
+        frames.append(trajectory.num_steps)
+        types.update(int(t) for t in np.unique(trajectory.particle_type))
+        moving = ~np.isin(trajectory.particle_type, kinematic)
+        speed = max(speed, _speed(trajectory.position, moving, metadata.dt))
+        extents.append(_extent(trajectory, metadata))
+        if trajectory.material_property is not None:
+            for column, name in enumerate(scene.property_names):
+                values = trajectory.material_property[moving, column] if moving.any() else trajectory.material_property[:, column]
+                low, high = float(values.min()), float(values.max())
+                seen = properties.setdefault(name, [low, high])
+                seen[0], seen[1] = min(seen[0], low), max(seen[1], high)
+        if faces is not None:
+            if trajectory.walls is None:
+                faces = None
+                continue
+            for index, (friction, no_slip) in enumerate(np.asarray(trajectory.walls, dtype=np.float64)):
+                face = faces.setdefault(FACE_NAMES[index], {"friction": None, "slip": False, "no_slip": False})
+                if no_slip:
+                    face["no_slip"] = True
+                elif friction == 0:
+                    face["slip"] = True
+                else:
+                    low, high = face["friction"] or (friction, friction)
+                    face["friction"] = [float(min(low, friction)), float(max(high, friction))]
+    extents_array = np.asarray(extents)
+    return Envelope(
+        dim=metadata.dim,
+        particle_spacing=float(np.median(spacings)),
+        step_dt=float(metadata.dt),
+        frame_stride=int(frame_stride),
+        particle_types=sorted(types),
+        materials={str(t): materials.get(t, "?") for t in sorted(types)},
+        properties=properties,
+        extent=[[float(lo), float(hi)] for lo, hi in zip(extents_array.min(axis=0), extents_array.max(axis=0))],
+        walls=faces if faces else None,
+        max_speed=speed,
+        particle_count=[int(min(counts)), int(max(counts))],
+        frames=[int(min(frames)), int(max(frames))],
+    )
+
+
+class _Findings:
+    """Problems by quantity: the first trajectory and value, how many trajectories, the trained range."""
+
+    def __init__(self):
+        self.found: dict[str, dict] = {}
+
+    def add(self, quantity: str, value: str, trained: str, key: str | None = None) -> None:
+        entry = self.found.setdefault(quantity, {"value": value, "trained": trained, "keys": []})
+        if key is not None:
+            entry["keys"].append(key)
+
+    def lines(self) -> list[str]:
+        out = []
+        for quantity, entry in self.found.items():
+            keys = entry["keys"]
+            where = ""
+            if keys:
+                where = f" in trajectory {keys[0]!r}" + (f" and {len(keys) - 1} more" if len(keys) > 1 else "")
+            out.append(f"{quantity} {entry['value']}{where} (trained: {entry['trained']})")
+        return out
+
+
+def _within(value: float, low: float, high: float, slack: float) -> bool:
+    return low - slack <= value <= high + slack
+
+
+def outside_envelope(
+    envelope: Envelope,
+    metadata: DatasetMetadata,
+    trajectories: Sequence[Trajectory],
+    history: int,
+    kinematic_types: Sequence[int] = (),
+) -> list[str]:
+    """What in the data lies outside ``envelope``, one line per quantity (empty: all inside).
+
+    ``trajectories`` are seen as the model will see them (strided). Only a rollout's
+    inputs are judged (its first ``history`` frames, the speeds among them): the
+    frames after them are what the model is asked to predict.
+    """
+    findings = _Findings()
+    if metadata.dim != envelope.dim:
+        findings.add("dimension", f"{metadata.dim}D", f"{envelope.dim}D")
+        return findings.lines()
+    if not math.isclose(metadata.dt, envelope.step_dt, rel_tol=DT_TOLERANCE):
+        findings.add("learned step", f"{metadata.dt:.4g} s", f"{envelope.step_dt:.4g} s")
+    trained_types = set(envelope.particle_types)
+    kinematic = np.asarray(list(kinematic_types), dtype=np.int64)
+    axes = "xyz"
+    for trajectory in trajectories:
+        key = trajectory.key
+        spacing = particle_spacing(trajectory.position[0])
+        if abs(spacing / envelope.particle_spacing - 1) > SPACING_TOLERANCE:
+            findings.add("particle spacing", f"{spacing:.4g} m", f"{envelope.particle_spacing:.4g} m +-{SPACING_TOLERANCE:.0%}", key)
+        unknown = sorted(set(np.unique(trajectory.particle_type).tolist()) - trained_types)
+        if unknown:
+            findings.add("particle types", f"{unknown}", f"{envelope.particle_types}", key)
+        low, high = envelope.particle_count
+        if not COUNT_SLACK[0] * low <= trajectory.num_particles <= COUNT_SLACK[1] * high:
+            findings.add("particle count", f"{trajectory.num_particles}", f"{low} .. {high}, accepted {COUNT_SLACK[0]:g}x .. {COUNT_SLACK[1]:g}x", key)
+        moving = ~np.isin(trajectory.particle_type, kinematic)
+        speed = _speed(trajectory.position[:history], moving, metadata.dt)
+        if speed > SPEED_SLACK * envelope.max_speed:
+            findings.add("input speed", f"{speed:.3g} m/s", f"up to {envelope.max_speed:.3g} m/s, accepted {SPEED_SLACK:g}x", key)
+        extent = _extent(trajectory, metadata)
+        for axis, (value, (lo, hi)) in enumerate(zip(extent, envelope.extent)):
+            if not _within(value, lo, hi, 2 * envelope.particle_spacing):
+                findings.add(f"domain {axes[axis]} extent", f"{value:.4g} m", f"{lo:.4g} .. {hi:.4g} m", key)
+        if trajectory.material_property is not None:
+            for column, (name, (lo, hi)) in enumerate(envelope.properties.items()):
+                if column >= trajectory.material_property.shape[1]:
+                    break
+                values = trajectory.material_property[moving, column] if moving.any() else trajectory.material_property[:, column]
+                slack = PROPERTY_SLACK * max(hi - lo, abs(hi), 1e-12)
+                outside = values[(values < lo - slack) | (values > hi + slack)]
+                if outside.size:
+                    findings.add(f"property {name}", f"{float(outside[0]):.4g}", f"{lo:.4g} .. {hi:.4g}", key)
+        if envelope.walls is not None and trajectory.walls is not None:
+            for index, (friction, no_slip) in enumerate(np.asarray(trajectory.walls, dtype=np.float64)):
+                face = FACE_NAMES[index]
+                seen = envelope.walls.get(face)
+                if seen is None:
+                    continue
+                if no_slip:
+                    ok, value = seen["no_slip"], "no-slip"
+                elif friction == 0:
+                    ok, value = seen["slip"], "slip"
+                else:
+                    ok = seen["friction"] is not None and _within(friction, *seen["friction"], WALL_SLACK)
+                    value = f"friction {friction:.3g}"
+                if not ok:
+                    kinds = (["slip"] if seen["slip"] else []) + (["no-slip"] if seen["no_slip"] else [])
+                    if seen["friction"] is not None:
+                        kinds.append(f"friction {seen['friction'][0]:.3g} .. {seen['friction'][1]:.3g}")
+                    findings.add(f"wall {face}", value, " or ".join(kinds), key)
+    return findings.lines()
+
+
+def envelope_message(source: str, model: str, problems: list[str]) -> str:
+    """The refusal: the data, the model, each quantity outside, and the way to run anyway."""
+    listed = "".join(f"\n  - {line}" for line in problems)
+    return (
+        f"{source}: outside the envelope of {model}, which extrapolates there without knowing it:{listed}\n"
+        "Pass --outside-envelope to roll out anyway; the warning is then recorded in every output."
+    )

@@ -1,0 +1,103 @@
+"""The training envelope: measured from the data the model saw, and every quantity outside it named."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from gns_framework.contracts import Scene
+from gns_framework.data.metadata import DatasetMetadata
+from gns_framework.data.trajectory import Trajectory
+from gns_framework.model.envelope import Envelope, measure_envelope, outside_envelope
+
+SPACING = 0.01
+DT = 0.01
+
+
+def _metadata(dt: float = DT, dim: int = 2) -> DatasetMetadata:
+    zeros = [0.0] * dim
+    return DatasetMetadata(
+        bounds=[(0.0, 2.0), (0.0, 1.0), (0.0, 1.0)][:dim], sequence_length=8, default_connectivity_radius=0.025,
+        dim=dim, dt=dt, vel_mean=zeros, vel_std=[1.0] * dim, acc_mean=zeros, acc_std=[1.0] * dim,
+    )
+
+
+def _column(width: float, height: float, *, spacing: float = SPACING, friction: float = 0.7, speed: float = 0.5,
+            extent=(1.0, 0.6), walls=((0.4, 0), (0.0, 0), (0.5, 0), (0.0, 0)), key: str = "c") -> Trajectory:
+    """A lattice column falling at ``speed`` m/s (per DT) for 8 frames, in its own box."""
+    xs, ys = np.meshgrid(np.arange(0, width, spacing), np.arange(0, height, spacing), indexing="ij")
+    start = np.stack([xs.ravel(), ys.ravel()], axis=1) + spacing / 2
+    frames = np.stack([start - [0.0, speed * DT * t] for t in range(8)]).astype(np.float32)
+    n = start.shape[0]
+    return Trajectory(
+        frames, np.full(n, 6), np.full((n, 1), friction, np.float32), key=key,
+        bounds=np.array([[0.0, extent[0]], [0.0, extent[1]]], np.float32), walls=np.array(walls, np.float32),
+    ).validated("test")
+
+
+SCENE = Scene(dim=2, bounds=((0.0, 2.0), (0.0, 1.0)), connectivity_radius=0.025, particle_types=(6,),
+              property_names=("friction",))
+TRAINED = [
+    _column(0.1, 0.2, friction=0.5, extent=(0.8, 0.5), key="a"),
+    _column(0.3, 0.4, friction=0.9, extent=(2.0, 1.0), walls=((0.3, 0), (0.6, 0), (0.3, 0), (0.0, 0)), key="b"),
+]
+ENVELOPE = measure_envelope(_metadata(), TRAINED, SCENE, {6: "sand"}, frame_stride=2)
+
+
+def test_the_envelope_is_measured_from_the_training_trajectories():
+    e = ENVELOPE
+    assert e.dim == 2 and e.step_dt == DT and e.frame_stride == 2
+    assert e.particle_spacing == pytest.approx(SPACING, rel=1e-5)
+    assert e.particle_types == [6] and e.materials == {"6": "sand"}
+    assert e.properties == {"friction": [pytest.approx(0.5), pytest.approx(0.9)]}
+    assert e.extent == [[pytest.approx(0.8), pytest.approx(2.0)], [pytest.approx(0.5), pytest.approx(1.0)]]
+    assert e.walls["x_min"] == {"friction": [pytest.approx(0.3), pytest.approx(0.4)], "slip": False, "no_slip": False}
+    assert e.walls["x_max"] == {"friction": [pytest.approx(0.6), pytest.approx(0.6)], "slip": True, "no_slip": False}
+    assert e.max_speed == pytest.approx(0.5, rel=1e-4)
+    assert e.particle_count == [200, 1200]
+    assert Envelope.from_dict(e.to_dict()) == e
+
+
+def test_data_inside_the_envelope_passes_even_in_a_box_never_seen():
+    unseen_box = _column(0.2, 0.3, friction=0.6, extent=(1.37, 0.72), key="inside")
+    assert outside_envelope(ENVELOPE, _metadata(), [unseen_box], history=6) == []
+
+
+@pytest.mark.parametrize(
+    "trajectory, metadata, quantity, value, trained",
+    [
+        (_column(0.1, 0.2, spacing=0.00625, key="k"), _metadata(), "particle spacing", "0.00625 m", "0.01 m"),
+        (_column(0.1, 0.2, key="k"), _metadata(dt=0.016), "learned step", "0.016 s", "0.01 s"),
+        (_column(0.1, 0.2, friction=1.2, key="k"), _metadata(), "property friction", "1.2", "0.5 .. 0.9"),
+        (_column(0.1, 0.2, extent=(2.5, 0.6), key="k"), _metadata(), "domain x extent", "2.5 m", "0.8 .. 2 m"),
+        (_column(0.1, 0.2, extent=(1.0, 0.3), key="k"), _metadata(), "domain y extent", "0.3 m", "0.5 .. 1 m"),
+        (_column(0.1, 0.2, walls=((0.0, 0), (0, 0), (0.5, 0), (0, 0)), key="k"), _metadata(), "wall x_min", "slip", "friction 0.3 .. 0.4"),
+        (_column(0.1, 0.2, walls=((0.3, 0), (0.9, 0), (0.5, 0), (0, 0)), key="k"), _metadata(), "wall x_max", "friction 0.9", "slip or friction 0.6 .. 0.6"),
+        (_column(0.1, 0.2, walls=((0.3, 0), (0, 1), (0.5, 0), (0, 0)), key="k"), _metadata(), "wall x_max", "no-slip", "slip or friction"),
+        (_column(0.1, 0.2, speed=2.0, key="k"), _metadata(), "input speed", "2 m/s", "up to 0.5 m/s"),
+        (_column(0.6, 0.4, key="k"), _metadata(), "particle count", "2400", "200 .. 1200"),
+        (replace(_column(0.1, 0.2, key="k"), particle_type=np.full(200, 7)), _metadata(), "particle types", "[7]", "[6]"),
+    ],
+)
+def test_each_quantity_outside_is_named_with_its_value_and_the_trained_range(trajectory, metadata, quantity, value, trained):
+    problems = outside_envelope(ENVELOPE, metadata, [trajectory], history=6)
+    assert len(problems) == 1, problems
+    assert problems[0].startswith(f"{quantity} {value}")
+    assert "trajectory 'k'" in problems[0] or quantity == "learned step"
+    assert f"(trained: {trained}" in problems[0]
+
+
+def test_another_dimension_is_refused_before_anything_else():
+    assert outside_envelope(ENVELOPE, _metadata(dim=3), [], history=6) == ["dimension 3D (trained: 2D)"]
+
+
+def test_only_the_inputs_are_judged_and_many_trajectories_are_counted_once_per_quantity():
+    fast_later = _column(0.1, 0.2, key="later")
+    position = fast_later.position.copy()
+    position[7] -= [0.0, 0.2]  # a jump after the 6 input frames: what the model predicts, not what it is given
+    assert outside_envelope(ENVELOPE, _metadata(), [replace(fast_later, position=position)], history=6) == []
+    wide = [_column(0.1, 0.2, extent=(2.5, 0.6), key=f"w{i}") for i in range(3)]
+    (line,) = outside_envelope(ENVELOPE, _metadata(), wide, history=6)
+    assert "in trajectory 'w0' and 2 more" in line
