@@ -360,6 +360,28 @@ class RolloutPair:
         )
 
     @cached_property
+    def final_extents(self) -> tuple[Tensor, Tensor] | None:
+        """(predicted, true) final horizontal extent of the granular particles, (B,) each, L; None without them."""
+        if not self.granular_types:
+            return None
+        return tuple(
+            horizontal_extent(r.position[:, -1], r.of_types(self.granular_types), self.runout_axis)
+            for r in (self.predicted, self.target)
+        )
+
+    @cached_property
+    def final_heights(self) -> tuple[Tensor, Tensor] | None:
+        """(predicted, true) final pile height: the highest granular particle above the floor, (B,) each, L."""
+        if not self.granular_types:
+            return None
+        axis = self.vertical_axis % len(self.bounds)
+        floor = float(self.bounds[axis][0])
+        return tuple(
+            torch.where(r.of_types(self.granular_types), r.position[:, -1, :, axis] - floor, -torch.inf).amax(-1)
+            for r in (self.predicted, self.target)
+        )
+
+    @cached_property
     def profile_error(self) -> tuple[Tensor, Tensor] | None:
         """:func:`profile_error` of the final granular piles; None without granular types."""
         if not self.granular_types:

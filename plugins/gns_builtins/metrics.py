@@ -46,6 +46,14 @@ def _runout_error_pct(pair: RolloutPair):
     return None if pair.runouts is None else _relative(_runout_error(pair), pair.runouts[1])
 
 
+def _final_error_pct(values):
+    """``|predicted - true| / |true|`` in % of a (predicted, true) pair of final measures; None when absent."""
+    if values is None:
+        return None
+    predicted, true = values
+    return _relative((predicted - true).abs(), true)
+
+
 BUILTIN_METRICS = (
     Metric("mse_{h}", "L^2, position MSE averaged over rollout steps 1..h", horizon_mse, pairwise=True),
     Metric("mse_full", "L^2, position MSE averaged over the whole rollout", _mse_full, pairwise=True),
@@ -79,6 +87,16 @@ BUILTIN_METRICS = (
     ),
     Metric("runout_error", "L, |predicted - true| runout distance of the granular particles", _runout_error),
     Metric("runout_error_pct", "%, runout_error as a share of the true runout distance", _runout_error_pct),
+    Metric(
+        "extent_error_pct",
+        "%, |predicted - true| final horizontal extent (front - back) of the granular particles, of the true one",
+        lambda pair: _final_error_pct(pair.final_extents),
+    ),
+    Metric(
+        "height_error_pct",
+        "%, |predicted - true| final pile height (highest granular particle above the floor), of the true one",
+        lambda pair: _final_error_pct(pair.final_heights),
+    ),
     Metric(
         "profile_error",
         "L, RMS error of the final pile surface height over occupied bins",

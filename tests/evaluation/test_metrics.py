@@ -202,6 +202,19 @@ def test_runout_of_a_constructed_pile():
     assert metrics["runout_error_pct"].item() == pytest.approx(100 * 0.05 / 0.3)
 
 
+def test_final_extent_and_pile_height_errors_of_a_constructed_pile():
+    """Extent: front 0.5 against 0.45 of the true 0.5 (10 %); height: the highest sand particle, 0.1 both."""
+    truth, predicted = collapse(0.5), collapse(0.45)
+    metrics = measure(predicted, truth, dt=0.01, bounds=UNIT_BOX, granular_types={SAND})
+    assert metrics["extent_error_pct"].item() == pytest.approx(10.0)
+    assert metrics["height_error_pct"].item() == pytest.approx(0.0)
+    lower = rollout_of(torch.cat([predicted.position[:, :6] * torch.tensor([1.0, 0.8]), predicted.position[:, 6:]], 1),
+                       predicted.particle_type, start=predicted.start)
+    metrics = measure(lower, truth, dt=0.01, bounds=[(0.0, 1.0), (-0.1, 1.0)], granular_types={SAND})
+    # heights above the floor at -0.1: 0.08 + 0.1 predicted, 0.1 + 0.1 true
+    assert metrics["height_error_pct"].item() == pytest.approx(100 * 0.02 / 0.2)
+
+
 def test_pile_profile_and_its_error_by_hand():
     # Four bins of width 0.25 on x; heights above the floor at y = 0.
     position = torch.tensor([[[0.1, 0.2], [0.2, 0.4], [0.6, 0.1], [0.9, 5.0]]], dtype=torch.float64)

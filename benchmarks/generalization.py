@@ -1,0 +1,134 @@
+"""Does a sand model hold on the scenes users bring? Per-scene errors against the MPM, and the goal.
+
+For a trained model (default ``models/sand2d_general.pt``) on
+
+- held-out scenes drawn from the general envelope (``scenes/sand_general_2d.yaml`` with a
+  scene seed training never used, ``--seed``), and
+- the four canonical scenes of ``scenes/canonical/`` (a tall column in a 2 m box, a
+  free-standing column, two columns of different friction, slip side walls),
+
+it prints per scene the final sand extent, pile height and runout errors of the learned
+rollout against the MPM that made the data (%), its final-cloud Sinkhorn error (% of the
+largest domain side), and the Sinkhorn error of the MPM at half resolution on the same
+scene, then the medians and worst cases against the goal: median <= 5 %, worst <= 15 %
+for extent and height, Sinkhorn below the half-resolution MPM's. Datasets are generated
+into ``--out`` on the first run (``gns generate``'s code, same seeds: reproducible) and
+reused afterwards. The learned model and the two MPMs run on the same scenes in one run.
+
+Usage::
+
+    python benchmarks/generalization.py --model models/sand2d_general.pt --held-out 20 --threads 2 [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+GOAL = {"median": 5.0, "worst": 15.0}
+MEASURES = ("extent_error_pct", "height_error_pct", "runout_error_pct", "sinkhorn_final_pct")
+
+
+def dataset(scene_path: Path, out: Path, test: int, seed: int | None, registry) -> Path:
+    """``out`` holding one training trajectory (statistics need one) and ``test`` cases of the scene."""
+    from gns_framework.assembly.ground_truth import build_ground_truth_simulator
+    from gns_framework.ground_truth.generate import generate_dataset, is_up_to_date, provenance
+    from gns_framework.ground_truth.scene_spec import load_scene
+
+    scene = load_scene(scene_path)
+    if seed is not None:
+        scene = scene.model_copy(update={"seed": seed})
+    simulator = build_ground_truth_simulator(scene, registry, scene_path)
+    counts = {"train": 1, "valid": 0, "test": test}
+    if not is_up_to_date(out, provenance(scene, simulator, counts)):
+        layout = registry.get("dataset", "safe")
+        generate_dataset(scene, simulator, out, layout, counts, progress=False)
+    return out
+
+
+def evaluate(model_path: Path, data: Path, registry, device) -> dict[str, dict[str, dict]]:
+    """case key -> {"learned": metrics, "mpm_half": metrics} on the test split of ``data``."""
+    from gns_framework.assembly.data import open_dataset
+    from gns_framework.assembly.trained import load_trained
+    from gns_framework.evaluation.candidates import cases_from_split, compare
+
+    from gns_framework.model.envelope import outside_envelope
+
+    model = load_trained(model_path, registry, device)
+    data_set = open_dataset(model.recipe.dataset, registry, data)
+    cases = cases_from_split(data_set.split("test"))
+    if model.envelope is not None:
+        scene = model.simulator.scene
+        for line in outside_envelope(model.envelope, data_set.metadata(), cases, scene.history, scene.kinematic_types):
+            print(f"{data}: outside the model's envelope: {line}", file=sys.stderr)
+    report = compare([("learned", model)], cases, data_set.metadata(), registry, device,
+                     grid_scales=(0.5,), repeats=1, warmup=0)
+    by_kind = {("learned" if e.kind == "learned" else "mpm_half"): e for e in report.entries}
+    return {key: {kind: entry.cases[key] for kind, entry in by_kind.items()} for key in by_kind["learned"].cases}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", type=Path, default=ROOT / "models" / "sand2d_general.pt")
+    parser.add_argument("--held-out", type=int, default=20, help="held-out envelope scenes (default 20)")
+    parser.add_argument("--seed", type=int, default=7, help="scene seed of the held-out scenes (training used 0)")
+    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization", help="datasets are kept here")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--json", action="store_true", help="also print the per-scene figures as one JSON line")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+
+    from gns_framework.plugins import load_registry
+
+    registry = load_registry()
+    device = torch.device("cpu")
+    groups = {}
+    if args.held_out:
+        data = dataset(ROOT / "scenes" / "sand_general_2d.yaml", args.out / "held_out", args.held_out, args.seed, registry)
+        groups["held-out"] = evaluate(args.model, data, registry, device)
+    canonical = {}
+    for scene_path in sorted((ROOT / "scenes" / "canonical").glob("*.yaml")):
+        data = dataset(scene_path, args.out / "canonical" / scene_path.stem, 1, None, registry)
+        (case,) = evaluate(args.model, data, registry, device).values()
+        canonical[scene_path.stem] = case
+    groups["canonical"] = canonical
+
+    header = f"{'group':<10} {'scene':<26} " + " ".join(f"{m.replace('_error_pct', '').replace('_final_pct', ''):>9}" for m in MEASURES)
+    print(f"{args.model}: errors against the MPM at the data's grid, % (sinkhorn: % of the largest domain side)")
+    print(header + f" {'mpm/2 sinkhorn':>15}")
+    rows = []
+    for group, cases in groups.items():
+        for key, case in cases.items():
+            learned, half = case["learned"], case["mpm_half"]
+            values = [learned.get(m) for m in MEASURES]
+            cells = " ".join(f"{v:>9.2f}" if v is not None else f"{'-':>9}" for v in values)
+            print(f"{group:<10} {key:<26} {cells} {half.get('sinkhorn_final_pct') or float('nan'):>15.2f}")
+            rows.append({"group": group, "scene": key, **{m: learned.get(m) for m in MEASURES},
+                         "mpm_half_sinkhorn_final_pct": half.get("sinkhorn_final_pct")})
+    print()
+    verdicts = []
+    for group in groups:
+        chosen = [r for r in rows if r["group"] == group]
+        for measure in ("extent_error_pct", "height_error_pct"):
+            values = [r[measure] for r in chosen if r[measure] is not None]
+            median, worst = statistics.median(values), max(values)
+            ok = median <= GOAL["median"] and worst <= GOAL["worst"]
+            verdicts.append(ok)
+            print(f"{group:<10} {measure:<18} median {median:6.2f} %  worst {worst:6.2f} %  "
+                  f"goal <= {GOAL['median']:g} / {GOAL['worst']:g} %: {'met' if ok else 'NOT met'}")
+        below = sum(r["sinkhorn_final_pct"] < r["mpm_half_sinkhorn_final_pct"] for r in chosen)
+        verdicts.append(below == len(chosen))
+        print(f"{group:<10} sinkhorn below the half-resolution MPM on {below} of {len(chosen)} scenes")
+    if args.json:
+        print(json.dumps({"model": str(args.model), "rows": rows}))
+    return 0 if all(verdicts) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
