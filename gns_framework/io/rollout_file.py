@@ -10,6 +10,8 @@ field                     shape       meaning
 ``ground_truth_rollout``  (S, N, d)   true positions of the same frames
 ``particle_type``         (N,)        int64 particle-type ids
 ``material_property``     (N, P)      optional per-particle material properties
+``bounds``                (d, 2)      optional: the trajectory's own domain (else ``metadata.bounds``)
+``walls``                 (2d, 2)     optional: each face's friction and no-slip flag
 ``metadata_json``         ()          str: the dataset's ``metadata.json``
 ========================  ==========  =============================================
 
@@ -38,7 +40,7 @@ from ..data.trajectory import Trajectory
 from ..errors import DatasetError, RolloutDiverged, located
 
 REQUIRED_FIELDS = ("initial_positions", "predicted_rollout", "ground_truth_rollout", "particle_type", "metadata_json")
-OPTIONAL_FIELDS = ("material_property",)
+OPTIONAL_FIELDS = ("material_property", "bounds", "walls")
 
 
 def _validated_fields(
@@ -87,7 +89,20 @@ def _validated_fields(
         if prop.ndim != 2 or prop.shape[0] != n:
             raise DatasetError(located(src, "material_property", f"expected shape ({n}, P), got {prop.shape}"))
         _require_finite(src, "material_property", prop)
+    domain = {}
+    for name, shape in (("bounds", (d, 2)), ("walls", (2 * d, 2))):
+        value = fields.get(name)
+        if value is not None:
+            value = np.asarray(value)
+            if value.shape != shape:
+                raise DatasetError(located(src, name, f"expected shape {shape}, got {value.shape}"))
+            _require_finite(src, name, value)
+            value = value.astype(np.float32)
+        domain[name] = value
+    if domain["bounds"] is not None and not (domain["bounds"][:, 0] < domain["bounds"][:, 1]).all():
+        raise DatasetError(located(src, "bounds", f"expected [lower, upper] with lower < upper, got {domain['bounds'].tolist()}"))
     return {
+        **domain,
         "initial_positions": initial.astype(np.float32, copy=False),
         "predicted_rollout": predicted.astype(np.float32, copy=False),
         "ground_truth_rollout": truth.astype(np.float32, copy=False),
@@ -120,13 +135,14 @@ def save_rollout(path: str | Path, rollout: Rollout) -> Path:
             "ground_truth_rollout": rollout.ground_truth,
             "particle_type": rollout.particle_type,
             "material_property": rollout.material_property,
+            "bounds": rollout.truth.bounds,
+            "walls": rollout.truth.walls,
         },
         rollout.metadata,
     )
-    material_property = fields.pop("material_property")
+    optional = {name: fields.pop(name) for name in OPTIONAL_FIELDS}
     arrays = {**fields, "metadata_json": np.array(json.dumps(rollout.metadata.to_json_dict()))}
-    if material_property is not None:
-        arrays["material_property"] = material_property
+    arrays.update({name: value for name, value in optional.items() if value is not None})
     with atomic_path(path, suffix=".npz") as tmp:
         np.savez_compressed(tmp, **arrays)
     return path
@@ -174,6 +190,8 @@ def load_rollout(path: str | Path) -> Rollout:
         arrays["particle_type"],
         arrays["material_property"],
         key=path.stem,
+        bounds=arrays["bounds"],
+        walls=arrays["walls"],
     )
     return Rollout(truth, arrays["predicted_rollout"], len(initial), metadata, source=src)
 

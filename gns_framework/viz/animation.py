@@ -120,7 +120,7 @@ def animate_rollout(
         rollout.predicted_trajectory(),
         rollout.ground_truth_trajectory(),
         rollout.particle_type,
-        rollout.metadata.bounds,
+        rollout.metadata.bounds if rollout.truth.bounds is None else rollout.truth.bounds.tolist(),  # its own box
         rollout.metadata.dt,
         every=every,
         fps=fps,

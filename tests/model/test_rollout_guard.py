@@ -166,3 +166,20 @@ def test_rollout_refuses_trajectories_the_model_was_not_built_for():
     deep = replace(flat, position=np.zeros((12, 9, 3), np.float32))
     with pytest.raises(DatasetError, match=r"trajectory 'resting': position: has d = 3 but the model simulates dim = 2"):
         rollout(simulator, deep, steps=2)
+
+
+def test_a_trajectory_with_its_own_domain_is_guarded_by_its_own_walls():
+    """The model's bounds are (0, 1) x (0, 2); the trajectory's box ends at x = 0.5: a particle at 0.7 has left it."""
+    small_box = np.array([[0.0, 0.5], [0.0, 2.0]], np.float32)
+    guard = RolloutGuard(BOX, margin=0.0, on_violation="clamp").with_bounds(small_box)
+    position = torch.tensor([[0.2, 0.5], [0.7, 0.5]])
+    clamped, violations = guard.check(0, position, position)
+    assert [v.particles.tolist() for v in violations] == [[1]]
+    torch.testing.assert_close(clamped[1], torch.tensor([0.5, 0.5]))
+    assert RolloutGuard(BOX, margin=0.0).check(0, position, position)[1] == []  # the model's own box holds it
+
+    simulator = tiny_simulator(REGISTRY, 2)
+    stay = resting()
+    own = replace(stay, position=stay.position * 0.5, bounds=np.array([[0.0, 0.2], [0.0, 0.2]], np.float32))
+    result = rollout(simulator, own, steps=3, guard=RolloutGuard(simulator.scene, margin=0.0, on_violation="clamp"))
+    assert result.guard_violations and all(v.cause.startswith("left the domain") for v in result.guard_violations)
