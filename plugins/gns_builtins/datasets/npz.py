@@ -2,10 +2,11 @@
 
 Each member (``simulation_trajectory_<i>``) is a NumPy object array, stored as a
 pickle, and unpickling can run code stored in the file. geoelements' pickles hold
-numpy arrays only, so they are read with an unpickler that rebuilds arrays and
-refuses every other global (:mod:`gns_framework.data.array_pickle`). A file that
-needs more is read only when the user grants it for its folder on the command
-line (``--allow-pickle FOLDER``); a recipe or a checkpoint never grants it.
+numpy arrays only, so they are never unpickled: :mod:`gns_framework.data.array_pickle`
+reads the pickle's opcodes itself, builds each plain numeric array from a checked
+dtype, shape and byte count, and refuses everything else. A file that needs more is
+read by numpy only when the user grants it for its folder on the command line
+(``--allow-pickle FOLDER``); a recipe or a checkpoint never grants it.
 
 geoelements' ``metadata.json`` is DeepMind's: ``sequence_length`` = T - 1 (steps),
 where gns-framework counts frames (T); the layout converts both ways.

@@ -47,7 +47,8 @@ def read_member(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> np.ndarr
 def read_array_pickle(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> np.ndarray:
     """Member ``key``, an object array of numpy arrays, rebuilt without running code from the file.
 
-    :class:`ArrayUnpickler` refuses every global but numpy's array classes. Plain
+    :func:`~gns_framework.data.array_pickle.read_npy_object_array` reads the pickle
+    without unpickling it and refuses anything but plain numeric arrays. Plain
     arrays, and any pickle when ``archive`` was opened with the user's
     ``--allow-pickle`` grant, are read by numpy itself; the caller checks the form.
     """
@@ -63,6 +64,8 @@ def read_array_pickle(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> np
             "else runs code stored in the file. Only if you trust the file, opt in for its folder with "
             f"--allow-pickle {path.parent} (gns convert, train, rollout and evaluate take it)"
         ) from None
+    except DatasetError:
+        raise  # already names the file, the member, the byte and what was found against what was expected
     except (zipfile.BadZipFile, OSError) as exc:
         raise DatasetError(f"{path}: {key}: truncated or corrupt member: {exc}") from None
     except Exception as exc:
