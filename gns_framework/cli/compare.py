@@ -9,6 +9,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..safe_names import safe_component
+
 DEFAULT_METRICS = ["train_loss", "valid_one_step_position_mse", "steps_per_s"]
 DEFAULT_PARAMS = ["world_size"]
 
@@ -61,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
     params = args.params + [key for key in differing_recipe_fields(runs) if key not in args.params]
     print(format_table(sort_runs(runs, sort), metrics, params))
     title = " ".join(args.runs) or args.filter
-    default_plot = Path(f"{args.runs[0] if args.runs else 'runs'}-compare.png")
+    # An experiment name or run id is never a path: the default plot is one file in the working directory.
+    default_plot = Path(f"{safe_component(args.runs[0]) if args.runs else 'runs'}-compare.png")
     plot = plot_histories(runs, metrics, args.plot or default_plot, title)
     experiments = sorted({run.experiment for run in runs})
     print(f"{len(runs)} runs of {len(experiments)} experiment(s) ({', '.join(experiments)}); plot in {plot}")

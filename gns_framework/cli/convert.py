@@ -8,6 +8,7 @@ from pathlib import Path
 from ..data.array_pickle import pickle_granted
 from ..errors import GnsError, RecipeError
 from ..plugins import load_registry
+from ..safe_names import require_component
 from .arguments import add_allow_pickle
 
 
@@ -30,7 +31,8 @@ def run(args: argparse.Namespace) -> int:
         raise GnsError("--out must differ from SOURCE: converting in place could overwrite the files being read")
     source = source_cls(params, args.source, allow_pickle=pickle_granted(args.source, args.allow_pickle))
     metadata = source.metadata()
-    splits = {name: list(source.split(name)) for name in source.splits()}
+    # A split is written as <out>/<split>.<ext>: its name (from the source's plugin) must be a plain file name.
+    splits = {require_component(name, f"{args.source}: split"): list(source.split(name)) for name in source.splits()}
     if not splits:
         raise GnsError(f"{args.source}: no train, valid or test split in layout {args.source_layout!r}")
     target_cls.write(args.out, metadata, splits)

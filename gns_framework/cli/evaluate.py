@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 
 from ..errors import GnsError
+from ..safe_names import ensure_inside, require_component, safe_component, unique_components
 from .arguments import add_allow_pickle, positive_int
 
 
@@ -26,21 +27,14 @@ def model_labels(recipe_names: list[str], checkpoints: list[Path]) -> list[str]:
     One model is labelled by its recipe's name; several by recipe, run folder and
     checkpoint file (``sand2d.run-a.checkpoint-000001000``), since two checkpoints
     of one recipe often share a file name. Characters outside ``[A-Za-z0-9_.-]``
-    become ``_``, and a label seen before gets ``-2``, ``-3``, ...
+    become ``_``, and a label seen before gets ``-2``, ``-3``, ...; what is left is a
+    safe file name (:func:`gns_framework.safe_names.unique_components`).
     """
     if len(checkpoints) == 1:
         raw = list(recipe_names)
     else:
         raw = [f"{name}.{path.resolve().parent.parent.name}.{path.stem}" for name, path in zip(recipe_names, checkpoints)]
-    labels: list[str] = []
-    for text in raw:
-        label = re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip(".") or "model"
-        candidate, count = label, 1
-        while candidate in labels:
-            count += 1
-            candidate = f"{label}-{count}"
-        labels.append(candidate)
-    return labels
+    return unique_components(re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip(".") or "model" for text in raw)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -77,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         raise GnsError(f"the models need different input histories {sorted(histories)}; evaluate them separately")
     dataset = open_dataset(models[0].recipe.dataset, registry, args.dataset, args.allow_pickle)
     metadata = dataset.metadata()
-    trajectories = dataset.split(args.split)
+    trajectories = dataset.split(require_component(args.split, "--split"))
     if args.trajectories:
         trajectories = trajectories[: args.trajectories]
     cases = cases_from_split(trajectories)
@@ -101,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     print(paths["markdown"].read_text())
     for kind, path in paths.items():
         print(f"{kind}: {path}")
-    animations = _render_first_rollouts(args, names, cases[0].key) if (args.vtk or args.gif) else {}
+    animations = _render_first_rollouts(args, names, report) if (args.vtk or args.gif) else {}
     _log_to_training_runs(report, models, names, [*paths.values()], animations)
     return 0
 
@@ -126,21 +120,31 @@ def _log_to_training_runs(report, models, names: list[str], report_files: list[P
             print(f"logged the evaluation report of {name} to MLflow run {tracked}")
 
 
-def _render_first_rollouts(args: argparse.Namespace, names: list[str], case_key: str) -> dict[str, Path]:
-    """VTK and/or GIF of each model's first rollout; returns the GIFs by model name."""
+def _render_first_rollouts(args: argparse.Namespace, names: list[str], report) -> dict[str, Path]:
+    """VTK and/or GIF of each model's first rollout; returns the GIFs by model name.
+
+    The rollout is the file the report says it wrote; every output is a safe file
+    name inside ``--out`` (:mod:`gns_framework.safe_names`).
+    """
     from ..io.rollout_file import load_rollout
 
+    entries = {entry.name: entry for entry in report.entries}
     animations = {}
     for name in names:
-        rollout = load_rollout(args.out / "rollouts" / name / f"{case_key}.npz")
+        written = entries[name].rollout_files
+        if not written or written[0] is None:
+            continue
+        rollout = load_rollout(written[0])
         if args.vtk:
             from ..io.vtk import write_rollout_vtk
 
-            for part, pvd in write_rollout_vtk(rollout, args.out / "vtk" / name).items():
+            folder = ensure_inside(args.out / "vtk" / safe_component(name), args.out)
+            for part, pvd in write_rollout_vtk(rollout, folder).items():
                 print(f"vtk {name} {part}: {pvd}")
         if args.gif:
             from ..viz.animation import animate_rollout
 
-            animations[name] = animate_rollout(rollout, args.out / f"{name}.gif", every=2)
+            gif = ensure_inside(args.out / f"{safe_component(name)}.gif", args.out)
+            animations[name] = animate_rollout(rollout, gif, every=2)
             print(f"animation {name}: {animations[name]}")
     return animations

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from ..errors import GnsError
+from ..safe_names import safe_component
 from .arguments import add_allow_pickle
 from .tracking_options import add_tracking_arguments, with_mlflow
 
@@ -37,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from ..training.tracking import JsonlTracker
 
     config, unknowns = load_invert_config(args.config)
-    out = args.out or Path("runs/invert") / args.config.stem
+    out = args.out or Path("runs/invert") / safe_component(args.config.stem)
     earlier = [name for name in OUTPUTS if (out / name).exists()]
     if earlier:
         raise GnsError(f"{out}: holds an earlier inversion ({', '.join(earlier)}); choose another --out or move it away")

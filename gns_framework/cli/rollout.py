@@ -20,6 +20,7 @@ from ..model.rollout import rollout
 from ..model.rollout_guard import RolloutGuard
 from ..plugins import load_registry
 from ..runtime.precision import PRECISIONS
+from ..safe_names import ensure_inside, require_component, safe_component
 from ..training.mlflow_tracker import log_to_recorded_run
 from ..training.trainer import resolve_device
 from .arguments import add_allow_pickle, non_negative_float, positive_int
@@ -62,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
             f"{dataset.path / 'metadata.json'}: dim: the dataset has dim = {dim} but the model simulates "
             f"dim = {loaded.simulator.scene.dim} ({args.checkpoint})"
         )
-    split_name = args.split or spec.split
+    split_name = require_component(args.split or spec.split, "--split" if args.split else "the recipe's rollout.split")
     trajectories = dataset.split(split_name)
     count = min(len(trajectories), args.trajectories or spec.trajectories or len(trajectories))
     run_dir = args.checkpoint.parent.parent
@@ -79,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
             loaded.simulator, trajectory, args.steps or spec.steps, device,
             progress=not args.no_progress, guard=guard, precision=args.precision,
         )
-        path = write_rollout(out / f"{split_name}_{index:04d}.npz", result, loaded.metadata)
+        file = ensure_inside(out / f"{safe_component(split_name)}_{index:04d}.npz", out)
+        path = write_rollout(file, result, loaded.metadata)
         clamped = f", clamped at {len(result.guard_violations)} check(s)" if result.guard_violations else ""
         print(f"{path}: {result.num_steps} steps, position MSE {result.position_mse:.4g}{clamped}")
         for violation in result.guard_violations:

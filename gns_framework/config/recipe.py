@@ -15,6 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from ..contracts import COMPONENT_KINDS
 from ..errors import RecipeError, did_you_mean
 from ..runtime.precision import Precision
+from ..safe_names import safe_component
 from ..specs import ComponentSpec
 from .problems import problems_from
 from .yaml_files import load_yaml_mapping
@@ -186,7 +187,7 @@ class Recipe(_Strict):
     name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$")
     description: str = ""
     seed: int = 0
-    output_dir: str | None = Field(None, description="default: runs/<name>")
+    output_dir: str | None = Field(None, description="default: runs/<name> (the name made a safe folder name)")
     dataset: DatasetSpec
     model: ModelSpec = ModelSpec()
     training: TrainingSpec = TrainingSpec()
@@ -194,7 +195,8 @@ class Recipe(_Strict):
 
     @property
     def run_dir(self) -> Path:
-        return Path(self.output_dir or f"runs/{self.name}")
+        """``output_dir``, else ``runs/<name>``: the name is never a path (``..`` is not the working directory)."""
+        return Path(self.output_dir) if self.output_dir else Path("runs") / safe_component(self.name)
 
     def resolved(self) -> dict[str, Any]:
         """The recipe with every default filled in (stored in checkpoints and tracked runs)."""

@@ -30,6 +30,7 @@ from ..data.metadata import DatasetMetadata
 from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..io.rollout_file import save_rollout
+from ..safe_names import ensure_inside, unique_components
 from ..plugin_types import Metric
 from .metrics import DEFAULT_HORIZONS, ParticleRollout, RolloutPair, metric_units, rollout_metrics, summarise
 from .timing import Timing, format_hardware, hardware_description, time_call
@@ -88,6 +89,7 @@ class Entry:
         mse_per_step: (S,) position MSE per rolled-out frame averaged over cases, or None.
         speedup: reference seconds / these seconds, or None without a reference.
         cases: case key -> that case's metrics (the spread a mean hides: the worst collapse matters).
+        rollout_files: per case, in order, the rollout file written for it (``rollout_dir``), or None.
     """
 
     name: str
@@ -101,6 +103,7 @@ class Entry:
     mse_per_step: np.ndarray | None
     speedup: float | None = None
     cases: dict[str, dict[str, float | None]] = field(default_factory=dict)
+    rollout_files: tuple[Path | None, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -149,7 +152,9 @@ def evaluate(
         horizons, granular_types, material_names: passed to :func:`rollout_metrics`.
         kinematic_types, metrics: as in :func:`score_prediction`.
         rollout_dir: when given, every rollout that predicts the case's own particles is
-            written there as ``<candidate>/<case>.npz`` (for ``gns render``).
+            written there as ``<candidate>/<case>.npz`` (for ``gns render``), both names made
+            safe file names, unique in their folder (:mod:`gns_framework.safe_names`); the
+            entries' ``rollout_files`` say where.
         clock: the timings' clock, seconds (tests give one that runs with the work, not the wall).
     """
     if not candidates or not cases:
@@ -165,10 +170,13 @@ def evaluate(
     if error_metric not in known:
         raise ValueError(f"unknown error_metric {error_metric!r}; choose one of {sorted(known)}")
 
+    # Names from the data and the labels are never paths: one safe file name each, unique in its folder.
+    folders = dict(zip(names, unique_components(names)))
+    files = [f"{name}.npz" for name in unique_components([case.key for case in cases])]
     entries = []
     for candidate in candidates:
-        summaries, timings, curves = [], [], []
-        for case in cases:
+        summaries, timings, curves, written = [], [], [], []
+        for case, file_name in zip(cases, files):
             prediction, timing = time_call(
                 partial(candidate.simulate, case), repeats=repeats, warmup=warmup, device=candidate.device, clock=clock
             )
@@ -179,10 +187,12 @@ def evaluate(
             summaries.append(summarise(scores))
             timings.append(timing)
             curves.append(None if scores["mse_per_step"] is None else scores["mse_per_step"][0].numpy())
+            path = None
             if rollout_dir is not None and _same_particles(prediction, case, history):
-                path = Path(rollout_dir) / candidate.name / f"{case.key}.npz"
+                path = ensure_inside(Path(rollout_dir) / folders[candidate.name] / file_name, rollout_dir)
                 save_rollout(path, _as_rollout(prediction, case, history, metadata))
-        entries.append(_entry(candidate, summaries, timings, curves, [case.key for case in cases]))
+            written.append(path)
+        entries.append(_entry(candidate, summaries, timings, curves, [case.key for case in cases], written))
 
     reference = next((e for e in entries if e.reference), None)
     if reference is not None:
@@ -305,7 +315,8 @@ def _mean_over_cases(values: list[float | None]) -> float | None:
 
 
 def _entry(
-    candidate: Candidate, summaries: list[dict[str, float | None]], timings: list[Timing], curves: list, keys: list[str]
+    candidate: Candidate, summaries: list[dict[str, float | None]], timings: list[Timing], curves: list, keys: list[str],
+    rollout_files: list[Path | None],
 ) -> Entry:
     names = list(dict.fromkeys(name for summary in summaries for name in summary))
     metrics = {name: _mean_over_cases([s.get(name) for s in summaries]) for name in names}
@@ -321,6 +332,7 @@ def _entry(
         metrics=metrics,
         mse_per_step=np.mean(curves, axis=0) if same_length else None,
         cases=dict(zip(keys, summaries)),
+        rollout_files=tuple(rollout_files),
     )
 
 

@@ -15,6 +15,7 @@ from xml.etree import ElementTree
 import numpy as np
 
 from ..data.rollout import Rollout
+from ..safe_names import ensure_inside, require_component
 
 
 def _as_3d(values: np.ndarray) -> np.ndarray:
@@ -72,7 +73,9 @@ def write_vtk_series(
     cells = [("vertex", np.arange(num_particles, dtype=np.int64)[:, None])]
 
     directory = Path(directory)
-    (directory / name).mkdir(parents=True, exist_ok=True)
+    # ``name`` is one file name: the frames and the collection stay inside ``directory``.
+    frames = ensure_inside(directory / require_component(name, "VTK series name"), directory)
+    frames.mkdir(parents=True, exist_ok=True)
     width = max(5, len(str(num_frames - 1)))
     collection = ElementTree.Element("VTKFile", type="Collection", version="0.1", byte_order="LittleEndian")
     datasets = ElementTree.SubElement(collection, "Collection")

@@ -30,6 +30,7 @@ from typing import Any
 
 from ..data.atomic import write_text_atomic
 from ..errors import GnsError
+from ..safe_names import ensure_inside, safe_component
 
 RUN_FILE = "mlflow_run.json"
 DEFAULT_DATABASE = "mlflow.db"
@@ -114,11 +115,16 @@ def local_database(tracking_uri: str) -> Path | None:
 
 
 def _local_artifact_root(tracking_uri: str, experiment: str) -> str | None:
-    """Artifacts of a local SQLite store go beside the database, wherever the UI is started from."""
+    """Artifacts of a local SQLite store go beside the database, wherever the UI is started from.
+
+    The experiment's folder is its name made a safe folder name, checked to be inside
+    ``mlartifacts/`` (``--experiment ../../x`` writes nothing outside the store).
+    """
     database = local_database(tracking_uri)
     if database is None:
         return None
-    return (database.parent / ARTIFACTS_FOLDER / experiment).resolve().as_uri()
+    root = database.parent / ARTIFACTS_FOLDER
+    return ensure_inside(root / safe_component(experiment), root).resolve().as_uri()
 
 
 def experiment_id(client, tracking_uri: str, name: str, create: bool = True) -> str | None:

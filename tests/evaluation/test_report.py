@@ -15,6 +15,7 @@ from gns_framework.hookspecs import hookimpl
 from gns_framework.io.rollout_file import load_rollout
 from gns_framework.plugin_types import Metric
 from gns_framework.plugins import load_registry
+from gns_framework.safe_names import safe_component
 
 GRAVITY = np.array([0.0, -9.81])
 HISTORY, STEPS, DT = 6, 12, 0.01
@@ -185,10 +186,15 @@ def test_each_case_is_reported_and_the_spread_stated(report, tmp_path):
 
 
 def test_rollouts_of_the_same_particles_are_saved_for_rendering(report, tmp_path):
+    """One folder per candidate, one file per case, each a safe file name: ``mpm dt/16`` is no sub-folder ``16``."""
     saved = sorted(p.relative_to(tmp_path / "rollouts").as_posix() for p in (tmp_path / "rollouts").rglob("*.npz"))
     same_particles = ["gns", "mpm dt/1", "mpm dt/16", "mpm dt/2"]
-    assert saved == [f"{name}/case{k}.npz" for name in same_particles for k in range(2)]
-    rollout = load_rollout(tmp_path / "rollouts" / "gns" / "case1.npz")
+    assert saved == sorted(f"{safe_component(name)}/case{k}.npz" for name in same_particles for k in range(2))
+    assert all(part.count("/") == 1 for part in saved) and "mpm_dt_16-" in "".join(saved)
+    by_name = {e.name: e for e in report.entries}
+    assert by_name["gns"].rollout_files == tuple(tmp_path / "rollouts" / "gns" / f"case{k}.npz" for k in range(2))
+    assert by_name["mpm coarse"].rollout_files == (None, None)
+    rollout = load_rollout(by_name["gns"].rollout_files[1])
     assert rollout.num_steps == STEPS and rollout.initial_positions.shape == (HISTORY, 40, 2)
 
 
