@@ -1,63 +1,131 @@
-"""The measuring parts of benchmarks/gpu_check.sh: the device, step time and peak memory by scene size and precision, the MPM.
+"""The measuring parts of benchmarks/gpu_check.sh: imports, the device, tests, DDP, node sums, step time and memory, the MPM.
 
 Usage:
+    python benchmarks/gpu_check.py imports                  # import seconds; the registry lists the built-ins
     python benchmarks/gpu_check.py info --device cuda
+    python benchmarks/gpu_check.py tests TEST_FILE...       # pytest, one line per test as it ends
+    python benchmarks/gpu_check.py ddp --device cuda        # a real process group of one rank, DDP steps
+    python benchmarks/gpu_check.py sums --device cuda [--rows 4194304]
+    python benchmarks/gpu_check.py chunks --device cuda [--particles 10000]
     python benchmarks/gpu_check.py scale --device cuda [--sizes 10000 100000 1000000] [--precisions ...] [--repeat 5]
     python benchmarks/gpu_check.py mpm --device cuda [--grid 96] [--frames 10]
     python benchmarks/gpu_check.py data OUT_FOLDER          # the small synthetic dataset the CLI parts train on
 
-Every figure is one line ``gpu_check: <part> key=value ...`` on stdout (format in
-docs/performance.md). ``scale`` times the paper's model (latent 128, 10 steps) on
-the 3D lattice benchmark scene (~20 neighbours per particle): one rollout step
-(inference) and one training step (noise, forward, loss, backward, Adam), each the
-median of ``--repeat`` after one warm-up, with the device synchronised around every
-timed step. Peak memory is ``torch.cuda.max_memory_allocated`` during the step
-(on the CPU: the process's peak resident size). A case that runs out of GPU
-memory is reported ``status=oom`` and retried for training with
-``recompute_activations``; it is a measurement, not a failure. Cases not
-started within ``--budget-s`` are reported ``status=over_budget``.
+Every figure is one line ``gpu_check: <part> key=value ...`` on stdout, printed (and
+flushed) as soon as it is measured, so a part killed at its limit loses nothing it
+printed (format in docs/performance.md). A part that cannot run here prints
+``skipped: <why>`` and exits with :data:`SKIP` (77). gpu_check.sh gives every part
+its time limit in ``GPU_CHECK_PART_LIMIT_S``; parts that loop (``scale``, ``sums``)
+watch that deadline themselves, inside a case too, and report what did not fit as
+``status=over_budget``.
+
+``scale`` times the paper's model (latent 128, 10 steps) on the 3D lattice benchmark
+scene (~20 neighbours per particle): one rollout step (inference) and one training
+step (noise, forward, loss, backward, Adam), each the median of ``--repeat`` after one
+warm-up, with the device synchronised around every timed step; then one more step
+synchronised between its phases (graph build, forward, backward, optimizer). Peak
+memory is ``torch.cuda.max_memory_allocated`` (on the CPU: the process's peak RSS).
+On CUDA a case whose memory, predicted from the CPU table of bytes per edge
+(docs/performance.md), exceeds the GPU's is reported ``status=predicted_oom`` and not
+tried; at 1M particles the configuration expected to fit (bfloat16 + recompute) runs
+first. One that runs out anyway is ``status=oom``: measurements, not failures.
 """
 
 from __future__ import annotations
 
-import argparse
-import resource
-import statistics
-import sys
 import time
-from pathlib import Path
 
-import torch
+STARTED = time.monotonic()  # before torch's import: the part's clock starts with the process
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import argparse  # noqa: E402
+import contextlib  # noqa: E402
+import importlib.util  # noqa: E402
+import os  # noqa: E402
+import resource  # noqa: E402
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import warnings  # noqa: E402
+from pathlib import Path  # noqa: E402
 
-from lattice_scene import lattice_scene  # noqa: E402
+SKIP = 77
+"""Exit status of a part that cannot run here (it printed ``skipped: <why>``)."""
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "benchmarks"))
+sys.path.insert(0, str(REPO / "tests"))
 
-from gns_framework.assembly.learned import build_learned_simulator  # noqa: E402
-from gns_framework.config.recipe import ModelSpec, OptimizerSpec  # noqa: E402
-from gns_framework.model.loss import masked_acceleration_loss  # noqa: E402
-from gns_framework.model.noise import random_walk_noise  # noqa: E402
-from gns_framework.plugins import load_registry  # noqa: E402
-from gns_framework.runtime.activation_memory import set_recompute_activations  # noqa: E402
-from gns_framework.runtime.precision import PRECISIONS, autocast, backward_precision  # noqa: E402
-from gns_framework.training.optim import make_optimizer  # noqa: E402
-from gns_framework.training.trainer import synchronize  # noqa: E402
+CPU_BYTES_PER_EDGE = {
+    ("rollout", "float32", "stored"): 2123, ("rollout", "tf32", "stored"): 2123, ("rollout", "bfloat16", "stored"): 1515,
+    ("train", "float32", "stored"): 24108, ("train", "tf32", "stored"): 24108,
+    ("train", "float32", "recompute"): 7713, ("train", "tf32", "recompute"): 7713,
+    ("train", "bfloat16", "stored"): 15735, ("train", "bfloat16", "recompute"): 5016,
+}
+"""Peak bytes per edge measured on the CPU (docs/performance.md, benchmarks/memory_per_edge.py)."""
+RESERVED_GIB = 4.0
+"""CUDA context, model, Adam state and allocator slack, as the CPU table's "largest scene" assumes."""
 
 
 def emit(part: str, **figures) -> None:
-    """One output line: ``gpu_check: <part> key=value ...`` (floats with 4 significant digits)."""
+    """One output line: ``gpu_check: <part> key=value ...`` (floats with 4 significant digits), flushed."""
     text = " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in figures.items())
     print(f"gpu_check: {part} {text}", flush=True)
 
 
-def peak_bytes(device: torch.device) -> int:
-    if device.type == "cuda":
-        return torch.cuda.max_memory_allocated(device)
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+def skipped(why: str) -> None:
+    """End a part that cannot run here: one ``skipped: <why>`` line, exit status :data:`SKIP`."""
+    print(f"skipped: {why}", flush=True)
+    raise SystemExit(SKIP)
+
+
+def part_deadline(margin_s: float = 5.0) -> float:
+    """``time.monotonic()`` by which this part must have printed its last line (its limit less ``margin_s``)."""
+    limit = float(os.environ.get("GPU_CHECK_PART_LIMIT_S", "1e9"))
+    return STARTED + max(limit - margin_s, 1.0)
+
+
+def left(deadline: float) -> float:
+    return deadline - time.monotonic()
+
+
+# --------------------------------------------------------------------------- imports, info, tests
+
+
+def imports(args) -> None:
+    """Seconds to import torch and the project and to discover the plugins; the built-ins must be there."""
+    started = time.perf_counter()
+    import torch
+
+    torch_s = time.perf_counter() - started
+    started = time.perf_counter()
+    import gns_framework
+    from gns_framework.plugins import load_registry
+
+    registry = load_registry()
+    project_s = time.perf_counter() - started
+    import importlib.metadata
+
+    distribution = importlib.metadata.distribution("gns-framework")
+    entries = registry.entries()
+    builtins = [e for e in entries if e.distribution == "gns-framework" and e.plugin.startswith("builtin-")]
+    emit("imports", torch=torch.__version__, torch_s=torch_s, gns_s=project_s, components=len(entries),
+         builtins=len(builtins), kinds=len(registry.kinds()), gns_framework=Path(gns_framework.__file__).parent,
+         dist_info=Path(str(distribution.locate_file(""))))
+    required = {"processor": "interaction_network", "graph_builder": "radius", "dataset": "safe",
+                "integrator": "semi_implicit_euler", "simulator": "mls_mpm"}
+    missing = [f"{kind}:{name}" for kind, name in required.items() if name not in registry.names(kind)]
+    if missing:
+        raise SystemExit(f"gpu_check: the registry lacks the built-ins {missing}: gns-framework's entry points are "
+                         "not installed (gpu_check.sh installs them from gpu_wheels/)")
+    import subprocess
+
+    listed = subprocess.run([sys.executable, "-m", "gns_framework.cli", "plugins"], capture_output=True, text=True)
+    if listed.returncode != 0 or "interaction_network" not in listed.stdout:
+        raise SystemExit(f"gpu_check: `gns plugins` failed or lists no built-ins:\n{listed.stdout}{listed.stderr}")
+    emit("imports", gns_plugins="ok", lines=len(listed.stdout.splitlines()) - 1)
 
 
 def info(args) -> None:
+    import torch
+
     device = torch.device(args.device)
     if device.type == "cuda":
         if not torch.cuda.is_available():
@@ -65,97 +133,437 @@ def info(args) -> None:
         props = torch.cuda.get_device_properties(device)
         emit("device", name=props.name.replace(" ", "_"), count=torch.cuda.device_count(),
              memory_gb=props.total_memory / 2**30, capability=f"{props.major}.{props.minor}",
-             torch=torch.__version__, cuda=torch.version.cuda)
+             torch=torch.__version__, cuda=torch.version.cuda, python=sys.version.split()[0])
     else:
-        emit("device", name="cpu", threads=torch.get_num_threads(), torch=torch.__version__)
+        emit("device", name="cpu", threads=torch.get_num_threads(), torch=torch.__version__,
+             python=sys.version.split()[0])
+    for module in ("pydantic", "warp", "mlflow", "geomloss", "torch_geometric", "pytest"):
+        spec = importlib.util.find_spec(module)
+        emit("module", name=module, present=spec is not None)
 
 
-def _timed(step, device: torch.device, repeat: int) -> tuple[float, int]:
-    """Median seconds of ``step`` after one warm-up, and the peak memory of the timed steps."""
-    step()
-    synchronize(device)
+def tests(args) -> None:
+    """pytest on ``args.files``; one ``gpu_check: test`` line per test as it ends, exit status pytest's."""
+    if importlib.util.find_spec("pytest") is None:
+        skipped("pytest is not installed here")
+    import pytest
+
+    class Lines:
+        def pytest_runtest_logreport(self, report):
+            if report.when == "call" or report.outcome != "passed":
+                name = report.nodeid.split("::", 1)[-1].replace(" ", "_")
+                emit("test", name=name, phase=report.when, outcome=report.outcome, seconds=float(report.duration))
+
+    code = pytest.main(["-q", "-p", "no:cacheprovider", "-o", "addopts=", *args.files], plugins=[Lines()])
+    raise SystemExit(int(code))
+
+
+# --------------------------------------------------------------------------- ddp
+
+
+def ddp(args) -> None:
+    """A real process group of one rank (NCCL on CUDA, gloo on the CPU), DDP training steps and collectives."""
+    import tempfile
+    from datetime import timedelta
+
+    import torch
+    import torch.distributed as dist
+
+    from gns_framework.training.distributed import backend_for, process_group_timeout
+
+    device = torch.device(args.device)
     if device.type == "cuda":
-        torch.cuda.reset_peak_memory_stats(device)
-    seconds = []
-    for _ in range(repeat):
-        synchronize(device)
+        if not torch.cuda.is_available():
+            raise SystemExit("gpu_check: --device cuda but torch sees no GPU")
+        if device.index is None:  # set_device and the group's device_id need an index
+            device = torch.device("cuda", torch.cuda.current_device())
+    backend = backend_for(device)
+    if not dist.is_backend_available(backend):
+        skipped(f"torch {torch.__version__} has no {backend} backend")
+    timeout = min(process_group_timeout(), timedelta(seconds=60))
+    with tempfile.TemporaryDirectory() as folder:
+        store = dist.FileStore(str(Path(folder) / "store"), 1)
         started = time.perf_counter()
-        step()
+        if device.type == "cuda":
+            torch.cuda.set_device(device)
+        dist.init_process_group(backend=backend, store=store, rank=0, world_size=1, timeout=timeout,
+                                device_id=device if device.type == "cuda" else None)
+        try:
+            group_s = time.perf_counter() - started
+            torch.manual_seed(0)
+            model = torch.nn.Sequential(torch.nn.Linear(64, 128), torch.nn.ReLU(), torch.nn.Linear(128, 3)).to(device)
+            wrapped = torch.nn.parallel.DistributedDataParallel(
+                model, device_ids=[device.index] if device.type == "cuda" else None)
+            optimizer = torch.optim.Adam(wrapped.parameters(), lr=1e-3)
+            inputs = torch.randn(4096, 64, device=device)
+            seconds = []
+            for _ in range(args.steps):
+                started = time.perf_counter()
+                loss = wrapped(inputs).square().mean()
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()  # DDP's reducer all-reduces the gradients through the backend
+                optimizer.step()
+                if device.type == "cuda":
+                    torch.cuda.synchronize(device)
+                seconds.append(time.perf_counter() - started)
+            total = torch.ones(8, device=device)
+            dist.all_reduce(total)
+            box = [{"rank": 0}]
+            dist.broadcast_object_list(box, src=0)
+            dist.barrier()
+            ok = bool(total.eq(1).all()) and box == [{"rank": 0}] and bool(torch.isfinite(loss))
+            emit("ddp", ranks=dist.get_world_size(), backend=dist.get_backend(), group_s=group_s,
+                 timeout_s=timeout.total_seconds(), steps=args.steps, step_ms=1e3 * statistics.median(seconds),
+                 collectives="ok" if ok else "wrong")
+            if not ok:
+                raise SystemExit("gpu_check: a collective of the one-rank group gave a wrong result")
+        finally:
+            dist.destroy_process_group()
+
+
+# --------------------------------------------------------------------------- node sums
+
+
+def _median_seconds(function, device, repeat: int, deadline: float) -> tuple[float, int]:
+    """Median seconds of ``function()`` after one warm-up, as many repeats (up to ``repeat``) as fit."""
+    from gns_framework.training.trainer import synchronize
+
+    function()
+    synchronize(device)
+    seconds: list[float] = []
+    while len(seconds) < repeat and (not seconds or left(deadline) > 2 * max(seconds)):
+        started = time.perf_counter()
+        function()
         synchronize(device)
         seconds.append(time.perf_counter() - started)
-    return statistics.median(seconds), peak_bytes(device)
+    return statistics.median(seconds), len(seconds)
 
 
-def _case(particles: int, precision: str, phase: str, device: torch.device, repeat: int, recompute: bool) -> dict:
-    scene = lattice_scene(particles, dim=3)
+def sums(args) -> None:
+    """ms per node-sum call and GB/s: the edge block's ordered sum (and any other path) against ``index_add_``.
+
+    Each path at ``--chunk-rows`` rows (one call of the edge block: a chunk of edges) and
+    then at ``--rows`` (a whole graph), the larger only when the smaller says it fits in
+    what is left of the part's time.
+    """
+    import torch
+
+    from gns_builtins import segment_sum
+
+    deadline = part_deadline()
+    device = torch.device(args.device)
+    generator = torch.Generator().manual_seed(0)
+    for rows_n in dict.fromkeys([min(args.chunk_rows, args.rows), args.rows]):
+        nodes = max(rows_n // args.per_node, 1)
+        keys = torch.randint(nodes, (rows_n,), generator=generator).to(device)
+        rows = torch.randn(rows_n, args.features, generator=generator).to(device)
+        out = torch.zeros(nodes, args.features, device=device)
+        # Bytes a sum must move at least: the rows and keys read, the node table read and written.
+        moved = rows.numel() * rows.element_size() + keys.numel() * 8 + 2 * out.numel() * out.element_size()
+        paths = {"index_add": lambda: out.zero_().index_add_(0, keys, rows),
+                 "ordered": lambda: segment_sum.segment_sum_(out.zero_(), keys, rows)}
+        for name in ("segment_sum_fast", "fast_segment_sum_", "csr_segment_sum_"):  # an O(E) CUDA path, once it exists
+            if hasattr(segment_sum, name):
+                paths[name] = (lambda f: lambda: f(out.zero_(), keys, rows))(getattr(segment_sum, name))
+        reference = paths["index_add"]().clone()
+        for name, function in paths.items():
+            label = dict(path=name, rows=rows_n, nodes=nodes, features=args.features)
+            expected = estimates.get(name, 0.0) * rows_n * 3  # warm-up, one timed call, one for the check
+            if left(deadline) < max(2.0, expected):
+                emit("sums", **label, status="over_budget")
+                continue
+            seconds, repeats = _median_seconds(function, device, args.repeat, deadline)
+            estimates[name] = seconds / rows_n
+            error = float((function() - reference).abs().max() / reference.abs().max().clamp(min=1e-30))
+            emit("sums", **label, status="ok", repeats=repeats, ms=1e3 * seconds, gb_s=moved / seconds / 1e9,
+                 max_rel_diff_vs_index_add=error)
+
+
+estimates: dict[str, float] = {}
+"""Seconds per row of each node-sum path, from its last size: whether the next size fits."""
+
+
+# --------------------------------------------------------------------------- the model at scale
+
+
+def _lattice(particles: int):
+    from lattice_scene import lattice_scene
+
+    return lattice_scene(particles, dim=3)
+
+
+def _simulator(scene, device):
+    import torch
+
+    from gns_framework.assembly.learned import build_learned_simulator
+    from gns_framework.config.recipe import ModelSpec
+    from gns_framework.plugins import load_registry
+
     torch.manual_seed(0)
-    simulator = build_learned_simulator(scene.scene, scene.metadata, ModelSpec(), load_registry()).to(device)
-    batch = scene.batch.to(device)
-    mask = simulator.predicted_mask(batch.particle_type)
-    set_recompute_activations(recompute)
+    return build_learned_simulator(scene.scene, scene.metadata, ModelSpec(), load_registry()).to(device)
+
+
+def peak_bytes(device) -> int:
+    import torch
+
     if device.type == "cuda":
-        torch.cuda.empty_cache()
-        torch.cuda.reset_peak_memory_stats(device)
-    base = peak_bytes(device)
-    edges = int(simulator.build_graph(batch.position_sequence, batch).num_edges)
+        return torch.cuda.max_memory_allocated(device)
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
-    if phase == "rollout":
-        def step():
-            with torch.inference_mode(), autocast(precision, device):
-                simulator.predict_next_position(batch)
-    else:
-        optimizer, scheduler = make_optimizer(simulator.parameters(), OptimizerSpec(), total_steps=1)
-        generator = torch.Generator().manual_seed(0)
 
-        def step():
-            noise = random_walk_noise(scene.batch.position_sequence, 6.7e-4, generator).to(device) * mask[:, None, None]
-            with autocast(precision, device):
-                prediction, target = simulator(batch, noise)
-            loss = masked_acceleration_loss(prediction.to(target.dtype), target, mask)
-            optimizer.zero_grad(set_to_none=True)
-            with backward_precision(precision, device):
-                loss.backward()
-            optimizer.step()
-            scheduler.step()
+def _sync_count(step, device) -> int | str:
+    """Host synchronisations in one ``step()``, from CUDA's sync debug mode (``n/a`` on the CPU)."""
+    import torch
 
-    seconds, peak = _timed(step, device, repeat)
-    return {"edges": edges, "step_s": seconds, "peak_gb": peak / 2**30,
-            "bytes_per_edge": (peak - base) / max(edges, 1) if device.type == "cuda" else "n/a"}
+    if device.type != "cuda":
+        return "n/a"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        torch.cuda.set_sync_debug_mode("warn")
+        try:
+            step()
+        finally:
+            torch.cuda.set_sync_debug_mode("default")
+    return sum("synchroniz" in str(w.message) for w in caught)
+
+
+class _Case:
+    """One (size, precision, phase, memory) case on a built scene: the step, and the step split into phases."""
+
+    def __init__(self, scene, precision: str, phase: str, device, recompute: bool):
+        import torch
+
+        from gns_framework.config.recipe import OptimizerSpec
+        from gns_framework.model.loss import masked_acceleration_loss
+        from gns_framework.model.noise import random_walk_noise
+        from gns_framework.runtime.precision import autocast, backward_precision
+        from gns_framework.training.optim import make_optimizer
+
+        self.device, self.phase = device, phase
+        self.simulator = _simulator(scene, device)
+        self.batch = scene.batch.to(device)
+        self.mask = self.simulator.predicted_mask(self.batch.particle_type)
+        self.autocast = lambda: autocast(precision, device)
+        self.backward_precision = lambda: backward_precision(precision, device)
+        self.loss = masked_acceleration_loss
+        if phase == "train":
+            self.optimizer, self.scheduler = make_optimizer(self.simulator.parameters(), OptimizerSpec(), total_steps=1)
+            generator = torch.Generator().manual_seed(0)
+            self.noise = lambda: random_walk_noise(scene.batch.position_sequence, 6.7e-4, generator).to(device) * self.mask[:, None, None]
+        self.inference = torch.inference_mode
+
+    def edges(self) -> int:
+        import torch
+
+        with torch.no_grad():
+            return int(self.simulator.build_graph(self.batch.position_sequence, self.batch).num_edges)
+
+    def step(self, mark=lambda phase: None) -> None:
+        """One step; ``mark(phase)`` is called at the end of each phase (the split timing synchronises there)."""
+        if self.phase == "rollout":
+            with self.inference(), self.autocast():
+                self.simulator.predict_next_position(self.batch)
+            mark("forward")
+            return
+        noise = self.noise()
+        with self.autocast():
+            prediction, target = self.simulator(self.batch, noise)
+        loss = self.loss(prediction.to(target.dtype), target, self.mask)
+        mark("forward")
+        self.optimizer.zero_grad(set_to_none=True)
+        with self.backward_precision():
+            loss.backward()
+        mark("backward")
+        self.optimizer.step()
+        self.scheduler.step()
+        mark("optimizer")
+
+    def split(self) -> dict[str, float]:
+        """Seconds of each phase in one step synchronised between phases; ``graph_s`` is one graph build alone."""
+        import torch
+
+        from gns_framework.training.trainer import synchronize
+
+        synchronize(self.device)
+        started = time.perf_counter()
+        with torch.no_grad():
+            self.simulator.build_graph(self.batch.position_sequence, self.batch)
+        synchronize(self.device)
+        phases = {"graph_s": time.perf_counter() - started}
+        last = [time.perf_counter()]
+
+        def mark(phase):
+            synchronize(self.device)
+            now = time.perf_counter()
+            phases[f"{phase}_s"] = now - last[0]
+            last[0] = now
+
+        self.step(mark)
+        return phases
+
+
+def _cases(particles: int, precisions: list[str], large: bool) -> list[tuple[str, str, str]]:
+    """(precision, phase, memory) in the order they run: at ``large`` sizes the expected fit first."""
+    if large and "bfloat16" in precisions:
+        first = [("bfloat16", "train", "recompute")]
+        rest = [(p, "rollout", "stored") for p in ("bfloat16", *[p for p in precisions if p != "bfloat16"])]
+        rest += [(p, "train", m) for p in precisions for m in ("recompute", "stored") if (p, "train", m) != first[0]]
+        return first + rest
+    return [(p, phase, m) for p in precisions for phase, m in (("rollout", "stored"), ("train", "stored"), ("train", "recompute"))]
 
 
 def scale(args) -> None:
+    import torch
+
+    from gns_framework.runtime.activation_memory import set_recompute_activations
+    from gns_framework.training.trainer import synchronize
+
+    deadline = min(part_deadline(), STARTED + args.budget_s)
     device = torch.device(args.device)
-    started = time.perf_counter()
+    total = torch.cuda.get_device_properties(device).total_memory if device.type == "cuda" else None
+    best_fit: dict | None = None  # the largest bfloat16 + recompute training case measured
+    seconds_per_edge: dict[str, float] = {}  # the slowest warm-up step per edge so far, by phase
+    edges_per_particle = 20.6  # the 3D lattice scene's, until measured
     for particles in args.sizes:
         repeat = args.repeat if particles < 500_000 else max(1, args.repeat // 3)
-        for precision in args.precisions:
-            for phase in ("rollout", "train"):
-                for recompute in (False, True) if phase == "train" else (False,):
-                    label = dict(particles=particles, precision=precision, phase=phase,
-                                 memory="recompute" if recompute else "stored")
-                    if time.perf_counter() - started > args.budget_s:
-                        emit("step", **label, status="over_budget")
-                        continue
-                    try:
-                        figures = _case(particles, precision, phase, device, repeat, recompute)
-                    except torch.OutOfMemoryError:
-                        emit("step", **label, status="oom")
-                        continue
-                    finally:
-                        set_recompute_activations(False)
-                        if device.type == "cuda":
-                            torch.cuda.empty_cache()
-                    emit("step", **label, status="ok", **figures)
-                    if phase == "train" and not recompute:
-                        break  # stored activations fit: the recompute mode only when they do not
+        if left(deadline) < 5:
+            emit("step", particles=particles, status="over_budget")
+            continue
+        scene = _lattice(particles)
+        edges = None
+        stored_fit: set[str] = set()  # precisions whose training fits with stored activations
+        for precision, phase, memory in _cases(particles, args.precisions, particles >= args.large):
+            label = dict(particles=particles, precision=precision, phase=phase, memory=memory)
+            if phase == "train" and memory == "recompute" and precision in stored_fit and particles < args.large:
+                continue  # stored activations fit: the recompute mode only when they do not
+            # A case starts only if its warm-up and one timed step are expected to end by the deadline.
+            expected_edges = edges if edges is not None else particles * edges_per_particle
+            expected_s = 2 * seconds_per_edge.get(phase, 0.0) * expected_edges + 1.0
+            if left(deadline) < max(3.0, expected_s):
+                emit("step", **label, status="over_budget", expected_s=expected_s, left_s=max(left(deadline), 0.0))
+                continue
+            cpu_bytes = CPU_BYTES_PER_EDGE[(phase, precision, memory)]
+            if total is not None and edges is not None:
+                predicted = edges * cpu_bytes + RESERVED_GIB * 2**30
+                if predicted > total:
+                    emit("step", **label, status="predicted_oom", edges=edges, predicted_gb=predicted / 2**30,
+                         memory_gb=total / 2**30)
+                    continue
+            case = None
+            try:
+                set_recompute_activations(memory == "recompute")
+                if device.type == "cuda":
+                    torch.cuda.empty_cache()
+                    torch.cuda.reset_peak_memory_stats(device)
+                case = _Case(scene, precision, phase, device, memory == "recompute")
+                base = peak_bytes(device)
+                edges = case.edges()
+                if total is not None and edges * cpu_bytes + RESERVED_GIB * 2**30 > total:
+                    emit("step", **label, status="predicted_oom", edges=edges,
+                         predicted_gb=(edges * cpu_bytes + RESERVED_GIB * 2**30) / 2**30, memory_gb=total / 2**30)
+                    continue
+                started = time.perf_counter()
+                case.step()  # warm-up
+                synchronize(device)
+                warmup_s = time.perf_counter() - started
+                seconds_per_edge[phase] = max(seconds_per_edge.get(phase, 0.0), warmup_s / max(edges, 1))
+                edges_per_particle = edges / particles
+                if device.type == "cuda":
+                    torch.cuda.reset_peak_memory_stats(device)
+                seconds: list[float] = []
+                while len(seconds) < repeat and left(deadline) > 1.5 * (seconds[-1] if seconds else warmup_s):
+                    started = time.perf_counter()
+                    case.step()
+                    synchronize(device)
+                    seconds.append(time.perf_counter() - started)
+                peak = peak_bytes(device)
+                figures = {"status": "ok", "edges": edges, "repeats": len(seconds),
+                           "step_s": statistics.median(seconds) if seconds else warmup_s, "warmup_s": warmup_s,
+                           "peak_gb": peak / 2**30,
+                           "bytes_per_edge": (peak - base) / max(edges, 1) if device.type == "cuda" else "n/a",
+                           "cpu_table_bytes_per_edge": cpu_bytes}
+                if not seconds:
+                    figures["status"] = "warmup_only"  # the deadline came before a timed step would fit
+                emit("step", **label, **figures)
+                if phase == "train" and memory == "stored":
+                    stored_fit.add(precision)
+                if (phase, precision, memory) == ("train", "bfloat16", "recompute") and device.type == "cuda":
+                    best_fit = {"particles": particles, "edges": edges, "bytes_per_edge": figures["bytes_per_edge"]}
+                if left(deadline) > 1.5 * figures["step_s"] + 1:
+                    emit("phases", **label, **case.split())
+                else:
+                    emit("phases", **label, status="over_budget")
+                if particles == args.sizes[0] and left(deadline) > 1.5 * figures["step_s"] + 1:
+                    emit("syncs", **label, per_step=_sync_count(case.step, device))
+            except torch.OutOfMemoryError:
+                emit("step", **label, status="oom", edges=edges if edges is not None else "n/a")
+            finally:
+                del case
+                set_recompute_activations(False)
+                if device.type == "cuda":
+                    torch.cuda.empty_cache()
+    if best_fit is not None and total is not None and best_fit["bytes_per_edge"] != "n/a":
+        per_particle = best_fit["edges"] / best_fit["particles"] * max(best_fit["bytes_per_edge"], 1.0)
+        emit("largest", precision="bfloat16", memory="recompute", phase="train",
+             particles_est=int((total - RESERVED_GIB * 2**30) / per_particle), from_particles=best_fit["particles"],
+             bytes_per_edge=best_fit["bytes_per_edge"], memory_gb=total / 2**30, method="linear_in_edges")
+
+
+def chunks(args) -> None:
+    """A float32 training step on a graph split into several chunks of edges, against the same step elsewhere.
+
+    On CUDA: the GPU in chunks of ~E/``--chunks`` edges against the CPU. On the CPU (the
+    dry run): small chunks against the CPU's own chunking, so the part runs end to end.
+    """
+    import torch
+
+    import gns_builtins.chunked as chunked
+
+    device = torch.device(args.device)
+    scene = _lattice(args.particles)
+    saved = chunked.ROWS_PER_CHUNK_ACCELERATOR, chunked.ROWS_PER_THREAD
+
+    def step(where, rows_per_chunk=None):
+        if rows_per_chunk is not None:
+            if where.type == "cpu":
+                chunked.ROWS_PER_THREAD = max(rows_per_chunk // max(torch.get_num_threads(), 1), 16)
+            else:
+                chunked.ROWS_PER_CHUNK_ACCELERATOR = rows_per_chunk
+        try:
+            case = _Case(scene, "float32", "train", where, recompute=False)
+            edges = case.edges()
+            prediction, target = case.simulator(case.batch, case.noise())
+            loss = case.loss(prediction.to(target.dtype), target, case.mask)
+            loss.backward()
+            grads = torch.cat([p.grad.detach().double().cpu().flatten() for p in case.simulator.parameters()])
+            return float(loss.detach()), grads, edges, chunked.chunk_size(where)
+        finally:
+            chunked.ROWS_PER_CHUNK_ACCELERATOR, chunked.ROWS_PER_THREAD = saved
+
+    edges = _Case(scene, "float32", "rollout", torch.device("cpu"), recompute=False).edges()
+    rows = max(-(-edges // args.chunks), 64)
+    a_loss, a_grads, _, a_chunk = step(device, rows)
+    b_loss, b_grads, _, b_chunk = step(torch.device("cpu"))
+    loss_rel = abs(a_loss - b_loss) / max(abs(b_loss), 1e-30)
+    grad_rel = float(torch.linalg.norm(a_grads - b_grads) / torch.linalg.norm(b_grads).clamp(min=1e-30))
+    ok = loss_rel <= 1e-4 and grad_rel <= 1e-3
+    emit("chunks", compared=f"{device.type}_chunked_vs_cpu", particles=args.particles, edges=edges,
+         chunks=-(-edges // a_chunk), chunk_rows=a_chunk, cpu_chunk_rows=b_chunk, loss_rel_diff=loss_rel,
+         grad_rel_diff=grad_rel, status="ok" if ok else "differ")
+    if not ok:
+        raise SystemExit("gpu_check: the chunked training step differs from the CPU's")
 
 
 def mpm(args) -> None:
     """Seconds per frame of the 3D sand column on a ``--grid``-cell-wide grid (particles grow as grid^3), on ``--device``."""
+    if importlib.util.find_spec("warp") is None:
+        skipped("warp-lang is not installed here (the MLS-MPM runs on NVIDIA Warp)")
+    import torch
     from scene_builders import column_collapse_3d
 
     from gns_framework.assembly.ground_truth import build_ground_truth_simulator as build_ground_truth
     from gns_framework.ground_truth.scene_spec import parse_scene
+    from gns_framework.plugins import load_registry
 
     raw = column_collapse_3d()
     raw["simulator"] = {"name": "mls_mpm", "device": args.device}
@@ -187,20 +595,36 @@ def data(args) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    for name in ("info", "scale", "mpm"):
+    sub.add_parser("imports")
+    for name in ("info", "ddp", "sums", "chunks", "scale", "mpm"):
         command = sub.add_parser(name)
         command.add_argument("--device", default="cuda")
+    sub.add_parser("tests").add_argument("files", nargs="+")
+    sub.choices["ddp"].add_argument("--steps", type=int, default=5)
+    sub.choices["sums"].add_argument("--rows", type=int, default=1 << 22, help="edges of a whole graph (rows summed)")
+    sub.choices["sums"].add_argument("--chunk-rows", type=int, default=1 << 18, help="edges of one chunk (the GPU's)")
+    sub.choices["sums"].add_argument("--per-node", type=int, default=20, help="edges per node")
+    sub.choices["sums"].add_argument("--features", type=int, default=128)
+    sub.choices["sums"].add_argument("--repeat", type=int, default=10)
+    sub.choices["chunks"].add_argument("--particles", type=int, default=10_000)
+    sub.choices["chunks"].add_argument("--chunks", type=int, default=4, help="about this many chunks of edges")
     sub.choices["scale"].add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
+    from gns_framework.runtime.precision import PRECISIONS
+
     sub.choices["scale"].add_argument("--precisions", nargs="+", choices=PRECISIONS, default=list(PRECISIONS))
     sub.choices["scale"].add_argument("--repeat", type=int, default=5)
+    sub.choices["scale"].add_argument("--large", type=int, default=500_000,
+                                      help="from this size on, bfloat16 + recompute training runs first")
     sub.choices["scale"].add_argument("--budget-s", type=float, default=1e9,
-                                      help="cases not started within this many seconds are reported status=over_budget")
+                                      help="seconds for the whole part (also bounded by GPU_CHECK_PART_LIMIT_S)")
     sub.choices["mpm"].add_argument("--frames", type=int, default=10)
     sub.choices["mpm"].add_argument("--grid", type=int, default=96, help="grid cells along the box (24: 768 particles)")
     sub.add_parser("data").add_argument("out")
     args = parser.parse_args()
-    {"info": info, "scale": scale, "mpm": mpm, "data": data}[args.command](args)
+    {"imports": imports, "info": info, "tests": tests, "ddp": ddp, "sums": sums, "chunks": chunks,
+     "scale": scale, "mpm": mpm, "data": data}[args.command](args)
 
 
 if __name__ == "__main__":
-    main()
+    with contextlib.suppress(BrokenPipeError):
+        main()

@@ -47,13 +47,23 @@ def backward_precision(precision: Precision, device: torch.device | str) -> cont
 
 @contextlib.contextmanager
 def _cuda_tf32():
-    """float32 products on CUDA in TF32 inside the block; the process-wide setting is restored after."""
+    """float32 products on CUDA in TF32 inside the block; the process-wide setting is restored after.
+
+    Set through one API only, the ``allow_tf32`` flags. torch 2.9 and later (2.11 to
+    2.13 checked) keep two records of the setting: ``allow_tf32`` and
+    ``set_float32_matmul_precision`` write both, ``fp32_precision`` writes only the
+    new one. Set through ``fp32_precision`` alone, the legacy getters
+    (``torch.backends.cuda.matmul.allow_tf32``, ``torch.get_float32_matmul_precision()``),
+    which other code may read, raise "mix of the legacy and new APIs" inside the block. Through ``allow_tf32`` every getter, legacy and new,
+    stays readable (tests/runtime/test_precision.py). Only the CUDA flags change: the
+    CPU's (oneDNN) setting is left alone.
+    """
     import torch
 
-    matmul, convolutions = torch.backends.cuda.matmul, torch.backends.cudnn.conv
-    saved = matmul.fp32_precision, convolutions.fp32_precision
-    matmul.fp32_precision = convolutions.fp32_precision = "tf32"
+    matmul, cudnn = torch.backends.cuda.matmul, torch.backends.cudnn
+    saved = matmul.allow_tf32, cudnn.allow_tf32
+    matmul.allow_tf32 = cudnn.allow_tf32 = True
     try:
         yield
     finally:
-        matmul.fp32_precision, convolutions.fp32_precision = saved
+        matmul.allow_tf32, cudnn.allow_tf32 = saved

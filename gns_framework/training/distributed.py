@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from datetime import timedelta
 from typing import Any
 
 import torch
@@ -101,6 +102,28 @@ def processes_from_environment(environ: dict[str, str] | None = None) -> Process
     )
 
 
+PROCESS_GROUP_TIMEOUT_S = 3600.0
+"""How long a collective waits for the other ranks by default (``GNS_PROCESS_GROUP_TIMEOUT_S``).
+
+Rank 0 alone validates (rollouts) and writes checkpoints while the other ranks wait at
+the next collective; NCCL's own default (10 minutes) can end a run whose validation
+takes longer, and gloo's (30 minutes) one with long rollouts. An hour covers the
+validation of large scenes and still ends a job whose rank has died."""
+
+
+def process_group_timeout(environ: dict[str, str] | None = None) -> timedelta:
+    """The process group's timeout: ``GNS_PROCESS_GROUP_TIMEOUT_S`` seconds, else :data:`PROCESS_GROUP_TIMEOUT_S`."""
+    env = os.environ if environ is None else environ
+    raw = env.get("GNS_PROCESS_GROUP_TIMEOUT_S", "")
+    try:
+        seconds = float(raw) if raw.strip() else PROCESS_GROUP_TIMEOUT_S
+    except ValueError:
+        raise ValueError(f"GNS_PROCESS_GROUP_TIMEOUT_S={raw!r}: must be a number of seconds") from None
+    if not seconds > 0:
+        raise ValueError(f"GNS_PROCESS_GROUP_TIMEOUT_S={raw!r}: must be positive")
+    return timedelta(seconds=seconds)
+
+
 def backend_for(device: torch.device) -> str:
     """nccl between GPUs, gloo between CPU processes."""
     return "nccl" if device.type == "cuda" else "gloo"
@@ -124,6 +147,7 @@ def start(processes: Processes, device: torch.device) -> torch.device:
             rank=processes.rank,
             world_size=processes.world_size,
             device_id=device if device.type == "cuda" else None,
+            timeout=process_group_timeout(),
         )
     return device
 

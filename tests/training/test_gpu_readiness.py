@@ -1,7 +1,10 @@
-"""What training on GPUs relies on, checked on the CPU: resume without CUDA generators, the process group's device, timing."""
+"""What training on GPUs relies on, checked on the CPU: resume without CUDA generators, the process group's device and timeout, timing."""
 
 from __future__ import annotations
 
+from datetime import timedelta
+
+import pytest
 import torch
 from tiny import tiny_recipe, tiny_trainer
 
@@ -44,9 +47,25 @@ def test_the_process_group_is_given_the_rank_gpu(monkeypatch):
     device = distributed.start(Processes(rank=1, world_size=2, local_rank=1), torch.device("cuda"))
     assert device == torch.device("cuda", 0) == seen["device_id"] == seen["current"]
     assert seen["backend"] == "nccl"
+    assert seen["timeout"] == distributed.process_group_timeout() == timedelta(seconds=distributed.PROCESS_GROUP_TIMEOUT_S)
     seen.clear()
     distributed.start(Processes(rank=1, world_size=2, local_rank=1), torch.device("cpu"))
     assert seen["device_id"] is None and seen["backend"] == "gloo"
+
+
+def test_the_process_group_timeout_comes_from_the_environment_or_is_an_hour(monkeypatch):
+    assert distributed.process_group_timeout({}) == timedelta(hours=1)
+    assert distributed.process_group_timeout({"GNS_PROCESS_GROUP_TIMEOUT_S": "90"}) == timedelta(seconds=90)
+    for bad in ("soon", "0", "-5"):
+        with pytest.raises(ValueError, match="GNS_PROCESS_GROUP_TIMEOUT_S"):
+            distributed.process_group_timeout({"GNS_PROCESS_GROUP_TIMEOUT_S": bad})
+    seen = {}
+    monkeypatch.setenv("GNS_PROCESS_GROUP_TIMEOUT_S", "120")
+    monkeypatch.setattr(distributed.dist, "is_initialized", lambda: False)
+    monkeypatch.setattr(distributed.dist, "rendezvous", lambda *args: iter([(distributed.dist.HashStore(), 0, 2)]))
+    monkeypatch.setattr(distributed.dist, "init_process_group", lambda **kwargs: seen.update(kwargs))
+    distributed.start(Processes(rank=0, world_size=2), torch.device("cpu"))
+    assert seen["timeout"] == timedelta(seconds=120)
 
 
 def test_throughput_is_timed_between_device_synchronisations(dataset_multimaterial, tmp_path, registry, monkeypatch):
@@ -80,7 +99,7 @@ def test_tf32_is_float32_on_the_cpu_and_its_cuda_setting_is_restored(dataset_mul
         losses[precision] = trainer.train(2)
         trainer.close()
     assert losses["tf32"] == losses["float32"]
-    before = torch.backends.cuda.matmul.fp32_precision
+    before = torch.backends.cuda.matmul.allow_tf32, torch.get_float32_matmul_precision()
     with _cuda_tf32():
         assert torch.backends.cuda.matmul.fp32_precision == "tf32"
-    assert torch.backends.cuda.matmul.fp32_precision == before
+    assert (torch.backends.cuda.matmul.allow_tf32, torch.get_float32_matmul_precision()) == before
