@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import re
 from pathlib import Path
 
 from ..errors import GnsError
 from ..safe_names import ensure_inside, require_component, safe_component, unique_components
 from .arguments import add_allow_pickle, positive_int
+from .envelope_option import add_outside_envelope, enforce_envelope
 
 
 def _scales(text: str) -> list[float]:
@@ -53,6 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="auto", help="device of the learned models")
     parser.add_argument("--vtk", action="store_true", help="also write VTK frames of each model's first rollout")
     parser.add_argument("--gif", action="store_true", help="also write a prediction-vs-truth GIF of each model's first rollout")
+    add_outside_envelope(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,6 +78,16 @@ def run(args: argparse.Namespace) -> int:
     if args.trajectories:
         trajectories = trajectories[: args.trajectories]
     cases = cases_from_split(trajectories)
+    warnings = []
+    for model in models:
+        # Each model is judged on the data as it sees it (its own frame stride).
+        seen = open_dataset(model.recipe.dataset, registry, dataset.path, args.allow_pickle)
+        split = seen.split(args.split)
+        count = min(len(split), args.trajectories or len(split))
+        warnings += enforce_envelope(
+            model, seen.metadata(), [split[i] for i in range(count)], args.outside_envelope,
+            f"{dataset.path} (split {args.split})", "evaluate",
+        )
 
     names = model_labels([m.recipe.name for m in models], args.checkpoints)
     report = compare(
@@ -91,16 +104,19 @@ def run(args: argparse.Namespace) -> int:
         error_metric=args.error_metric,
         rollout_dir=args.out / "rollouts" if (args.vtk or args.gif) else None,
     )
+    report = dataclasses.replace(report, warnings=tuple(warnings))
     paths = write_report(report, args.out)
     print(paths["markdown"].read_text())
     for kind, path in paths.items():
         print(f"{kind}: {path}")
     animations = _render_first_rollouts(args, names, report) if (args.vtk or args.gif) else {}
-    _log_to_training_runs(report, models, names, [*paths.values()], animations)
+    _log_to_training_runs(report, models, names, [*paths.values()], animations, warnings)
     return 0
 
 
-def _log_to_training_runs(report, models, names: list[str], report_files: list[Path], animations: dict[str, Path]) -> None:
+def _log_to_training_runs(
+    report, models, names: list[str], report_files: list[Path], animations: dict[str, Path], warnings: list[str]
+) -> None:
     """Attach the report (and the model's animation) to each model's MLflow run, when it was tracked."""
     from ..training.mlflow_tracker import log_to_recorded_run
 
@@ -115,7 +131,9 @@ def _log_to_training_runs(report, models, names: list[str], report_files: list[P
             {f"evaluation_{k}".replace("[", ".").replace("]", ""): v for k, v in entry.metrics.items() if isinstance(v, float)}
         )
         files = report_files + ([animations[name]] if name in animations else [])
-        tracked = log_to_recorded_run(model.path.parent.parent, metrics, model.step, files, "evaluation")
+        own = [line for line in warnings if line.startswith(f"outside the envelope of {model.path}:")]
+        tags = {"outside_envelope": "; ".join(own)} if own else None
+        tracked = log_to_recorded_run(model.path.parent.parent, metrics, model.step, files, "evaluation", tags)
         if tracked:
             print(f"logged the evaluation report of {name} to MLflow run {tracked}")
 

@@ -14,6 +14,7 @@ from pathlib import Path
 from ..errors import GnsError
 from ..safe_names import safe_component
 from .arguments import add_allow_pickle
+from .envelope_option import add_outside_envelope
 from .tracking_options import add_tracking_arguments, with_mlflow
 
 OUTPUTS = ("result.json", "metrics.jsonl", "convergence.png", "rollout.npz", "rollout.gif")
@@ -25,6 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_allow_pickle(parser)
     parser.add_argument("--no-gif", action="store_true", help="do not animate the recovered rollout")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_outside_envelope(parser)
     add_tracking_arguments(parser, "<out>/metrics.jsonl", "invert")
 
 
@@ -44,9 +46,14 @@ def run(args: argparse.Namespace) -> int:
         raise GnsError(f"{out}: holds an earlier inversion ({', '.join(earlier)}); choose another --out or move it away")
     if config.threads:
         torch.set_num_threads(config.threads)
-    inversion = prepare(config, unknowns, args.config, load_registry(), args.allow_pickle)
+    inversion = prepare(config, unknowns, args.config, load_registry(), args.allow_pickle, args.outside_envelope)
+    for line in inversion.warnings:
+        print(f"gns invert: warning: {line}", file=sys.stderr)
     tracker = with_mlflow(args, "invert", out, JsonlTracker(out), resume=False, activity="the inversion")
-    tracker.log_params({"config": config.model_dump(mode="json"), "config_file": str(args.config)})
+    tracker.log_params({
+        "config": config.model_dump(mode="json"), "config_file": str(args.config),
+        **({"outside_envelope": "; ".join(inversion.warnings)} if inversion.warnings else {}),
+    })
     bar = tqdm(total=config.optimizer.iterations, desc="invert", unit="it", disable=args.no_progress)
 
     def on_iteration(iterate) -> None:

@@ -4,6 +4,10 @@ Every rollout is guarded (recipe ``rollout.guard``, or ``--on-violation`` and
 ``--guard-margin``): a diverging one stops with an error naming the step, the
 particles and the cause, and nothing is written for it; under ``clamp`` the clamped
 rollout is written and every clamp is reported on stderr.
+
+Data outside what the model was trained on (its envelope) is refused before any
+rollout, each quantity named; ``--outside-envelope`` rolls out anyway and records
+the warning in every rollout file's metadata and the MLflow run.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from ..safe_names import ensure_inside, require_component, safe_component
 from ..training.mlflow_tracker import log_to_recorded_run
 from ..training.trainer import resolve_device
 from .arguments import add_allow_pickle, non_negative_float, positive_int
+from .envelope_option import add_outside_envelope, enforce_envelope
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,6 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "bfloat16 is faster on AMX CPUs and GPUs (default float32)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_outside_envelope(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -66,6 +72,11 @@ def run(args: argparse.Namespace) -> int:
     split_name = require_component(args.split or spec.split, "--split" if args.split else "the recipe's rollout.split")
     trajectories = dataset.split(split_name)
     count = min(len(trajectories), args.trajectories or spec.trajectories or len(trajectories))
+    warnings = enforce_envelope(
+        loaded, dataset.metadata(), [trajectories[i] for i in range(count)], args.outside_envelope,
+        f"{dataset.path} (split {split_name})", "rollout",
+    )
+    recorded = loaded.metadata.model_copy(update={"outside_envelope": warnings}) if warnings else loaded.metadata
     run_dir = args.checkpoint.parent.parent
     out = args.out or run_dir / "rollouts"
     errors = []
@@ -81,14 +92,17 @@ def run(args: argparse.Namespace) -> int:
             progress=not args.no_progress, guard=guard, precision=args.precision,
         )
         file = ensure_inside(out / f"{safe_component(split_name)}_{index:04d}.npz", out)
-        path = write_rollout(file, result, loaded.metadata)
+        path = write_rollout(file, result, recorded)
         clamped = f", clamped at {len(result.guard_violations)} check(s)" if result.guard_violations else ""
         print(f"{path}: {result.num_steps} steps, position MSE {result.position_mse:.4g}{clamped}")
         for violation in result.guard_violations:
             print(f"gns rollout: warning: {path}: clamped {violation.describe()}", file=sys.stderr)
         errors.append(result.position_mse)
     if errors:
-        tracked = log_to_recorded_run(run_dir, {f"rollout_position_mse_{split_name}": sum(errors) / len(errors)}, loaded.step)
+        tracked = log_to_recorded_run(
+            run_dir, {f"rollout_position_mse_{split_name}": sum(errors) / len(errors)}, loaded.step,
+            tags={"outside_envelope": "; ".join(warnings)} if warnings else None,
+        )
         if tracked:
             print(f"logged rollout_position_mse_{split_name} at step {loaded.step} to MLflow run {tracked}")
     return 0

@@ -117,6 +117,8 @@ class Report:
     hardware: dict[str, str | int] = field(default_factory=dict)
     metric_units: dict[str, str] = field(default_factory=dict)
     """Name (or family pattern) -> unit and meaning of every metric reported."""
+    warnings: tuple[str, ...] = ()
+    """What the reader must know before trusting the figures (data outside a model's training envelope)."""
 
     @property
     def reference(self) -> Entry | None:
@@ -374,6 +376,12 @@ def markdown_table(report: Report) -> str:
         (
             f"Timing: median of {report.repeats} repeats per rollout after {report.warmup} warm-up run(s), "
             f"device synchronised; mean over {report.num_cases} test case(s)."
+        ),
+        *(
+            ["", "**Warning: data outside a model's training envelope (the model extrapolates here):**", ""]
+            + [f"- {line}" for line in report.warnings]
+            if report.warnings
+            else []
         ),
         "",
         "| " + " | ".join(columns + headline) + " |",

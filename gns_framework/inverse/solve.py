@@ -11,6 +11,7 @@ Outputs in the inversion's folder:
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -25,6 +26,7 @@ from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..evaluation.candidates import granular_particle_types
 from ..io.rollout_file import write_rollout
+from ..model.envelope import PROPERTY_SLACK, SPEED_SLACK, OutsideEnvelope, envelope_message, outside_envelope
 from ..plugins import Registry
 from ..runtime.activation_memory import activations_recomputed
 from .config import InvertConfig, PropertyUnknown, VelocityUnknown
@@ -41,6 +43,8 @@ class Inversion:
     problem: InverseProblem
     model: LoadedModel
     trajectory: Trajectory
+    warnings: tuple[str, ...] = ()
+    """Where the observation or the search lies outside the model's training envelope (``outside_envelope``)."""
 
 
 def prepare(
@@ -49,8 +53,14 @@ def prepare(
     source: str | Path,
     registry: Registry,
     allow_pickle: Path | None = None,
+    outside_envelope: bool = False,
 ) -> Inversion:
-    """Load the model and the observed trajectory; every problem they reveal is one RecipeError."""
+    """Load the model and the observed trajectory; every problem they reveal is one RecipeError.
+
+    The observation and the unknowns' bounds must lie inside the model's training
+    envelope (OutsideEnvelope names what does not) unless ``outside_envelope``: then the
+    inversion runs and its ``warnings`` say where the model extrapolates.
+    """
     device = torch.device(config.device)
     model = load_trained(config.model, registry, device)
     observed = config.observed
@@ -62,6 +72,7 @@ def prepare(
     check_against_model(config, unknowns, model.simulator, trajectories, source)
     trajectory = trajectories[observed.trajectory]
     scene = model.simulator.scene
+    warnings = _envelope_warnings(model, dataset.metadata(), trajectory, unknowns, outside_envelope, observed.dataset)
     problem = InverseProblem(
         model.simulator,
         trajectory,
@@ -73,7 +84,47 @@ def prepare(
         checkpoint_every=config.checkpoint_every,
         device=device,
     )
-    return Inversion(config, problem, model, trajectory)
+    return Inversion(config, problem, model, trajectory, warnings)
+
+
+def _envelope_warnings(model, metadata, trajectory, unknowns, allowed: bool, source) -> tuple[str, ...]:
+    """The observation checked against the envelope, its unknown quantities replaced by their search bounds.
+
+    A property or initial velocity being searched is not what the file holds but
+    anything in its bounds: those bounds must lie in the trained range.
+    """
+    envelope = model.envelope
+    if envelope is None:
+        return ()
+    scene = model.simulator.scene
+    searched = {name for name, unknown in unknowns.items() if isinstance(unknown, PropertyUnknown)}
+    velocity = [u for u in unknowns.values() if isinstance(u, VelocityUnknown)]
+    problems = [
+        line
+        for line in outside_envelope(envelope, metadata, [trajectory], scene.history, scene.kinematic_types)
+        if not any(line.startswith(f"property {name} ") for name in searched)
+        and not (velocity and line.startswith("input speed "))
+    ]
+    for name in sorted(searched):
+        low, high = unknowns[name].bounds
+        trained = envelope.properties.get(name)
+        if trained is None or low < trained[0] - PROPERTY_SLACK * (trained[1] - trained[0]) - 1e-12 or (
+            high > trained[1] + PROPERTY_SLACK * (trained[1] - trained[0]) + 1e-12
+        ):
+            described = "not a model input" if trained is None else f"{trained[0]:.4g} .. {trained[1]:.4g}"
+            problems.append(f"unknowns.{name}.bounds [{low:.4g}, {high:.4g}] (trained: {described})")
+    for unknown in velocity:
+        fastest = math.sqrt(sum(max(abs(lo), abs(hi)) ** 2 for lo, hi in unknown.bounds))
+        if fastest > SPEED_SLACK * envelope.max_speed:
+            problems.append(
+                f"unknowns.initial_velocity.bounds up to {fastest:.3g} m/s "
+                f"(trained: up to {envelope.max_speed:.3g} m/s, accepted {SPEED_SLACK:g}x)"
+            )
+    if not problems:
+        return ()
+    if not allowed:
+        raise OutsideEnvelope(envelope_message(f"{source} (observed)", str(model.path), problems), problems)
+    return tuple(f"outside the envelope of {model.path}: {line}" for line in problems)
 
 
 @dataclass(frozen=True)
@@ -104,6 +155,7 @@ class InversionResult:
             "stopped": self.message,
             "model": str(inversion.config.model),
             "observed": {**observed.model_dump(), "key": inversion.trajectory.key},
+            **({"outside_envelope": list(inversion.warnings)} if inversion.warnings else {}),
         }
 
 
@@ -201,7 +253,10 @@ def write_outputs(inversion: Inversion, result: InversionResult, out: Path, gif:
     """result.json (last, atomically), convergence plot, rollout file and GIF."""
     paths = {"convergence": plot_convergence(result.history, inversion, out / "convergence.png")}
     rollout = recovered_rollout(inversion, result)
-    paths["rollout"] = write_rollout(out / "rollout.npz", rollout, inversion.problem.metadata)
+    metadata = inversion.problem.metadata
+    if inversion.warnings:
+        metadata = metadata.model_copy(update={"outside_envelope": list(inversion.warnings)})
+    paths["rollout"] = write_rollout(out / "rollout.npz", rollout, metadata)
     if gif:
         from ..io.rollout_file import load_rollout
         from ..viz.animation import animate_rollout

@@ -386,9 +386,14 @@ def open_mlflow_tracker(run_dir: Path, tracking_uri: str, experiment: str, resum
 
 
 def log_to_recorded_run(
-    run_dir: Path, metrics: dict[str, float], step: int, artifacts: Sequence[Path] = (), artifact_path: str | None = None
+    run_dir: Path,
+    metrics: dict[str, float],
+    step: int,
+    artifacts: Sequence[Path] = (),
+    artifact_path: str | None = None,
+    tags: dict[str, str] | None = None,
 ) -> str | None:
-    """Add ``metrics`` (and ``artifacts`` under ``artifact_path``) to the MLflow run that trained ``run_dir``.
+    """Add ``metrics`` (``artifacts`` under ``artifact_path``, and ``tags``) to the MLflow run that trained ``run_dir``.
 
     The run's status is left alone. Returns the run id, or None when the run was not
     tracked with MLflow (or mlflow is missing), or when its server is unreachable: the
@@ -405,6 +410,8 @@ def log_to_recorded_run(
     client = _client(saved["tracking_uri"])
     try:
         client.log_batch(saved["run_id"], metrics=entries)
+        for name, value in (tags or {}).items():
+            client.set_tag(saved["run_id"], name, value)
         for artifact in artifacts:
             client.log_artifact(saved["run_id"], str(artifact), artifact_path)
     except Exception as error:

@@ -68,11 +68,19 @@ def test_train_resume_rollout_render(dataset_multimaterial, tmp_path):
     assert resumed.returncode == 0, resumed.stderr
     assert "resumed from" in resumed.stdout and "to step 5" in resumed.stdout
     checkpoint = tmp_path / "run" / "checkpoints" / "checkpoint-000000005.pt"
-    rolled = gns("rollout", str(checkpoint), "--steps", "4", "--out", str(tmp_path / "rollouts"), "--no-progress")
+    # Trained for 5 steps on 3 trajectories, the model's envelope is narrow: the test split's friction lies outside.
+    refused = gns("rollout", str(checkpoint), "--steps", "4", "--out", str(tmp_path / "rollouts"), "--no-progress")
+    assert refused.returncode == 2 and "outside the envelope of" in refused.stderr
+    assert "property friction" in refused.stderr and "--outside-envelope" in refused.stderr
+    assert not (tmp_path / "rollouts").exists()
+    rolled = gns("rollout", str(checkpoint), "--steps", "4", "--out", str(tmp_path / "rollouts"), "--no-progress",
+                 "--outside-envelope")
     assert rolled.returncode == 0, rolled.stderr
+    assert "warning: outside the envelope of" in rolled.stderr
     rollout_file = tmp_path / "rollouts" / "test_0000.npz"
     with np.load(rollout_file, allow_pickle=False) as z:
         assert z["predicted_rollout"].shape[0] == 4
+        assert "property friction" in json.loads(str(z["metadata_json"]))["outside_envelope"][0]
     # In process, to see the dtypes of the Linear layers' products as the rollout runs them.
     products = []
 
@@ -83,7 +91,7 @@ def test_train_resume_rollout_render(dataset_multimaterial, tmp_path):
     hook = torch.nn.modules.module.register_module_forward_hook(record)
     try:
         low = main(["rollout", str(checkpoint), "--steps", "4", "--out", str(tmp_path / "low"), "--no-progress",
-                    "--precision", "bfloat16"])
+                    "--precision", "bfloat16", "--outside-envelope"])
     finally:
         hook.remove()
     assert low == 0

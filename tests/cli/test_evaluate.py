@@ -41,9 +41,13 @@ def test_evaluate_writes_table_plots_vtk_and_gif(tmp_path: Path):
 
     out = tmp_path / "report"
     checkpoint = tmp_path / "run" / "checkpoints" / "checkpoint-000000002.pt"
-    result = gns("evaluate", str(checkpoint), "--out", str(out), "--repeats", "1", "--warmup", "0", "--vtk", "--gif")
+    args = ("evaluate", str(checkpoint), "--out", str(out), "--repeats", "1", "--warmup", "0", "--vtk", "--gif")
+    refused = gns(*args)
+    assert refused.returncode == 2 and "outside the envelope of" in refused.stderr and not out.exists()
+    result = gns(*args, "--outside-envelope")
     assert result.returncode == 0, result.stderr
     table = (out / "report.md").read_text()
+    assert "**Warning: data outside a model's training envelope" in table and "property friction" in table
     assert "| tiny | learned |" in table
     assert "grid 24 x 20 substeps (reference)" in table and "grid 12 x 20 substeps" in table
     assert (out / "report.csv").read_text().count("\n") == 4
@@ -70,8 +74,9 @@ def test_evaluate_writes_table_plots_vtk_and_gif(tmp_path: Path):
     (other / checkpoint.name).write_bytes(checkpoint.read_bytes())
     both = tmp_path / "both"
     result = gns("evaluate", str(checkpoint), str(other / checkpoint.name), "--out", str(both), "--no-simulator",
-                 "--repeats", "1", "--warmup", "0", "--trajectories", "1", "--gif")
+                 "--repeats", "1", "--warmup", "0", "--trajectories", "1", "--gif", "--outside-envelope")
     assert result.returncode == 0, result.stderr
+    assert result.stderr.count("warning: outside the envelope of") == 2, "each model judged on its own envelope"
     labels = ["tiny.run.checkpoint-000000002", "tiny.other.checkpoint-000000002"]
     assert sorted(p.name for p in both.glob("*.gif")) == sorted(f"{label}.gif" for label in labels)
     assert sorted(p.name for p in (both / "rollouts").iterdir()) == sorted(labels)

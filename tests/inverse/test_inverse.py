@@ -183,11 +183,17 @@ def write_config(path: Path, raw: dict) -> Path:
 def test_gns_invert_writes_its_results(tmp_path, tiny_model, dataset_multimaterial, optimizer):
     config = write_config(tmp_path / "inv.yaml", config_mapping(
         tiny_model, dataset_multimaterial, optimizer={"name": optimizer, "lr": 0.05, "iterations": 2}))
-    result = gns("invert", str(config), "--out", "out", "--no-progress", "--no-tracking", cwd=tmp_path)
+    # The search bounds [0.4, 1] reach beyond the frictions the tiny model was trained on.
+    refused = gns("invert", str(config), "--out", "out", "--no-progress", "--no-tracking", cwd=tmp_path)
+    assert refused.returncode == 2 and "unknowns.friction.bounds [0.4, 1] (trained: " in refused.stderr
+    assert not (tmp_path / "out").exists()
+    result = gns("invert", str(config), "--out", "out", "--no-progress", "--no-tracking", "--outside-envelope",
+                 cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     out = tmp_path / "out"
     record = json.loads((out / "result.json").read_text())
     assert set(record) >= {"unknowns", "loss", "iterations", "seconds"}
+    assert "unknowns.friction.bounds" in record["outside_envelope"][0]
     assert 0.4 <= record["unknowns"]["friction"] <= 1.0 and np.isfinite(record["loss"])
     assert 1 <= record["iterations"] <= 2
     for name in ("convergence.png", "rollout.npz", "rollout.gif", "metrics.jsonl"):
@@ -196,7 +202,8 @@ def test_gns_invert_writes_its_results(tmp_path, tiny_model, dataset_multimateri
     assert [line["step"] for line in lines if "friction" in line][:2] == [1, 2]
     # Nothing written is replaced: a second inversion into the same folder is refused.
     before = (out / "result.json").read_bytes()
-    again = gns("invert", str(config), "--out", "out", "--no-progress", "--no-tracking", cwd=tmp_path)
+    again = gns("invert", str(config), "--out", "out", "--no-progress", "--no-tracking", "--outside-envelope",
+                cwd=tmp_path)
     assert again.returncode == 2 and "holds an earlier inversion" in again.stderr
     assert (out / "result.json").read_bytes() == before
 
@@ -204,7 +211,7 @@ def test_gns_invert_writes_its_results(tmp_path, tiny_model, dataset_multimateri
 def test_gns_invert_logs_to_mlflow(tmp_path, tiny_model, dataset_multimaterial, mlflow_store_of_the_session):
     config = write_config(tmp_path / "inv.yaml", config_mapping(tiny_model, dataset_multimaterial))
     result = gns("invert", str(config), "--out", "out", "--no-progress", "--no-gif", "--experiment", "inverse-test",
-                 cwd=tmp_path)
+                 "--outside-envelope", cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     from mlflow.tracking import MlflowClient
 
@@ -212,6 +219,7 @@ def test_gns_invert_logs_to_mlflow(tmp_path, tiny_model, dataset_multimaterial, 
     experiment = client.get_experiment_by_name("inverse-test")
     (run,) = client.search_runs([experiment.experiment_id])
     assert {"loss", "friction", "final_loss"} <= set(run.data.metrics)
+    assert "unknowns.friction.bounds" in run.data.params["outside_envelope"]
     assert "result.json" in {a.path for a in client.list_artifacts(run.info.run_id)}
 
 
