@@ -11,6 +11,7 @@ from ..io.checkpoint import list_checkpoints
 from ..plugins import load_registry
 from ..training import distributed
 from ..training.distributed import processes_from_environment
+from ..training.run_lock import run_folder_lock
 from ..training.trainer import Trainer
 from .arguments import add_allow_pickle, positive_int
 from .tracking_options import add_tracking_arguments, with_mlflow
@@ -56,18 +57,21 @@ def run(args: argparse.Namespace) -> int:
         overrides.setdefault("training", {})["device"] = args.device
     recipe = load_recipe(args.recipe, registry, overrides)
     processes = processes_from_environment()
-    try:
-        trainer = Trainer(
-            recipe, registry, run_dir=args.out, dataset_path=args.dataset, processes=processes,
-            progress=not args.no_progress, allow_pickle=args.allow_pickle,
-        )
+    run_dir = args.out if args.out is not None else recipe.run_dir
+    # One writer per run folder, for the whole run (fresh, --resume, --restart): rank 0 holds the lock.
+    with run_folder_lock(run_dir, take=processes.is_chief):
         try:
-            return _train(trainer, args)
-        except BaseException:
-            trainer.close(failed=True)
-            raise
-    finally:
-        distributed.stop()
+            trainer = Trainer(
+                recipe, registry, run_dir=run_dir, dataset_path=args.dataset, processes=processes,
+                progress=not args.no_progress, allow_pickle=args.allow_pickle,
+            )
+            try:
+                return _train(trainer, args)
+            except BaseException:
+                trainer.close(failed=True)
+                raise
+        finally:
+            distributed.stop()
 
 
 def _train(trainer: Trainer, args: argparse.Namespace) -> int:

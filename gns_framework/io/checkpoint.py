@@ -39,6 +39,8 @@ _PARTIAL = re.compile(r"^\.checkpoint-\d{9}\.pt\..+\.tmp\.pt$")
 REQUIRED = ("format", "model", "step", "recipe", "scene", "metadata", "plugins")
 DIGEST_RECORD = "gns_sha256"
 """Name (inside the archive's folder) of the record holding the SHA-256 of the other records, in hex."""
+HISTORY_RECORD = "gns_history"
+"""Name of the record holding the id of the training history that wrote the checkpoint (read without unpickling)."""
 DAMAGED_SUFFIX = ".damaged"
 UNREADABLE = "unreadable checkpoint (truncated, corrupt or not a checkpoint)"
 
@@ -56,8 +58,10 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
     with atomic_path(path, suffix=".pt") as tmp:
         torch.save({"format": FORMAT, **state}, tmp)
         with zipfile.ZipFile(tmp, "a") as archive:
-            computed, _ = _record_digest(archive)
             folder = archive.infolist()[0].filename.split("/")[0]
+            if isinstance(state.get("history"), str):
+                archive.writestr(f"{folder}/{HISTORY_RECORD}", state["history"])
+            computed, _ = _record_digest(archive)
             archive.writestr(f"{folder}/{DIGEST_RECORD}", computed)
     return path
 
@@ -152,17 +156,46 @@ def list_checkpoints(directory: str | Path) -> list[tuple[int, Path]]:
     return sorted(found)
 
 
-def prune_checkpoints(directory: str | Path, keep: int) -> None:
-    """Delete all but the newest ``keep`` checkpoints, and partial writes a killed process left behind.
+def checkpoint_history(path: str | Path) -> str | None:
+    """The id of the training history that wrote ``path`` (None: written before histories were recorded, or unreadable).
 
-    Only the run's single writer (rank 0) may call this: another writer's partial
-    file would look abandoned.
+    Read from one small record of the archive, so it costs no unpickling.
     """
-    for _, path in list_checkpoints(directory)[:-keep]:
+    try:
+        with zipfile.ZipFile(path) as archive:
+            for info in archive.infolist():
+                if info.filename.rsplit("/", 1)[-1] == HISTORY_RECORD and info.file_size <= 256:
+                    return archive.read(info).decode("ascii")
+    except Exception:
+        return None
+    return None
+
+
+def prune_checkpoints(directory: str | Path, keep: int, history: str | None = None) -> list[Path]:
+    """Delete all but the newest ``keep`` checkpoints of ``history``, and partial writes a killed process left behind.
+
+    Only checkpoints whose recorded history is ``history`` count and may go: a
+    checkpoint of another history (one copied in to resume from, or the folder's
+    earlier run), or one that records none, is never deleted. A checkpoint due to go
+    is verified first: a damaged one is renamed aside (``.damaged``), never deleted.
+    Returns the paths set aside. Only the run's single writer (rank 0, holding the
+    run folder's lock) may call this: another writer's partial file would look abandoned.
+    """
+    set_aside: list[Path] = []
+    own = [p for _, p in list_checkpoints(directory) if history is not None and checkpoint_history(p) == history]
+    for path in own[:-keep] if keep > 0 else own:
+        try:
+            verify_checkpoint(path)
+        except CheckpointError as exc:
+            target = set_aside_damaged(path)
+            warnings.warn(f"retention kept a damaged checkpoint as {target.name}: {exc}", stacklevel=2)
+            set_aside.append(target)
+            continue
         path.unlink(missing_ok=True)
     for path in Path(directory).glob(".checkpoint-*"):
         if _PARTIAL.match(path.name):
             path.unlink(missing_ok=True)
+    return set_aside
 
 
 def latest_good_checkpoint(directory: str | Path) -> tuple[Path, dict[str, Any]] | None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import time
+import uuid
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -137,6 +138,8 @@ class Trainer:
             self.simulator.parameters(), recipe.training.optimizer, recipe.training.steps
         )
         self.step = 0
+        self.history = uuid.uuid4().hex
+        """Id of this run's history (kept across resumes, recorded in each checkpoint): retention prunes only its own."""
         self.best: dict = {"metric": recipe.training.best_metric, "value": math.inf, "step": None}
         """The best validation-rollout score so far and its step (restored on resume)."""
         self.tracker = None
@@ -178,6 +181,7 @@ class Trainer:
             "metadata": self.data.metadata.to_json_dict(),
             "plugins": plugin_versions(self.recipe, self.registry, self.data.scene),
             "best": dict(self.best),
+            "history": self.history,
             **({"envelope": self.envelope.to_dict()} if self.envelope is not None else {}),
         }
 
@@ -203,6 +207,10 @@ class Trainer:
             ) from None
         self.scheduler.load_state_dict(state["scheduler"])
         self.step = int(state["step"])
+        # A checkpoint written before histories were recorded starts a new one: its folder's older
+        # checkpoints, which record none, are then never pruned.
+        if isinstance(state.get("history"), str):
+            self.history = state["history"]
         if "best" in state and state["best"].get("metric") == self.best["metric"]:
             self.best = dict(state["best"])
         # A checkpoint's CUDA generator states (older checkpoints have them) are ignored: nothing
@@ -259,7 +267,7 @@ class Trainer:
         path = None
         if self.processes.is_chief:
             path = save_checkpoint(self.checkpoint_dir / checkpoint_name(self.step), self.state())
-            prune_checkpoints(self.checkpoint_dir, self.recipe.training.keep_checkpoints)
+            prune_checkpoints(self.checkpoint_dir, self.recipe.training.keep_checkpoints, self.history)
         self.processes.barrier()
         return path
 
