@@ -260,11 +260,13 @@ def sums(args) -> None:
         out = torch.zeros(nodes, args.features, device=device)
         # Bytes a sum must move at least: the rows and keys read, the node table read and written.
         moved = rows.numel() * rows.element_size() + keys.numel() * 8 + 2 * out.numel() * out.element_size()
+        order = torch.argsort(keys, stable=True)
+        sorted_keys, sorted_rows = keys[order], rows[order]
+        # index_add: the atomic path (training.deterministic: false); ordered: the deterministic CSR segment
+        # sum of any keys (a stable sort first, as the senders need); ordered_sorted: of receiver-sorted keys.
         paths = {"index_add": lambda: out.zero_().index_add_(0, keys, rows),
-                 "ordered": lambda: segment_sum.segment_sum_(out.zero_(), keys, rows)}
-        for name in ("segment_sum_fast", "fast_segment_sum_", "csr_segment_sum_"):  # an O(E) CUDA path, once it exists
-            if hasattr(segment_sum, name):
-                paths[name] = (lambda f: lambda: f(out.zero_(), keys, rows))(getattr(segment_sum, name))
+                 "ordered": lambda: segment_sum.segment_sum_(out.zero_(), keys, rows),
+                 "ordered_sorted": lambda: segment_sum.sorted_segment_sum_(out.zero_(), sorted_keys, sorted_rows)}
         reference = paths["index_add"]().clone()
         for name, function in paths.items():
             label = dict(path=name, rows=rows_n, nodes=nodes, features=args.features)

@@ -14,6 +14,7 @@ from ..io.checkpoint import load_checkpoint
 from ..model.envelope import Envelope
 from ..model.learned_simulator import LearnedSimulator
 from ..plugins import Registry
+from ..runtime.deterministic import set_deterministic_sums
 from .learned import build_learned_simulator
 from .scene import scene_from_dict
 
@@ -35,6 +36,8 @@ def load_trained(path: str | Path, registry: Registry, device: torch.device | st
     state = load_checkpoint(path, map_location="cpu")
     # A component that is not installed is a located problem of the stored recipe (RecipeError).
     recipe = validate_recipe(without_pickle_grant(state["recipe"]), registry, f"{path} (stored recipe)")
+    # Rollouts sum at nodes the way the model trained (on GPUs: ordered or atomic).
+    set_deterministic_sums(recipe.training.deterministic)
     metadata = parse_metadata(state["metadata"], f"{path} (stored metadata)")
     simulator = build_learned_simulator(scene_from_dict(state["scene"]), metadata, recipe.model, registry)
     try:

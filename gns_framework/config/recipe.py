@@ -141,6 +141,11 @@ class TrainingSpec(_Strict):
     recompute_activations: bool = Field(
         False, description="recompute edge activations in the backward: about half the memory, ~10% slower"
     )
+    deterministic: bool = Field(
+        True,
+        description="on GPUs, sums at nodes in a fixed order (a CSR segment sum), so runs and resumes are bit-equal; "
+        "false: atomic index_add_, whose last bits vary run to run. CPUs are deterministic either way",
+    )
     precision: Precision = Field(
         "float32",
         description="float32; tf32: float32 products on CUDA tensor cores in TF32 (float32 on CPUs); "

@@ -2,16 +2,17 @@
 
 ``index_add_`` on CUDA adds with atomics in whatever order the threads arrive, so
 the float32 sums at a node differ in their last bits from run to run: an exact
-resume, or a CPU/GPU comparison, cannot hold. Here each run of equal (sorted) keys
-is summed by a float64 prefix sum over the rows (a scan, whose order is fixed),
-and only the last row of each run adds its run's total into the output; every
-other row adds an exact zero, which leaves the sum unchanged in any order. The
-float64 prefix keeps the run totals as accurate as float32 sums (the prefix of E
-rows of magnitude m loses about E * m * 1e-16).
+resume, or a CPU/GPU comparison, cannot hold. Here the rows are put in key order
+(the graph builders sort edges by receiver, so receivers come sorted) and each
+run of equal keys is summed in float64 by ``torch.segment_reduce`` over CSR
+offsets: one pass over the E rows, each output row summing its own run, with no
+atomics, no prefix scan (PyTorch's outer-dimension scans run in one block on
+CUDA, PyTorch issue 122170) and no read-back to the host.
 
 On CPUs ``index_add_`` is serial and already deterministic (and the fused kernels
 of the edge block sum sorted receivers in order), so the edge block uses this on
-accelerators only (:func:`needs_ordered_sums`).
+accelerators only, and only while ``training.deterministic`` holds
+(:func:`needs_ordered_sums`); with it off, accelerators use the atomic ``index_add_``.
 """
 
 from __future__ import annotations
@@ -19,29 +20,27 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from gns_framework.runtime.deterministic import deterministic_sums
+
 
 def needs_ordered_sums(device: torch.device) -> bool:
-    """Whether ``index_add_`` on ``device`` may sum in a varying order (every accelerator)."""
-    return device.type != "cpu"
+    """Whether sums on ``device`` go through :func:`segment_sum_`: accelerators, unless deterministic sums are off."""
+    return device.type != "cpu" and deterministic_sums()
 
 
 def sorted_segment_sum_(out: Tensor, keys: Tensor, rows: Tensor) -> Tensor:
-    """``out[keys[k]] += rows[k]`` for non-decreasing ``keys``, in a fixed order; returns ``out``.
+    """``out[keys[k]] += rows[k]`` for non-decreasing ``keys``, each output row summed in key order; returns ``out``.
 
-    Shapes: out (M, F); keys (K,) int64, sorted; rows (K, F). No host synchronisation.
+    Shapes: out (M, F); keys (K,) int64, sorted, in [0, M); rows (K, F). No host synchronisation.
     """
     if keys.numel() == 0:
         return out
-    prefix = torch.cumsum(rows, 0, dtype=torch.float64)
-    last = torch.ones_like(keys, dtype=torch.bool)
-    last[:-1] = keys[1:] != keys[:-1]
-    # For each row, the index of the last row of the run before its own (-1 for the first run).
-    position = torch.arange(keys.numel(), device=keys.device)
-    previous_end = torch.where(last, position, torch.full_like(position, -1))
-    previous_end = torch.cat([previous_end.new_full((1,), -1), previous_end[:-1]]).cummax(0).values
-    before = torch.where((previous_end >= 0)[:, None], prefix[previous_end.clamp(min=0)], torch.zeros_like(prefix))
-    totals = torch.where(last[:, None], prefix - before, torch.zeros_like(prefix))
-    return out.index_add_(0, keys, totals.to(out.dtype))
+    # offsets[i]: the first row whose key is >= i, so output row i sums rows [offsets[i], offsets[i + 1]).
+    offsets = torch.searchsorted(keys, torch.arange(out.shape[0] + 1, device=keys.device, dtype=keys.dtype))
+    # Summed in float64: the run totals then round to the same float32 whatever the order of the rows
+    # within a run (as a float32 sum in a fixed order would not), and as accurately as float32 allows.
+    sums = torch.segment_reduce(rows.to(torch.float64), "sum", offsets=offsets, axis=0, unsafe=True)
+    return out.add_(sums.to(out.dtype))
 
 
 def segment_sum_(out: Tensor, keys: Tensor, rows: Tensor) -> Tensor:

@@ -44,3 +44,29 @@ def test_empty_and_single_runs():
     assert torch.equal(sorted_segment_sum_(out.clone(), torch.empty(0, dtype=torch.long), torch.empty(0, 2)), out)
     got = sorted_segment_sum_(torch.zeros(3, 2), torch.tensor([0, 2]), torch.tensor([[1.0, 2.0], [3.0, 4.0]]))
     assert torch.equal(got, torch.tensor([[1.0, 2.0], [0.0, 0.0], [3.0, 4.0]]))
+
+
+def test_sums_are_as_accurate_as_float32_allows_against_a_float64_reference():
+    """Each node's run is summed in float64 and rounded once: within 2 ulp of the absolute sum."""
+    keys, values, start = _case(3, rows=4000, nodes=50)
+    reference = start.double().index_add_(0, keys, values.double())
+    got = segment_sum_(start.clone(), keys, values)
+    bound = 2 * torch.finfo(torch.float32).eps * (start.double().abs().index_add_(0, keys, values.double().abs()))
+    assert ((got.double() - reference).abs() <= bound).all()
+    wrong = got.clone()
+    wrong[7, 3] += 1e-3 * bound[7, 3].item() / torch.finfo(torch.float32).eps  # a real error, far above rounding
+    assert not ((wrong.double() - reference).abs() <= bound).all()
+
+
+def test_deterministic_sums_switch_picks_the_path_on_accelerators_only():
+    from gns_builtins.segment_sum import needs_ordered_sums
+
+    from gns_framework.runtime.deterministic import deterministic_sums, set_deterministic_sums
+
+    assert deterministic_sums() is True
+    assert needs_ordered_sums(torch.device("cuda")) and not needs_ordered_sums(torch.device("cpu"))
+    try:
+        set_deterministic_sums(False)
+        assert not needs_ordered_sums(torch.device("cuda"))
+    finally:
+        set_deterministic_sums(True)
