@@ -154,3 +154,49 @@ def test_the_guard_continues_from_the_frame_its_check_returns(registry, dataset_
     expected = position.clone()
     expected[1] = previous[1]
     assert torch.equal(stop.continued(position, previous), expected)
+
+
+def test_the_radius_graph_waits_for_the_device_once_per_chunk_at_the_dispatch_level():
+    """Seen below Python (TorchDispatchMode): no torch.unique, one kept-pair count per chunk of candidates.
+
+    With the explicit read-back of the candidate count (counted by the tests above) that is
+    two waits per graph build of one chunk, against seven before (four torch.unique, two masks).
+    """
+    from gns_builtins.graph_builders import cell_list
+
+    from gns_framework.runtime.host_sync import SyncCounter
+
+    generator = torch.Generator().manual_seed(0)
+    position = torch.rand(3000, 3, generator=generator)
+    batch = torch.cat([torch.zeros(1500, dtype=torch.long), torch.ones(1500, dtype=torch.long)])
+    with SyncCounter() as one_chunk:
+        cell_list.radius_pairs(position, batch, 0.08)
+    assert one_chunk.counts == {"aten.nonzero": 1}
+    senders, _ = cell_list.radius_pairs(position, batch, 0.08)
+    previous = cell_list.CANDIDATES_PER_CHUNK_CPU
+    try:
+        # Chunks of a few times the edge count's size: the candidates (~2x the edges) span several.
+        cell_list.CANDIDATES_PER_CHUNK_CPU = senders.numel() // 2
+        with SyncCounter() as several:
+            chunked, _ = cell_list.radius_pairs(position, batch, 0.08)
+    finally:
+        cell_list.CANDIDATES_PER_CHUNK_CPU = previous
+    assert torch.equal(chunked, senders)
+    assert set(several.counts) == {"aten.nonzero"} and several.counts["aten.nonzero"] >= 3
+
+
+def test_the_sync_counter_sees_waits_inside_torch():
+    from gns_framework.runtime.host_sync import SyncCounter
+
+    x = torch.arange(6)
+    with SyncCounter() as counter:
+        x[x > 2]
+        torch.unique(x)
+        x.sum().item()
+        torch.repeat_interleave(x, x)
+        torch.repeat_interleave(x, x, output_size=15)
+        x[torch.tensor([0, 1])]
+    assert counter.counts == {
+        "aten.index (boolean mask)": 1, "aten._unique2": 1, "aten._local_scalar_dense": 1,
+        "aten.repeat_interleave (no output_size)": 1,
+    }

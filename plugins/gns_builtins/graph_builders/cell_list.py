@@ -31,13 +31,35 @@ def candidates_per_chunk(device: torch.device) -> int:
     return CANDIDATES_PER_CHUNK_CPU if device.type == "cpu" else CANDIDATES_PER_CHUNK_ACCELERATOR
 
 
-def _neighbour_ranks(coord: Tensor, offset: int, unique: Tensor) -> tuple[Tensor, Tensor]:
-    """Rank of cell coordinate ``coord + offset`` in ``unique`` and whether that cell exists."""
-    target = coord + offset
-    rank = torch.searchsorted(unique, target)
-    exists = rank < unique.numel()
-    exists &= unique[rank.clamp(max=unique.numel() - 1)] == target
-    return rank, exists
+class DenseRanks:
+    """Dense ranks of integer values (0 for the smallest, +1 at each new value), without ``torch.unique``.
+
+    ``torch.unique`` waits for the device (its output size is data); a sort and a
+    cumulative count of value changes give the same ranks with no read-back, and
+    the number of distinct values stays a 0-d tensor on the device.
+
+    Attributes:
+        ranks: (N,) rank of each value, in the values' order.
+        sorted_values: (N,) the values sorted.
+        sorted_ranks: (N,) the rank of each sorted value.
+        size: () number of distinct values, on the device.
+    """
+
+    def __init__(self, values: Tensor):
+        self.sorted_values, order = torch.sort(values)
+        changes = torch.zeros_like(self.sorted_values)
+        changes[1:] = (self.sorted_values[1:] != self.sorted_values[:-1]).to(changes.dtype)
+        self.sorted_ranks = torch.cumsum(changes, 0)
+        self.ranks = torch.empty_like(self.sorted_ranks).scatter_(0, order, self.sorted_ranks)
+        self.size = self.sorted_ranks[-1] + 1
+
+    def rank_of(self, target: Tensor) -> tuple[Tensor, Tensor]:
+        """Rank of each value of ``target`` and whether it occurs among the values (else the rank is meaningless)."""
+        n = self.sorted_values.numel()
+        position = torch.searchsorted(self.sorted_values, target)
+        inside = position.clamp(max=n - 1)
+        exists = (position < n) & (self.sorted_values[inside] == target)
+        return self.sorted_ranks[inside], exists
 
 
 def squared_distance(a: Tensor, b: Tensor) -> Tensor:
@@ -69,8 +91,8 @@ def radius_pairs(position: Tensor, batch: Tensor, radius: float) -> tuple[Tensor
         senders, receivers: (E,) int64, sorted by receiver, then sender.
 
     The edge count is data: on GPUs the search reads back the candidate counts of
-    its chunks (one read) and, per chunk, waits for the pairs kept within R (a
-    boolean selection), besides ``torch.unique``'s own wait per axis.
+    its chunks (one read, two with several chunks) and, per chunk, waits for the
+    pairs kept within R (a boolean selection); nothing else waits for the device.
     """
     n, dim = position.shape
     device = position.device
@@ -82,10 +104,10 @@ def radius_pairs(position: Tensor, batch: Tensor, radius: float) -> tuple[Tensor
     cell = torch.floor((pos64 - pos64.min(0).values) / (radius * (1 + 2**-20))).long()
     example = batch.to(device=device, dtype=torch.long)
 
-    axes = [example] + [cell[:, k].contiguous() for k in range(dim)]
-    uniques = [torch.unique(axis) for axis in axes]
-    ranks = [torch.searchsorted(u, axis) for u, axis in zip(uniques, axes)]
-    sizes = [u.numel() for u in uniques]
+    axes = [DenseRanks(example)] + [DenseRanks(cell[:, k].contiguous()) for k in range(dim)]
+    ranks = [axis.ranks for axis in axes]
+    # Keys combine ranks, not coordinates: they stay below the product of the distinct cells per axis.
+    sizes = [axis.size for axis in axes]
 
     def combine(parts: list[Tensor]) -> Tensor:
         key = parts[0]
@@ -95,9 +117,7 @@ def radius_pairs(position: Tensor, batch: Tensor, radius: float) -> tuple[Tensor
 
     sorted_keys, order = torch.sort(combine(ranks), stable=True)
 
-    per_axis = [
-        [_neighbour_ranks(cell[:, k], o, uniques[k + 1]) for o in (-1, 0, 1)] for k in range(dim)
-    ]
+    per_axis = [[axes[k + 1].rank_of(cell[:, k] + o) for o in (-1, 0, 1)] for k in range(dim)]
     starts, counts = [], []
     for offsets in itertools.product(range(3), repeat=dim):
         parts = [ranks[0]] + [per_axis[k][o][0] for k, o in enumerate(offsets)]
@@ -119,8 +139,9 @@ def radius_pairs(position: Tensor, batch: Tensor, radius: float) -> tuple[Tensor
     senders_out, receivers_out = [], []
     for lo_i, hi_i, total in zip(bounds[:-1], bounds[1:], totals):
         s, r = _expand(starts_t[lo_i:hi_i], counts_t[lo_i:hi_i], order, lo_i, total)
-        keep = squared_distance(position[r], position[s]) < r2
-        s, r = s[keep], r[keep]
+        # One wait for the kept count (nonzero), shared by both selections.
+        kept = (squared_distance(position[r], position[s]) < r2).nonzero().squeeze(1)
+        s, r = s[kept], r[kept]
         # Candidates of one receiver arrive cell by cell; sort them into sender order.
         perm = torch.argsort(r * n + s)
         senders_out.append(s[perm])
