@@ -72,11 +72,12 @@ class RolloutGuard:
         return cls(scene, spec.margin, spec.on_violation)
 
     def with_bounds(self, bounds) -> "RolloutGuard":
-        """This guard for a trajectory with its own domain: (d, 2) lower and upper walls."""
+        """This guard for a trajectory with its own domain: (d, 2) lower and upper walls, or (N, d, 2) per particle
+        (scenes rolled out as one batch, each in its own box)."""
         guard = copy.copy(self)
         walls = torch.as_tensor(np.asarray(bounds), dtype=torch.float64)
-        guard.lower = walls[self.walled, 0]
-        guard.upper = walls[self.walled, 1]
+        guard.lower = walls[..., self.walled, 0]
+        guard.upper = walls[..., self.walled, 1]
         guard._walled = PerDevice(guard._make_walled)
         return guard
 
