@@ -38,6 +38,7 @@ from ..model.loss import masked_acceleration_loss, masked_squared_error_sum
 from ..model.noise import random_walk_noise, training_noise_std
 from ..plugins import Registry
 from ..runtime.activation_memory import set_recompute_activations
+from ..runtime.deterministic import set_deterministic_sums
 from ..runtime.allocator import keep_freed_memory
 from ..runtime.host_sync import avoids_read_backs, read_back
 from ..runtime.precision import autocast, backward_precision
@@ -100,6 +101,7 @@ class Trainer:
         self.world_size = self.processes.world_size
         self.progress = progress
         set_recompute_activations(recipe.training.recompute_activations)
+        set_deterministic_sums(recipe.training.deterministic)
         self.device = distributed.start(self.processes, resolve_device(recipe.training.device))
         if self.device.type == "cpu":
             # CPU tuning only: on a GPU the host merely batches and launches kernels.
