@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ..data.array_pickle import pickle_granted
 from ..errors import GnsError, RecipeError
+from ..outputs import check_folder, replaced_whole
 from ..plugins import load_registry
 from ..safe_names import require_component
 from .arguments import add_allow_pickle
@@ -18,6 +19,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--to", dest="target_layout", required=True, help="layout to write (a writable dataset plugin)")
     parser.add_argument("--out", type=Path, required=True, help="dataset folder to write")
     add_allow_pickle(parser)
+    parser.add_argument(
+        "--overwrite", action="store_true",
+        help="replace --out whole even when it holds something other than an earlier gns convert result",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -29,13 +34,18 @@ def run(args: argparse.Namespace) -> int:
         raise GnsError(f"dataset layout {args.target_layout!r} is read-only; writable: {', '.join(writable)}")
     if args.source.resolve() == args.out.resolve():
         raise GnsError("--out must differ from SOURCE: converting in place could overwrite the files being read")
+    replacing = check_folder(args.out, "convert", args.overwrite)
     source = source_cls(params, args.source, allow_pickle=pickle_granted(args.source, args.allow_pickle))
     metadata = source.metadata()
     # A split is written as <out>/<split>.<ext>: its name (from the source's plugin) must be a plain file name.
     splits = {require_component(name, f"{args.source}: split"): list(source.split(name)) for name in source.splits()}
     if not splits:
         raise GnsError(f"{args.source}: no train, valid or test split in layout {args.source_layout!r}")
-    target_cls.write(args.out, metadata, splits)
+    # Written whole beside --out and renamed into place: never a mix of the old dataset and this one.
+    with replaced_whole(args.out, "convert") as tmp:
+        target_cls.write(tmp, metadata, splits)
+    if replacing:
+        print(f"replaced the earlier contents of {args.out}")
     counts = ", ".join(f"{name} {len(trajectories)}" for name, trajectories in splits.items())
     print(f"converted {args.source} ({args.source_layout}) to {args.out} ({args.target_layout}): {counts}")
     return 0

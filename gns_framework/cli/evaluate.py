@@ -55,6 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="auto", help="device of the learned models")
     parser.add_argument("--vtk", action="store_true", help="also write VTK frames of each model's first rollout")
     parser.add_argument("--gif", action="store_true", help="also write a prediction-vs-truth GIF of each model's first rollout")
+    parser.add_argument(
+        "--overwrite", action="store_true", help="write into --out even when it holds something other than a report",
+    )
     add_outside_envelope(parser)
 
 
@@ -66,6 +69,9 @@ def run(args: argparse.Namespace) -> int:
     from ..plugins import load_registry
     from ..training.trainer import resolve_device
 
+    from ..outputs import check_folder, claim_folder
+
+    check_folder(args.out, "evaluate", args.overwrite, own=_earlier_report)
     registry = load_registry()
     device = resolve_device(args.device)
     models = [load_trained(path, registry, device) for path in args.checkpoints]
@@ -90,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
         )
 
     names = model_labels([m.recipe.name for m in models], args.checkpoints)
+    claim_folder(args.out, "evaluate", args.overwrite, own=_earlier_report)
     report = compare(
         list(zip(names, models)),
         cases,
@@ -166,3 +173,8 @@ def _render_first_rollouts(args: argparse.Namespace, names: list[str], report) -
             animations[name] = animate_rollout(rollout, gif, every=2)
             print(f"animation {name}: {animations[name]}")
     return animations
+
+
+def _earlier_report(folder: Path) -> bool:
+    """A report folder gns evaluate wrote before output folders were marked."""
+    return (folder / "report.md").is_file() and (folder / "report.csv").is_file()

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from ..assembly.ground_truth import build_ground_truth_simulator
 from ..errors import GnsError
+from ..outputs import check_folder, replaced_whole
 from ..ground_truth.generate import generate_dataset, is_up_to_date, provenance
 from ..ground_truth.scene_spec import load_scene
 from ..plugins import load_registry
@@ -30,6 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--device", help="simulator device, e.g. cpu or cuda (overrides simulator.device)")
     parser.add_argument("--force", action="store_true", help="regenerate even if DIR already holds this dataset")
+    parser.add_argument(
+        "--overwrite", action="store_true",
+        help="replace DIR whole even when it holds something other than a dataset gns generate wrote",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -60,11 +65,28 @@ def run(args: argparse.Namespace) -> int:
     if not args.force and is_up_to_date(args.out, provenance(scene, simulator, counts)):
         print(f"{args.out} already holds this dataset (same scene, simulator and counts); --force regenerates it")
         return 0
+    replacing = check_folder(args.out, "generate", args.overwrite, own=_generated)
     start = time.perf_counter()
-    metadata = generate_dataset(scene, simulator, args.out, layout, counts, progress=not args.no_progress)
+    # Written whole beside --out and renamed into place: never a mix of the old dataset and this one.
+    with replaced_whole(args.out, "generate") as tmp:
+        metadata = generate_dataset(scene, simulator, tmp, layout, counts, progress=not args.no_progress)
+    if replacing:
+        print(f"replaced the earlier contents of {args.out}")
     print(
         f"wrote {sum(counts.values())} trajectories ({', '.join(f'{k} {v}' for k, v in counts.items())}) "
         f"of {scene.name} to {args.out} in {time.perf_counter() - start:.1f} s; "
         f"suggested connectivity radius {metadata.default_connectivity_radius}"
     )
     return 0
+
+
+def _generated(folder: Path) -> bool:
+    """A dataset gns generate wrote before output folders were marked: its metadata records what it came from."""
+    import json
+
+    try:
+        with open(folder / "metadata.json", "rb") as handle:
+            metadata = json.loads(handle.read(1 << 20))
+    except (OSError, ValueError):
+        return False
+    return isinstance(metadata, dict) and "generated_from" in metadata

@@ -26,6 +26,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--gif", type=_gif_path, metavar="FILE", help="animation, prediction beside ground truth")
     parser.add_argument("--every", type=positive_int, default=1, metavar="K", help="animate every K-th frame (default 1)")
+    parser.add_argument(
+        "--overwrite", action="store_true",
+        help="replace an existing --gif file, or write into a --vtk folder holding something else",
+    )
     parser.add_argument("--fps", type=positive_int, default=20, help="frames per second of the GIF (default 20)")
 
 
@@ -35,10 +39,17 @@ def run(args: argparse.Namespace) -> int:
     if args.vtk is None and args.gif is None:
         print("gns render: error: nothing to do: give --vtk DIR and/or --gif FILE", file=sys.stderr)
         return 2
+    from ..outputs import check_file, check_folder, claim_folder
+
+    if args.vtk is not None:
+        check_folder(args.vtk, "render", args.overwrite)
+    if args.gif is not None:
+        check_file(args.gif, "render", args.overwrite, "--gif")
     rollout = load_rollout(args.rollout)
     if args.vtk is not None:
         from ..io.vtk import write_rollout_vtk
 
+        claim_folder(args.vtk, "render", args.overwrite)
         for name, pvd in write_rollout_vtk(rollout, args.vtk).items():
             print(f"{name}: {pvd}")
     if args.gif is not None:

@@ -21,6 +21,7 @@ from ..assembly.trained import load_trained
 from ..errors import DatasetError
 from ..io.rollout_file import write_rollout
 from ..model.rollout import rollout
+from ..outputs import claim_folder
 from ..model.rollout_guard import RolloutGuard
 from ..plugins import load_registry
 from ..runtime.precision import PRECISIONS
@@ -54,6 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "bfloat16 is faster on AMX CPUs and GPUs (default float32)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--overwrite", action="store_true", help="write into --out even when it holds something other than rollouts",
+    )
     add_outside_envelope(parser)
 
 
@@ -79,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
     recorded = loaded.metadata.model_copy(update={"outside_envelope": warnings}) if warnings else loaded.metadata
     run_dir = args.checkpoint.parent.parent
     out = args.out or run_dir / "rollouts"
+    claim_folder(out, "rollout", args.overwrite, own=_only_rollouts)
     errors = []
     guard = RolloutGuard(
         loaded.simulator.scene,
@@ -106,3 +111,10 @@ def run(args: argparse.Namespace) -> int:
         if tracked:
             print(f"logged rollout_position_mse_{split_name} at step {loaded.step} to MLflow run {tracked}")
     return 0
+
+
+def _only_rollouts(folder: Path) -> bool:
+    """A folder gns rollout wrote before output folders were marked: rollout files (``<split>_NNNN.npz``) only."""
+    import re
+
+    return all(re.fullmatch(r"[A-Za-z0-9_.-]+_\d{4}\.npz", p.name) and p.is_file() for p in folder.iterdir())

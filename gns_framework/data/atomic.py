@@ -35,6 +35,13 @@ def atomic_path(path: str | Path, suffix: str = "") -> Iterator[Path]:
         tmp_path.unlink(missing_ok=True)
 
 
+def process_umask() -> int:
+    """The process's umask (read by setting it and putting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def fsync_directory(directory: str | Path) -> None:
     """Flush ``directory``'s entries (files renamed into or out of it) to disk."""
     fd = os.open(directory, os.O_RDONLY)
