@@ -60,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
         metrics = iteration_metrics(inversion, iterate)
         tracker.log_metrics(metrics, iterate.iteration)
         bar.set_postfix_str(", ".join(f"{name} {value:.4g}" for name, value in metrics.items()))
-        bar.update(1)
+        if iterate.iteration <= config.optimizer.iterations:  # the optimiser's final point comes after the last
+            bar.update(1)
 
     try:
         result = solve(inversion, on_iteration)
@@ -72,13 +73,18 @@ def run(args: argparse.Namespace) -> int:
     paths = write_outputs(inversion, result, out, gif=not args.no_gif)
     for path in paths.values():
         tracker.log_artifact(path)
-    tracker.log_metrics({"final_loss": result.loss, "seconds": result.seconds}, result.iterations)
+    tracker.log_metrics({"final_loss": result.loss, "best_iteration": result.best.iteration, "seconds": result.seconds},
+                        result.iterations)
     tracker.close()
     recovered = ", ".join(f"{k} {v}" for k, v in result.unknowns.items())
+    chosen = "held-out loss" if result.selected_by == "held_out" else "loss"
     print(
-        f"recovered {recovered}; loss ({config.loss}) {result.loss:.4g} after {result.iterations} iterations, "
-        f"{result.evaluations} rollouts, {result.seconds:.1f} s"
+        f"recovered {recovered} (best {chosen}: iteration {result.best.iteration}); loss ({config.loss}) "
+        f"{result.loss:.4g} after {result.iterations} iterations, {result.evaluations} rollouts, {result.seconds:.1f} s"
     )
+    errors = result.errors(inversion.truth)
+    if errors:
+        print("true " + ", ".join(f"{name} {inversion.truth[name]} (error {errors[name]:.2f} %)" for name in errors))
     for kind, path in paths.items():
         print(f"{kind}: {path}")
     sys.stdout.flush()

@@ -17,6 +17,7 @@ from ..errors import RecipeError, did_you_mean
 from ..runtime.precision import Precision
 from ..safe_names import safe_component
 from ..specs import ComponentSpec
+from .paths import resolve_named_path
 from .problems import problems_from
 from .yaml_files import load_yaml_mapping
 
@@ -47,7 +48,10 @@ class DatasetSpec(ComponentSpec):
     """Dataset layout (``name``: a dataset plugin), its folder and the plugin's parameters."""
 
     name: str = "safe"
-    path: str = Field(description="folder with metadata.json and <split> files, relative to the working directory")
+    path: str = Field(
+        description="folder with metadata.json and <split> files; a relative path is read beside the recipe file, "
+        "or from the working directory when nothing of that name is beside it (gns_framework.config.paths)"
+    )
     frame_stride: int = Field(
         1,
         ge=1,
@@ -280,7 +284,12 @@ def load_recipe(path: str | Path, registry: Registry, overrides: dict | None = N
     raw = load_yaml_mapping(path)
     if overrides:
         raw = _merged(raw, overrides)
-    return validate_recipe(raw, registry, path)
+    recipe = validate_recipe(raw, registry, path)
+    overridden = isinstance((overrides or {}).get("dataset"), dict) and "path" in overrides["dataset"]
+    if overridden:
+        return recipe
+    resolved = resolve_named_path(recipe.dataset.path, path, missing="as_named")
+    return recipe if str(resolved) == recipe.dataset.path else recipe.on_dataset(resolved)
 
 
 def _merged(base: dict, overrides: dict) -> dict:

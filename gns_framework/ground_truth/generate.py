@@ -19,6 +19,7 @@ from ..contracts import Dataset, GroundTruthSimulator
 from ..data.metadata import DatasetMetadata, compute_statistics
 from ..data.particle_spacing import suggest_connectivity_radius
 from ..data.trajectory import Trajectory
+from .drawn import write_drawn
 from .scene_spec import SceneSpec
 
 SPLITS = ("train", "valid", "test")
@@ -103,7 +104,10 @@ def generate_dataset(
     counts: dict[str, int],
     progress: bool = True,
 ) -> DatasetMetadata:
-    """Simulate the splits, compute metadata from the train split and write them in ``layout``."""
+    """Simulate the splits, compute metadata from the train split and write them in ``layout``.
+
+    Beside them, ``drawn.json`` records every value each trajectory drew (:mod:`.drawn`).
+    """
     if counts.get("train", 0) < 1:
         raise ValueError("a dataset needs at least one training trajectory (its statistics come from them)")
     splits = simulate_splits(scene, simulator, counts, progress)
@@ -112,4 +116,8 @@ def generate_dataset(
         scene, splits["train"], kinematic_types, {"generated_from": provenance(scene, simulator, counts)}
     )
     layout.write(Path(out), metadata, splits)
+    # What each trajectory drew (block velocities, sizes, properties, walls...), to check answers found from the data.
+    seeds = trajectory_seeds(scene.seed, sum(len(t) for t in splits.values()))
+    keys = [t.key or f"trajectory_{i:05d}" for split in SPLITS for i, t in enumerate(splits.get(split, []))]
+    write_drawn(Path(out), scene, zip(keys, seeds), simulator.materials)
     return metadata

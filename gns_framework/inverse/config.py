@@ -24,6 +24,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from ..config.problems import problems_from
+from ..config.paths import resolve_named_path
 from ..config.yaml_files import load_yaml_mapping
 from ..errors import RecipeError
 
@@ -47,6 +48,25 @@ class ObservedSpec(_Strict):
         description="observed frames the loss compares: last, all, or a list of frame indices of the trajectory "
         "as the model sees it (after the recipe's frame_stride); each must come after the C input frames",
     )
+    held_out: list[int] | None = Field(
+        None,
+        description="observed frames kept out of the loss: the iterate whose rollout matches them best (by the same "
+        "loss) is the one returned; default: the iterate of lowest loss",
+    )
+
+    @model_validator(mode="after")
+    def _held_out_apart(self) -> "ObservedSpec":
+        if self.held_out is None:
+            return self
+        if not self.held_out:
+            raise ValueError("held_out: give at least one frame index, or leave it out")
+        if self.frames == "all":
+            raise ValueError("held_out: frames 'all' leaves no frame to hold out; list the frames the loss compares")
+        compared = set(self.frames) if isinstance(self.frames, list) else set()
+        shared = sorted(compared & set(self.held_out))
+        if shared:
+            raise ValueError(f"held_out: frames {shared} are also in frames; a held-out frame is not compared by the loss")
+        return self
 
 
 def _check_bounds(low: float, high: float, initial: float | None, what: str, fixed_allowed: bool = False) -> None:
@@ -120,6 +140,19 @@ class InvertOptimizer(_Strict):
         0.05, gt=0, description="adam's step size, as a fraction of each unknown's bounds range (lbfgs: unused)"
     )
     iterations: int = Field(40, ge=1, description="optimiser iterations (lbfgs: at most this many)")
+    lr_decay: float | None = Field(
+        None,
+        gt=0,
+        le=1,
+        description="adam only: factor the step size is multiplied by after each iteration (exponential decay; "
+        "0.9 over 30 iterations ends at 4 % of lr); default: a constant step size",
+    )
+
+    @model_validator(mode="after")
+    def _decay_needs_adam(self) -> "InvertOptimizer":
+        if self.lr_decay is not None and self.name != "adam":
+            raise ValueError(f"lr_decay: only adam takes a step size ({self.name} chooses its own); remove lr_decay")
+        return self
 
 
 class InvertConfig(_Strict):
@@ -172,4 +205,8 @@ def parse_invert_config(raw: dict, source: str | Path) -> tuple[InvertConfig, di
 
 
 def load_invert_config(path: str | Path) -> tuple[InvertConfig, dict[str, PropertyUnknown | VelocityUnknown]]:
-    return parse_invert_config(load_yaml_mapping(path), path)
+    """The config of ``path``, its ``model`` and ``observed.dataset`` resolved as :func:`resolve_named_path` says."""
+    config, unknowns = parse_invert_config(load_yaml_mapping(path), path)
+    observed = config.observed.model_copy(update={"dataset": str(resolve_named_path(config.observed.dataset, path))})
+    config = config.model_copy(update={"model": str(resolve_named_path(config.model, path)), "observed": observed})
+    return config, unknowns

@@ -3,6 +3,10 @@
 Each loss evaluation is one learned rollout and its backward. Both optimisers report
 every iteration (``on_iteration``) with the loss at the iterate they have just
 accepted, so progress bars, logs and plots show the path the search took.
+
+A loss function may return ``(loss, held_out)``: the misfit of the same rollout on
+observed frames the loss does not compare, recorded with each iterate (never
+differentiated) so that the best iterate can be chosen by it (:func:`best_iterate`).
 """
 
 from __future__ import annotations
@@ -23,11 +27,24 @@ class InversionDiverged(GnsError):
 
 @dataclass(frozen=True)
 class Iterate:
-    """One accepted iterate: 1-based iteration, loss there, and the scaled unknowns."""
+    """One accepted iterate: 1-based iteration, loss there, the scaled unknowns, the held-out misfit if any."""
 
     iteration: int
     loss: float
     u: np.ndarray
+    held_out: float | None = None
+
+    @property
+    def score(self) -> float:
+        """What the best iterate is chosen by: the held-out misfit when there is one, else the loss."""
+        return self.loss if self.held_out is None else self.held_out
+
+
+def best_iterate(history: list[Iterate]) -> Iterate:
+    """The iterate of lowest :attr:`Iterate.score` (the earliest of equals)."""
+    if not history:
+        raise ValueError("no iterate to choose from")
+    return min(history, key=lambda it: (it.score, it.iteration))
 
 
 @dataclass(frozen=True)
@@ -38,7 +55,7 @@ class Solution:
     message: str
 
 
-LossFunction = Callable[[Tensor], Tensor]
+LossFunction = Callable[[Tensor], "Tensor | tuple[Tensor, Tensor | None]"]
 Observer = Callable[[Iterate], None]
 
 
@@ -48,11 +65,17 @@ class _Evaluator:
     def __init__(self, loss: LossFunction, describe: Callable[[np.ndarray], str], dtype: torch.dtype):
         self.loss, self.describe, self.dtype = loss, describe, dtype
         self.count = 0
+        self.held_out: float | None = None
+        """The held-out misfit of the last evaluation (None when the loss gives none)."""
 
     def __call__(self, u: np.ndarray) -> tuple[float, np.ndarray]:
         self.count += 1
         point = torch.tensor(u, dtype=self.dtype, requires_grad=True)
         value = self.loss(point)
+        held_out = None
+        if isinstance(value, tuple):
+            value, held_out = value
+        self.held_out = None if held_out is None else float(held_out.detach())
         (gradient,) = torch.autograd.grad(value, point)
         value, gradient = float(value.detach()), gradient.detach().double().numpy()
         if not (np.isfinite(value) and np.isfinite(gradient).all()):
@@ -65,20 +88,30 @@ class _Evaluator:
 
 
 def adam(loss: LossFunction, u0: np.ndarray, lr: float, iterations: int, on_iteration: Observer,
-         describe: Callable[[np.ndarray], str], dtype: torch.dtype = torch.float32) -> Solution:
-    """Adam on ``u``, projected back onto [0, 1]^k after every step."""
+         describe: Callable[[np.ndarray], str], dtype: torch.dtype = torch.float32,
+         lr_decay: float | None = None) -> Solution:
+    """Adam on ``u``, projected back onto [0, 1]^k after every step.
+
+    ``lr_decay``: the step size is multiplied by it after each step (exponential
+    decay, so the iterates settle instead of circling the minimum); None keeps it.
+    The returned ``u`` is the point after the last step, which no iteration evaluated.
+    """
     evaluate = _Evaluator(loss, describe, dtype)
     u = torch.tensor(u0, dtype=torch.float64)
     u.grad = torch.zeros_like(u)
     optimizer = torch.optim.Adam([u], lr=lr)
+    schedule = None if lr_decay is None else torch.optim.lr_scheduler.ExponentialLR(optimizer, gamma=lr_decay)
     for iteration in range(1, iterations + 1):
         value, gradient = evaluate(u.detach().numpy())
-        on_iteration(Iterate(iteration, value, u.detach().numpy().copy()))
+        on_iteration(Iterate(iteration, value, u.detach().numpy().copy(), evaluate.held_out))
         u.grad = torch.from_numpy(gradient)
         optimizer.step()
+        if schedule is not None:
+            schedule.step()
         with torch.no_grad():
             u.clamp_(0.0, 1.0)
-    return Solution(u.detach().numpy().copy(), iterations, evaluate.count, f"{iterations} Adam steps")
+    decayed = "" if lr_decay is None else f", step size decayed by {lr_decay:g} per step"
+    return Solution(u.detach().numpy().copy(), iterations, evaluate.count, f"{iterations} Adam steps{decayed}")
 
 
 def lbfgs(loss: LossFunction, u0: np.ndarray, iterations: int, on_iteration: Observer,
@@ -95,14 +128,19 @@ def lbfgs(loss: LossFunction, u0: np.ndarray, iterations: int, on_iteration: Obs
 
     def scaled(u: np.ndarray) -> tuple[float, np.ndarray]:
         value, gradient = evaluate(u)
+        accepted.last = np.asarray(u).copy()
         return value / scale, gradient / scale
 
     def accepted(intermediate_result) -> None:
         # SciPy passes the OptimizeResult only to a parameter of exactly this name.
-        on_iteration(Iterate(accepted.count, float(intermediate_result.fun) * scale, np.asarray(intermediate_result.x).copy()))
+        # The held-out misfit of the accepted point: SciPy evaluated it last unless a line search went on.
+        x = np.asarray(intermediate_result.x).copy()
+        held_out = evaluate.held_out if np.array_equal(x, accepted.last) else None
+        on_iteration(Iterate(accepted.count, float(intermediate_result.fun) * scale, x, held_out))
         accepted.count += 1
 
     accepted.count = 1
+    accepted.last = np.asarray(u0, dtype=np.float64).copy()
     result = minimize(
         scaled, np.asarray(u0, dtype=np.float64), jac=True, method="L-BFGS-B",
         bounds=[(0.0, 1.0)] * len(u0), callback=accepted,

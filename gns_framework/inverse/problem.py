@@ -123,12 +123,13 @@ def check_against_model(
     else:
         trajectory = trajectories[observed.trajectory]
         frames = trajectory.num_steps
-        if isinstance(observed.frames, list):
-            bad = [f for f in observed.frames if not scene.history <= f < frames]
-            if bad or not observed.frames:
-                problems.append(("observed.frames", f"frames {bad or '[]'} are not rolled out: give indices in "
-                                                    f"[{scene.history}, {frames - 1}] (the first {scene.history} are the model's input)"))
-        elif frames <= scene.history:
+        for field, listed in (("frames", observed.frames), ("held_out", observed.held_out)):
+            if isinstance(listed, list):
+                bad = [f for f in listed if not scene.history <= f < frames]
+                if bad or not listed:
+                    problems.append((f"observed.{field}", f"frames {bad or '[]'} are not rolled out: give indices in "
+                                                          f"[{scene.history}, {frames - 1}] (the first {scene.history} are the model's input)"))
+        if not isinstance(observed.frames, list) and frames <= scene.history:
             problems.append(("observed.trajectory", f"has {frames} frames; the model needs more than its {scene.history} input frames"))
         for name, unknown in unknowns.items():
             kind = unknown.particle_type
@@ -165,6 +166,8 @@ class InverseProblem:
         granular_types: particle types whose runout counts (default: every moving type).
         checkpoint_every: gradient checkpointing interval in rollout steps (0: none).
         dtype: float32, or float64 for gradient checks.
+        held_out: observed frame indices kept out of the loss; :meth:`losses` gives the same
+            misfit on them, from the same rollout, to choose the best iterate by.
     """
 
     def __init__(
@@ -179,6 +182,7 @@ class InverseProblem:
         checkpoint_every: int = 0,
         device: torch.device | str = "cpu",
         dtype: torch.dtype = torch.float32,
+        held_out: Sequence[int] = (),
     ):
         self.simulator = simulator.requires_grad_(False)
         self.trajectory = trajectory
@@ -186,11 +190,12 @@ class InverseProblem:
         self.unknowns = unknowns
         self.loss_name = loss
         self.frames = list(frames)
+        self.held_out = sorted(set(held_out))
         self.checkpoint_every = checkpoint_every
         self.parameters, self.start = parameters_of(unknowns)
         scene = simulator.scene
         history = scene.history
-        self.steps = self.frames[-1] - history + 1
+        self.steps = max(self.frames + self.held_out) - history + 1
         self.dtype = dtype
         state = window(trajectory, 0, history, with_target=False).to(device)
         material_property = state.material_property
@@ -208,7 +213,7 @@ class InverseProblem:
         observed = torch.from_numpy(trajectory.position[history : history + self.steps]).to(device, dtype)
         self.prescribed = observed
         self.moving = simulator.predicted_mask(state.particle_type)
-        self.target = observed[[f - history for f in self.frames]]
+        self.observed = observed
         kinds = list(granular_types) or sorted(set(state.particle_type[self.moving].tolist()))
         self.granular = torch.isin(state.particle_type, torch.tensor(kinds, device=device)) & self.moving
         self.first_frame = self.state.position_sequence[:, 0]
@@ -261,12 +266,23 @@ class InverseProblem:
         state, predicted = self.rollout(u)
         return self.misfit(state, predicted)
 
-    def misfit(self, state: ParticleBatch, predicted: Tensor) -> Tensor:
+    def losses(self, u: Tensor) -> tuple[Tensor, Tensor | None]:
+        """The loss and, from the same rollout, the misfit on the held-out frames (detached; None without any)."""
+        state, predicted = self.rollout(u)
+        loss = self.misfit(state, predicted)
+        if not self.held_out:
+            return loss, None
+        with torch.no_grad():
+            return loss, self.misfit(state, predicted.detach(), self.held_out).detach()
+
+    def misfit(self, state: ParticleBatch, predicted: Tensor, frames: Sequence[int] | None = None) -> Tensor:
+        """The loss on ``frames`` (default: the frames the loss compares)."""
         history = self.simulator.scene.history
-        compared = predicted[[f - history for f in self.frames]]
+        index = [f - history for f in (self.frames if frames is None else frames)]
+        compared, target = predicted[index], self.observed[index]
         if self.loss_name == "positions":
-            return (compared - self.target)[:, self.moving].square().mean()
-        final, observed_final = compared[-1], self.target[-1]
+            return (compared - target)[:, self.moving].square().mean()
+        final, observed_final = compared[-1], target[-1]
         if self.loss_name == "sinkhorn":
             weight = self.moving[None]
             distance = sinkhorn_distance(

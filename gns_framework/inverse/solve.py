@@ -1,7 +1,12 @@
 """Running an inversion from its config: load the model and the observation, search, write the results.
 
+The values returned are those of the best iterate: the lowest loss, or the lowest
+misfit on the observation's held-out frames when the config names some
+(``observed.held_out``); the last iterate is kept in ``result.json`` beside it.
+
 Outputs in the inversion's folder:
-    result.json       recovered unknowns, final loss, iterations, evaluations, seconds
+    result.json       recovered (best) unknowns, their loss, best and last iteration, the true
+                      values when the dataset records them (drawn.json), evaluations, seconds
     metrics.jsonl     loss and unknowns at every iteration (written as the search goes)
     convergence.png   loss and each unknown over the iterations
     rollout.npz       the learned rollout from the recovered unknowns, with the observation
@@ -30,7 +35,7 @@ from ..model.envelope import PROPERTY_SLACK, SPEED_SLACK, OutsideEnvelope, envel
 from ..plugins import Registry
 from ..runtime.activation_memory import activations_recomputed
 from .config import InvertConfig, PropertyUnknown, VelocityUnknown
-from .optimize import Iterate, Solution, adam, lbfgs
+from .optimize import Iterate, Solution, adam, best_iterate, lbfgs
 from .problem import LOSS_UNITS, InverseProblem, check_against_model, observed_frames
 from .rollout import differentiable_rollout
 
@@ -45,6 +50,8 @@ class Inversion:
     trajectory: Trajectory
     warnings: tuple[str, ...] = ()
     """Where the observation or the search lies outside the model's training envelope (``outside_envelope``)."""
+    truth: dict | None = None
+    """The true value of each unknown the dataset records (drawn.json, or the data's property column), by name."""
 
 
 def prepare(
@@ -71,6 +78,13 @@ def prepare(
     trajectories = dataset.split(observed.split)
     check_against_model(config, unknowns, model.simulator, trajectories, source)
     trajectory = trajectories[observed.trajectory]
+    frames = observed_frames(observed.frames, model.simulator.scene.history, trajectory.num_steps)
+    shared = sorted(set(frames) & set(observed.held_out or ()))
+    if shared:
+        from ..errors import RecipeError
+
+        raise RecipeError(source, [("observed.held_out", f"frames {shared} are also compared by the loss "
+                                                         f"(frames: {observed.frames}); hold out others")])
     scene = model.simulator.scene
     warnings = _envelope_warnings(model, dataset.metadata(), trajectory, unknowns, outside_envelope, observed.dataset)
     problem = InverseProblem(
@@ -79,12 +93,49 @@ def prepare(
         dataset.metadata(),
         unknowns,
         config.loss,
-        observed_frames(observed.frames, scene.history, trajectory.num_steps),
+        frames,
         granular_types=granular_particle_types(scene, registry),
         checkpoint_every=config.checkpoint_every,
         device=device,
+        held_out=observed.held_out or (),
     )
-    return Inversion(config, problem, model, trajectory, warnings)
+    truth = true_values(observed.dataset, trajectory, unknowns, model.simulator)
+    return Inversion(config, problem, model, trajectory, warnings, truth)
+
+
+def true_values(dataset: str | Path, trajectory: Trajectory, unknowns: dict, simulator) -> dict | None:
+    """``{unknown: true value}`` of the unknowns the observed dataset records; None when it records none.
+
+    An initial velocity is the one ``gns generate`` drew for the blocks of its particle
+    type (drawn.json); a material property is the drawn one, else the data's own column
+    when it is the same for every particle concerned.
+    """
+    from ..ground_truth.drawn import read_drawn, true_property, true_velocity
+
+    record = None
+    try:
+        record = read_drawn(dataset, trajectory.key) if trajectory.key else None
+    except Exception:  # noqa: BLE001 - a truth that cannot be read is not known; the inversion still runs
+        record = None
+    truth: dict = {}
+    names = list(simulator.scene.property_names)
+    for name, unknown in unknowns.items():
+        if isinstance(unknown, VelocityUnknown):
+            value = None if record is None else true_velocity(record, unknown.particle_type)
+        else:
+            value = None if record is None else true_property(record, name, unknown.particle_type)
+            if value is None and trajectory.material_property is not None and name in names:
+                kind = unknown.particle_type
+                chosen = (
+                    trajectory.particle_type == kind if kind is not None
+                    else simulator.predicted_mask(torch.from_numpy(np.asarray(trajectory.particle_type))).numpy()
+                )
+                column = np.asarray(trajectory.material_property)[chosen, names.index(name)]
+                if column.size and np.allclose(column, column[0], rtol=0, atol=1e-6):
+                    value = float(column[0])
+        if value is not None:
+            truth[name] = value
+    return truth or None
 
 
 def _envelope_warnings(model, metadata, trajectory, unknowns, allowed: bool, source) -> tuple[str, ...]:
@@ -139,15 +190,47 @@ class InversionResult:
     seconds: float
     message: str
     history: list[Iterate]
+    best: Iterate | None = None
+    """The iterate returned (lowest loss, or lowest held-out misfit)."""
+    last: Iterate | None = None
+    """The optimiser's own final point (Adam: after its last step), evaluated too."""
+    last_unknowns: dict | None = None
+
+    @property
+    def selected_by(self) -> str:
+        return "held_out" if self.best is not None and self.best.held_out is not None else "loss"
+
+    def errors(self, truth: dict | None, unknowns: dict | None = None) -> dict | None:
+        """Relative error (%) of ``unknowns`` (default: the returned ones) against ``truth``, by name."""
+        if not truth:
+            return None
+        errors = {}
+        for name, true in truth.items():
+            found = np.atleast_1d(np.asarray((unknowns or self.unknowns)[name], dtype=np.float64))
+            true = np.atleast_1d(np.asarray(true, dtype=np.float64))
+            scale = float(np.linalg.norm(true))
+            errors[name] = 100 * float(np.linalg.norm(found - true)) / scale if scale > 0 else float(np.linalg.norm(found - true))
+        return errors
 
     def as_json(self, inversion: Inversion) -> dict:
         observed = inversion.config.observed
+        truth = inversion.truth
+        last = None
+        if self.last is not None:
+            last = {"iteration": self.last.iteration, "unknowns": self.last_unknowns, "loss": self.last.loss,
+                    **({"held_out_loss": self.last.held_out} if self.last.held_out is not None else {}),
+                    **({"error_pct": self.errors(truth, self.last_unknowns)} if truth else {})}
         return {
             "unknowns": self.unknowns,
             "initial": self.initial,
             "loss": self.loss,
             "loss_name": inversion.config.loss,
             "loss_unit": LOSS_UNITS[inversion.config.loss],
+            "best_iteration": None if self.best is None else self.best.iteration,
+            "selected_by": self.selected_by,
+            **({"held_out_loss": self.best.held_out} if self.best is not None and self.best.held_out is not None else {}),
+            **({"truth": truth, "error_pct": self.errors(truth)} if truth else {}),
+            "last": last,
             "iterations": self.iterations,
             "evaluations": self.evaluations,
             "seconds": self.seconds,
@@ -160,7 +243,12 @@ class InversionResult:
 
 
 def solve(inversion: Inversion, on_iteration=lambda iterate: None) -> InversionResult:
-    """Search the unknowns; the loss reported is the one at the returned values."""
+    """Search the unknowns and return the best iterate; the loss reported is the one at the returned values.
+
+    The optimiser's final point (after Adam's last step, which no iteration evaluated)
+    is evaluated too and is a candidate; it is reported to ``on_iteration`` as iteration
+    ``iterations + 1`` when it is a new point.
+    """
     problem, spec = inversion.problem, inversion.config.optimizer
     parameters = problem.parameters
     history: list[Iterate] = []
@@ -176,24 +264,48 @@ def solve(inversion: Inversion, on_iteration=lambda iterate: None) -> InversionR
     started = time.perf_counter()
     with activations_recomputed(problem.checkpoint_every > 0):
         if spec.name == "adam":
-            solution: Solution = adam(problem.loss, problem.start, spec.lr, spec.iterations, observe, describe, problem.dtype)
+            solution: Solution = adam(problem.losses, problem.start, spec.lr, spec.iterations, observe, describe,
+                                      problem.dtype, spec.lr_decay)
         else:
-            solution = lbfgs(problem.loss, problem.start, spec.iterations, observe, describe, problem.dtype)
-        with torch.no_grad():
-            final_loss = float(problem.loss(torch.from_numpy(solution.u)))
+            solution = lbfgs(problem.losses, problem.start, spec.iterations, observe, describe, problem.dtype)
+        evaluations = solution.evaluations
+
+        def evaluated(u: np.ndarray) -> tuple[float, float | None]:
+            nonlocal evaluations
+            evaluations += 1
+            with torch.no_grad():
+                loss, held_out = problem.losses(torch.from_numpy(np.asarray(u, dtype=np.float64)))
+            return float(loss), None if held_out is None else float(held_out)
+
+        last = next((it for it in reversed(history) if np.array_equal(it.u, solution.u)), None)
+        if last is None:
+            loss, held_out = evaluated(solution.u)
+            last = Iterate(len(history) + 1, loss, np.asarray(solution.u).copy(), held_out)
+            observe(last)
+        if problem.held_out:
+            # L-BFGS may accept a point after a line search evaluated others: give every iterate its held-out misfit.
+            for index, iterate in enumerate(history):
+                if iterate.held_out is None:
+                    history[index] = Iterate(iterate.iteration, iterate.loss, iterate.u, evaluated(iterate.u)[1])
+            last = next(it for it in history if it.iteration == last.iteration)
     seconds = time.perf_counter() - started
-    values = parameters.values(torch.from_numpy(solution.u)).tolist()
+    best = best_iterate(history)
+    values = parameters.values(torch.from_numpy(best.u)).tolist()
     start = parameters.values(torch.from_numpy(problem.start)).tolist()
+    last_values = parameters.values(torch.from_numpy(last.u)).tolist()
     return InversionResult(
-        u=solution.u,
+        u=np.asarray(best.u).copy(),
         unknowns=parameters.as_record(values, problem.unknowns),
         initial=parameters.as_record(start, problem.unknowns),
-        loss=final_loss,
+        loss=best.loss,
         iterations=solution.iterations,
-        evaluations=solution.evaluations,
+        evaluations=evaluations,
         seconds=seconds,
         message=solution.message,
         history=history,
+        best=best,
+        last=last,
+        last_unknowns=parameters.as_record(last_values, problem.unknowns),
     )
 
 
@@ -224,8 +336,13 @@ def recovered_rollout(inversion: Inversion, result: InversionResult) -> Rollout:
     )
 
 
-def plot_convergence(history: list[Iterate], inversion: Inversion, path: Path) -> Path:
-    """Loss (log scale) and every unknown over the iterations, one panel each."""
+def plot_convergence(history: list[Iterate], inversion: Inversion, path: Path, best: Iterate | None = None) -> Path:
+    """Loss (log scale) and every unknown over the iterations, one panel each.
+
+    The held-out misfit is drawn beside the loss when there is one, the returned
+    (best) iterate is marked on every panel, and each unknown's true value is a
+    dashed line when the dataset records it.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -236,11 +353,33 @@ def plot_convergence(history: list[Iterate], inversion: Inversion, path: Path) -
     iterations = [it.iteration for it in history]
     values = np.array([problem.parameters.values(torch.from_numpy(it.u)).tolist() for it in history])
     figure, axes = plt.subplots(1 + len(names), 1, figsize=(6, 2.2 * (1 + len(names))), sharex=True)
-    axes[0].semilogy(iterations, [max(it.loss, 1e-30) for it in history], marker=".")
+    axes[0].semilogy(iterations, [max(it.loss, 1e-30) for it in history], marker=".", label="loss")
+    if any(it.held_out is not None for it in history):
+        axes[0].semilogy([it.iteration for it in history if it.held_out is not None],
+                         [max(it.held_out, 1e-30) for it in history if it.held_out is not None],
+                         marker=".", color="tab:green", label="held-out frames")
     axes[0].set_ylabel(f"loss ({inversion.config.loss})")
-    for axis, name, column in zip(axes[1:], names, values.T):
+    truth = inversion.truth or {}
+    true_columns = []
+    for name, unknown in problem.unknowns.items():
+        value = truth.get(name)
+        width = len(unknown.start)
+        true_columns += [None] * width if value is None else list(np.atleast_1d(np.asarray(value, dtype=np.float64)))
+    for axis, name, column, true in zip(axes[1:], names, values.T, true_columns):
         axis.plot(iterations, column, marker=".")
+        if true is not None:
+            axis.axhline(true, color="black", linestyle="--", linewidth=1, label=f"true {true:.4g}")
+            axis.legend(loc="best", fontsize=8)
         axis.set_ylabel(name)
+    if best is not None:
+        index = iterations.index(best.iteration)
+        axes[0].plot([best.iteration], [max(best.score, 1e-30)], marker="*",
+                     markersize=14, color="tab:red", linestyle="none", label=f"returned: iteration {best.iteration}")
+        for axis, column in zip(axes[1:], values.T):
+            axis.plot([best.iteration], [column[index]], marker="*", markersize=14, color="tab:red", linestyle="none")
+        for axis in axes:
+            axis.axvline(best.iteration, color="tab:red", linewidth=0.8, alpha=0.5)
+    axes[0].legend(loc="best", fontsize=8)
     axes[-1].set_xlabel("iteration")
     figure.suptitle(f"gns invert: {inversion.trajectory.key}")
     figure.tight_layout()
@@ -251,7 +390,7 @@ def plot_convergence(history: list[Iterate], inversion: Inversion, path: Path) -
 
 def write_outputs(inversion: Inversion, result: InversionResult, out: Path, gif: bool = True) -> dict[str, Path]:
     """result.json (last, atomically), convergence plot, rollout file and GIF."""
-    paths = {"convergence": plot_convergence(result.history, inversion, out / "convergence.png")}
+    paths = {"convergence": plot_convergence(result.history, inversion, out / "convergence.png", result.best)}
     rollout = recovered_rollout(inversion, result)
     metadata = inversion.problem.metadata
     if inversion.warnings:
@@ -268,6 +407,7 @@ def write_outputs(inversion: Inversion, result: InversionResult, out: Path, gif:
 
 
 def iteration_metrics(inversion: Inversion, iterate: Iterate) -> dict[str, float]:
-    """``{"loss": ..., "friction": ..., "initial_velocity.x": ...}`` of one iterate, in physical units."""
+    """``{"loss": ..., "held_out_loss": ..., "friction": ..., "initial_velocity.x": ...}`` of one iterate, in physical units."""
     values = inversion.problem.parameters.values(torch.from_numpy(iterate.u)).tolist()
-    return {"loss": iterate.loss, **dict(zip(inversion.problem.parameters.names, values))}
+    held_out = {} if iterate.held_out is None else {"held_out_loss": iterate.held_out}
+    return {"loss": iterate.loss, **held_out, **dict(zip(inversion.problem.parameters.names, values))}

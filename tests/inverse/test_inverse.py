@@ -275,7 +275,9 @@ def test_a_ballistic_start_is_rebuilt_exactly(shipped_float64, observed):
 
 @pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[2] / "inversions").glob("*.yaml")))
 def test_the_example_inversions_name_a_shipped_model_and_validate(path, registry):
-    config, unknowns = parse_invert_config(yaml.safe_load(path.read_text()), path)
-    model = load_trained(Path(__file__).resolve().parents[2] / config.model, registry, "cpu")
+    from gns_framework.inverse.config import load_invert_config
+
+    config, unknowns = load_invert_config(path)  # the model is named relative to the config file
+    model = load_trained(config.model, registry, "cpu")
     for name, unknown in unknowns.items():
         assert name in model.simulator.scene.property_names or isinstance(unknown, VelocityUnknown)
