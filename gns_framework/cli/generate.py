@@ -8,6 +8,7 @@ from pathlib import Path
 
 from ..assembly.ground_truth import build_ground_truth_simulator
 from ..errors import GnsError
+from ..limits import check_scene
 from ..outputs import check_folder, replaced_whole
 from ..ground_truth.generate import generate_dataset, is_up_to_date, provenance
 from ..ground_truth.scene_spec import load_scene
@@ -56,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
     if args.device is not None:
         chosen = ComponentSpec(name=scene.simulator.name, **{**scene.simulator.params, "device": args.device})
         scene = scene.model_copy(update={"simulator": chosen})
+    # Before the simulator or any particle is allocated: particles, grid and memory against the limits.
+    check_scene(scene, args.scene, max(args.trajectories, 1))
     simulator = build_ground_truth_simulator(scene, registry, args.scene)
     layout = registry.get("dataset", args.layout)
     if not layout.writable:

@@ -14,6 +14,10 @@ from ..errors import DatasetError
 from .trajectory import Trajectory
 
 
+MAX_METADATA_BYTES = 16 * 2**20
+"""Largest ``metadata.json`` read (it holds a few dozen numbers)."""
+
+
 class DatasetMetadata(BaseModel):
     """The keys of a ``metadata.json`` shared by DeepMind, geoelements and our layouts.
 
@@ -46,6 +50,20 @@ class DatasetMetadata(BaseModel):
 
     @model_validator(mode="after")
     def _dimensions_agree(self) -> "DatasetMetadata":
+        from ..limits import MAX_SEQUENCE_LENGTH
+
+        if self.sequence_length > MAX_SEQUENCE_LENGTH:
+            raise ValueError(
+                f"sequence_length: {self.sequence_length:.6g} frames, more than the limit of {MAX_SEQUENCE_LENGTH:,}"
+            )
+        for field in ("default_connectivity_radius", "dt", "boundary_augment"):
+            value = getattr(self, field)
+            if value is not None and not math.isfinite(value):
+                raise ValueError(f"{field} must be finite, got {value}")
+        for field in ("bounds", "vel_mean", "vel_std", "acc_mean", "acc_std", "context_mean", "context_std"):
+            values = np.asarray(getattr(self, field) or [], dtype=np.float64)
+            if not np.isfinite(values).all():
+                raise ValueError(f"{field} must be finite, got {getattr(self, field)}")
         for field in ("bounds", "vel_mean", "vel_std", "acc_mean", "acc_std"):
             if len(getattr(self, field)) != self.dim:
                 raise ValueError(f"{field} has {len(getattr(self, field))} entries but dim = {self.dim}")
@@ -98,15 +116,31 @@ def load_metadata(path: str | Path, split: str | None = None) -> DatasetMetadata
     path = Path(path)
     if path.is_dir():
         path = path / "metadata.json"
+    return parse_metadata(read_metadata_json(path), path, split)
+
+
+def read_metadata_json(path: Path) -> dict:
+    """The JSON object of the metadata file ``path``, read with a size limit; one-line errors naming the file."""
     try:
-        raw = json.loads(path.read_text())
+        with open(path, "rb") as handle:
+            data = handle.read(MAX_METADATA_BYTES + 1)  # bounded: metadata.json -> /dev/zero must not fill memory
     except FileNotFoundError:
         raise DatasetError(f"{path}: metadata file not found") from None
+    except OSError as exc:
+        raise DatasetError(f"{path}: cannot read the metadata: {exc.strerror or exc}") from None
+    if len(data) > MAX_METADATA_BYTES:
+        raise DatasetError(f"{path}: more than {MAX_METADATA_BYTES // 2**20} MiB, too large for a metadata file")
+    try:
+        raw = json.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise DatasetError(f"{path}: not UTF-8 text (byte {exc.start} is 0x{data[exc.start]:02x})") from None
     except json.JSONDecodeError as exc:
         raise DatasetError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except (ValueError, RecursionError) as exc:
+        raise DatasetError(f"{path}: not valid JSON ({type(exc).__name__})") from None
     if not isinstance(raw, dict):
         raise DatasetError(f"{path}: expected a JSON object, got {type(raw).__name__}")
-    return parse_metadata(raw, path, split)
+    return raw
 
 
 def compute_statistics(trajectories: Iterable[Trajectory], kinematic_types: Collection[int]) -> dict[str, list[float]]:

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..contracts import Material
 from ..errors import GnsError
+from ..limits import check_scene
 from . import shapes
 from .scene_spec import FACES, Block, OneOf, Obstacle, Range, SceneSpec, Span, WallChoice, WallRange
 
@@ -322,6 +323,7 @@ def sample_scene(scene: SceneSpec, seed: int) -> SceneSample:
 
     Raises GnsError when ``no_overlap`` cannot place the bodies apart in the drawn domain.
     """
+    check_scene(scene, f"scene {scene.name!r}")  # before any particle is allocated
     rng = np.random.default_rng(seed)
     drawn = draw_domain(scene, rng)
     for _ in range(SCENE_TRIES if scene.no_overlap else 1):

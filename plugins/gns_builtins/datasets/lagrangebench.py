@@ -37,7 +37,7 @@ from gns_framework.contracts import Dataset
 from gns_framework.data.atomic import atomic_path, write_text_atomic
 from gns_framework.data.consistency import checked
 from gns_framework.data.lazy import TrajectorySequence
-from gns_framework.data.metadata import DatasetMetadata, parse_metadata
+from gns_framework.data.metadata import DatasetMetadata, parse_metadata, read_metadata_json
 from gns_framework.data.particle_spacing import particle_spacing
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
@@ -69,16 +69,7 @@ class LagrangeBenchDataset(Dataset):
         return parse_metadata(raw, self.path / "metadata.json")
 
     def _raw_metadata(self) -> dict:
-        file = self.path / "metadata.json"
-        try:
-            raw = json.loads(file.read_text())
-        except FileNotFoundError:
-            raise DatasetError(f"{file}: metadata file not found") from None
-        except json.JSONDecodeError as exc:
-            raise DatasetError(f"{file}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-        if not isinstance(raw, dict):
-            raise DatasetError(f"{file}: expected a JSON object, got {type(raw).__name__}")
-        return raw
+        return read_metadata_json(self.path / "metadata.json")
 
     def _frames(self) -> int:
         """Frames of the first trajectory of the first split on disk (train when there is one)."""

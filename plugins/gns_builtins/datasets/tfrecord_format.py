@@ -22,6 +22,7 @@ A map is a repeated message ``{ key = 1; value = 2; }``.
 
 from __future__ import annotations
 
+import os
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -66,7 +67,10 @@ def masked_crc32c(data: bytes) -> int:
 
 def read_records(path: Path, verify: bool = True) -> Iterator[bytes]:
     """Yield the data of every record; a short or corrupt record is a DatasetError naming its index."""
+    from gns_framework.limits import check_record_length
+
     with open(path, "rb") as handle:
+        size = os.fstat(handle.fileno()).st_size
         index = 0
         while True:
             header = handle.read(12)
@@ -77,6 +81,8 @@ def read_records(path: Path, verify: bool = True) -> Iterator[bytes]:
             length, length_crc = struct.unpack("<QI", header)
             if verify and masked_crc32c(header[:8]) != length_crc:
                 raise DatasetError(f"{path}: record {index}: length checksum mismatch (corrupt file?)")
+            # Before reading: a length field of 2^40 must not become a 1 TiB allocation.
+            check_record_length(f"{path}: record {index}", length, max(0, size - handle.tell() - 4))
             data = handle.read(length)
             footer = handle.read(4)
             if len(data) < length or len(footer) < 4:

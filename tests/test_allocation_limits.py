@@ -1,0 +1,138 @@
+"""Limits before allocation (issue 30, item 5): particle counts, grid sizes, sequence lengths and tfrecord record
+lengths are refused against stated limits and this machine's memory, with the estimate, before anything is
+allocated."""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+import pytest
+import yaml
+from gns_builtins.datasets import tfrecord_format as tf
+from scene_builders import mixed
+
+from gns_framework import limits
+from gns_framework.cli import generate as generate_command
+from gns_framework.cli import main
+from gns_framework.data.metadata import load_metadata
+from gns_framework.errors import DatasetError, GnsError
+from gns_framework.ground_truth import sampling
+from gns_framework.ground_truth.scene_spec import parse_scene
+
+HUGE = {  # 1 to 1000 blocks of 8192^2 particles each: up to 6.7e10 particles, about 500 GiB of positions a frame set
+    "name": "huge",
+    "dim": 2,
+    "domain": {"bounds": [[0.0, 1.0], [0.0, 1.0]], "grid": 4096},
+    "time": {"frame_dt": 0.01, "substeps": 10, "frames": 10},
+    "blocks": [{"material": "sand", "position": [0.0, 0.0], "size": [1.0, 1.0], "count": {"range": [1, 1000]}}],
+}
+
+
+@pytest.fixture
+def generate(sim_registry, monkeypatch, tmp_path):
+    monkeypatch.setattr(generate_command, "load_registry", lambda: sim_registry)
+
+    def run(scene: dict, *extra: str) -> int:
+        path = tmp_path / "scene.yaml"
+        path.write_text(yaml.safe_dump(scene))
+        return main(["generate", str(path), "--trajectories", "3", "--out", str(tmp_path / "data"), "--no-progress", *extra])
+
+    return run
+
+
+@pytest.fixture
+def no_allocation(monkeypatch):
+    """Fail the test if particles are sampled or a simulator is built."""
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("allocated before the limits were checked")
+
+    monkeypatch.setattr(sampling, "fill", refuse)
+    monkeypatch.setattr(generate_command, "build_ground_truth_simulator", refuse)
+
+
+def test_a_scene_of_6e10_particles_is_refused_with_the_estimate_before_sampling(generate, no_allocation, tmp_path, capsys):
+    assert generate(HUGE) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert "scene.yaml: blocks[0].count: the scene asks for about 6.71e+10 particles per trajectory" in err
+    assert "up to 1000 bodies of 6.71e+07 particles at spacing 0.000122 m), more than the limit of 1e+08" in err
+    assert not (tmp_path / "data").exists()
+
+
+def test_sampling_itself_refuses_it_too(no_allocation):
+    with pytest.raises(limits.LimitError, match="about 6.71e.10 particles per trajectory"):
+        sampling.sample_scene(parse_scene(HUGE), 0)
+
+
+def test_a_grid_of_6e10_nodes_is_refused(generate, no_allocation, capsys):
+    scene = dict(HUGE, dim=3, domain={"bounds": [[0.0, 1.0]] * 3, "grid": 4096},
+                 blocks=[{"material": "sand", "position": [0.0, 0.0, 0.0], "size": [0.01, 0.01, 0.01]}])
+    assert generate(scene) == 2
+    assert "domain.grid: a grid of 4096 cells along the longest axis has about 6.88e+10 nodes in 3D, more than the " \
+           "limit of 1.07e+09" in capsys.readouterr().err
+
+
+def test_a_scene_beyond_this_machines_memory_is_refused(generate, no_allocation, monkeypatch, capsys):
+    monkeypatch.setattr(limits, "physical_memory", lambda: 2**14)
+    assert generate(mixed(frames=6)) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert "scene.yaml: blocks: generating 3 trajectories of 6 frames of about" in err
+    assert "more than this machine's 1.53e-05 GiB of memory" in err
+
+
+def test_a_scene_within_the_limits_still_generates(generate):
+    assert generate(mixed(frames=6)) == 0
+
+
+def test_the_estimate_bounds_what_sampling_fills():
+    scene = parse_scene(mixed(frames=6))
+    estimate, _ = limits.scene_particles(scene)
+    sample = sampling.sample_scene(scene, 0)
+    filled = sum(len(body.position) for body in [*sample.blocks, *sample.obstacles])
+    assert filled <= estimate < 2 * filled
+
+
+def test_sequence_length_1e12_is_refused(tmp_path):
+    metadata = {"bounds": [[0, 1], [0, 1]], "sequence_length": 10**12, "default_connectivity_radius": 0.1, "dim": 2,
+                "dt": 0.01, "vel_mean": [0, 0], "vel_std": [1, 1], "acc_mean": [0, 0], "acc_std": [1, 1]}
+    (tmp_path / "metadata.json").write_text(json.dumps(metadata))
+    with pytest.raises(GnsError, match=r"metadata.json: invalid metadata: .*sequence_length: 1e\+12 frames, more than "
+                                       r"the limit of 1,000,000"):
+        load_metadata(tmp_path)
+
+
+def tfrecord_header(length: int) -> bytes:
+    raw = struct.pack("<Q", length)
+    return raw + struct.pack("<I", tf.masked_crc32c(raw))
+
+
+def test_a_tfrecord_record_length_of_2_40_is_refused_before_reading(tmp_path):
+    path = tmp_path / "train.tfrecord"
+    path.write_bytes(tfrecord_header(2**40) + b"\0" * 100)
+    with pytest.raises(DatasetError, match=r"train.tfrecord: record 0: truncated data: the length field says "
+                                           r"1,099,511,627,776 bytes but only 96 bytes follow in the file"):
+        list(tf.read_records(path))
+
+
+def test_a_record_longer_than_this_machines_memory_is_refused(tmp_path, monkeypatch):
+    path = tmp_path / "train.tfrecord"
+    tf.write_records(path, [np.zeros(4096, np.uint8).tobytes()])
+    monkeypatch.setattr(limits, "physical_memory", lambda: 1024)
+    with pytest.raises(limits.LimitError, match="record 0: reading the record needs about"):
+        list(tf.read_records(path))
+    monkeypatch.setattr(limits, "physical_memory", lambda: None)
+    assert [len(r) for r in tf.read_records(path)] == [4096]
+
+
+def test_the_commands_give_one_line_for_a_bad_record(tmp_path, capsys):
+    from synthetic import write_synthetic_dataset
+
+    source = write_synthetic_dataset(tmp_path / "src", layout="tfrecord", train=1, valid=1, test=1)
+    (source / "valid.tfrecord").write_bytes(tfrecord_header(2**40))
+    assert main(["convert", str(source), "--from", "tfrecord", "--to", "safe", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "the length field says 1,099,511,627,776 bytes" in err
