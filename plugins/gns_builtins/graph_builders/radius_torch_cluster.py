@@ -30,6 +30,8 @@ class TorchClusterRadiusGraphBuilder(GraphBuilder):
     """
 
     name = "radius_torch_cluster"
+    optional_modules = ("torch_cluster",)
+    """Modules this component needs that the project does not install by default (``gns check`` looks for them)."""
 
     class Params(Params):
         initial_max_neighbors: int = Field(64, ge=1, description="first neighbour cap; doubled until no particle reaches it")
