@@ -39,7 +39,11 @@ def load_trained(path: str | Path, registry: Registry, device: torch.device | st
     # Rollouts sum at nodes the way the model trained (on GPUs: ordered or atomic).
     set_deterministic_sums(recipe.training.deterministic)
     metadata = parse_metadata(state["metadata"], f"{path} (stored metadata)")
-    simulator = build_learned_simulator(scene_from_dict(state["scene"]), metadata, recipe.model, registry)
+    try:
+        scene = scene_from_dict(state["scene"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"{path}: scene: not a scene record ({type(exc).__name__}: {exc})") from None
+    simulator = build_learned_simulator(scene, metadata, recipe.model, registry)
     try:
         simulator.load_state_dict(state["model"])
     except RuntimeError as exc:
@@ -49,6 +53,6 @@ def load_trained(path: str | Path, registry: Registry, device: torch.device | st
     if "envelope" in state:
         try:
             envelope = Envelope.from_dict(state["envelope"])
-        except TypeError as exc:
-            raise CheckpointError(f"{path}: envelope: not an envelope record ({exc})") from None
+        except (TypeError, KeyError, ValueError, AttributeError) as exc:
+            raise CheckpointError(f"{path}: envelope: not an envelope record ({type(exc).__name__}: {exc})") from None
     return LoadedModel(simulator.to(device), recipe, metadata, int(state["step"]), path, envelope)

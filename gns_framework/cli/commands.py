@@ -39,6 +39,11 @@ BUILTIN_COMMANDS = (
         "recover material properties or initial velocities from an observed trajectory through a trained model",
         "gns_framework.cli.invert",
     ),
+    Command(
+        "track-sync",
+        "send a run's metrics its MLflow run missed (an outage at the end of training), and its final status",
+        "gns_framework.cli.track_sync",
+    ),
     Command("render", "write VTK frames and a prediction-vs-truth GIF of a rollout file", "gns_framework.cli.render"),
     Command(
         "import-geoelements",

@@ -64,15 +64,35 @@ def _mapping_without_duplicates(loader: _StrictLoader, node: yaml.MappingNode, d
 _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _mapping_without_duplicates)
 
 
+MAX_YAML_BYTES = 16 * 2**20
+"""Largest recipe or scene file read."""
+
+
+def _one_line(path: Path, where: str, message: str) -> RecipeError:
+    """A RecipeError of one problem whose message is one line (``problems`` still lists it for gns check)."""
+    error = RecipeError(path, [(where, message)])
+    error.args = (f"{path}: {where}: {message}" if where else f"{path}: {message}",)
+    return error
+
+
 def load_yaml_mapping(path: str | Path) -> dict:
     """Read a YAML file that must hold a mapping; raise RecipeError naming the file and line."""
     path = Path(path)
     try:
-        text = path.read_text()
+        with open(path, "rb") as handle:
+            data = handle.read(MAX_YAML_BYTES + 1)
     except FileNotFoundError:
         raise RecipeError(path, [("", "file not found")]) from None
     except OSError as exc:
         raise RecipeError(path, [("", f"cannot read: {exc}")]) from None
+    if len(data) > MAX_YAML_BYTES:
+        raise _one_line(path, "", f"more than {MAX_YAML_BYTES // 2**20} MiB, too large for a recipe or scene")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise _one_line(
+            path, f"byte {exc.start}", f"not UTF-8 text (0x{data[exc.start]:02x}); save the file as UTF-8"
+        ) from None
     try:
         raw = yaml.load(text, Loader=_StrictLoader)
     except yaml.YAMLError as exc:

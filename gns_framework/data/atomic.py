@@ -23,7 +23,11 @@ def atomic_path(path: str | Path, suffix: str = "") -> Iterator[Path]:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{suffix}", dir=path.parent)
-    os.close(fd)
+    try:
+        # mkstemp makes the file 0600: a new file follows the umask like any other, a replaced one keeps its mode.
+        os.fchmod(fd, os.stat(path).st_mode & 0o7777 if path.exists() else 0o666 & ~process_umask())
+    finally:
+        os.close(fd)
     tmp_path = Path(tmp)
     try:
         yield tmp_path
@@ -36,7 +40,14 @@ def atomic_path(path: str | Path, suffix: str = "") -> Iterator[Path]:
 
 
 def process_umask() -> int:
-    """The process's umask (read by setting it and putting it back)."""
+    """The process's umask: from /proc where Linux gives it, else by setting it and putting it back."""
+    try:
+        with open("/proc/self/status", "rb") as status:
+            for line in status:
+                if line.startswith(b"Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
     mask = os.umask(0o022)
     os.umask(mask)
     return mask

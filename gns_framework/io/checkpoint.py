@@ -134,7 +134,35 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     missing = [k for k in REQUIRED if k not in state]
     if missing:
         raise CheckpointError(f"{path}: missing {', '.join(missing)}")
+    _check_fields(path, state)
     return state
+
+
+def _check_fields(path: Path, state: dict[str, Any]) -> None:
+    """Refuse, by field, a checkpoint whose digest matches but whose records are not what gns train writes.
+
+    A checkpoint re-signed after editing (or written by other code) passes the
+    digest; its fields are then checked here, so a bad step or recipe is one line
+    naming the field instead of a ValueError or KeyError deep in loading.
+    """
+    step = state["step"]
+    if isinstance(step, bool) or not isinstance(step, int) or step < 0:
+        raise CheckpointError(f"{path}: step: expected a whole number >= 0, got {_short(step)}")
+    for key in ("recipe", "scene", "metadata", "plugins", "model"):
+        if not isinstance(state[key], dict):
+            raise CheckpointError(f"{path}: {key}: expected a mapping, got {type(state[key]).__name__} {_short(state[key])}")
+    if not isinstance(state["recipe"].get("model", {}), dict):
+        raise CheckpointError(f"{path}: recipe.model: expected a mapping, got {_short(state['recipe']['model'])}")
+    for key in ("optimizer", "scheduler", "rng", "best", "envelope"):
+        if key in state and not isinstance(state[key], dict):
+            raise CheckpointError(f"{path}: {key}: expected a mapping, got {type(state[key]).__name__} {_short(state[key])}")
+    if "history" in state and not isinstance(state["history"], str):
+        raise CheckpointError(f"{path}: history: expected a string, got {_short(state['history'])}")
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _contents(directory: Path) -> str:

@@ -33,6 +33,8 @@ from ..errors import GnsError
 from ..safe_names import ensure_inside, safe_component
 
 RUN_FILE = "mlflow_run.json"
+UNSENT_FILE = "mlflow_unsent.json"
+"""Written in the run folder when a run ends with requests MLflow never received: the status to set later."""
 DEFAULT_DATABASE = "mlflow.db"
 ARTIFACTS_FOLDER = "mlartifacts"
 _PARAMS_PER_REQUEST = 100
@@ -187,6 +189,7 @@ class Outbox:
         self._waiting: collections.deque[Request] = collections.deque()
         self._changed = threading.Condition()
         self._closing = False
+        self._close_deadline = math.inf
         self._given_up_steps: list[int] = []
         self._thread = threading.Thread(target=self._work, name="gns-tracking", daemon=True)
         self._thread.start()
@@ -251,8 +254,18 @@ class Outbox:
                     )
                 with self._changed:
                     if self._closing:
-                        return
-                    self._changed.wait_for(lambda: self._closing, timeout=self.retry_seconds)
+                        # An ending run keeps trying, every few seconds, until close's deadline.
+                        remaining = self._close_deadline - time.monotonic()
+                        if remaining <= 0:
+                            return
+                        print(
+                            f"tracking: {self.where} still unreachable; {len(self._waiting)} request(s) wait, "
+                            f"trying again for up to {remaining:.0f} s more",
+                            file=sys.stderr,
+                        )
+                        self._changed.wait(timeout=min(remaining, max(0.05, min(self.retry_seconds, 5.0))))
+                    else:
+                        self._changed.wait_for(lambda: self._closing, timeout=self.retry_seconds)
                 continue
             self._done(requests)
             if outage_since is not None:
@@ -269,13 +282,18 @@ class Outbox:
                 if self._waiting and self._waiting[0] is request:
                     self._waiting.popleft()
 
-    def close(self) -> None:
-        """Send what waits, for at most ``close_seconds`` (and no more retries once the server is unreachable),
-        then warn about anything left unsent."""
+    def close(self, later: str = "") -> list[Request]:
+        """Send what waits, trying again while the server is unreachable, for at most ``close_seconds``; then warn
+        about anything left unsent (``later``: how to send it afterwards). Returns what was left."""
         with self._changed:
+            waiting = len(self._waiting)
+            self._close_deadline = time.monotonic() + self.close_seconds
             self._closing = True
             self._changed.notify()
-        self._thread.join(timeout=self.close_seconds)
+        if waiting > 1:
+            print(f"tracking: sending {waiting} waiting request(s) to {self.where} (for up to {self.close_seconds:g} s)",
+                  file=sys.stderr)
+        self._thread.join(timeout=self.close_seconds + 1.0)
         with self._changed:
             left = list(self._waiting)
         steps = sorted(self._given_up_steps + [r.step for r in left if r.metrics is not None])
@@ -283,9 +301,11 @@ class Outbox:
         if steps or others:
             parts = [f"metrics of {len(steps)} logs (steps {steps[0]} to {steps[-1]})"] if steps else []
             warnings.warn(
-                f"tracking: {self.where} did not receive {', '.join(parts + others)}; the metrics are in {self.kept_in}",
+                f"tracking: {self.where} did not receive {', '.join(parts + others)} within {self.close_seconds:g} s; "
+                f"the metrics are in {self.kept_in}{later}",
                 stacklevel=2,
             )
+        return left
 
 
 def first_line(error: BaseException) -> str:
@@ -311,8 +331,9 @@ class MlflowTracker:
 
     def __init__(
         self, tracking_uri: str, experiment: str, run_name: str | None = None, run_id: str | None = None,
-        kept_in: str = "the run folder's metrics.jsonl",
+        kept_in: str = "the run folder's metrics.jsonl", run_dir: Path | None = None,
     ):
+        self.run_dir = Path(run_dir) if run_dir is not None else None
         retry_seconds, close_seconds = _seconds(RETRY_SECONDS, 30.0), _seconds(CLOSE_SECONDS, 60.0)
         self.client = _client(tracking_uri)
         from mlflow.entities import Metric, Param, RunTag
@@ -366,7 +387,10 @@ class MlflowTracker:
         self.outbox.put(
             Request(f"the run's status {status}", send=lambda: self.client.set_terminated(self.run_id, status=status))
         )
-        self.outbox.close()
+        later = f"; send them with `gns track-sync {self.run_dir}` once it is back" if self.run_dir is not None else ""
+        left = self.outbox.close(later)
+        if left and self.run_dir is not None:
+            write_text_atomic(self.run_dir / UNSENT_FILE, json.dumps({"run_id": self.run_id, "status": status}) + "\n")
 
 
 def open_mlflow_tracker(run_dir: Path, tracking_uri: str, experiment: str, resume: bool) -> MlflowTracker:
@@ -376,8 +400,8 @@ def open_mlflow_tracker(run_dir: Path, tracking_uri: str, experiment: str, resum
     if resume and record.is_file():
         saved = json.loads(record.read_text())
         if saved.get("tracking_uri") == tracking_uri and saved.get("experiment") == experiment:
-            return MlflowTracker(tracking_uri, experiment, run_id=saved["run_id"], kept_in=kept_in)
-    tracker = MlflowTracker(tracking_uri, experiment, run_name=Path(run_dir).name, kept_in=kept_in)
+            return MlflowTracker(tracking_uri, experiment, run_id=saved["run_id"], kept_in=kept_in, run_dir=run_dir)
+    tracker = MlflowTracker(tracking_uri, experiment, run_name=Path(run_dir).name, kept_in=kept_in, run_dir=run_dir)
     record.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(
         record, json.dumps({"tracking_uri": tracking_uri, "experiment": experiment, "run_id": tracker.run_id}) + "\n"
@@ -424,3 +448,49 @@ def log_to_recorded_run(
         )
         return None
     return saved["run_id"]
+
+
+def sync_run(run_dir: Path) -> tuple[str, int, str | None]:
+    """Send ``run_dir``'s metrics.jsonl entries its MLflow run lacks, and the status it ended with.
+
+    Returns (run id, metrics sent, status set or None). Refused with a TrackingError
+    when the run was not tracked with MLflow or its server is still unreachable.
+    """
+    from .tracking import read_metrics
+
+    run_dir = Path(run_dir)
+    record = run_dir / RUN_FILE
+    if not record.is_file():
+        raise TrackingError(f"{run_dir}: no {RUN_FILE}: this run was not tracked with MLflow")
+    try:
+        saved = json.loads(record.read_text())
+        uri, run_id = saved["tracking_uri"], saved["run_id"]
+    except (ValueError, KeyError, TypeError) as exc:
+        raise TrackingError(f"{record}: not a record of an MLflow run ({type(exc).__name__}: {exc})") from None
+    from mlflow.entities import Metric
+
+    client = _client(uri)
+    try:
+        logged = client.get_run(run_id).data.metrics
+        history = {key: {m.step for m in client.get_metric_history(run_id, key)} for key in logged}
+        entries = []
+        for line in read_metrics(run_dir):
+            step, when = int(line.get("step", 0)), int(float(line.get("time", time.time())) * 1000)
+            for key, value in line.items():
+                if key in ("step", "time") or not isinstance(value, (int, float)) or not math.isfinite(value):
+                    continue
+                if step not in history.get(key, set()):
+                    entries.append(Metric(key, float(value), when, step))
+        for i in range(0, len(entries), _METRICS_PER_REQUEST):
+            client.log_batch(run_id, metrics=entries[i : i + _METRICS_PER_REQUEST])
+        status = None
+        unsent = run_dir / UNSENT_FILE
+        if unsent.is_file():
+            status = json.loads(unsent.read_text()).get("status", "FINISHED")
+            client.set_terminated(run_id, status=status)
+            unsent.unlink()
+    except Exception as error:
+        if not server_unreachable(error):
+            raise TrackingError(f"MLflow at {uri} refused run {run_id}: {first_line(error)}") from None
+        raise TrackingError(f"MLflow at {uri} is still unreachable ({first_line(error)}); try again later") from None
+    return run_id, len(entries), status

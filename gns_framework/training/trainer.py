@@ -24,7 +24,7 @@ from ..config.recipe import Recipe
 from ..data.atomic import write_text_atomic
 from ..data.batch import ParticleBatch
 from ..data.windows import WindowIndex, WindowOrder, window_noise_generator
-from ..errors import CheckpointError, GnsError, RecipeError
+from ..errors import CheckpointError, DatasetError, GnsError, RecipeError
 from ..evaluation.candidates import granular_particle_types
 from ..io.checkpoint import (
     checkpoint_name,
@@ -54,10 +54,27 @@ BEST_CHECKPOINT = "best.pt"
 """File name, in the run's checkpoint folder, of the checkpoint with the best validation-rollout score."""
 
 
-def resolve_device(name: str) -> torch.device:
+def resolve_device(name: str, where: str = "--device") -> torch.device:
+    """The device ``name`` (auto, cpu, cuda or cuda:N) means here; a GnsError naming ``where`` when there is none."""
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
+    try:
+        device = torch.device(name)
+    except (RuntimeError, ValueError, TypeError):
+        raise GnsError(f"{where} {name!r}: not a device: expected auto, cpu, cuda or cuda:N") from None
+    if device.type == "cpu":
+        return device
+    if device.type != "cuda":
+        raise GnsError(f"{where} {name!r}: not supported: expected auto, cpu, cuda or cuda:N")
+    if not torch.cuda.is_available():
+        raise GnsError(f"{where} {name!r}: no CUDA device is available on this machine (use cpu or auto)")
+    count = torch.cuda.device_count()
+    if device.index is not None and device.index >= count:
+        raise GnsError(
+            f"{where} {name!r}: this machine has {count} CUDA device{'s' if count != 1 else ''} "
+            f"(cuda:0 to cuda:{count - 1})"
+        )
+    return device
 
 
 class Trainer:
@@ -102,7 +119,7 @@ class Trainer:
         self.progress = progress
         set_recompute_activations(recipe.training.recompute_activations)
         set_deterministic_sums(recipe.training.deterministic)
-        self.device = distributed.start(self.processes, resolve_device(recipe.training.device))
+        self.device = distributed.start(self.processes, resolve_device(recipe.training.device, "training.device (or --device)"))
         if self.device.type == "cpu":
             # CPU tuning only: on a GPU the host merely batches and launches kernels.
             if recipe.training.threads:
@@ -113,7 +130,7 @@ class Trainer:
         if recipe.training.pushforward_steps and self.data.scene.context_size:
             raise RecipeError(None, [("training.pushforward_steps", "push-forward needs data without a per-frame "
                                       "global context (step_context): set it to 0 for this dataset")])
-        self.windows = WindowIndex(self.data.train, recipe.model.history, recipe.training.pushforward_steps)
+        self.windows = self._training_windows()
         self.order = WindowOrder(len(self.windows), recipe.training.batch_size, recipe.seed, self.rank, self.world_size)
         self.validation_batches = self._validation_batches() if self.processes.is_chief else []
         valid = self.data.valid if self.processes.is_chief and self.data.valid is not None else []
@@ -147,6 +164,23 @@ class Trainer:
         self.tracker = None
         if self.processes.is_chief:
             self.tracker = tracker if tracker is not None else JsonlTracker(self.run_dir)
+
+    def _training_windows(self) -> WindowIndex:
+        """The train split's windows; a split with none is a DatasetError naming the split's file and why."""
+        train, history = self.data.train, self.recipe.model.history
+        ahead = self.recipe.training.pushforward_steps
+        where = f"{self.data.dataset.path} (split train)"
+        if len(train) == 0:
+            raise DatasetError(f"{where}: holds 0 trajectories: training needs at least one")
+        try:
+            return WindowIndex(train, history, ahead)
+        except ValueError:
+            longest = max(t.num_steps for t in train)
+            raise DatasetError(
+                f"{where}: sequence_length: its {len(train)} trajector{'y has' if len(train) == 1 else 'ies have'} "
+                f"at most {longest} frames, and training needs more than model.history"
+                f"{' + training.pushforward_steps' if ahead else ''} = {history + ahead}"
+            ) from None
 
     def _validation_batches(self):
         valid, history = self.data.valid, self.recipe.model.history
@@ -189,6 +223,12 @@ class Trainer:
 
     def load_state(self, state: dict, source: str) -> None:
         """Resume from a checkpoint of the same model; anything else is refused with the differences."""
+        missing = [k for k in ("optimizer", "scheduler", "rng") if k not in state]
+        if missing:
+            raise CheckpointError(
+                f"{source}: {missing[0]}: missing, so it cannot be trained on: roll it out with `gns rollout`, "
+                "or start a new run (--out NEW)"
+            )
         saved_model = state["recipe"].get("model", {})
         current = self.recipe.resolved()["model"]
         differing = sorted(k for k in set(saved_model) | set(current) if saved_model.get(k) != current.get(k))
@@ -207,7 +247,12 @@ class Trainer:
                 f"{source}: its model or optimizer state does not fit this recipe's parameters; roll it out with "
                 f"`gns rollout`, or start a new run (--out NEW): {str(exc).splitlines()[0]}"
             ) from None
-        self.scheduler.load_state_dict(state["scheduler"])
+        try:
+            self.scheduler.load_state_dict(state["scheduler"])
+            torch.set_rng_state(state["rng"]["torch"])
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            field = "rng" if "rng" in str(exc) or isinstance(exc, RuntimeError) else "scheduler"
+            raise CheckpointError(f"{source}: {field}: not a state this run can resume ({type(exc).__name__}: {exc})") from None
         self.step = int(state["step"])
         # A checkpoint written before histories were recorded starts a new one: its folder's older
         # checkpoints, which record none, are then never pruned.
@@ -217,7 +262,6 @@ class Trainer:
             self.best = dict(state["best"])
         # A checkpoint's CUDA generator states (older checkpoints have them) are ignored: nothing
         # draws from them, and restoring them failed with fewer GPUs visible than when it was written.
-        torch.set_rng_state(state["rng"]["torch"])
 
     def resume(self, checkpoint: str | Path | None = None) -> Path | None:
         """Resume from ``checkpoint``, or from the newest good one of this run when None.
