@@ -158,7 +158,7 @@ def test_trajectory_keys_through_evaluate_gif_and_vtk_stay_inside_out(checkpoint
     data = hostile_keyed_dataset(tmp_path / "data", dataset_2d, keys, registry)
     before = {k: v for k, v in tree(tmp_path).items() if not k.startswith(("w/", "data/"))}
 
-    code = main(["evaluate", str(checkpoint), "--dataset", str(data), "--out", str(out), "--no-simulator",
+    code = main(["evaluate", "--outside-envelope", str(checkpoint), "--dataset", str(data), "--out", str(out), "--no-simulator",
                  "--repeats", "1", "--warmup", "0", "--gif", "--vtk"])
 
     assert code == 0, capsys.readouterr().err
@@ -252,10 +252,10 @@ def test_train_and_compare_with_a_hostile_experiment_name(dataset_2d, tmp_path, 
 def test_a_split_name_is_never_a_path(split, checkpoint, dataset_2d, tmp_path, capsys):
     """``--split`` names a file of the dataset folder to read and the rollout files to write: a plain name only."""
     out = tmp_path / "out"
-    code = main(["rollout", str(checkpoint), "--split", split, "--out", str(out), "--no-progress"])
+    code = main(["rollout", "--outside-envelope", str(checkpoint), "--split", split, "--out", str(out), "--no-progress"])
     err = capsys.readouterr().err
     assert code == 2 and f"--split {split!r}: must be a plain name" in err and err.count("\n") == 1, err
-    code = main(["evaluate", str(checkpoint), "--split", split, "--out", str(out), "--no-simulator"])
+    code = main(["evaluate", "--outside-envelope", str(checkpoint), "--split", split, "--out", str(out), "--no-simulator"])
     err = capsys.readouterr().err
     assert code == 2 and f"--split {split!r}: must be a plain name" in err, err
     assert not out.exists()
@@ -263,7 +263,7 @@ def test_a_split_name_is_never_a_path(split, checkpoint, dataset_2d, tmp_path, c
 
 def test_rollout_files_of_a_split_stay_inside_out(checkpoint, tmp_path, capsys):
     out = tmp_path / "out"
-    assert main(["rollout", str(checkpoint), "--split", "test", "--out", str(out), "--no-progress", "--steps", "2"]) == 0
+    assert main(["rollout", "--outside-envelope", str(checkpoint), "--split", "test", "--out", str(out), "--no-progress", "--steps", "2"]) == 0
     assert sorted(p.name for p in out.iterdir() if p.name != ".gns-output.json") == ["test_0000.npz"]
 
 

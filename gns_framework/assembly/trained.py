@@ -45,7 +45,8 @@ def load_trained(path: str | Path, registry: Registry, device: torch.device | st
         raise CheckpointError(f"{path}: scene: not a scene record ({type(exc).__name__}: {exc})") from None
     simulator = build_learned_simulator(scene, metadata, recipe.model, registry)
     try:
-        simulator.load_state_dict(state["model"])
+        # A run that kept a weight average ships it: it is what validation chose best.pt by.
+        simulator.load_state_dict(state["ema"]["model"] if isinstance(state.get("ema"), dict) else state["model"])
     except RuntimeError as exc:
         raise CheckpointError(f"{path}: model: parameters do not fit the stored recipe: {exc}") from None
     simulator.eval()

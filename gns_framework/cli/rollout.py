@@ -21,7 +21,7 @@ from ..assembly.trained import load_trained
 from ..errors import DatasetError
 from ..io.rollout_file import write_rollout
 from ..model.rollout import rollout
-from ..outputs import claim_folder
+from ..outputs import check_folder, claim_folder
 from ..model.rollout_guard import RolloutGuard
 from ..plugins import load_registry
 from ..runtime.precision import PRECISIONS
@@ -83,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
     recorded = loaded.metadata.model_copy(update={"outside_envelope": warnings}) if warnings else loaded.metadata
     run_dir = args.checkpoint.parent.parent
     out = args.out or run_dir / "rollouts"
-    claim_folder(out, "rollout", args.overwrite, own=_only_rollouts)
+    # Checked now, claimed with the first file: a rollout that stops writes nothing, not even the marker.
+    check_folder(out, "rollout", args.overwrite, own=_only_rollouts)
     errors = []
     guard = RolloutGuard(
         loaded.simulator.scene,
@@ -96,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
             loaded.simulator, trajectory, args.steps or spec.steps, device,
             progress=not args.no_progress, guard=guard, precision=args.precision,
         )
+        if index == 0:
+            claim_folder(out, "rollout", args.overwrite, own=_only_rollouts)
         file = ensure_inside(out / f"{safe_component(split_name)}_{index:04d}.npz", out)
         path = write_rollout(file, result, recorded)
         clamped = f", clamped at {len(result.guard_violations)} check(s)" if result.guard_violations else ""

@@ -145,6 +145,13 @@ class TrainingSpec(_Strict):
     recompute_activations: bool = Field(
         False, description="recompute edge activations in the backward: about half the memory, ~10% slower"
     )
+    ema_decay: float | None = Field(
+        None,
+        gt=0,
+        lt=1,
+        description="keep an exponential average of the weights (e.g. 0.999, ~1000 steps): validation, best.pt and "
+        "rollouts use it, training goes on with the weights; default: none",
+    )
     deterministic: bool = Field(
         True,
         description="on GPUs, sums at nodes in a fixed order (a CSR segment sum), so runs and resumes are bit-equal; "

@@ -19,7 +19,6 @@ from tqdm import tqdm
 from ..assembly.data import prepare_data
 from ..assembly.learned import build_learned_simulator, plugin_versions
 from ..assembly.scene import scene_to_dict
-from ..model.envelope import measure_envelope
 from ..config.recipe import Recipe
 from ..data.atomic import write_text_atomic
 from ..data.batch import ParticleBatch
@@ -34,16 +33,18 @@ from ..io.checkpoint import (
     save_checkpoint,
     set_aside_damaged,
 )
+from ..model.envelope import measure_envelope
 from ..model.loss import masked_acceleration_loss, masked_squared_error_sum
 from ..model.noise import random_walk_noise, training_noise_std
 from ..plugins import Registry
 from ..runtime.activation_memory import set_recompute_activations
-from ..runtime.deterministic import set_deterministic_sums
 from ..runtime.allocator import keep_freed_memory
+from ..runtime.deterministic import set_deterministic_sums
 from ..runtime.host_sync import avoids_read_backs, read_back
 from ..runtime.precision import autocast, backward_precision
 from . import distributed
 from .distributed import Processes
+from .ema import WeightAverage
 from .mlflow_tracker import RUN_FILE
 from .optim import make_optimizer
 from .provenance import git_commit
@@ -156,6 +157,9 @@ class Trainer:
         self.optimizer, self.scheduler = make_optimizer(
             self.simulator.parameters(), recipe.training.optimizer, recipe.training.steps
         )
+        decay = recipe.training.ema_decay
+        self.ema = WeightAverage(self.simulator, decay) if decay else None
+        """The weight average that validation, best.pt and rollouts use (training.ema_decay), or None."""
         self.step = 0
         self.history = uuid.uuid4().hex
         """Id of this run's history (kept across resumes, recorded in each checkpoint): retention prunes only its own."""
@@ -217,6 +221,7 @@ class Trainer:
             "metadata": self.data.metadata.to_json_dict(),
             "plugins": plugin_versions(self.recipe, self.registry, self.data.scene),
             "best": dict(self.best),
+            **({"ema": self.ema.state_dict()} if self.ema is not None else {}),
             "history": self.history,
             **({"envelope": self.envelope.to_dict()} if self.envelope is not None else {}),
         }
@@ -253,6 +258,15 @@ class Trainer:
         except (KeyError, TypeError, ValueError, RuntimeError) as exc:
             field = "rng" if "rng" in str(exc) or isinstance(exc, RuntimeError) else "scheduler"
             raise CheckpointError(f"{source}: {field}: not a state this run can resume ({type(exc).__name__}: {exc})") from None
+        if self.ema is not None:
+            if "ema" in state:
+                try:
+                    self.ema.load_state_dict(state["ema"])
+                except (KeyError, TypeError, RuntimeError) as exc:
+                    raise CheckpointError(f"{source}: ema: not a weight average of this model ({type(exc).__name__}: {exc})") from None
+            else:
+                # A run that turns the average on when resumed averages from the weights it resumes with.
+                self.ema = WeightAverage(self.simulator, self.ema.decay)
         self.step = int(state["step"])
         # A checkpoint written before histories were recorded starts a new one: its folder's older
         # checkpoints, which record none, are then never pruned.
@@ -360,6 +374,8 @@ class Trainer:
         with backward_precision(precision, self.device):
             loss.backward()
         self.optimizer.step()
+        if self.ema is not None:
+            self.ema.update(self.simulator)
         self.scheduler.step()
         global_particles = sum(self.windows.num_particles(self.order.window_at(p)) for p in self.order.step_positions(self.step))
         self.step += 1
@@ -406,33 +422,37 @@ class Trainer:
 
     @torch.no_grad()
     def validate(self) -> dict[str, float]:
-        """One-step loss and next-position MSE on fixed, noise-free windows of the valid split."""
+        """One-step loss and next-position MSE on fixed, noise-free windows of the valid split.
+
+        Of the weight average when the recipe keeps one (what best.pt and rollouts use), else of the weights.
+        """
         if not self.validation_batches:
             # Also the case on every rank but 0: validation is rank 0's, on the bare model.
             return {}
-        self.simulator.eval()
+        model = self.ema.module if self.ema is not None else self.simulator
+        model.eval()
         losses, position_errors = [], []
         for batch in self.validation_batches:
             batch = batch.to(self.device)
-            mask = self.simulator.predicted_mask(batch.particle_type)
-            prediction, target = self.simulator(batch, torch.zeros_like(batch.position_sequence))
+            mask = model.predicted_mask(batch.particle_type)
+            prediction, target = model(batch, torch.zeros_like(batch.position_sequence))
             losses.append(float(masked_acceleration_loss(prediction, target, mask)))
-            next_position = self.simulator.integrator.next_position(
-                batch.position_sequence, self.simulator.output_stats.denormalize(prediction)
+            next_position = model.integrator.next_position(
+                batch.position_sequence, model.output_stats.denormalize(prediction)
             )
             position_errors.append(float(((next_position - batch.next_position)[mask] ** 2).mean()))
         metrics = {"valid_one_step_loss": float(np.mean(losses)), "valid_one_step_position_mse": float(np.mean(position_errors))}
         if self.validation_trajectories:
             metrics.update(
                 validation_rollout_metrics(
-                    self.simulator,
+                    model,
                     self.validation_trajectories,
                     self.data.metadata,
                     granular_particle_types(self.data.scene, self.registry),
                     self.device,
                 )
             )
-        self.simulator.train()
+        model.train()
         return metrics
 
     def keep_if_best(self, metrics: dict[str, float]) -> Path | None:

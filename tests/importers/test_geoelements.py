@@ -209,7 +209,7 @@ def test_imported_model_rolls_out_on_geoelements_data_without_opt_in(tmp_path, c
     assert main(["import-geoelements", str(tmp_path / "model-7.pt"), "--dataset", str(dataset),
                  "--particle-types", "3,6", "--out", str(out)]) == 0
 
-    assert main(["rollout", str(out), "--no-progress"]) == 0, capsys.readouterr().err
+    assert main(["rollout", "--outside-envelope", str(out), "--no-progress"]) == 0, capsys.readouterr().err
     assert "test_0000.npz: 3 steps" in capsys.readouterr().out
 
 
@@ -225,7 +225,7 @@ def test_import_never_stores_a_pickle_grant(tmp_path, capsys):
     assert "unrecognized arguments: --allow-pickle" in capsys.readouterr().err
     assert main(command) == 0
 
-    assert main(["rollout", str(out), "--no-progress"]) == 2
+    assert main(["rollout", "--outside-envelope", str(out), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert not marker.exists(), "the payload ran"
     assert re.search(rf"test\.npz: {MEMBER}: refused to unpickle builtins\.exec", err), err

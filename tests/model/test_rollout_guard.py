@@ -139,7 +139,7 @@ def test_gns_rollout_stops_with_a_clear_error_and_writes_nothing(nan_checkpoint,
     out = tmp_path / "rollouts"
     out.mkdir()
     (out / "test_0000.npz").write_bytes(b"an earlier rollout")
-    code = main(["rollout", str(nan_checkpoint), "--out", str(out), "--steps", "3", "--no-progress"])
+    code = main(["rollout", "--outside-envelope", str(nan_checkpoint), "--out", str(out), "--steps", "3", "--no-progress"])
     err = capsys.readouterr().err
     assert code == 2
     assert "gns rollout: error: rollout of trajectory 'test_000' stopped at step 0 (frame 6)" in err
@@ -149,7 +149,7 @@ def test_gns_rollout_stops_with_a_clear_error_and_writes_nothing(nan_checkpoint,
 
 
 def test_gns_rollout_with_clamp_writes_the_clamped_rollout_and_says_so(nan_checkpoint, tmp_path, capsys):
-    code = main(["rollout", str(nan_checkpoint), "--out", str(tmp_path), "--steps", "3", "--no-progress",
+    code = main(["rollout", "--outside-envelope", str(nan_checkpoint), "--out", str(tmp_path), "--steps", "3", "--no-progress",
                  "--on-violation", "clamp"])
     captured = capsys.readouterr()
     assert code == 0

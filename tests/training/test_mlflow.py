@@ -71,7 +71,7 @@ def test_training_tracks_to_a_sqlite_store_created_on_first_use_and_compare_read
     check_tracked_run(client, run_b, steps=2)
 
     checkpoint = tmp_path / "run-a" / "checkpoints" / checkpoint_name(6)
-    assert main(["rollout", str(checkpoint), "--trajectories", "1", "--steps", "3", "--no-progress"]) == 0
+    assert main(["rollout", "--outside-envelope", str(checkpoint), "--trajectories", "1", "--steps", "3", "--no-progress"]) == 0
     assert [(m.step, m.value > 0) for m in client.get_metric_history(run_a, "rollout_position_mse_test")] == [(6, True)]
     assert client.get_run(run_a).info.status == "FINISHED"
 

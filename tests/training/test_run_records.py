@@ -27,7 +27,7 @@ def test_train_records_the_dataset_option_and_rollout_uses_it(dataset_multimater
     assert json.loads((run / "params.json").read_text())["recipe"]["dataset"]["path"] == str(dataset_multimaterial)
     assert load_checkpoint(checkpoint)["recipe"]["dataset"]["path"] == str(dataset_multimaterial)
     # Without --dataset, the rollout runs on the data the model was trained on.
-    assert main(["rollout", str(checkpoint), "--steps", "2", "--trajectories", "1", "--no-progress",
+    assert main(["rollout", "--outside-envelope", str(checkpoint), "--steps", "2", "--trajectories", "1", "--no-progress",
                  "--out", str(tmp_path / "rollouts")]) == 0
     assert (tmp_path / "rollouts" / "test_0000.npz").is_file()
 
