@@ -271,6 +271,20 @@ def _installed_version(name: str) -> str | None:
         return None
 
 
+def _already_complete(installed=_installed_version) -> bool:
+    """Whether this interpreter has the project and every requirement the check needs, in versions that fit."""
+    if installed(PROJECT) is None:
+        return False
+    environment = marker_environment(f"{sys.version_info.major}.{sys.version_info.minor}")
+    for requirement in requirements_of(importlib.metadata.metadata(PROJECT), environment, CHECK_EXTRAS):
+        have = installed(requirement.name)
+        if normalize(requirement.name) in OPTIONAL:
+            continue
+        if have is None or not requirement.specifier.contains(Version(have).public, prereleases=True):
+            return False
+    return True
+
+
 def plan(folder: Path, installed=_installed_version, environment: dict[str, str] | None = None):
     """What to install from ``folder`` for this interpreter.
 
@@ -319,6 +333,11 @@ def install(wheels: Path, target: Path) -> int:
     started = time.perf_counter()
     tag = python_tag(f"{sys.version_info.major}.{sys.version_info.minor}")
     folder = wheels / tag
+    if not folder.is_dir() and _already_complete():
+        # The project's own environment (its .venv, CI): nothing to carry, nothing to install.
+        print(f"gpu_check: install python={tag} installed=none target=none missing_optional=none "
+              f"seconds={time.perf_counter() - started:.2f} already=gns-framework_and_its_requirements", flush=True)
+        return 0
     if not folder.is_dir():
         made = sorted(p.name for p in wheels.iterdir() if p.is_dir()) if wheels.is_dir() else []
         print(f"gpu_wheels: no wheels for Python {sys.version.split()[0]} in {folder} (made for: "

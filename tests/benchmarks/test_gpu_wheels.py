@@ -104,7 +104,17 @@ def test_only_the_extras_the_check_uses_are_carried(folder):
     assert "geomloss" in names and not names & {"meshio", "pytest", "mlflow"}
 
 
-def test_the_install_command_fails_without_wheels_for_this_python(tmp_path, capsys):
+def test_the_install_command_fails_without_wheels_for_this_python(tmp_path, capsys, monkeypatch):
+    """On the device (the project not installed) the prepared folder is needed."""
+    monkeypatch.setattr(gpu_wheels, "_already_complete", lambda: False)
     (tmp_path / "cp399").mkdir()
     assert gpu_wheels.install(tmp_path, tmp_path / "site") == 1
     assert "run benchmarks/gpu_check.sh --prepare" in capsys.readouterr().err
+
+
+def test_the_projects_own_environment_needs_no_prepared_folder(tmp_path, capsys):
+    """Here (and in CI) the project and its requirements are installed: nothing to carry or install."""
+    assert gpu_wheels._already_complete()
+    assert gpu_wheels.install(tmp_path / "absent", tmp_path / "site") == 0
+    assert "installed=none" in capsys.readouterr().out and not (tmp_path / "site").exists()
+    assert not gpu_wheels._already_complete(installed=lambda name: None)
