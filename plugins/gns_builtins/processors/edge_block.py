@@ -47,7 +47,7 @@ from ..chunked import (
     product_into,
     widest_dtype,
 )
-from ..segment_sum import needs_ordered_sums, segment_sum_
+from ..segment_sum import needs_ordered_sums, segment_sum_, sorted_segment_sum_
 
 
 def node_table(x: Tensor, first_weight: Tensor, first_bias: Tensor) -> Tensor:
@@ -80,6 +80,18 @@ class Plan(NamedTuple):
         # (a read-back, so only on the CPU, where it costs nothing).
         receivers_sorted = not avoids_read_backs(e.device) and bool((receivers[1:] >= receivers[:-1]).all())
         return Plan(chunk_size(e.device), products, receivers_sorted, needs_ordered_sums(e.device))
+
+
+def _sender_order(rows: Tensor, num_edges: int, size: int) -> Tensor:
+    """(E,) edge indices sorted by chunk, then by sender row, in one sort for the whole backward.
+
+    The ordered sums need each chunk's sender rows in key order; chunks are contiguous edge
+    ranges, so sorting by (chunk, sender) puts chunk ``[lo, hi)``'s edges at positions
+    ``[lo, hi)``, sorted by sender: one stable sort per call instead of one per chunk.
+    """
+    senders = rows[1::2]
+    chunk = torch.arange(num_edges, device=rows.device) // size
+    return torch.argsort(chunk * (senders.max() + 1) + senders, stable=True) if num_edges else senders
 
 
 def _add_at(out: Tensor, index: Tensor, rows: Tensor, plan: Plan) -> None:
@@ -218,6 +230,7 @@ class _EdgeBlock(torch.autograd.Function):
         if grad_aggregate is not None:
             # Often a column slice of the node MLP's input gradient; its rows are gathered per edge.
             grad_aggregate = grad_aggregate.contiguous()
+        sender_order = _sender_order(rows, e.shape[0], size) if ctx.plan.ordered_sums else None
         for index, (lo, hi) in enumerate(chunks(e.shape[0], size)):
             chunk_rows, e_chunk = rows[2 * lo : 2 * hi], e[lo:hi]
             if ctx.stored is None:
@@ -239,7 +252,11 @@ class _EdgeBlock(torch.autograd.Function):
             add_product(grad_weights[0], grad_a.t(), e_chunk.to(products))
             grad_a_summed = grad_a.to(dtype)
             _add_at(grad_table, chunk_rows[0::2], grad_a_summed, ctx.plan)
-            _add_at(grad_table, chunk_rows[1::2], grad_a_summed, ctx.plan)
+            if sender_order is None:
+                _add_at(grad_table, chunk_rows[1::2], grad_a_summed, ctx.plan)
+            else:
+                local = sender_order[lo:hi] - lo
+                sorted_segment_sum_(grad_table, chunk_rows[1::2][local], grad_a_summed[local])
             if grad_out is None:
                 product_into(grad_e[lo:hi], grad_a, product_weights[0])
             else:
