@@ -140,6 +140,16 @@ Single = Annotated[
 """A number, ``{range: [low, high], per: trajectory|particle}`` or ``{span: [low, high]}``."""
 
 
+def _check_weights(weights: list[float] | None, options: int) -> None:
+    """The probabilities of a ``one_of``: one per option, >= 0, with a positive sum (None: equal)."""
+    if weights is None:
+        return
+    if len(weights) != options:
+        raise ValueError(f"weights: expected {options} values (one per option), got {len(weights)}")
+    if min(weights) < 0 or sum(weights) <= 0:
+        raise ValueError(f"weights must be >= 0 with a positive sum, got {weights}")
+
+
 class OneOf(Spec):
     """One of several options (numbers, ranges or spans), picked per trajectory, then drawn.
 
@@ -151,11 +161,7 @@ class OneOf(Spec):
 
     @model_validator(mode="after")
     def _weights(self) -> "OneOf":
-        if self.weights is not None:
-            if len(self.weights) != len(self.one_of):
-                raise ValueError(f"weights: expected {len(self.one_of)} values (one per option), got {len(self.weights)}")
-            if min(self.weights) < 0 or sum(self.weights) <= 0:
-                raise ValueError(f"weights must be >= 0 with a positive sum, got {self.weights}")
+        _check_weights(self.weights, len(self.one_of))
         return self
 
     per: Literal["trajectory"] = "trajectory"
@@ -252,10 +258,7 @@ class WallChoice(Spec):
 
     @model_validator(mode="after")
     def _weights(self) -> "WallChoice":
-        if self.weights is not None and (
-            len(self.weights) != len(self.one_of) or min(self.weights) < 0 or sum(self.weights) <= 0
-        ):
-            raise ValueError(f"weights: expected {len(self.one_of)} values >= 0 with a positive sum, got {self.weights}")
+        _check_weights(self.weights, len(self.one_of))
         return self
 
 

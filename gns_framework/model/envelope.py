@@ -26,6 +26,7 @@ from ..data.metadata import DatasetMetadata
 from ..data.particle_spacing import particle_spacing
 from ..data.trajectory import Trajectory
 from ..errors import GnsError
+from ..ground_truth.scene_spec import FACES
 
 SPACING_TOLERANCE = 0.10
 """Relative difference of particle spacing accepted: the lattice jitter of generated data moves it by a few %."""
@@ -44,8 +45,6 @@ COUNT_SLACK = (0.5, 1.5)
 
 WALL_SLACK = 0.01
 """Friction coefficients accepted beyond the ends of a trained wall-friction range."""
-
-FACE_NAMES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 
 
 class OutsideEnvelope(GnsError):
@@ -107,17 +106,26 @@ class Envelope:
         ]
         rows += [(f"property {name}", f"{lo:.4g} .. {hi:.4g}") for name, (lo, hi) in self.properties.items()]
         rows += [(f"domain {axes[a]} extent", f"{lo:.4g} .. {hi:.4g} m") for a, (lo, hi) in enumerate(self.extent)]
-        for face, seen in (self.walls or {}).items():
-            kinds = (["slip"] if seen["slip"] else []) + (["no-slip"] if seen["no_slip"] else [])
-            if seen["friction"] is not None:
-                lo, hi = seen["friction"]
-                kinds.append(f"friction {lo:.3g} .. {hi:.3g}")
-            rows.append((f"wall {face}", " or ".join(kinds)))
+        rows += [(f"wall {face}", _wall_kinds(seen)) for face, seen in (self.walls or {}).items()]
         rows += [
             ("largest speed", f"{self.max_speed:.3g} m/s (inputs up to {SPEED_SLACK:g}x)"),
             ("particles per scene", f"{self.particle_count[0]} .. {self.particle_count[1]}"),
         ]
         return rows
+
+
+def _wall_kinds(seen: dict) -> str:
+    """What one face was trained with, in words: ``slip or friction 0.3 .. 0.6``."""
+    kinds = (["slip"] if seen["slip"] else []) + (["no-slip"] if seen["no_slip"] else [])
+    if seen["friction"] is not None:
+        kinds.append(f"friction {seen['friction'][0]:.3g} .. {seen['friction'][1]:.3g}")
+    return " or ".join(kinds)
+
+
+def _property_values(trajectory: Trajectory, column: int, moving: np.ndarray) -> np.ndarray:
+    """A property column of the moving particles (of all particles when none moves)."""
+    values = trajectory.material_property[:, column]
+    return values[moving] if moving.any() else values
 
 
 def _extent(trajectory: Trajectory, metadata: DatasetMetadata) -> np.ndarray:
@@ -158,7 +166,7 @@ def measure_envelope(
         extents.append(_extent(trajectory, metadata))
         if trajectory.material_property is not None:
             for column, name in enumerate(scene.property_names):
-                values = trajectory.material_property[moving, column] if moving.any() else trajectory.material_property[:, column]
+                values = _property_values(trajectory, column, moving)
                 low, high = float(values.min()), float(values.max())
                 seen = properties.setdefault(name, [low, high])
                 seen[0], seen[1] = min(seen[0], low), max(seen[1], high)
@@ -167,7 +175,7 @@ def measure_envelope(
                 faces = None
                 continue
             for index, (friction, no_slip) in enumerate(np.asarray(trajectory.walls, dtype=np.float64)):
-                face = faces.setdefault(FACE_NAMES[index], {"friction": None, "slip": False, "no_slip": False})
+                face = faces.setdefault(FACES[index], {"friction": None, "slip": False, "no_slip": False})
                 if no_slip:
                     face["no_slip"] = True
                 elif friction == 0:
@@ -263,14 +271,14 @@ def outside_envelope(
             for column, (name, (lo, hi)) in enumerate(envelope.properties.items()):
                 if column >= trajectory.material_property.shape[1]:
                     break
-                values = trajectory.material_property[moving, column] if moving.any() else trajectory.material_property[:, column]
+                values = _property_values(trajectory, column, moving)
                 slack = PROPERTY_SLACK * max(hi - lo, abs(hi), 1e-12)
                 outside = values[(values < lo - slack) | (values > hi + slack)]
                 if outside.size:
                     findings.add(f"property {name}", f"{float(outside[0]):.4g}", f"{lo:.4g} .. {hi:.4g}", key)
         if envelope.walls is not None and trajectory.walls is not None:
             for index, (friction, no_slip) in enumerate(np.asarray(trajectory.walls, dtype=np.float64)):
-                face = FACE_NAMES[index]
+                face = FACES[index]
                 seen = envelope.walls.get(face)
                 if seen is None:
                     continue
@@ -282,10 +290,7 @@ def outside_envelope(
                     ok = seen["friction"] is not None and _within(friction, *seen["friction"], WALL_SLACK)
                     value = f"friction {friction:.3g}"
                 if not ok:
-                    kinds = (["slip"] if seen["slip"] else []) + (["no-slip"] if seen["no_slip"] else [])
-                    if seen["friction"] is not None:
-                        kinds.append(f"friction {seen['friction'][0]:.3g} .. {seen['friction'][1]:.3g}")
-                    findings.add(f"wall {face}", value, " or ".join(kinds), key)
+                    findings.add(f"wall {face}", value, _wall_kinds(seen), key)
     return findings.lines()
 
 
