@@ -84,15 +84,18 @@ def run(args: argparse.Namespace) -> int:
     if args.trajectories:
         trajectories = trajectories[: args.trajectories]
     cases = cases_from_split(trajectories)
-    warnings = []
+    warnings: dict[Path, list[str]] = {}
     for model in models:
-        # Each model is judged on the data as it sees it (its own frame stride).
-        seen = open_dataset(model.recipe.dataset, registry, dataset.path, args.allow_pickle)
-        split = seen.split(args.split)
-        count = min(len(split), args.trajectories or len(split))
-        warnings += enforce_envelope(
-            model, seen.metadata(), [split[i] for i in range(count)], args.outside_envelope,
-            f"{dataset.path} (split {args.split})", "evaluate",
+        # Each model is judged on the data as it sees it (its own frame stride); the split already
+        # opened serves every model that sees it as the first does.
+        if model.recipe.dataset == models[0].recipe.dataset:
+            seen, split = dataset, trajectories
+        else:
+            seen = open_dataset(model.recipe.dataset, registry, dataset.path, args.allow_pickle)
+            split = seen.split(args.split)
+            split = split[: args.trajectories] if args.trajectories else split
+        warnings[model.path] = enforce_envelope(
+            model, seen.metadata(), list(split), args.outside_envelope, f"{dataset.path} (split {args.split})", "evaluate"
         )
 
     names = model_labels([m.recipe.name for m in models], args.checkpoints)
@@ -111,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
         error_metric=args.error_metric,
         rollout_dir=args.out / "rollouts" if (args.vtk or args.gif) else None,
     )
-    report = dataclasses.replace(report, warnings=tuple(warnings))
+    report = dataclasses.replace(report, warnings=tuple(line for lines in warnings.values() for line in lines))
     paths = write_report(report, args.out)
     print(paths["markdown"].read_text())
     for kind, path in paths.items():
@@ -122,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _log_to_training_runs(
-    report, models, names: list[str], report_files: list[Path], animations: dict[str, Path], warnings: list[str]
+    report, models, names: list[str], report_files: list[Path], animations: dict[str, Path],
+    warnings: dict[Path, list[str]],
 ) -> None:
     """Attach the report (and the model's animation) to each model's MLflow run, when it was tracked."""
     from ..training.mlflow_tracker import log_to_recorded_run
@@ -138,7 +142,7 @@ def _log_to_training_runs(
             {f"evaluation_{k}".replace("[", ".").replace("]", ""): v for k, v in entry.metrics.items() if isinstance(v, float)}
         )
         files = report_files + ([animations[name]] if name in animations else [])
-        own = [line for line in warnings if line.startswith(f"outside the envelope of {model.path}:")]
+        own = warnings[model.path]
         tags = {"outside_envelope": "; ".join(own)} if own else None
         tracked = log_to_recorded_run(model.path.parent.parent, metrics, model.step, files, "evaluation", tags)
         if tracked:
