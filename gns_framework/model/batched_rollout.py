@@ -29,14 +29,11 @@ from .rollout import _check_simulates, rollout_step
 from .rollout_guard import RolloutGuard
 
 
-def _per_particle_bounds(simulator: LearnedSimulator, trajectories: Sequence[Trajectory]) -> torch.Tensor:
-    """(N, d, 2) float64 walls of every stacked particle: its own scene's bounds, else the model's."""
-    model = np.asarray(simulator.scene.bounds, dtype=np.float64)
-    blocks = [
-        np.broadcast_to(np.asarray(t.bounds if t.bounds is not None else model, dtype=np.float64), (t.num_particles, *model.shape))
-        for t in trajectories
-    ]
-    return torch.from_numpy(np.concatenate(blocks))
+def _per_particle_bounds(trajectories: Sequence[Trajectory]) -> torch.Tensor:
+    """(N, d, 2) float64 walls of every stacked particle: its own scene's bounds."""
+    return torch.from_numpy(
+        np.concatenate([np.broadcast_to(np.asarray(t.bounds, np.float64), (t.num_particles, *np.shape(t.bounds))) for t in trajectories])
+    )
 
 
 def _same_fields(simulator: LearnedSimulator, trajectories: Sequence[Trajectory]) -> list[Trajectory]:
@@ -82,7 +79,8 @@ def rollout_batch(
     trajectories = _same_fields(simulator, trajectories)
     device = torch.device(device)
     guard = guard if guard is not None else RolloutGuard(simulator.scene)
-    guard = guard.with_bounds(_per_particle_bounds(simulator, trajectories))
+    if trajectories[0].bounds is not None:  # all of them have their own box, or none (the model's)
+        guard = guard.with_bounds(_per_particle_bounds(trajectories))
     state = collate([window(t, 0, history, with_target=False) for t in trajectories]).to(device)
     counts = [t.num_particles for t in trajectories]
     ends = np.cumsum([0, *counts])
