@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from tiny import tiny_recipe, tiny_trainer
 
 from gns_framework.config.paths import resolve_named_path
 from gns_framework.config.recipe import load_recipe
@@ -105,14 +104,6 @@ def test_the_shipped_inversions_name_their_model_relative_to_themselves(path, tm
     config, _ = load_invert_config(path)
     assert Path(config.model).resolve().is_file() and Path(config.model).resolve().parent == ROOT / "models"
     assert Path(config.observed.dataset).resolve().parent == ROOT / "data"
-
-
-@pytest.fixture(scope="module")
-def tiny_model(tmp_path_factory, dataset_multimaterial, registry) -> Path:
-    run = tmp_path_factory.mktemp("invert_best_run")
-    trainer = tiny_trainer(tiny_recipe(dataset_multimaterial, registry), run, registry)
-    trainer.train()
-    return trainer.save()
 
 
 @pytest.mark.parametrize("held_out", [False, True])

@@ -21,7 +21,6 @@ import pytest
 import torch
 import yaml
 from synthetic import soft_sphere_trajectory, synthetic_metadata
-from tiny import tiny_recipe, tiny_trainer
 
 from gns_framework.assembly.trained import load_trained
 from gns_framework.errors import RecipeError
@@ -159,14 +158,6 @@ def test_schema_problems_are_reported_at_once_with_their_location():
     text = str(caught.value)
     assert "initial 1.2 lies outside its bounds [0.4, 1.0]" in text
     assert "axis 0: bounds must be [low, high] with low <= high" in text
-
-
-@pytest.fixture(scope="module")
-def tiny_model(tmp_path_factory, dataset_multimaterial, registry) -> Path:
-    run = tmp_path_factory.mktemp("invert_run")
-    trainer = tiny_trainer(tiny_recipe(dataset_multimaterial, registry), run, registry)
-    trainer.train()
-    return trainer.save()
 
 
 def gns(*args: str, cwd: Path) -> subprocess.CompletedProcess:
