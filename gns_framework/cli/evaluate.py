@@ -53,6 +53,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--warmup", type=int, default=1, help="untimed runs first (default 1)")
     parser.add_argument("--error-metric", default="sinkhorn_final_pct", help="metric plotted against run time")
     parser.add_argument("--device", default="auto", help="device of the learned models")
+    parser.add_argument(
+        "--batch", type=positive_int, default=1, metavar="B",
+        help="also roll each model out on B cases at a time as one batch, a second row beside one at a time "
+        "(default 1: one at a time only)",
+    )
     parser.add_argument("--vtk", action="store_true", help="also write VTK frames of each model's first rollout")
     parser.add_argument("--gif", action="store_true", help="also write a prediction-vs-truth GIF of each model's first rollout")
     parser.add_argument(
@@ -113,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
         warmup=args.warmup,
         error_metric=args.error_metric,
         rollout_dir=args.out / "rollouts" if (args.vtk or args.gif) else None,
+        batch=args.batch,
     )
     report = dataclasses.replace(report, warnings=tuple(line for lines in warnings.values() for line in lines))
     paths = write_report(report, args.out)
@@ -135,6 +141,9 @@ def _log_to_training_runs(
     for model, name in zip(models, names):
         entry = entries[name]
         metrics = {"evaluation_seconds_per_rollout": entry.seconds}
+        batched = next((e for e in report.entries if e.name.startswith(f"{name} [batch ")), None)
+        if batched is not None:
+            metrics["evaluation_batched_seconds_per_rollout"] = batched.seconds
         if entry.speedup is not None:
             metrics["evaluation_speedup"] = entry.speedup
         # MLflow metric names take no brackets: "mse_full[sand]" becomes "mse_full.sand".

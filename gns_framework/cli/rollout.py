@@ -20,6 +20,7 @@ from ..assembly.data import open_dataset
 from ..assembly.trained import load_trained
 from ..errors import DatasetError
 from ..io.rollout_file import write_rollout
+from ..model.batched_rollout import rollout_batch
 from ..model.rollout import rollout
 from ..outputs import check_folder, claim_folder
 from ..model.rollout_guard import RolloutGuard
@@ -53,6 +54,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--precision", choices=PRECISIONS, default="float32",
         help="dtype of the model's matrix products: tf32 uses CUDA tensor cores for float32 (float32 on CPUs); "
         "bfloat16 is faster on AMX CPUs and GPUs (default float32)",
+    )
+    parser.add_argument(
+        "--batch", type=positive_int, default=1, metavar="B",
+        help="roll out B trajectories of one length at a time as one batch: one graph and one model call per "
+        "step for all of them (default 1)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
@@ -91,13 +97,9 @@ def run(args: argparse.Namespace) -> int:
         args.guard_margin if args.guard_margin is not None else spec.guard.margin,
         args.on_violation or spec.guard.on_violation,
     )
-    for index in range(count):
-        trajectory = trajectories[index]
-        result = rollout(
-            loaded.simulator, trajectory, args.steps or spec.steps, device,
-            progress=not args.no_progress, guard=guard, precision=args.precision,
-        )
-        if index == 0:
+    steps = args.steps or spec.steps
+    for position, (index, result) in enumerate(_rollouts(loaded.simulator, trajectories, count, steps, device, guard, args)):
+        if position == 0:
             claim_folder(out, "rollout", args.overwrite, own=_only_rollouts)
         file = ensure_inside(out / f"{safe_component(split_name)}_{index:04d}.npz", out)
         path = write_rollout(file, result, recorded)
@@ -114,6 +116,28 @@ def run(args: argparse.Namespace) -> int:
         if tracked:
             print(f"logged rollout_position_mse_{split_name} at step {loaded.step} to MLflow run {tracked}")
     return 0
+
+
+def _rollouts(simulator, trajectories, count: int, steps: int | None, device, guard: RolloutGuard, args):
+    """(index, rollout) of the first ``count`` trajectories, in order; ``--batch`` of one length at a time."""
+    if args.batch == 1:
+        for index in range(count):
+            yield index, rollout(
+                simulator, trajectories[index], steps, device,
+                progress=not args.no_progress, guard=guard, precision=args.precision,
+            )
+        return
+    # Consecutive trajectories of one length form a batch, so every scene still runs to its own end.
+    start = 0
+    while start < count:
+        length = trajectories[start].num_steps
+        stop = start + 1
+        while stop < count and stop - start < args.batch and trajectories[stop].num_steps == length:
+            stop += 1
+        group = [trajectories[i] for i in range(start, stop)]
+        results = rollout_batch(simulator, group, steps, device, guard=guard, precision=args.precision)
+        yield from zip(range(start, stop), results)
+        start = stop
 
 
 def _only_rollouts(folder: Path) -> bool:

@@ -15,6 +15,7 @@ from ..data.stride import strided
 from ..data.trajectory import Trajectory
 from ..errors import DatasetError, RolloutDiverged
 from ..model.learned_simulator import LearnedSimulator
+from ..model.batched_rollout import rollout_batch
 from ..model.rollout import rollout
 from ..plugins import Registry
 from .report import Candidate, Prediction, Report, evaluate
@@ -38,13 +39,50 @@ def learned_positions(simulator: LearnedSimulator, trajectory: Trajectory, devic
         return np.full(shape, np.nan, dtype=trajectory.position.dtype)
 
 
-def learned_candidate(model: LoadedModel, name: str, device: torch.device) -> Candidate:
-    """A trained simulator rolled out from each case's input frames (kinematic particles prescribed)."""
+def learned_positions_batch(
+    simulator: LearnedSimulator, cases: Sequence[Trajectory], device: torch.device | str
+) -> list[np.ndarray]:
+    """Each case's (S, N, d) rolled-out positions, the cases of one length stepped as one batch.
+
+    A batch in which some scene diverges is rolled out again one scene at a time, so
+    that only the diverged scenes come back NaN (as in :func:`learned_positions`).
+    """
+    out: list[np.ndarray | None] = [None] * len(cases)
+    lengths: dict[int, list[int]] = {}
+    for index, case in enumerate(cases):
+        lengths.setdefault(case.num_steps, []).append(index)
+    for indices in lengths.values():
+        try:
+            rolled = rollout_batch(simulator, [cases[i] for i in indices], device=device)
+            for i, result in zip(indices, rolled):
+                out[i] = result.predicted
+        except RolloutDiverged:
+            for i in indices:
+                out[i] = learned_positions(simulator, cases[i], device)
+    return out
+
+
+def learned_candidate(model: LoadedModel, name: str, device: torch.device, batch: int = 1) -> Candidate:
+    """A trained simulator rolled out from each case's input frames (kinematic particles prescribed).
+
+    With ``batch`` > 1 the cases are rolled out that many at a time as one batch
+    (:func:`~gns_framework.model.batched_rollout.rollout_batch`), each charged its
+    share of the batch's time; the row is named ``<name> [batch B]``.
+    """
 
     def simulate(case: Trajectory) -> Prediction:
         return Prediction(learned_positions(model.simulator, case, device))
 
-    return Candidate(name, "learned", simulate, settings=f"{model.path.name} (step {model.step})", device=str(device))
+    def simulate_batch(cases: Sequence[Trajectory]) -> list[Prediction]:
+        return [Prediction(p) for p in learned_positions_batch(model.simulator, cases, device)]
+
+    settings = f"{model.path.name} (step {model.step})"
+    if batch > 1:
+        return Candidate(
+            f"{name} [batch {batch}]", "learned", simulate, settings=f"{settings}, {batch} scenes per batch",
+            device=str(device), simulate_batch=simulate_batch, batch=batch,
+        )
+    return Candidate(name, "learned", simulate, settings=settings, device=str(device))
 
 
 def simulator_candidates(
@@ -122,13 +160,18 @@ def compare(
     warmup: int = 1,
     error_metric: str = "sinkhorn_final_pct",
     rollout_dir=None,
+    batch: int = 1,
 ) -> Report:
     """Error against run time of named trained models (and the ground-truth simulator) on ``cases``.
 
     The models share one input history C (the first model's); each case's first C frames are the input.
+    With ``batch`` > 1 each model has a second row, its cases rolled out ``batch`` at a time,
+    beside the one-at-a-time row: the throughput gain measured in the same run.
     """
     scene = models[0][1].simulator.scene
     candidates = [learned_candidate(model, name, device) for name, model in models]
+    if batch > 1:
+        candidates += [learned_candidate(model, name, device, batch) for name, model in models]
     if with_simulator:
         candidates += simulator_candidates(metadata, registry, cases, scene.history, grid_scales, substep_scales)
     return evaluate(

@@ -17,7 +17,7 @@ from __future__ import annotations
 import csv
 import math
 import time
-from collections.abc import Callable, Collection, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -68,6 +68,10 @@ class Candidate:
         reference: the simulator setting that produced the ground truth (at most one).
         settings: resolution, time step or checkpoint, for the table.
         device: where ``simulate`` computes (synchronised around each timing).
+        simulate_batch: cases -> their rollouts in order, computed together; when given,
+            the cases are rolled out ``batch`` at a time and each is charged its share of
+            the batch's time (the throughput a parametric study gets).
+        batch: cases per ``simulate_batch`` call.
     """
 
     name: str
@@ -76,6 +80,8 @@ class Candidate:
     reference: bool = False
     settings: str = ""
     device: str | None = None
+    simulate_batch: Callable[[Sequence[Trajectory]], list[Prediction]] | None = None
+    batch: int = 1
 
 
 @dataclass(frozen=True)
@@ -178,10 +184,7 @@ def evaluate(
     entries = []
     for candidate in candidates:
         summaries, timings, curves, written = [], [], [], []
-        for case, file_name in zip(cases, files):
-            prediction, timing = time_call(
-                partial(candidate.simulate, case), repeats=repeats, warmup=warmup, device=candidate.device, clock=clock
-            )
+        for case, file_name, prediction, timing in _timed_rollouts(candidate, cases, files, repeats, warmup, clock):
             scores = score_prediction(
                 prediction, case, history, metadata, horizons, granular_types, material_names,
                 kinematic_types=kinematic_types, metrics=metrics,
@@ -204,6 +207,32 @@ def evaluate(
         entries, error_metric, len(cases), repeats, warmup, metadata.dt, hardware_description(gpu),
         metric_units(metrics),
     )
+
+
+def _timed_rollouts(
+    candidate: Candidate, cases: Sequence[Trajectory], files: Sequence[str], repeats: int, warmup: int,
+    clock: Callable[[], float],
+) -> Iterator[tuple[Trajectory, str, Prediction, Timing]]:
+    """Each case with its file name, the candidate's rollout of it and the time that rollout is charged.
+
+    One at a time, each case's own timing; batched, the cases go ``candidate.batch``
+    at a time and each is charged an equal share of its batch's time.
+    """
+    if candidate.simulate_batch is None or candidate.batch < 2:
+        for case, file_name in zip(cases, files):
+            prediction, timing = time_call(
+                partial(candidate.simulate, case), repeats=repeats, warmup=warmup, device=candidate.device, clock=clock
+            )
+            yield case, file_name, prediction, timing
+        return
+    for start in range(0, len(cases), candidate.batch):
+        chunk = list(cases[start : start + candidate.batch])
+        predictions, timing = time_call(
+            partial(candidate.simulate_batch, chunk), repeats=repeats, warmup=warmup, device=candidate.device,
+            clock=clock,
+        )
+        share = Timing(tuple(seconds / len(chunk) for seconds in timing.seconds), timing.warmup)
+        yield from ((case, file, prediction, share) for case, file, prediction in zip(chunk, files[start:], predictions))
 
 
 def score_rollout(

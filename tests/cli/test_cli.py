@@ -99,6 +99,16 @@ def test_train_resume_rollout_render(dataset_multimaterial, tmp_path):
     with np.load(rollout_file) as full, np.load(tmp_path / "low" / "test_0000.npz") as bf16:
         assert bf16["predicted_rollout"].dtype == full["predicted_rollout"].dtype == np.float32
         assert np.allclose(bf16["predicted_rollout"], full["predicted_rollout"], atol=1e-3)
+    # --batch rolls the two training trajectories out together: each file as when rolled out alone.
+    for folder, batch in (("alone", "1"), ("batched", "2")):
+        code = main(["rollout", str(checkpoint), "--split", "train", "--steps", "4", "--out", str(tmp_path / folder),
+                     "--no-progress", "--batch", batch, "--outside-envelope"])
+        assert code == 0
+    for index in range(2):
+        with np.load(tmp_path / "alone" / f"train_{index:04d}.npz") as alone, \
+                np.load(tmp_path / "batched" / f"train_{index:04d}.npz") as batched:
+            expected = alone["predicted_rollout"]
+            np.testing.assert_allclose(batched["predicted_rollout"], expected, rtol=0, atol=1e-5 * np.abs(expected).max())
     rendered = gns("render", str(rollout_file), "--gif", str(tmp_path / "r.gif"))
     assert rendered.returncode == 0 and (tmp_path / "r.gif").stat().st_size > 0
 

@@ -44,13 +44,14 @@ def test_evaluate_writes_table_plots_vtk_and_gif(tmp_path: Path):
     args = ("evaluate", str(checkpoint), "--out", str(out), "--repeats", "1", "--warmup", "0", "--vtk", "--gif")
     refused = gns(*args)
     assert refused.returncode == 2 and "outside the envelope of" in refused.stderr and not out.exists()
-    result = gns(*args, "--outside-envelope")
+    result = gns(*args, "--outside-envelope", "--batch", "2")
     assert result.returncode == 0, result.stderr
     table = (out / "report.md").read_text()
+    assert "| tiny [batch 2] | learned |" in table, "the batched row beside the one-at-a-time row"
     assert "**Warning: data outside a model's training envelope" in table and "property friction" in table
     assert "| tiny | learned |" in table
     assert "grid 24 x 20 substeps (reference)" in table and "grid 12 x 20 substeps" in table
-    assert (out / "report.csv").read_text().count("\n") == 4
+    assert (out / "report.csv").read_text().count("\n") == 5
     for png in ("error_vs_time.png", "error_over_rollout.png"):
         assert (out / png).read_bytes()[:4] == b"\x89PNG"
     frames = sorted((out / "vtk" / "tiny" / "predicted").glob("*.vtu"))
@@ -66,7 +67,9 @@ def test_evaluate_writes_table_plots_vtk_and_gif(tmp_path: Path):
     client = mlflow.MlflowClient()
     logged = {a.path for a in client.list_artifacts(run_id, "evaluation")}
     assert {"evaluation/report.md", "evaluation/error_vs_time.png", "evaluation/tiny.gif"} <= logged
-    assert "evaluation_sinkhorn_final_pct" in client.get_run(run_id).data.metrics
+    assert {"evaluation_sinkhorn_final_pct", "evaluation_batched_seconds_per_rollout"} <= set(
+        client.get_run(run_id).data.metrics
+    )
 
     # Two checkpoints with one file name: labels stay file names, distinct, with no accidental sub-folders.
     other = tmp_path / "other" / "checkpoints"

@@ -237,3 +237,23 @@ def test_a_plugin_metric_is_measured_beside_the_builtins(make_rollout):
     summary = score_rollout(make_rollout(steps=8, particles=12), metrics=registry.metrics())
     assert summary["moving_particles"] == 10  # two of the twelve are kinematic
     assert summary["sinkhorn_final"] is not None
+
+
+def test_a_batched_candidate_is_charged_its_share_of_each_batch(scenes):
+    """Two cases rolled out together in 0.06 s each cost 0.03 s; the batch sees both cases, in order."""
+    states, cases, metadata = scenes
+    clock, batches = WorkClock(), []
+
+    def simulate_batch(chunk):
+        batches.append([case.key for case in chunk])
+        clock.now += 0.06
+        return [learned(case) for case in chunk]
+
+    one_at_a_time = Candidate("gns", "learned", clock.costing(0.05, learned))
+    batched = Candidate("gns [batch 2]", "learned", learned, simulate_batch=simulate_batch, batch=2)
+    report = evaluate([one_at_a_time, batched], cases, metadata, HISTORY, repeats=2, warmup=1, clock=clock)
+    by_name = {e.name: e for e in report.entries}
+    assert by_name["gns"].seconds == pytest.approx(0.05)
+    assert by_name["gns [batch 2]"].seconds == pytest.approx(0.03)
+    assert batches == [["case0", "case1"]] * 3, "one warm-up and two timed calls, each with both cases"
+    assert by_name["gns [batch 2]"].metrics == pytest.approx(by_name["gns"].metrics)

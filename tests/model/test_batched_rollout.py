@@ -64,3 +64,20 @@ def test_an_empty_batch_and_too_short_scenes():
     assert rollout_batch(simulator, []) == []
     with pytest.raises(ValueError, match="shortest trajectory has 5 frames"):
         rollout_batch(simulator, [_scene(0, 10), _scene(1, 10, frames=5)])
+
+
+def test_evaluate_batches_scenes_of_one_length_and_keeps_a_diverged_scene_to_itself():
+    from gns_framework.evaluation.candidates import learned_positions, learned_positions_batch
+
+    simulator = tiny_simulator(REGISTRY, 2)
+    scenes = [_scene(0, 30), _scene(1, 25, frames=14), _scene(2, 20)]
+    batched = learned_positions_batch(simulator, scenes, "cpu")
+    for scene, positions in zip(scenes, batched):
+        alone = learned_positions(simulator, scene, "cpu")
+        assert positions.shape == alone.shape == (scene.num_steps - 6, scene.num_particles, 2)
+        np.testing.assert_allclose(positions, alone, rtol=0, atol=1e-5 * np.abs(alone).max())
+    # A NaN input makes its own scene diverge (the guard stops); the others are still rolled out.
+    broken = _scene(3, 30)
+    broken.position[:, 0] = np.nan
+    good, bad = learned_positions_batch(simulator, [scenes[0], broken], "cpu")
+    assert np.isfinite(good).all() and np.isnan(bad).all()
