@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from .arguments import positive_int
@@ -31,6 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="replace an existing --gif file, or write into a --vtk folder holding something else",
     )
     parser.add_argument("--fps", type=positive_int, default=20, help="frames per second of the GIF (default 20)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -50,10 +53,31 @@ def run(args: argparse.Namespace) -> int:
         from ..io.vtk import write_rollout_vtk
 
         claim_folder(args.vtk, "render", args.overwrite)
-        for name, pvd in write_rollout_vtk(rollout, args.vtk).items():
+        with _progress("VTK frames", args.no_progress) as progress:
+            written = write_rollout_vtk(rollout, args.vtk, progress=progress)
+        for name, pvd in written.items():
             print(f"{name}: {pvd}")
     if args.gif is not None:
         from ..viz.animation import animate_rollout
 
-        print(f"animation: {animate_rollout(rollout, args.gif, every=args.every, fps=args.fps)}")
+        with _progress("GIF frames", args.no_progress) as progress:
+            gif = animate_rollout(rollout, args.gif, every=args.every, fps=args.fps, progress=progress)
+        print(f"animation: {gif}")
     return 0
+
+
+@contextlib.contextmanager
+def _progress(what: str, quiet: bool) -> Iterator[Callable[[int, int], None] | None]:
+    """A ``progress(done, total)`` callback drawing a bar on stderr (drawing a GIF takes ~0.3 s a frame), or None."""
+    if quiet:
+        yield None
+        return
+    from tqdm import tqdm
+
+    with tqdm(desc=f"render {what}", unit="frame", file=sys.stderr) as bar:
+
+        def progress(done: int, total: int) -> None:
+            bar.total = total
+            bar.update(done - bar.n)
+
+        yield progress

@@ -8,7 +8,7 @@ open the same way. The ``.pvd`` file lists the frames with their time in seconds
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from xml.etree import ElementTree
 
@@ -43,6 +43,7 @@ def write_vtk_series(
     particle_type: np.ndarray,
     material_property: np.ndarray | None = None,
     property_names: Sequence[str] | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> Path:
     """Write ``<directory>/<name>/frame_<t>.vtu`` for every frame and ``<directory>/<name>.pvd``.
 
@@ -52,6 +53,7 @@ def write_vtk_series(
         particle_type: (N,) int.
         material_property: (N, P) or None.
         property_names: P point-data names; ``material_property_<k>`` by default.
+        progress: called as ``progress(frames_written, num_frames)`` after each frame.
 
     Returns the path of the ``.pvd`` collection.
     """
@@ -84,18 +86,21 @@ def write_vtk_series(
         mesh = meshio.Mesh(points[t], cells, point_data={"velocity": velocities[t], **point_data})
         mesh.write(directory / relative)
         ElementTree.SubElement(datasets, "DataSet", timestep=repr(t * dt), group="", part="0", file=relative)
+        if progress is not None:
+            progress(t + 1, num_frames)
     pvd = directory / f"{name}.pvd"
     ElementTree.ElementTree(collection).write(pvd, xml_declaration=True, encoding="utf-8")
     return pvd
 
 
 def write_rollout_vtk(
-    rollout: Rollout, directory: str | Path, property_names: Sequence[str] | None = None
+    rollout: Rollout, directory: str | Path, property_names: Sequence[str] | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> dict[str, Path]:
     """Write the predicted and the true trajectory of a rollout with its metadata (input frames included).
 
     Returns ``{"predicted": <pvd>, "ground_truth": <pvd>}``; frame times count from
-    the first input frame.
+    the first input frame. ``progress(frames_written, frames_in_all)`` counts both series.
     """
     common = {
         "dt": rollout.metadata.dt,
@@ -103,10 +108,15 @@ def write_rollout_vtk(
         "material_property": rollout.material_property,
         "property_names": property_names,
     }
-    return {
-        "predicted": write_vtk_series(directory, "predicted", rollout.predicted_trajectory(), **common),
-        "ground_truth": write_vtk_series(directory, "ground_truth", rollout.ground_truth_trajectory(), **common),
-    }
+    series = {"predicted": rollout.predicted_trajectory(), "ground_truth": rollout.ground_truth_trajectory()}
+    total = sum(len(positions) for positions in series.values())
+    written, done = {}, 0
+    for name, positions in series.items():
+        offset = done
+        own = None if progress is None else (lambda frames, _, offset=offset: progress(offset + frames, total))
+        written[name] = write_vtk_series(directory, name, positions, progress=own, **common)
+        done += len(positions)
+    return written
 
 
 def read_pvd(path: str | Path) -> list[tuple[float, Path]]:

@@ -33,6 +33,11 @@ def test_render_writes_vtk_and_gif(make_rollout, tmp_path):
     assert (tmp_path / "vtk" / "ground_truth.pvd").is_file()
     with Image.open(tmp_path / "anim.gif") as gif:
         assert gif.n_frames == 4
+    # Drawing takes time: both steps show how far they are (20 VTK frames: 10 per series; 4 GIF frames).
+    assert "render VTK frames" in result.stderr and "20/20" in result.stderr
+    assert "render GIF frames" in result.stderr and "4/4" in result.stderr
+    quiet = gns("render", str(path), "--gif", str(tmp_path / "quiet.gif"), "--no-progress")
+    assert quiet.returncode == 0 and "render" not in quiet.stderr
 
 
 def test_render_reports_bad_input_by_file_and_field(make_rollout, tmp_path):

@@ -12,7 +12,11 @@ from gns_framework.io.vtk import frame_velocities, read_pvd, write_rollout_vtk, 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_rollout_vtk_loads_back_with_meshio(make_rollout, tmp_path, dim):
     rollout = make_rollout(dim=dim, steps=4, particles=12, history=6)
-    collections = write_rollout_vtk(rollout, tmp_path, property_names=["friction_angle", "density"])
+    seen = []
+    collections = write_rollout_vtk(
+        rollout, tmp_path, property_names=["friction_angle", "density"], progress=lambda *a: seen.append(a)
+    )
+    assert seen == [(k, 20) for k in range(1, 21)], "both series of 10 frames counted as one"
     for name, trajectory in (
         ("predicted", rollout.predicted_trajectory()),
         ("ground_truth", rollout.ground_truth_trajectory()),

@@ -19,7 +19,11 @@ def test_frame_indices_always_end_on_the_last_frame():
 @pytest.mark.parametrize("dim, every, frames", [(2, 1, 10), (2, 4, 4), (3, 3, 4)])
 def test_gif_has_one_frame_per_drawn_frame(make_rollout, tmp_path, dim, every, frames):
     rollout = make_rollout(dim=dim, steps=4, history=6)
-    path = animate_rollout(rollout, tmp_path / "anim.gif", every=every, material_names={6: "sand"})
+    seen = []
+    path = animate_rollout(
+        rollout, tmp_path / "anim.gif", every=every, material_names={6: "sand"}, progress=lambda *a: seen.append(a)
+    )
+    assert seen == [(k, frames) for k in range(1, frames + 1)], "progress after each drawn frame"
     with Image.open(path) as gif:
         assert gif.format == "GIF"
         assert gif.n_frames == frames
