@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import math
+import os
+import sys
+import tempfile
 
 import numpy as np
 import warp as wp
@@ -16,9 +19,38 @@ GRID_MARGIN = 3
 """Grid cells beyond each wall, so every particle's 3^d stencil stays on the grid."""
 
 
+NO_CUDA_DRIVER = "Could not find or load the NVIDIA CUDA driver"
+"""Warp's native warning on machines without a CUDA driver (written straight to file descriptor 2)."""
+
+
+def init_warp(cuda_wanted: bool) -> None:
+    """``wp.init()``; on a machine with no CUDA driver, its warning is dropped unless CUDA was asked for.
+
+    The warning comes from Warp's C++ core (``fprintf(stderr, ...)``), so it is caught at
+    file descriptor 2 for the length of the call; every other line written there passes
+    through unchanged.
+    """
+    if cuda_wanted:
+        wp.init()
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        captured.seek(0)
+        kept = [line for line in captured.read().splitlines(keepends=True) if NO_CUDA_DRIVER.encode() not in line]
+    if kept:
+        os.write(2, b"".join(kept))
+
+
 def resolve_device(name: str) -> str:
     """``auto`` picks the first CUDA device when there is one, else the CPU."""
-    wp.init()
+    init_warp(cuda_wanted=name.startswith("cuda"))
     if name == "auto":
         return "cuda:0" if wp.get_cuda_device_count() > 0 else "cpu"
     return name
