@@ -40,12 +40,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def split_counts(total: int, valid: int | None, test: int | None) -> dict[str, int]:
-    """Trajectories per split; the rest of ``total`` trains."""
+    """Trajectories per split; the rest of ``total`` trains.
+
+    All of them may be held out (``--trajectories 20 --test 20``: a test set of
+    unseen seeds for a model trained elsewhere); then no trajectory trains.
+    """
     default = max(1, round(0.1 * total)) if total >= 3 else 0
     valid = default if valid is None else valid
     test = default if test is None else test
-    if min(total, valid, test) < 0 or total - valid - test < 1:
-        raise GnsError(f"--trajectories {total} leaves no training trajectory after {valid} valid and {test} test")
+    if min(total, valid, test) < 0 or total - valid - test < 0:
+        raise GnsError(f"--trajectories {total} is fewer than the {valid} valid and {test} test trajectories asked for")
     return {"train": total - valid - test, "valid": valid, "test": test}
 
 

@@ -106,15 +106,22 @@ def generate_dataset(
 ) -> DatasetMetadata:
     """Simulate the splits, compute metadata from the train split and write them in ``layout``.
 
-    Beside them, ``drawn.json`` records every value each trajectory drew (:mod:`.drawn`).
+    A held-out set with no train split (a test set for a model trained elsewhere) takes
+    its statistics from the splits it has, and its metadata says which
+    (``statistics_from``): a trained model normalises with its own statistics, never these.
+    Beside the splits, ``drawn.json`` records every value each trajectory drew (:mod:`.drawn`).
     """
-    if counts.get("train", 0) < 1:
-        raise ValueError("a dataset needs at least one training trajectory (its statistics come from them)")
+    if sum(counts.get(split, 0) for split in SPLITS) < 1:
+        raise ValueError("a dataset needs at least one trajectory")
     splits = simulate_splits(scene, simulator, counts, progress)
     kinematic_types = [m.particle_type for m in simulator.materials.values() if m.kinematic]
-    metadata = dataset_metadata(
-        scene, splits["train"], kinematic_types, {"generated_from": provenance(scene, simulator, counts)}
-    )
+    extras = {"generated_from": provenance(scene, simulator, counts)}
+    if "train" in splits:
+        statistics = splits["train"]
+    else:
+        statistics = [t for split in SPLITS for t in splits.get(split, [])]
+        extras["statistics_from"] = [split for split in SPLITS if split in splits]
+    metadata = dataset_metadata(scene, statistics, kinematic_types, extras)
     layout.write(Path(out), metadata, splits)
     # What each trajectory drew (block velocities, sizes, properties, walls...), to check answers found from the data.
     seeds = trajectory_seeds(scene.seed, sum(len(t) for t in splits.values()))

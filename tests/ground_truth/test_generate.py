@@ -106,11 +106,24 @@ def test_gns_generate_reports_scene_problems(cli_registry, tmp_path, capsys):
     assert "blocks[0].material: unknown material 'lava'" in capsys.readouterr().err
 
 
-def test_split_counts_need_a_training_trajectory():
+def test_split_counts_hold_what_was_asked_for_and_may_hold_out_everything():
     assert generate_command.split_counts(10, None, None) == {"train": 8, "valid": 1, "test": 1}
     assert generate_command.split_counts(2, None, None) == {"train": 2, "valid": 0, "test": 0}
-    with pytest.raises(Exception, match="leaves no training trajectory"):
-        generate_command.split_counts(3, 2, 1)
+    assert generate_command.split_counts(3, 0, 3) == {"train": 0, "valid": 0, "test": 3}
+    with pytest.raises(Exception, match="fewer than the 2 valid and 2 test"):
+        generate_command.split_counts(3, 2, 2)
+
+
+def test_a_test_only_dataset_takes_its_statistics_from_its_own_splits(sim_registry, tmp_path):
+    """Held-out seeds for a model trained elsewhere: no train split, and the metadata says where its statistics came from."""
+    scene = parse_scene(mixed(frames=8))
+    simulator = build_ground_truth_simulator(scene, sim_registry)
+    cls = sim_registry.get("dataset", "safe")
+    metadata = generate_dataset(scene, simulator, tmp_path, cls, {"train": 0, "valid": 0, "test": 2}, progress=False)
+    test = load_split(sim_registry, tmp_path, "test")
+    assert len(test) == 2 and not (tmp_path / "train.npz").exists()
+    assert metadata.statistics_from == ["test"]
+    assert metadata.vel_std == pytest.approx(compute_statistics(test, sim_registry.kinematic_types())["vel_std"])
 
 
 def test_gns_generate_seed_gives_trajectories_the_file_seed_never_does(cli_registry, tmp_path, capsys):
