@@ -33,7 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(world_size, git_commit) or recipe keys (model.latent_size)",
     )
     parser.add_argument("--sort", metavar="METRIC", help="sort by this metric, smallest first (default: the first metric)")
-    parser.add_argument("--plot", type=Path, help="plot file (default: <first experiment or run>-compare.png)")
+    parser.add_argument(
+        "--plot", type=Path,
+        help="plot file (default: compare-<experiments>-<metrics>.png in the working directory, names joined by dots)",
+    )
     parser.add_argument("--tracking-uri", help="MLflow tracking URI (default: as gns train)")
 
 
@@ -63,9 +66,16 @@ def run(args: argparse.Namespace) -> int:
     params = args.params + [key for key in differing_recipe_fields(runs) if key not in args.params]
     print(format_table(sort_runs(runs, sort), metrics, params))
     title = " ".join(args.runs) or args.filter
-    # An experiment name or run id is never a path: the default plot is one file in the working directory.
-    default_plot = Path(f"{safe_component(args.runs[0]) if args.runs else 'runs'}-compare.png")
-    plot = plot_histories(runs, metrics, args.plot or default_plot, title)
     experiments = sorted({run.experiment for run in runs})
+    plot = plot_histories(runs, metrics, args.plot or default_plot_name(experiments, metrics), title)
     print(f"{len(runs)} runs of {len(experiments)} experiment(s) ({', '.join(experiments)}); plot in {plot}")
     return 0
+
+
+def default_plot_name(experiments: list[str], metrics: list[str]) -> Path:
+    """``compare-<experiments>-<metrics>.png``: what the plot compares, by experiment name even when runs were
+    given by id, as one safe file name in the working directory (names from the store are never paths)."""
+    stem = f"compare-{'.'.join(experiments)}-{'.'.join(metrics)}"
+    if len(stem) > 120:  # many experiments or metrics: the name stays a name, the table says the rest
+        stem = f"compare-{experiments[0]}{'.more' if len(experiments) > 1 else ''}-{metrics[0]}{'.more' if len(metrics) > 1 else ''}"
+    return Path(f"{safe_component(stem[:200])}.png")

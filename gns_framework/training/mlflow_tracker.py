@@ -129,14 +129,28 @@ def _local_artifact_root(tracking_uri: str, experiment: str) -> str | None:
     return ensure_inside(root / safe_component(experiment), root).resolve().as_uri()
 
 
+EXPERIMENT_KIND = ("mlflow.experimentKind", "custom_model_development")
+"""The experiment tag that makes MLflow 3's UI open a training experiment on its runs, metrics
+and charts; without it, the UI may open on its GenAI view, where these runs hide under
+"Evaluation runs"."""
+
+
 def experiment_id(client, tracking_uri: str, name: str, create: bool = True) -> str | None:
-    """The id of experiment ``name``; created when missing and ``create``."""
+    """The id of experiment ``name``; created when missing and ``create``, marked as model training.
+
+    An experiment this framework made before the mark existed gets it now; one that a
+    user typed differently (any other kind) keeps theirs.
+    """
     found = client.get_experiment_by_name(name)
     if found is not None:
+        if create and EXPERIMENT_KIND[0] not in found.tags:
+            client.set_experiment_tag(found.experiment_id, *EXPERIMENT_KIND)
         return found.experiment_id
     if not create:
         return None
-    return client.create_experiment(name, artifact_location=_local_artifact_root(tracking_uri, name))
+    return client.create_experiment(
+        name, artifact_location=_local_artifact_root(tracking_uri, name), tags=dict([EXPERIMENT_KIND])
+    )
 
 
 def flatten(params: dict[str, Any], prefix: str = "") -> dict[str, str]:

@@ -69,6 +69,8 @@ def test_training_tracks_to_a_sqlite_store_created_on_first_use_and_compare_read
     check_tracked_run(client, run_a, steps=6)  # the resumed training went on in the same MLflow run
     assert client.get_run(run_a).data.tags["changed.recipe.training.steps"] == "4 -> 6"
     check_tracked_run(client, run_b, steps=2)
+    # MLflow 3's UI opens a training experiment on its runs, not on its GenAI view.
+    assert client.get_experiment_by_name("tiny-exp").tags["mlflow.experimentKind"] == "custom_model_development"
 
     checkpoint = tmp_path / "run-a" / "checkpoints" / checkpoint_name(6)
     assert main(["rollout", "--outside-envelope", str(checkpoint), "--trajectories", "1", "--steps", "3", "--no-progress"]) == 0
@@ -83,6 +85,9 @@ def test_training_tracks_to_a_sqlite_store_created_on_first_use_and_compare_read
     rows = {line.split()[2]: line.split() for line in table[1:3]}
     assert rows[run_a[:8]][4] == "4" and rows[run_b[:8]][4] == "2"
     assert plot.read_bytes().startswith(b"\x89PNG")
+    # By default the plot is named after what it compares, by experiment name even when runs are given by id.
+    assert main(["compare", run_a[:8], "--metrics", "train_loss"]) == 0
+    assert (tmp_path / "compare-tiny-exp-train_loss.png").is_file()
 
 
 def test_damaged_checkpoints_never_give_the_mlflow_run_a_second_history_and_a_restart_gets_a_new_run(
