@@ -17,8 +17,8 @@ import torch
 from torch import Tensor, nn
 from torch_geometric.nn import MessagePassing
 
-from gns_builtins.layers import NormedMLP
 from gns_framework.contracts import Graph
+from gns_framework.layers import NormedMLP
 from gns_framework.model.learned_simulator import LearnedSimulator
 
 

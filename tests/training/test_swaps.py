@@ -40,7 +40,7 @@ def test_every_parameter_gets_a_gradient(processor, dataset, tmp_path):
 
 
 def test_graph_attention_loads_weights_written_when_its_last_step_had_an_edge_mlp():
-    from gns_builtins.layers import NormedMLP
+    from gns_framework.layers import NormedMLP
     from gns_framework.testing import small_sizes
 
     cls = REGISTRY.get("processor", "graph_attention")

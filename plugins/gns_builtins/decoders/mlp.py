@@ -5,8 +5,7 @@ from __future__ import annotations
 from torch import Tensor
 
 from gns_framework.contracts import Decoder, ModelSizes, Params
-
-from ..layers import MLP
+from gns_framework.layers import MLP
 
 
 class MLPDecoder(Decoder):

@@ -7,9 +7,8 @@ from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
 from gns_framework.contracts import Encoder, ModelSizes, Params
+from gns_framework.layers import NormedMLP
 from gns_framework.runtime.activation_memory import recompute_activations
-
-from ..layers import NormedMLP
 
 
 class MLPEncoder(Encoder):

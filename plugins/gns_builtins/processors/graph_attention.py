@@ -7,8 +7,7 @@ from pydantic import Field
 from torch import Tensor, nn
 
 from gns_framework.contracts import Graph, ModelSizes, Params, Processor
-
-from ..layers import NormedMLP
+from gns_framework.layers import NormedMLP
 
 
 class AttentionStep(nn.Module):

@@ -20,8 +20,8 @@ from pydantic import Field
 from torch import Tensor, nn
 
 from gns_framework.contracts import Graph, ModelSizes, Params, Processor
+from gns_framework.layers import NormedMLP
 
-from ..layers import NormedMLP
 from .edge_block import edge_block, node_table, table_rows
 
 

@@ -6,9 +6,9 @@ import pytest
 import torch
 
 from gns_builtins import chunked
-from gns_builtins.layers import NormedMLP
 from gns_builtins.processors import edge_block as edge_block_module
 from gns_builtins.processors.edge_block import edge_block, node_table, table_rows
+from gns_framework.layers import NormedMLP
 
 
 def concatenated_update(mlp: NormedMLP, x, e, senders, receivers):

@@ -1,4 +1,14 @@
-"""Building blocks shared by the built-in encoder, processor and decoder."""
+"""The MLP every built-in encoder, processor and decoder is made of, for plugins to build theirs the same way.
+
+Part of the plugin API (docs/plugin-authors.md, section 9): a plugin's component
+builds its MLPs from these instead of a copy, so its layers are laid out, named and
+initialised like the built-ins' (``linears.<i>``, then ``norm``).
+
+The built-in blocks follow the reference model (Sanchez-Gonzalez et al. 2020): the
+encoder and every processor block are a :class:`NormedMLP` (the latents stay
+LayerNorm-scaled), a processor adds its blocks' outputs to its inputs (residuals),
+and the decoder is a plain :class:`MLP` (its output is a normalised prediction).
+"""
 
 from __future__ import annotations
 
@@ -9,6 +19,8 @@ from torch import Tensor, nn
 class MLP(nn.Module):
     """``Linear, ReLU, ..., Linear`` with ``hidden_layers`` hidden layers (the reference's ``build_mlp``).
 
+    Sizes come from :class:`~gns_framework.contracts.ModelSizes`:
+    ``MLP(in_size, sizes.mlp_hidden, sizes.mlp_hidden_layers, sizes.latent)``.
     Shapes: (..., in_size) -> (..., out_size).
     """
 
@@ -29,7 +41,10 @@ class MLP(nn.Module):
 
 
 class NormedMLP(nn.Module):
-    """MLP followed by LayerNorm (encoder and processor blocks)."""
+    """:class:`MLP` followed by LayerNorm over its ``out_size`` outputs (encoder and processor blocks).
+
+    Shapes: (..., in_size) -> (..., out_size).
+    """
 
     def __init__(self, in_size: int, hidden_size: int, hidden_layers: int, out_size: int):
         super().__init__()
