@@ -175,9 +175,13 @@ class TrainingSpec(_Strict):
         description="valid trajectories rolled out in full at each validation (0: one-step loss only); "
         "the checkpoint with the best best_metric so far is kept as checkpoints/best.pt",
     )
-    best_metric: Literal["valid_rollout_mse", "valid_rollout_sinkhorn_pct", "valid_rollout_runout_error_pct"] = Field(
+    best_metric: Literal[
+        "valid_rollout_mse", "valid_rollout_sinkhorn_pct", "valid_rollout_runout_error_pct",
+        "valid_rollout_extent_error_pct", "valid_rollout_height_error_pct", "valid_rollout_deposit_error_pct",
+    ] = Field(
         "valid_rollout_mse",
-        description="rollout metric (lower is better, mean over the validation rollouts) that picks best.pt",
+        description="rollout metric (lower is better, mean over the validation rollouts) that picks best.pt; "
+        "deposit: the mean of each rollout's final extent and height errors",
     )
 
 

@@ -25,8 +25,16 @@ METRICS = {
     "valid_rollout_mse": "mse_full",
     "valid_rollout_sinkhorn_pct": "sinkhorn_final_pct",
     "valid_rollout_runout_error_pct": "runout_error_pct",
+    "valid_rollout_extent_error_pct": "extent_error_pct",
+    "valid_rollout_height_error_pct": "height_error_pct",
 }
 """Tracked name -> :func:`rollout_metrics` key, each averaged over the validation rollouts."""
+
+DEPOSIT = "valid_rollout_deposit_error_pct"
+"""Mean over the validation rollouts of the mean of each one's final extent and height errors, %:
+the shape of the deposit a geotechnical user reads off, scene by scene. A final-cloud
+Sinkhorn error averaged over scenes is dominated by boxes full of sand that hardly move,
+and can be small while single columns stop too early or slide too far."""
 
 
 def validation_rollout_metrics(
@@ -39,10 +47,10 @@ def validation_rollout_metrics(
     """Mean rollout errors of ``simulator`` over ``trajectories`` (full length, from their first C frames).
 
     Scored as ``gns evaluate`` scores a learned model: a diverged rollout scores
-    ``inf`` in every metric, so it can never be the best. Runout is reported only
-    where the scene has granular particles.
+    ``inf`` in every metric, so it can never be the best. Runout, extent, height and
+    the deposit error (:data:`DEPOSIT`) are reported only where the scene has granular particles.
     """
-    totals: dict[str, list[float]] = {name: [] for name in METRICS}
+    totals: dict[str, list[float]] = {name: [] for name in (*METRICS, DEPOSIT)}
     measured = [m for m in load_registry().metrics() if m.name in METRICS.values()]
     for trajectory in trajectories:
         prediction = Prediction(learned_positions(simulator, trajectory, device))
@@ -50,8 +58,13 @@ def validation_rollout_metrics(
             prediction, trajectory, simulator.scene.history, metadata, granular_types=granular_types,
             kinematic_types=simulator.scene.kinematic_types, metrics=measured,
         )
+        found = {}
         for name, key in METRICS.items():
             value = metrics.get(key)
             if value is not None:
-                totals[name].append(float(value.item()))
+                found[name] = float(value.item())
+                totals[name].append(found[name])
+        shape = [found.get(f"valid_rollout_{part}_error_pct") for part in ("extent", "height")]
+        if None not in shape:
+            totals[DEPOSIT].append(float(np.mean(shape)))
     return {name: float(np.mean(values)) for name, values in totals.items() if values}

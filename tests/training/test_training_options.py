@@ -186,6 +186,10 @@ def test_validation_rolls_out_and_keeps_the_best_checkpoint(sand_dataset, tmp_pa
     for m in validations:
         assert m["valid_rollout_mse"] > 0 and m["valid_rollout_sinkhorn_pct"] >= 0
         assert "valid_rollout_runout_error_pct" in m
+        # The deposit error is each rollout's mean of extent and height errors, averaged: with both
+        # measured on every rollout, the mean of the two averages.
+        parts = (m["valid_rollout_extent_error_pct"], m["valid_rollout_height_error_pct"])
+        assert m["valid_rollout_deposit_error_pct"] == pytest.approx(sum(parts) / 2, rel=1e-9)
     best = json.loads((tmp_path / "checkpoints" / "best.json").read_text())
     scores = {m["step"]: m["valid_rollout_mse"] for m in validations}
     assert best["metric"] == "valid_rollout_mse" and best["step"] == min(scores, key=scores.get)
