@@ -18,7 +18,11 @@ class GnsError(Exception):
 
 
 class PluginError(GnsError):
-    """A plugin failed to load, clashes with another, or a component name is unknown."""
+    """A plugin is not a valid plugin, clashes with another, or a component name is unknown."""
+
+
+class PluginWarning(UserWarning):
+    """A plugin was skipped (it failed to load), or ``$GNS_DISABLE_PLUGINS`` names none; ``gns`` shows it as one line."""
 
 
 class RecipeError(GnsError):

@@ -1,9 +1,12 @@
 """Plugin discovery: a pluggy manager built by a factory, and the component registry.
 
 Plugins are found through the ``gns_framework`` entry-point group (built-ins
-included). Each is loaded explicitly so a failure names its entry point and
-distribution; every hook implementation is called once, on its own, so each
-component (and metric) is known with the plugin that provides it.
+included). Each is loaded explicitly: one that fails to load is skipped with one
+warning naming its entry point, distribution and exception, and named again by any
+error about a component that is then missing (it may have been that plugin's), so one
+broken plugin does not stop the commands that do not need it. Every hook
+implementation is called once, on its own, so each component (and metric) is known
+with the plugin that provides it.
 
 Importing this module loads no component contract (nor torch): the command line
 builds its command manager with :func:`make_plugin_manager` before any command runs.
@@ -25,11 +28,13 @@ from pydantic import BaseModel, ValidationError
 
 from . import hookspecs
 from .config.problems import problems_from
-from .errors import PluginError, RecipeError, did_you_mean
+from .errors import PluginError, PluginWarning, RecipeError, did_you_mean
 from .plugin_types import Metric
 from .specs import ComponentSpec
 
 ENTRY_POINT_GROUP = "gns_framework"
+COMMAND_GROUP = "gns_framework.commands"
+"""Entry-point group of plugins that add ``gns`` subcommands (:mod:`gns_framework.cli.commands`)."""
 DISABLE_ENV = "GNS_DISABLE_PLUGINS"
 """Comma-separated entry-point or distribution names to skip (``*`` skips every plugin)."""
 
@@ -57,6 +62,45 @@ class ComponentEntry:
         return f"plugin {self.plugin!r} ({self.distribution} {self.version})"
 
 
+@dataclass(frozen=True)
+class MetricEntry:
+    """A registered metric and where it comes from."""
+
+    metric: Metric
+    plugin: str
+    distribution: str
+    version: str
+
+    @property
+    def provider(self) -> str:
+        return f"plugin {self.plugin!r} ({self.distribution} {self.version})"
+
+
+@dataclass(frozen=True)
+class BrokenPlugin:
+    """An entry point that raised when it was loaded, so it was skipped.
+
+    Attributes:
+        entry_point: its name (what ``$GNS_DISABLE_PLUGINS`` takes).
+        value: the module it names.
+        distribution, version: the installed package that declares it.
+        error: the exception, ``"<type>: <first line of its message>"``.
+    """
+
+    entry_point: str
+    value: str
+    distribution: str
+    version: str
+    error: str
+
+    @property
+    def described(self) -> str:
+        return f"plugin entry point {self.entry_point!r} = {self.value!r} of distribution {self.distribution} {self.version}"
+
+    def __str__(self) -> str:
+        return f"{self.described}, which failed to load ({self.error})"
+
+
 def disable_one(first: ComponentEntry, second: ComponentEntry) -> str:
     """How to resolve a clash of two components: which plugins to uninstall or disable, and how."""
     return (
@@ -66,11 +110,21 @@ def disable_one(first: ComponentEntry, second: ComponentEntry) -> str:
 
 
 class Registry:
-    """Components by kind and name, and metrics by name. Built by :func:`load_registry`; immutable afterwards."""
+    """Components by kind and name, metrics by name, and the plugins that failed to load.
 
-    def __init__(self, entries: Iterable[ComponentEntry], metrics: Iterable[tuple[Metric, str]] = ()):
-        """``metrics``: (:class:`~gns_framework.plugin_types.Metric`, provider) pairs."""
+    Built by :func:`load_registry`; immutable afterwards.
+    """
+
+    def __init__(
+        self,
+        entries: Iterable[ComponentEntry],
+        metrics: Iterable[MetricEntry] = (),
+        broken: Iterable[BrokenPlugin] = (),
+    ):
         from .contracts import COMPONENT_KINDS
+
+        self.broken: tuple[BrokenPlugin, ...] = tuple(broken)
+        """Entry points skipped because they failed to load, named by errors about missing components."""
 
         self._entries: dict[str, dict[str, ComponentEntry]] = {kind: {} for kind in COMPONENT_KINDS}
         for entry in entries:
@@ -84,14 +138,16 @@ class Registry:
                 )
             of_kind[entry.name] = entry
         self._check_material_types()
-        self._metrics: dict[str, tuple[Metric, str]] = {}
-        for metric, provider in metrics:
-            if metric.name in self._metrics:
+        self._metrics: dict[str, MetricEntry] = {}
+        for entry in metrics:
+            name = entry.metric.name
+            if name in self._metrics:
                 raise PluginError(
-                    f"two metrics are named {metric.name!r}: from {self._metrics[metric.name][1]} and from {provider}; "
-                    f"uninstall one of them, or disable its plugin with the environment variable {DISABLE_ENV}"
+                    f"two metrics are named {name!r}: from {self._metrics[name].provider} and from "
+                    f"{entry.provider}; uninstall one of them, or disable its plugin with the environment "
+                    f"variable {DISABLE_ENV}"
                 )
-            self._metrics[metric.name] = (metric, provider)
+            self._metrics[name] = entry
 
     def _check_material_types(self) -> None:
         seen: dict[int, ComponentEntry] = {}
@@ -124,8 +180,18 @@ class Registry:
             choices = self.names(kind)
             raise PluginError(
                 f"unknown {kind} {name!r}{did_you_mean(name, choices)}; installed: "
-                f"{', '.join(choices) if choices else 'none'}"
+                f"{', '.join(choices) if choices else 'none'}{self.broken_note()}"
             ) from None
+
+    def broken_note(self) -> str:
+        """``"; it may be provided by <each broken plugin>"`` for errors about a missing component; empty when none is broken."""
+        if not self.broken:
+            return ""
+        return "; it may be provided by a plugin that was skipped: " + "; ".join(str(b) for b in self.broken)
+
+    def broken_of(self, distribution: str) -> list[BrokenPlugin]:
+        """The entry points of ``distribution`` that failed to load."""
+        return [b for b in self.broken if b.distribution == distribution]
 
     def get(self, kind: str, name: str) -> type:
         return self.entry(kind, name).cls
@@ -179,9 +245,13 @@ class Registry:
         if not self._metrics:
             raise PluginError(
                 "no metric is installed: the built-in ones come from the entry point builtin-metrics of "
-                "gns-framework (reinstall it: pip install -e .), and $GNS_DISABLE_PLUGINS may disable it"
+                f"gns-framework (reinstall it: pip install -e .), and $GNS_DISABLE_PLUGINS may disable it{self.broken_note()}"
             )
-        return [metric for metric, _ in self._metrics.values()]
+        return [entry.metric for entry in self._metrics.values()]
+
+    def metric_entries(self) -> list[MetricEntry]:
+        """Every installed metric with its provider, in the order the plugins were registered."""
+        return list(self._metrics.values())
 
     def version_of(self, kind: str, name: str) -> str:
         entry = self.entry(kind, name)
@@ -192,17 +262,29 @@ def _disabled_names() -> set[str]:
     return {n.strip() for n in os.environ.get(DISABLE_ENV, "").split(",") if n.strip()}
 
 
-def _warn_unmatched(disabled: set[str], entry_points: Iterable[importlib.metadata.EntryPoint]) -> None:
-    """Warn about each name in ``$GNS_DISABLE_PLUGINS`` that is neither an entry point nor a distribution."""
-    entry_names = sorted({ep.name for ep in entry_points})
-    distributions = sorted({_distribution_of(ep)[0] for ep in entry_points})
-    for name in sorted(disabled - set(entry_names) - set(distributions)):
-        warnings.warn(
-            f"{DISABLE_ENV}: {name!r} names no installed plugin{did_you_mean(name, entry_names + distributions)}, "
-            f"so nothing was disabled for it; entry points: {', '.join(entry_names)}; "
-            f"distributions: {', '.join(distributions)}",
-            stacklevel=3,
-        )
+def _warn_unmatched(disabled: set[str]) -> None:
+    """One warning naming every name in ``$GNS_DISABLE_PLUGINS`` that is neither an entry point nor a distribution.
+
+    The names a user can give are those of both groups (components and commands),
+    listed with their distributions.
+    """
+    installed: dict[str, set[str]] = {}
+    for group in (ENTRY_POINT_GROUP, COMMAND_GROUP):
+        for ep in importlib.metadata.entry_points(group=group):
+            installed.setdefault(_distribution_of(ep)[0], set()).add(ep.name)
+    names = sorted(set(installed) | {name for eps in installed.values() for name in eps})
+    unmatched = sorted(disabled - set(names))
+    if not unmatched:
+        return
+    listed = "; ".join(f"{dist}: {', '.join(sorted(eps))}" for dist, eps in sorted(installed.items()))
+    warnings.warn(
+        f"{DISABLE_ENV}: {', '.join(f'{n!r}{did_you_mean(n, names)}' for n in unmatched)} "
+        f"{'names' if len(unmatched) == 1 else 'name'} no installed plugin, so nothing was disabled for "
+        f"{'it' if len(unmatched) == 1 else 'them'}; installed plugins (a distribution, then its entry points; "
+        f"either name disables): {listed or 'none'}",
+        PluginWarning,
+        stacklevel=4,
+    )
 
 
 def _distribution_of(ep: importlib.metadata.EntryPoint) -> tuple[str, str]:
@@ -214,8 +296,11 @@ def _distribution_of(ep: importlib.metadata.EntryPoint) -> tuple[str, str]:
 
 def make_plugin_manager(
     load_entry_points: bool = True, plugins: Iterable[tuple[str, object]] = (), group: str = ENTRY_POINT_GROUP
-) -> tuple[pluggy.PluginManager, dict[str, tuple[str, str]]]:
+) -> tuple[pluggy.PluginManager, dict[str, tuple[str, str]], list[BrokenPlugin]]:
     """Build a fresh plugin manager (never a shared singleton).
+
+    An entry point that raises when loaded is skipped with one :class:`PluginWarning`
+    and returned among the broken ones; the caller names it where a component is missing.
 
     Args:
         load_entry_points: load every plugin of the entry-point ``group``,
@@ -224,32 +309,39 @@ def make_plugin_manager(
         group: ``gns_framework`` (components and metrics) or ``gns_framework.commands``.
 
     Returns:
-        The manager and, per registered plugin name, its ``(distribution, version)``.
+        The manager; per registered plugin name, its ``(distribution, version)``; the
+        entry points that failed to load.
     """
     pm = pluggy.PluginManager(hookspecs.PROJECT)
     pm.add_hookspecs(hookspecs)
     origin: dict[str, tuple[str, str]] = {}
+    broken: list[BrokenPlugin] = []
     disabled = _disabled_names()
     if load_entry_points and "*" not in disabled:
-        entry_points = importlib.metadata.entry_points(group=group)
-        _warn_unmatched(disabled, entry_points)
-        for ep in entry_points:
+        if group == ENTRY_POINT_GROUP:  # the commands' manager is built in the same process: warn once
+            _warn_unmatched(disabled)
+        for ep in importlib.metadata.entry_points(group=group):
             dist, version = _distribution_of(ep)
             if ep.name in disabled or dist in disabled or pm.has_plugin(ep.name):
                 continue
             try:
                 plugin = ep.load()
             except Exception as exc:
-                raise PluginError(
-                    f"plugin entry point {ep.name!r} = {ep.value!r} of distribution {dist} {version} "
-                    f"failed to load: {type(exc).__name__}: {exc}. Disable it with {DISABLE_ENV}={ep.name}"
-                ) from exc
+                message = str(exc).splitlines()[0] if str(exc) else ""
+                broken.append(BrokenPlugin(ep.name, ep.value, dist, version, f"{type(exc).__name__}: {message}"))
+                warnings.warn(
+                    f"{broken[-1].described} failed to load and was skipped: {broken[-1].error}; "
+                    f"disable it with {DISABLE_ENV}={ep.name}",
+                    PluginWarning,
+                    stacklevel=3,
+                )
+                continue
             _register(pm, ep.name, plugin, f"entry point {ep.name!r} of distribution {dist} {version}")
             origin[ep.name] = (dist, version)
     for name, plugin in plugins:
         _register(pm, name, plugin, f"plugin {name!r}")
         origin[name] = ("<registered in process>", "-")
-    return pm, origin
+    return pm, origin, broken
 
 
 def _register(pm: pluggy.PluginManager, name: str, plugin: object, described: str) -> None:
@@ -263,8 +355,10 @@ def _register(pm: pluggy.PluginManager, name: str, plugin: object, described: st
         raise PluginError(f"{described} implements an unknown hook: {exc}") from exc
 
 
-def collect_components(pm: pluggy.PluginManager, origin: dict[str, tuple[str, str]]) -> Registry:
-    """Call every hook implementation once and build the registry from what it returns."""
+def collect_components(
+    pm: pluggy.PluginManager, origin: dict[str, tuple[str, str]], broken: Iterable[BrokenPlugin] = ()
+) -> Registry:
+    """Call every hook implementation once and build the registry from what it returns (and the ``broken`` plugins)."""
     from .contracts import COMPONENT_KINDS
 
     entries: list[ComponentEntry] = []
@@ -280,12 +374,13 @@ def collect_components(pm: pluggy.PluginManager, origin: dict[str, tuple[str, st
                 dist, version = origin.get(impl.plugin_name, ("<unknown distribution>", "?"))
                 entries.append(ComponentEntry(kind, name, cls, impl.plugin_name, dist, version))
     metrics = []
-    for _, where, records in hook_results(pm, origin, "gns_metrics"):
+    for impl, where, records in hook_results(pm, origin, "gns_metrics"):
         for metric in records:
             if not isinstance(metric, Metric):
                 raise PluginError(f"{where} returned {metric!r}, which is not a gns_framework.plugin_types.Metric")
-            metrics.append((metric, where))
-    return Registry(entries, metrics)
+            dist, version = origin.get(impl.plugin_name, ("<unknown distribution>", "?"))
+            metrics.append(MetricEntry(metric, impl.plugin_name, dist, version))
+    return Registry(entries, metrics, broken)
 
 
 def hook_results(
@@ -307,6 +402,5 @@ def hook_results(
 
 
 def load_registry(load_entry_points: bool = True, plugins: Iterable[tuple[str, object]] = ()) -> Registry:
-    """Discover installed plugins (plus ``plugins``) and return their components."""
-    pm, origin = make_plugin_manager(load_entry_points, plugins)
-    return collect_components(pm, origin)
+    """Discover installed plugins (plus ``plugins``) and return their components; broken plugins are skipped."""
+    return collect_components(*make_plugin_manager(load_entry_points, plugins))

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import sys
 import textwrap
+import warnings
 
 import pytest
 
 from gns_framework.contracts import COMPONENT_KINDS, Params, Processor
-from gns_framework.errors import PluginError
+from gns_framework.errors import PluginError, PluginWarning
 from gns_framework.hookspecs import hookimpl
 from gns_framework.plugins import DISABLE_ENV, load_registry
 
@@ -119,34 +120,79 @@ def broken_distribution(tmp_path, monkeypatch):
     sys.modules.pop("broken_gns_module", None)
 
 
-def test_broken_plugin_error_names_entry_point_and_distribution(broken_distribution):
+def test_a_broken_plugin_is_skipped_with_one_warning_naming_it(broken_distribution):
+    with pytest.warns(PluginWarning) as caught:
+        registry = load_registry()
+    (warning,) = [w for w in caught if issubclass(w.category, PluginWarning)]
+    message = str(warning.message)
+    assert "entry point 'broken' = 'broken_gns_module' of distribution broken-gns-plugin 1.2.3" in message
+    assert "failed to load and was skipped: ImportError: missing dependency xyz" in message
+    assert f"{DISABLE_ENV}=broken" in message and "\n" not in message
+    assert "interaction_network" in registry.names("processor")  # the other plugins still load
+    assert [b.entry_point for b in registry.broken] == ["broken"]
+    assert registry.broken_of("broken-gns-plugin") == list(registry.broken) and registry.broken_of("gns-framework") == []
+
+
+def test_a_missing_component_names_the_broken_plugin_that_may_provide_it(broken_distribution):
+    from gns_framework.errors import RecipeError
+
+    with pytest.warns(PluginWarning):
+        registry = load_registry()
+    with pytest.raises(RecipeError) as info:
+        registry.resolve("processor", {"name": "broken_processor"}, ("model", "processor"), "recipe.yaml")
+    (location, message), = info.value.problems
+    assert location == "model.processor.name" and message.startswith("unknown processor 'broken_processor'")
+    assert "it may be provided by a plugin that was skipped: plugin entry point 'broken'" in message
+    assert "broken-gns-plugin 1.2.3, which failed to load (ImportError: missing dependency xyz)" in message
+
+
+def test_a_registry_without_broken_plugins_adds_no_note(registry):
     with pytest.raises(PluginError) as info:
-        load_registry()
-    message = str(info.value)
-    assert "'broken'" in message and "broken-gns-plugin 1.2.3" in message
-    assert "missing dependency xyz" in message
-    assert DISABLE_ENV in message
+        registry.get("processor", "nothing_like_it")
+    assert "skipped" not in str(info.value) and registry.broken == ()
 
 
 def test_environment_variable_disables_plugins(broken_distribution, monkeypatch):
     monkeypatch.setenv(DISABLE_ENV, "broken,builtin-materials")
-    registry = load_registry()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PluginWarning)  # the broken plugin is never loaded, so never warned about
+        registry = load_registry()
     # Installed third-party materials (the example clay) stay; the built-in ones are gone.
     assert all(entry.plugin != "builtin-materials" for entry in registry.entries("material"))
     assert "interaction_network" in registry.names("processor")
 
 
-def test_disabling_a_name_that_matches_no_plugin_warns_with_the_names_that_exist(monkeypatch):
-    monkeypatch.setenv(DISABLE_ENV, "builtin-material,builtin-encoders")
-    with pytest.warns(UserWarning) as caught:
+def test_disabling_a_name_that_matches_no_plugin_warns_once_with_the_names_that_exist(monkeypatch):
+    from gns_framework.cli.commands import load_commands
+
+    monkeypatch.setenv(DISABLE_ENV, "builtin-material,builtin-encoders,gns-frame")
+    with pytest.warns(PluginWarning) as caught:
+        load_commands()  # gns builds the commands' manager too, in the same process: it does not warn again
         registry = load_registry()
-    messages = [str(w.message) for w in caught if DISABLE_ENV in str(w.message)]
+    messages = [str(w.message) for w in caught if issubclass(w.category, PluginWarning)]
     assert len(messages) == 1, messages  # builtin-encoders exists and is disabled without a word
-    assert "'builtin-material' names no installed plugin (did you mean 'builtin-materials'?)" in messages[0]
-    entry_points, distributions = messages[0].split("entry points: ")[1].split("; distributions: ")
-    assert {"builtin-materials", "builtin-processors", "example-clay"} <= set(entry_points.split(", "))
-    assert {"gns-framework", "gns-example-clay"} <= set(distributions.split(", "))
+    message = messages[0]
+    assert message.startswith(
+        f"{DISABLE_ENV}: 'builtin-material' (did you mean 'builtin-materials'?), 'gns-frame' (did you mean "
+        "'gns-framework'?) name no installed plugin, so nothing was disabled for them; installed plugins"
+    )
+    listed = dict(item.split(": ", 1) for item in message.split("either name disables): ")[1].split("; "))
+    assert {"builtin-materials", "builtin-processors", "builtin-metrics"} <= set(listed["gns-framework"].split(", "))
+    assert listed["gns-example-clay"] == "example-clay"
     assert "water" in registry.names("material") and registry.names("encoder") == []
+
+
+def test_a_command_plugin_can_be_disabled_without_a_warning(tmp_path, monkeypatch):
+    """Its name is an entry point of the commands' group only; the components' manager knows it too."""
+    dist = tmp_path / "sieve_commands-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: sieve-commands\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[gns_framework.commands]\nsieve = sieve_commands_module\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv(DISABLE_ENV, "sieve")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PluginWarning)
+        load_registry()
 
 
 def test_registries_are_independent():

@@ -10,10 +10,12 @@ plugin adds one the same way. Its module defines ``add_arguments(parser)`` and
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import sys
+import warnings
 
-from ..errors import GnsError
+from ..errors import GnsError, PluginWarning
 from ..plugin_types import Command
 from .commands import load_commands
 
@@ -49,9 +51,26 @@ def _version() -> str:
     return __version__
 
 
+def _show_warning(default, message, category, filename, lineno, file=None, line=None) -> None:
+    """A :class:`~gns_framework.errors.PluginWarning` as one ``gns: warning:`` line; others as ``default`` shows them.
+
+    A plugin warning is about the installation, not about the line of code that
+    loaded the plugins, so the file, line and source Python adds would only hide it.
+    """
+    if issubclass(category, PluginWarning):
+        print(f"gns: warning: {message}", file=sys.stderr if file is None else file)
+    else:
+        default(message, category, filename, lineno, file, line)
+
+
 def main(argv: list[str] | None = None, commands: dict[str, Command] | None = None) -> int:
     """Run ``gns`` with ``argv``; ``commands`` as in :func:`build_parser`. Returns the exit status."""
-    argv = list(sys.argv[1:] if argv is None else argv)
+    with warnings.catch_warnings():
+        warnings.showwarning = functools.partial(_show_warning, warnings.showwarning)
+        return _run(list(sys.argv[1:] if argv is None else argv), commands)
+
+
+def _run(argv: list[str], commands: dict[str, Command] | None) -> int:
     try:
         commands = load_commands() if commands is None else commands
     except GnsError as exc:

@@ -14,10 +14,7 @@ from collections.abc import Iterable
 from ..errors import PluginError
 from ..hookspecs import hookimpl
 from ..plugin_types import Command
-from ..plugins import DISABLE_ENV, hook_results, make_plugin_manager
-
-COMMAND_GROUP = "gns_framework.commands"
-"""Entry-point group of plugins that add ``gns`` subcommands."""
+from ..plugins import COMMAND_GROUP, DISABLE_ENV, hook_results, make_plugin_manager
 
 BUILTIN_COMMANDS = (
     Command(
@@ -82,7 +79,7 @@ def load_commands(load_entry_points: bool = True, plugins: Iterable[tuple[str, o
         plugins: extra ``(name, module_or_object)`` command plugins (tests, embedding).
     """
     builtin = [("builtin-commands", sys.modules[__name__])]
-    pm, origin = make_plugin_manager(load_entry_points, [*builtin, *plugins], group=COMMAND_GROUP)
+    pm, origin, _ = make_plugin_manager(load_entry_points, [*builtin, *plugins], group=COMMAND_GROUP)
     origin["builtin-commands"] = ("gns-framework", "built in")
     commands: dict[str, Command] = {}
     provider: dict[str, str] = {}

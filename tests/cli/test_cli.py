@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -194,3 +195,23 @@ def test_a_plugin_adds_a_command_that_help_lists_and_gns_runs(tmp_path, monkeypa
 
     with pytest.raises(PluginError, match="two gns commands are named 'train'.*clash-plugin"):
         load_commands(plugins=[("clash-plugin", ClashingPlugin)])
+
+
+def test_a_broken_plugin_and_a_mistyped_disable_name_are_one_warning_line_each(tmp_path):
+    """gns runs on without the broken plugin; each warning is one line, not Python's file, line and source."""
+    dist = tmp_path / "broken_gns_plugin-1.2.3.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: broken-gns-plugin\nVersion: 1.2.3\n")
+    (dist / "entry_points.txt").write_text("[gns_framework]\nbroken = broken_gns_module\n")
+    (tmp_path / "broken_gns_module.py").write_text("raise ImportError('missing dependency xyz')\n")
+    env = {**os.environ, "PYTHONPATH": str(tmp_path), "GNS_DISABLE_PLUGINS": "exmple-clay"}
+    result = subprocess.run([sys.executable, "-m", "gns_framework.cli", "plugins", "--kind", "processor"],
+                            capture_output=True, text=True, env=env, timeout=600)
+    assert result.returncode == 0 and "interaction_network" in result.stdout
+    lines = result.stderr.splitlines()
+    assert len(lines) == 2, result.stderr
+    disabled, = [line for line in lines if "GNS_DISABLE_PLUGINS:" in line]
+    assert disabled.startswith("gns: warning: GNS_DISABLE_PLUGINS: 'exmple-clay' (did you mean 'example-clay'?)")
+    broken, = [line for line in lines if "'broken'" in line]
+    assert broken.startswith("gns: warning: plugin entry point 'broken' = 'broken_gns_module' of distribution "
+                             "broken-gns-plugin 1.2.3 failed to load and was skipped: ImportError: missing dependency xyz")
