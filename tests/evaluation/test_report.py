@@ -10,7 +10,7 @@ import torch
 from PIL import Image
 
 from gns_framework.data.trajectory import Trajectory
-from gns_framework.evaluation.report import Candidate, Prediction, evaluate, score_rollout, write_report
+from gns_framework.evaluation.report import Candidate, Prediction, case_range, evaluate, score_rollout, write_report
 from gns_framework.hookspecs import hookimpl
 from gns_framework.io.rollout_file import load_rollout
 from gns_framework.plugin_types import Metric
@@ -183,6 +183,9 @@ def test_each_case_is_reported_and_the_spread_stated(report, tmp_path):
     line = next(l for l in paths["markdown"].read_text().splitlines() if l.startswith("- gns:"))
     worst = max(per_case)
     assert f"runout_error_pct {np.median(per_case):.3g} / {worst:.3g}" in line
+    # The error-vs-time plot's bars run over the same cases.
+    assert case_range(gns, "runout_error_pct") == pytest.approx((min(per_case), max(per_case)))
+    assert case_range(gns, "no such metric") is None
 
 
 def test_rollouts_of_the_same_particles_are_saved_for_rendering(report, tmp_path):
