@@ -61,6 +61,11 @@ class ComponentEntry:
     def provider(self) -> str:
         return f"plugin {self.plugin!r} ({self.distribution} {self.version})"
 
+    @property
+    def record(self) -> dict[str, str]:
+        """Where it comes from, as a checkpoint stores it: ``{"distribution", "version", "plugin"}``."""
+        return {"distribution": self.distribution, "version": self.version, "plugin": self.plugin}
+
 
 @dataclass(frozen=True)
 class MetricEntry:
@@ -252,10 +257,6 @@ class Registry:
     def metric_entries(self) -> list[MetricEntry]:
         """Every installed metric with its provider, in the order the plugins were registered."""
         return list(self._metrics.values())
-
-    def version_of(self, kind: str, name: str) -> str:
-        entry = self.entry(kind, name)
-        return f"{entry.distribution} {entry.version}"
 
 
 def _disabled_names() -> set[str]:

@@ -67,11 +67,15 @@ def build_learned_simulator(
     )
 
 
-def plugin_versions(recipe: Recipe, registry: Registry, scene: Scene) -> dict[str, str]:
-    """``kind/name -> distribution version`` of every component the recipe uses and of the installed
-    materials of the scene's particle types (an imported model may have types no material is installed for)."""
+def plugin_versions(recipe: Recipe, registry: Registry, scene: Scene) -> dict[str, dict[str, str]]:
+    """``kind/name -> {"distribution", "version", "plugin"}`` of every component the recipe uses and of the
+    installed materials of the scene's particle types (an imported model may have types no material is installed for).
+
+    Checkpoints store it as ``plugins``, so loading one where a component is missing
+    says which distribution, at which version, to install (:mod:`.trained`).
+    """
     model = recipe.model
     named = [(kind, getattr(model, kind).name) for kind in COMPONENT_SECTIONS]
     named.append(("dataset", recipe.dataset.name))
     named += [("material", e.name) for e in registry.entries("material") if e.cls.particle_type in scene.particle_types]
-    return {f"{kind}/{name}": registry.version_of(kind, name) for kind, name in named}
+    return {f"{kind}/{name}": registry.entry(kind, name).record for kind, name in named}

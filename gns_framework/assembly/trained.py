@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import importlib.metadata
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -13,7 +15,7 @@ from ..errors import CheckpointError
 from ..io.checkpoint import load_checkpoint
 from ..model.envelope import Envelope
 from ..model.learned_simulator import LearnedSimulator
-from ..plugins import Registry
+from ..plugins import DISABLE_ENV, Registry
 from ..runtime.deterministic import set_deterministic_sums
 from .learned import build_learned_simulator
 from .scene import scene_from_dict
@@ -34,7 +36,9 @@ def load_trained(path: str | Path, registry: Registry, device: torch.device | st
     """The simulator stored in a checkpoint, with the recipe and metadata it was trained with."""
     path = Path(path)
     state = load_checkpoint(path, map_location="cpu")
-    # A component that is not installed is a located problem of the stored recipe (RecipeError).
+    require_components(path, state["plugins"], registry)
+    # A component that is not installed and not recorded with its distribution (older checkpoints)
+    # is a located problem of the stored recipe (RecipeError).
     recipe = validate_recipe(without_pickle_grant(state["recipe"]), registry, f"{path} (stored recipe)")
     # Rollouts sum at nodes the way the model trained (on GPUs: ordered or atomic).
     set_deterministic_sums(recipe.training.deterministic)
@@ -57,3 +61,44 @@ def load_trained(path: str | Path, registry: Registry, device: torch.device | st
         except (TypeError, KeyError, ValueError, AttributeError) as exc:
             raise CheckpointError(f"{path}: envelope: not an envelope record ({type(exc).__name__}: {exc})") from None
     return LoadedModel(simulator.to(device), recipe, metadata, int(state["step"]), path, envelope)
+
+
+def require_components(path: Path, record: Mapping, registry: Registry) -> None:
+    """Refuse a checkpoint whose recorded components are not all installed, saying what to install.
+
+    ``record`` is the checkpoint's ``plugins``, ``kind/name -> {"distribution", "version",
+    "plugin"}`` (:func:`~gns_framework.assembly.learned.plugin_versions`). Left to the stored
+    recipe's validation: entries recorded as one ``"distribution version"`` string (checkpoints
+    written before), and components registered in process, which no distribution installs.
+
+    Raises:
+        CheckpointError: ``<path>: plugins: needs <kind> '<name>' from distribution '<dist>' <version>, ...``
+            for each missing one, with the ``pip install`` that brings it, or the plugin of
+            that distribution that failed to load.
+    """
+    problems = []
+    for key, source in record.items():
+        kind, _, name = str(key).partition("/")
+        if not isinstance(source, Mapping) or kind not in registry.kinds() or name in registry.names(kind):
+            continue
+        distribution, version = source.get("distribution"), source.get("version")
+        if not (isinstance(distribution, str) and isinstance(version, str)) or distribution.startswith("<"):
+            continue
+        problems.append(_what_to_install(kind, name, distribution, version, registry))
+    if problems:
+        raise CheckpointError(f"{path}: plugins: {'; '.join(problems)}")
+
+
+def _what_to_install(kind: str, name: str, distribution: str, version: str, registry: Registry) -> str:
+    needs = f"needs {kind} {name!r} from distribution {distribution!r} {version}"
+    pin = f"pip install {distribution}=={version}"
+    if broken := registry.broken_of(distribution):
+        skipped = "; ".join(f"plugin entry point {b.entry_point!r} = {b.value!r} ({b.error})" for b in broken)
+        return f"{needs}, whose plugin failed to load and was skipped: {skipped}"
+    try:
+        installed = importlib.metadata.version(distribution)
+    except importlib.metadata.PackageNotFoundError:
+        return f"{needs}, which is not installed: {pin}"
+    if installed != version:
+        return f"{needs}; {installed} is installed, which has no {kind} {name!r}: {pin}"
+    return f"{needs}, which is installed but does not provide it now: is its plugin disabled in ${DISABLE_ENV}?"

@@ -1,8 +1,10 @@
 """Checkpoints: written atomically, verified and loaded with ``weights_only=True``, self-describing, never lost.
 
 A checkpoint holds the model, optimizer and schedule state, the step, RNG states,
-the resolved recipe, the scene, the dataset metadata and the plugin versions, so a
-run can be rebuilt and resumed exactly without the recipe file.
+the resolved recipe, the scene, the dataset metadata and, per component, the
+distribution and version that provided it (``plugins``), so a run can be rebuilt and
+resumed exactly without the recipe file, and a missing component named with the
+``pip install`` that brings it back.
 
 A checkpoint is a zip archive (``torch.save``) whose every record carries a CRC-32,
 and save_checkpoint adds one record more, the SHA-256 of all the others. torch.load

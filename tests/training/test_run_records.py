@@ -36,10 +36,10 @@ def test_plugin_record_names_the_materials(dataset_multimaterial, tmp_path, regi
     trainer = Trainer(tiny_recipe(dataset_multimaterial, registry), registry, run_dir=tmp_path, progress=False)
     trainer.train(1)
     trainer.close()
-    version = registry.version_of("material", "sand")
+    sand = registry.entry("material", "sand")
     for record in (json.loads((tmp_path / "params.json").read_text())["plugins"], trainer.state()["plugins"]):
         assert {k for k in record if k.startswith("material/")} == {"material/rigid", "material/water", "material/sand"}
-        assert record["material/sand"] == version
+        assert record["material/sand"] == {"distribution": "gns-framework", "version": sand.version, "plugin": sand.plugin}
 
 
 @pytest.mark.parametrize("valid", [None, 0])
