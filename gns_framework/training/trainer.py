@@ -485,6 +485,7 @@ class Trainer:
         unread: list[tuple[int, Tensor]] = []
         self.simulator.train()
         checkpoint = None
+        started, first_step, told = time.perf_counter(), self.step, False
         while self.step < total:
             if window_started is None:
                 synchronize(self.device)
@@ -515,6 +516,10 @@ class Trainer:
                 metrics.update(self.validate())
                 if self.keep_if_best(metrics) is not None:
                     metrics["best_step"] = self.step
+            if (validates or (logs and not told)) and not self.progress and self.processes.is_chief and self.step < total:
+                # Without a progress bar, a background run still says how long it has to go.
+                print(time_to_go(self.step, total, self.step - first_step, time.perf_counter() - started), flush=True)
+                told = True
             if metrics and self.tracker is not None:
                 self.tracker.log_metrics(metrics, self.step)
             if saves:
@@ -542,6 +547,21 @@ class Trainer:
     def close(self, failed: bool = False) -> None:
         if self.tracker is not None:
             self.tracker.close(failed)
+
+
+def time_to_go(step: int, total: int, done: int, seconds: float) -> str:
+    """``step 100 of 40000, 2.31 steps/s: about 4 h 48 min to go``, at the pace since this run (re)started.
+
+    The pace counts everything the loop does (validations and checkpoints too), so it
+    is what the clock will show.
+    """
+    if done < 1 or seconds <= 0:
+        return f"step {step} of {total}"
+    pace = done / seconds
+    left = (total - step) / pace
+    minutes = round(left / 60)
+    span = f"{minutes // 60} h {minutes % 60} min" if minutes >= 60 else f"{max(minutes, 1)} min"
+    return f"step {step} of {total}, {pace:.3g} steps/s: about {span} to go"
 
 
 def synchronize(device: torch.device) -> None:

@@ -62,12 +62,15 @@ def test_bad_arguments_exit_2_with_a_message(tmp_path):
 
 def test_train_resume_rollout_render(dataset_multimaterial, tmp_path):
     recipe = tmp_path / "tiny.yaml"
-    recipe.write_text(yaml.safe_dump(tiny_recipe_mapping(dataset_multimaterial, tmp_path / "run")))
+    raw = tiny_recipe_mapping(dataset_multimaterial, tmp_path / "run")
+    raw["training"]["log_every"] = 2
+    recipe.write_text(yaml.safe_dump(raw))
     first = gns("train", str(recipe), "--steps", "3", "--no-progress")
     assert first.returncode == 0, first.stderr
     resumed = gns("train", str(recipe), "--steps", "5", "--resume", "--no-progress")
     assert resumed.returncode == 0, resumed.stderr
     assert "resumed from" in resumed.stdout and "to step 5" in resumed.stdout
+    assert "step 4 of 5" in resumed.stdout and "to go" in resumed.stdout, "without a bar, the run says how long is left"
     checkpoint = tmp_path / "run" / "checkpoints" / "checkpoint-000000005.pt"
     # Trained for 5 steps on 3 trajectories, the model's envelope is narrow: the test split's friction lies outside.
     refused = gns("rollout", str(checkpoint), "--steps", "4", "--out", str(tmp_path / "rollouts"), "--no-progress")
