@@ -241,6 +241,13 @@ class Registry:
         known = ", ".join(f"{e.cls.particle_type}={e.name}" for e in self.entries("material"))
         raise PluginError(f"no installed material has particle type {particle_type}; installed: {known}")
 
+    def free_particle_types(self) -> list[int]:
+        """The valid particle-type ids (``contracts.PARTICLE_TYPE_IDS``) no installed material has: a new material takes one."""
+        from .contracts import PARTICLE_TYPE_IDS
+
+        taken = {e.cls.particle_type for e in self.entries("material")}
+        return [i for i in PARTICLE_TYPE_IDS if i not in taken]
+
     def kinematic_types(self) -> tuple[int, ...]:
         """Particle-type ids of the installed kinematic materials (prescribed, never predicted)."""
         return tuple(sorted(e.cls.particle_type for e in self.entries("material") if e.cls.kinematic))

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Iterable
+from dataclasses import dataclass
 
+from .. import __version__
 from ..errors import PluginError
 from ..hookspecs import hookimpl
 from ..plugin_types import Command
@@ -22,7 +24,11 @@ BUILTIN_COMMANDS = (
         "roll the pretrained model out on sand collapses it never saw, train a short model, report error vs run time",
         "gns_framework.cli.demo",
     ),
-    Command("plugins", "list installed components by kind, with their source and distribution", "gns_framework.cli.plugins"),
+    Command(
+        "plugins",
+        "list installed components, metrics and commands with their source and distribution, and the free particle types",
+        "gns_framework.cli.plugins",
+    ),
     Command("check", "validate recipes and report every problem at once", "gns_framework.cli.check"),
     Command("train", "train a learned simulator from a recipe", "gns_framework.cli.train"),
     Command("rollout", "roll a trained simulator out on a dataset split", "gns_framework.cli.rollout"),
@@ -71,6 +77,16 @@ def gns_commands() -> list[Command]:
     return list(BUILTIN_COMMANDS)
 
 
+@dataclass(frozen=True)
+class CommandEntry:
+    """A ``gns`` subcommand and the plugin that provides it."""
+
+    command: Command
+    plugin: str
+    distribution: str
+    version: str
+
+
 def load_commands(load_entry_points: bool = True, plugins: Iterable[tuple[str, object]] = ()) -> dict[str, Command]:
     """Every ``gns`` subcommand by name: the built-in ones, then those of command plugins.
 
@@ -78,22 +94,25 @@ def load_commands(load_entry_points: bool = True, plugins: Iterable[tuple[str, o
         load_entry_points: load the plugins of the ``gns_framework.commands`` group.
         plugins: extra ``(name, module_or_object)`` command plugins (tests, embedding).
     """
+    return {entry.command.name: entry.command for entry in command_entries(load_entry_points, plugins)}
+
+
+def command_entries(load_entry_points: bool = True, plugins: Iterable[tuple[str, object]] = ()) -> list[CommandEntry]:
+    """Every ``gns`` subcommand with its provider, as :func:`load_commands` orders them; two of one name are an error."""
     builtin = [("builtin-commands", sys.modules[__name__])]
     pm, origin, _ = make_plugin_manager(load_entry_points, [*builtin, *plugins], group=COMMAND_GROUP)
-    origin["builtin-commands"] = ("gns-framework", "built in")
-    commands: dict[str, Command] = {}
-    provider: dict[str, str] = {}
+    origin["builtin-commands"] = ("gns-framework", __version__)
+    entries: dict[str, tuple[CommandEntry, str]] = {}
     results = hook_results(pm, origin, "gns_commands")
     results.sort(key=lambda result: result[0].plugin_name != "builtin-commands")  # built-ins first, in --help too
-    for _, where, records in results:
+    for impl, where, records in results:
         for command in records:
             if not isinstance(command, Command):
                 raise PluginError(f"{where} returned {command!r}, which is not a gns_framework.plugin_types.Command")
-            if command.name in commands:
+            if command.name in entries:
                 raise PluginError(
-                    f"two gns commands are named {command.name!r}: from {provider[command.name]} and from {where}; "
+                    f"two gns commands are named {command.name!r}: from {entries[command.name][1]} and from {where}; "
                     f"uninstall one of them, or disable its plugin with the environment variable {DISABLE_ENV}"
                 )
-            commands[command.name] = command
-            provider[command.name] = where
-    return commands
+            entries[command.name] = (CommandEntry(command, impl.plugin_name, *origin[impl.plugin_name]), where)
+    return [entry for entry, _ in entries.values()]

@@ -1,39 +1,123 @@
-"""``gns plugins``: every installed component by kind, with its source file and distribution."""
+"""``gns plugins``: what the installed plugins provide, each with its source and distribution.
+
+Components by kind, metrics and commands, then the particle-type ids the materials
+take and those still free, so a new material's author picks one without reading
+any source.
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import inspect
 import json
 
 from ..contracts import COMPONENT_KINDS
-from ..plugins import load_registry
+from ..plugins import ComponentEntry, MetricEntry, Registry, load_registry
+from .commands import CommandEntry, command_entries
+
+KINDS = [*COMPONENT_KINDS, "metric", "command"]
+COLUMNS = ("kind", "name", "distribution", "plugin", "source")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--kind", choices=list(COMPONENT_KINDS), help="only this kind")
-    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    parser.add_argument("--kind", choices=KINDS, help="only this kind (a component kind, metric or command)")
+    parser.add_argument("--json", action="store_true", help="print JSON rows instead of tables")
 
 
 def run(args: argparse.Namespace) -> int:
     registry = load_registry()
-    entries = registry.entries(args.kind)
-    rows = [
-        {
-            "kind": e.kind,
-            "name": e.name,
-            "class": f"{e.cls.__module__}.{e.cls.__qualname__}",
-            "source": e.source_file,
-            "plugin": e.plugin,
-            "distribution": f"{e.distribution} {e.version}",
-        }
-        for e in entries
-    ]
+    kinds = [args.kind] if args.kind else KINDS
+    rows = [_component_row(e) for kind in kinds if kind in COMPONENT_KINDS for e in registry.entries(kind)]
+    if "metric" in kinds:
+        rows += [_metric_row(e) for e in registry.metric_entries()]
+    if "command" in kinds:
+        rows += [_command_row(e) for e in command_entries()]
     if args.json:
         print(json.dumps(rows, indent=2))
         return 0
-    columns = ("kind", "name", "distribution", "plugin", "source")
-    widths = {c: max(len(c), *(len(r[c]) for r in rows)) for c in columns} if rows else {c: len(c) for c in columns}
-    print("  ".join(c.upper().ljust(widths[c]) for c in columns))
-    for row in rows:
-        print("  ".join(row[c].ljust(widths[c]) for c in columns))
+    print(_table(rows, COLUMNS))
+    if "material" in kinds:
+        print()
+        print(_particle_types(registry))
     return 0
+
+
+def _component_row(entry: ComponentEntry) -> dict:
+    row = {
+        "kind": entry.kind,
+        "name": entry.name,
+        "class": f"{entry.cls.__module__}.{entry.cls.__qualname__}",
+        "source": entry.source_file,
+        "plugin": entry.plugin,
+        "distribution": f"{entry.distribution} {entry.version}",
+    }
+    if entry.kind == "material":
+        row.update(particle_type=entry.cls.particle_type, kinematic=entry.cls.kinematic)
+    return row
+
+
+def _metric_row(entry: MetricEntry) -> dict:
+    try:
+        source = inspect.getsourcefile(entry.metric.function) or "<unknown>"
+    except TypeError:  # a callable object or partial: no file of its own
+        source = "<unknown>"
+    return {
+        "kind": "metric",
+        "name": entry.metric.name,
+        "unit": entry.metric.unit,
+        "source": source,
+        "plugin": entry.plugin,
+        "distribution": f"{entry.distribution} {entry.version}",
+    }
+
+
+def _command_row(entry: CommandEntry) -> dict:
+    try:
+        # find_spec locates the module without running it (its parent packages are imported).
+        spec = importlib.util.find_spec(entry.command.module)
+        source = spec.origin if spec is not None and spec.origin else "<not found>"
+    except (ImportError, ValueError):
+        source = "<not found>"
+    return {
+        "kind": "command",
+        "name": entry.command.name,
+        "help": entry.command.help,
+        "module": entry.command.module,
+        "source": source,
+        "plugin": entry.plugin,
+        "distribution": f"{entry.distribution} {entry.version}",
+    }
+
+
+def _table(rows: list[dict], columns: tuple[str, ...]) -> str:
+    widths = {c: max([len(c), *(len(str(r[c])) for r in rows)]) for c in columns}
+    lines = ["  ".join(c.upper().ljust(widths[c]) for c in columns)]
+    lines += ["  ".join(str(r[c]).ljust(widths[c]) for c in columns) for r in rows]
+    return "\n".join(line.rstrip() for line in lines)
+
+
+def _particle_types(registry: Registry) -> str:
+    """The taken particle-type ids, one material each, and the free ones as ranges."""
+    rows = [
+        {
+            "particle type": str(e.cls.particle_type),
+            "material": e.name,
+            "kinematic": "yes" if e.cls.kinematic else "no",
+            "distribution": f"{e.distribution} {e.version}",
+        }
+        for e in sorted(registry.entries("material"), key=lambda e: e.cls.particle_type)
+    ]
+    taken = _table(rows, ("particle type", "material", "kinematic", "distribution")) if rows else "no material installed"
+    return f"{taken}\nfree particle types: {id_ranges(registry.free_particle_types())} (a new material takes one)"
+
+
+def id_ranges(ids: list[int]) -> str:
+    """Sorted ids as ranges: ``[0, 1, 2, 4, 9, 10]`` -> ``"0-2, 4, 9-10"`` (``"none"`` when empty)."""
+    runs: list[list[int]] = []
+    for i in ids:
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs) or "none"
