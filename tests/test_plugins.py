@@ -283,3 +283,12 @@ def test_only_the_registry_turns_names_into_validated_params():
     elsewhere = [str(path.relative_to(package)) for path in sorted(package.rglob("*.py"))
                  if path not in allowed and ".Params.model_validate" in path.read_text()]
     assert elsewhere == []
+
+
+def test_free_particle_types_are_the_valid_ids_no_material_has(registry):
+    from gns_framework.contracts import PARTICLE_TYPE_IDS
+
+    free = registry.free_particle_types()
+    taken = {e.cls.particle_type for e in registry.entries("material")}
+    assert {3, 5, 6, 7, 8} <= taken and not taken & set(free)
+    assert sorted(taken | set(free)) == list(PARTICLE_TYPE_IDS)
