@@ -20,6 +20,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="dataset folder to write")
     add_allow_pickle(parser)
     parser.add_argument(
+        "--map-types", type=type_map, default={}, metavar="FROM=TO,...",
+        help="renumber particle types, e.g. 0=5,1=3: LagrangeBench's fluid (0) and walls (1) as this framework's "
+        "water (5) and rigid (3); types not named keep their id (gns plugins lists the materials' ids)",
+    )
+    parser.add_argument(
         "--overwrite", action="store_true",
         help="replace --out whole even when it holds something other than an earlier gns convert result",
     )
@@ -39,6 +44,8 @@ def run(args: argparse.Namespace) -> int:
     metadata = source.metadata()
     # A split is written as <out>/<split>.<ext>: its name (from the source's plugin) must be a plain file name.
     splits = {require_component(name, f"{args.source}: split"): list(source.split(name)) for name in source.splits()}
+    if args.map_types:
+        splits = {name: [renumbered(t, args.map_types) for t in trajectories] for name, trajectories in splits.items()}
     if not splits:
         raise GnsError(f"{args.source}: no train, valid or test split in layout {args.source_layout!r}")
     # Written whole beside --out and renamed into place: never a mix of the old dataset and this one.
@@ -49,6 +56,34 @@ def run(args: argparse.Namespace) -> int:
     counts = ", ".join(f"{name} {len(trajectories)}" for name, trajectories in splits.items())
     print(f"converted {args.source} ({args.source_layout}) to {args.out} ({args.target_layout}): {counts}")
     return 0
+
+
+def type_map(text: str) -> dict[int, int]:
+    """``"0=5,1=3"`` -> ``{0: 5, 1: 3}``: each source type id at most once."""
+    mapping: dict[int, int] = {}
+    for item in text.split(","):
+        source, equals, target = item.partition("=")
+        try:
+            pair = int(source), int(target)
+        except ValueError:
+            pair = None
+        if not equals or pair is None or min(pair) < 0:
+            raise argparse.ArgumentTypeError(f"expected FROM=TO pairs of type ids such as 0=5,1=3, got {text!r}")
+        if pair[0] in mapping:
+            raise argparse.ArgumentTypeError(f"type {pair[0]} is mapped twice in {text!r}")
+        mapping[pair[0]] = pair[1]
+    return mapping
+
+
+def renumbered(trajectory, mapping: dict[int, int]):
+    """``trajectory`` with its particle types renumbered by ``mapping`` (types not in it unchanged)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    types = trajectory.particle_type
+    lookup = np.vectorize(lambda t: mapping.get(int(t), int(t)), otypes=[types.dtype])
+    return replace(trajectory, particle_type=lookup(types) if types.size else types)
 
 
 def _layout(registry, name: str, option: str):

@@ -213,3 +213,60 @@ def test_a_material_of_type_9_converts_and_trains(layout, tmp_path):
     assert trainer.data.scene.particle_types == (3, 9)
     assert np.isfinite(trainer.train(1)).all()
     trainer.close()
+
+
+def _lagrangebench_tgv(folder, frames: int = 10, side: int = 6):
+    """A 2D Taylor-Green vortex as LagrangeBench stores it: fluid type 0, periodic in x and y, HDF5 per split."""
+    folder.mkdir()
+    spacing = 1.0 / side
+    grid = (np.stack(np.meshgrid(np.arange(side), np.arange(side), indexing="ij"), -1).reshape(-1, 2) + 0.5) * spacing
+    steps = np.arange(frames)[:, None, None]
+    # Each particle moves with the vortex's velocity at its start, (sin 2 pi x cos 2 pi y, -cos 2 pi x sin 2 pi y),
+    # 2 mm a frame at most, wrapped into [0, 1) as a periodic box keeps it.
+    flow = np.stack([np.sin(2 * np.pi * grid[:, 0]) * np.cos(2 * np.pi * grid[:, 1]),
+                     -np.cos(2 * np.pi * grid[:, 0]) * np.sin(2 * np.pi * grid[:, 1])], -1)
+    position = np.mod(grid[None] + 0.002 * steps * flow[None], 1.0)
+    for split in ("train", "valid", "test"):
+        with h5py.File(folder / f"{split}.h5", "w") as handle:
+            handle["00000/position"] = position.astype(np.float32)
+            handle["00000/particle_type"] = np.zeros(side * side, dtype=np.int32)
+    velocity = np.diff(position, axis=0)
+    raw = {"case": "TGV", "dim": 2, "dt": 0.0004, "write_every": 25, "bounds": [[0, 1], [0, 1]],
+           "default_connectivity_radius": 1.5 * spacing, "periodic_boundary_conditions": [True, True, True],
+           "sequence_length_train": frames - 1, "sequence_length_test": frames - 1,
+           "vel_mean": [0, 0], "vel_std": np.abs(velocity).reshape(-1, 2).std(0).tolist(),
+           "acc_mean": [0, 0], "acc_std": [1e-4, 1e-4]}
+    (folder / "metadata.json").write_text(json.dumps(raw))
+
+
+def test_lagrangebench_periodic_data_converts_with_its_types_mapped_and_trains_the_periodic_recipe(tmp_path):
+    """recipes/swaps/periodic_radius.yaml's documented data path: LagrangeBench's TGV, fluid 0 mapped to water 5."""
+    from pathlib import Path
+
+    import yaml
+
+    _lagrangebench_tgv(tmp_path / "tgv")
+    assert main(["convert", str(tmp_path / "tgv"), "--from", "lagrangebench", "--to", "safe",
+                 "--out", str(tmp_path / "periodic2d"), "--map-types", "0=5"]) == 0
+    registry = load_registry()
+    metadata, splits = load(registry, "safe", tmp_path / "periodic2d")
+    assert metadata.periodic_boundary_conditions == [True, True]
+    assert all((t.particle_type == 5).all() for trajectories in splits.values() for t in trajectories)
+    recipe_file = Path(__file__).resolve().parents[2] / "recipes" / "swaps" / "periodic_radius.yaml"
+    raw = yaml.safe_load(recipe_file.read_text())
+    assert raw["dataset"]["path"] == "data/periodic2d", "the folder the recipe's comment tells the user to convert into"
+    raw["dataset"]["path"] = str(tmp_path / "periodic2d")
+    raw["output_dir"] = str(tmp_path / "run")
+    trainer = Trainer(validate_recipe(raw, registry), registry, progress=False)
+    assert trainer.data.scene.periodic_dims == (0, 1) and trainer.data.scene.particle_types == (5,)
+    assert np.isfinite(trainer.train(1)).all()
+    trainer.close()
+
+
+@pytest.mark.parametrize("text", ["0", "0=x", "0=5,0=6", "-1=5"])
+def test_a_bad_type_map_is_refused_with_the_expected_form(text, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_code:
+        main(["convert", str(tmp_path), "--from", "lagrangebench", "--to", "safe", "--out", str(tmp_path / "o"),
+              "--map-types", text])
+    assert exit_code.value.code == 2
+    assert "--map-types" in capsys.readouterr().err
