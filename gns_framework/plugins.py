@@ -100,7 +100,10 @@ class BrokenPlugin:
 
     @property
     def described(self) -> str:
-        return f"plugin entry point {self.entry_point!r} = {self.value!r} of distribution {self.distribution} {self.version}"
+        return (
+            f"plugin entry point {self.entry_point!r} = {self.value!r} of distribution {self.distribution} "
+            f"{self.version}"
+        )
 
     def __str__(self) -> str:
         return f"{self.described}, which failed to load ({self.error})"
@@ -189,7 +192,11 @@ class Registry:
             ) from None
 
     def broken_note(self) -> str:
-        """``"; it may be provided by <each broken plugin>"`` for errors about a missing component; empty when none is broken."""
+        """``"; it may be provided by a plugin that was skipped: <each>"`` for errors about a missing component.
+
+        Empty when no plugin is broken. Which components a broken plugin would have
+        provided is unknown (it failed before registering any), so every one is named.
+        """
         if not self.broken:
             return ""
         return "; it may be provided by a plugin that was skipped: " + "; ".join(str(b) for b in self.broken)
@@ -242,7 +249,10 @@ class Registry:
         raise PluginError(f"no installed material has particle type {particle_type}; installed: {known}")
 
     def free_particle_types(self) -> list[int]:
-        """The valid particle-type ids (``contracts.PARTICLE_TYPE_IDS``) no installed material has: a new material takes one."""
+        """The valid particle-type ids (``contracts.PARTICLE_TYPE_IDS``) no installed material has.
+
+        A new material takes one of them (``gns plugins`` lists them as ranges).
+        """
         from .contracts import PARTICLE_TYPE_IDS
 
         taken = {e.cls.particle_type for e in self.entries("material")}
@@ -257,7 +267,8 @@ class Registry:
         if not self._metrics:
             raise PluginError(
                 "no metric is installed: the built-in ones come from the entry point builtin-metrics of "
-                f"gns-framework (reinstall it: pip install -e .), and $GNS_DISABLE_PLUGINS may disable it{self.broken_note()}"
+                "gns-framework (reinstall it: pip install -e .), and $GNS_DISABLE_PLUGINS may disable it"
+                f"{self.broken_note()}"
             )
         return [entry.metric for entry in self._metrics.values()]
 

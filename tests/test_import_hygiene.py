@@ -75,7 +75,7 @@ class ImportTimeCalls(ast.NodeVisitor):
 def test_no_test_module_changes_torch_settings_when_imported():
     """Set in a fixture that restores them, not at import: an import changes them for every later test."""
     found = []
-    for folder in ("tests", "parity", "plugins/examples/gns-clay/tests"):
+    for folder in ("tests", "parity", "plugins/examples/gns-clay/tests", "plugins/examples/gns-processor/tests"):
         for path in sorted((REPO / folder).rglob("*.py")):
             visitor = ImportTimeCalls()
             visitor.visit(ast.parse(path.read_text(), str(path)))

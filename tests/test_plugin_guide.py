@@ -1,5 +1,6 @@
-"""The plugin author's guide is enough: its material, written from the guide alone, is simulated by the
-built-in MLS-MPM, and its metric and command examples work as written."""
+"""The plugin author's guide is enough: its processor is the tested example package's code as it is, its
+material, written from the guide alone, is simulated by the built-in MLS-MPM in the guide's scene, and its
+metric and command examples work as written."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from gns_framework import testing
 from gns_framework.assembly.ground_truth import build_ground_truth_simulator
@@ -19,14 +21,16 @@ from gns_framework.ground_truth.scene_spec import SceneSpec
 from gns_framework.plugins import load_registry
 from gns_framework.testing import small_scene
 
-GUIDE = Path(__file__).resolve().parents[1] / "docs" / "plugin-authors.md"
+REPO = Path(__file__).resolve().parents[1]
+GUIDE = REPO / "docs" / "plugin-authors.md"
+EXAMPLE_PROCESSOR = REPO / "plugins" / "examples" / "gns-processor"
 
 
-def guide_block(after: str) -> str:
-    """The first Python block of the guide after the line ``after``."""
+def guide_block(after: str, language: str = "python") -> str:
+    """The first ``language`` block of the guide after the line ``after``."""
     text = GUIDE.read_text()
     start = text.index(after)
-    return re.search(r"```python\n(.*?)```", text[start:], re.S).group(1)
+    return re.search(rf"```{language}\n(.*?)```", text[start:], re.S).group(1)
 
 
 def guide_module(name: str, after: str) -> types.ModuleType:
@@ -66,7 +70,7 @@ def test_the_guide_material_is_simulated_by_the_builtin_mpm(gravel_registry):
 
 
 def test_the_guide_metric_is_measured(make_rollout_2d):
-    registry = load_registry(plugins=[("guide-metric", guide_module("guide_metric", "## 5. Metrics"))])
+    registry = load_registry(plugins=[("guide-metric", guide_module("guide_metric", "## 6. Metrics"))])
     summary = score_rollout(make_rollout_2d, metrics=registry.metrics())
     truth, predicted = make_rollout_2d.ground_truth, make_rollout_2d.predicted
     moving = make_rollout_2d.particle_type != 3
@@ -95,5 +99,41 @@ def make_rollout_2d():
 def test_the_guide_command_record_registers():
     from gns_framework.cli.commands import load_commands
 
-    commands = load_commands(load_entry_points=False, plugins=[("guide-commands", guide_module("guide_cmd", "## 6. Commands"))])
+    guide_commands = guide_module("guide_cmd", "## 7. Commands")
+    commands = load_commands(load_entry_points=False, plugins=[("guide-commands", guide_commands)])
     assert commands["sieve"].module == "my_gns_plugin.sieve" and "train" in commands
+
+
+@pytest.mark.parametrize(
+    "marker, language, path",
+    [
+        ("example-processor", "python", "src/gns_example_processor/mean_interaction.py"),
+        ("example-processor-hook", "python", "src/gns_example_processor/__init__.py"),
+        ("example-processor-pyproject", "toml", "pyproject.toml"),
+        ("example-processor-tests", "python", "tests/test_mean_interaction.py"),
+    ],
+)
+def test_the_guide_shows_the_example_processors_files_as_they_are(marker, language, path):
+    assert guide_block(f"<!-- {marker} -->", language) == (EXAMPLE_PROCESSOR / path).read_text()
+
+
+def test_the_guides_recipe_line_is_the_swap_recipes_and_selects_the_processor(registry):
+    from gns_framework.config.recipe import load_recipe
+
+    pytest.importorskip("gns_example_processor", reason="install it: pip install -e plugins/examples/gns-processor")
+    line = guide_block("<!-- example-processor-recipe -->", "yaml")
+    swap = REPO / "recipes" / "swaps" / "mean_interaction_network.yaml"
+    assert line in swap.read_text()
+    processor = load_recipe(swap, registry).model.processor
+    assert (processor.name, processor.params) == ("mean_interaction_network", {"message_passing_steps": 10})
+
+
+def test_the_guide_scene_is_simulated_with_the_guide_material(gravel_registry):
+    raw = yaml.safe_load(guide_block("<!-- guide-scene -->", "yaml"))
+    scene = SceneSpec.model_validate(raw)
+    build_ground_truth_simulator(scene, gravel_registry, "<guide scene>")  # every shared and MPM check passes
+    short = scene.model_copy(update={"time": scene.time.model_copy(update={"frames": 4})})
+    trajectory = build_ground_truth_simulator(short, gravel_registry).simulate(short, seed=0)
+    types = trajectory.particle_type.tolist()
+    assert set(types) == {3, 9} and types.count(9) == 512  # the comment's count of gravel particles
+    assert trajectory.material_property.shape == (len(types), 1)  # friction, drawn for the trajectory

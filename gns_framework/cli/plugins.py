@@ -108,7 +108,8 @@ def _particle_types(registry: Registry) -> str:
         }
         for e in sorted(registry.entries("material"), key=lambda e: e.cls.particle_type)
     ]
-    taken = _table(rows, ("particle type", "material", "kinematic", "distribution")) if rows else "no material installed"
+    columns = ("particle type", "material", "kinematic", "distribution")
+    taken = _table(rows, columns) if rows else "no material installed"
     return f"{taken}\nfree particle types: {id_ranges(registry.free_particle_types())} (a new material takes one)"
 
 

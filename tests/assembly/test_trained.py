@@ -1,4 +1,5 @@
-"""A checkpoint records the distribution of each component; loading one whose component is missing says what to install."""
+"""A checkpoint records the distribution of each component; loading one whose component is missing says what
+to install."""
 
 from __future__ import annotations
 

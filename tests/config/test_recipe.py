@@ -11,7 +11,10 @@ from gns_framework.config.recipe import load_recipe, validate_recipe
 from gns_framework.errors import RecipeError
 
 RECIPES = sorted((Path(__file__).resolve().parents[2] / "recipes").rglob("*.yaml"))
-NEEDS_PACKAGE = {"clay2d.yaml": ("gns_example_clay", "pip install -e plugins/examples/gns-clay")}
+NEEDS_PACKAGE = {
+    "clay2d.yaml": ("gns_example_clay", "pip install -e plugins/examples/gns-clay"),
+    "mean_interaction_network.yaml": ("gns_example_processor", "pip install -e plugins/examples/gns-processor"),
+}
 """Recipes that use a separately installed example package: its module and install command."""
 
 
