@@ -45,12 +45,21 @@ class Graph:
         displacement: (E, d) float, ``p_sender - p_receiver`` in dataset units
             (minimum image in periodic domains).
         num_nodes: N.
+        position: (N, d) float, each particle's current position in dataset units, for
+            processors that work on space itself (a grid) rather than on edges; the
+            learned simulator attaches it, builders need not (None: not given).
+        batch: (N,) int64 example index of each particle (non-decreasing), or None
+            (one example), so such processors keep the examples of a batch apart.
+        num_examples: B.
     """
 
     senders: Tensor
     receivers: Tensor
     displacement: Tensor
     num_nodes: int
+    position: Tensor | None = None
+    batch: Tensor | None = None
+    num_examples: int = 1
 
     @property
     def num_edges(self) -> int:

@@ -13,6 +13,7 @@ TINY_PROCESSORS = {
     "shared_interaction_network": {"message_passing_steps": 2},
     "graph_attention": {"message_passing_steps": 2, "heads": 2},
     "egnn": {"message_passing_steps": 2},
+    "grid_cnn": {"message_passing_steps": 2, "conv_layers": 2},
 }
 """Parameters of each built-in processor at test size."""
 TINY_GRAPH_BUILDERS = {"radius": {}, "periodic_radius": {}, "knn": {"k": 6}, "radius_torch_cluster": {}}

@@ -8,6 +8,8 @@ and targets are computed, and predicted positions are wrapped back into the box.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import torch
 from torch import Tensor, nn
 
@@ -52,7 +54,10 @@ class LearnedSimulator(nn.Module):
         return ~self.kinematic_type[particle_type]
 
     def build_graph(self, position_sequence: Tensor, batch: ParticleBatch) -> Graph:
-        return self.graph_builder.build(position_sequence[:, -1], batch.batch, batch.num_examples)
+        """The builder's edges, with the particles' current positions and examples attached (see :class:`Graph`)."""
+        position = position_sequence[:, -1]
+        graph = self.graph_builder.build(position, batch.batch, batch.num_examples)
+        return replace(graph, position=position, batch=batch.batch, num_examples=batch.num_examples)
 
     def encode_inputs(self, position_sequence: Tensor, batch: ParticleBatch) -> tuple[Tensor, Tensor, Graph]:
         """Node features (N, node_in), edge features (E, edge_in) and the graph."""

@@ -4,10 +4,11 @@ from gns_framework.hookspecs import hookimpl
 
 from .egnn import EquivariantProcessor
 from .graph_attention import GraphAttentionProcessor
+from .grid_cnn import GridProcessor
 from .interaction_network import InteractionNetwork
 from .shared_interaction_network import SharedInteractionNetwork
 
 
 @hookimpl
 def gns_processors():
-    return [InteractionNetwork, SharedInteractionNetwork, GraphAttentionProcessor, EquivariantProcessor]
+    return [InteractionNetwork, SharedInteractionNetwork, GraphAttentionProcessor, EquivariantProcessor, GridProcessor]
