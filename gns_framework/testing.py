@@ -18,6 +18,7 @@ import inspect
 import math
 import tempfile
 from collections.abc import Collection, Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -99,7 +100,8 @@ def _random_graph(num_nodes: int, dim: int, generator: torch.Generator) -> Graph
     adjacency = torch.rand(num_nodes, num_nodes, generator=generator) < 0.3
     adjacency |= torch.eye(num_nodes, dtype=torch.bool)
     receivers, senders = adjacency.nonzero(as_tuple=True)
-    return Graph(senders, receivers, position[senders] - position[receivers], num_nodes)
+    batch = torch.zeros(num_nodes, dtype=torch.long)
+    return Graph(senders, receivers, position[senders] - position[receivers], num_nodes, position, batch, 1)
 
 
 def _permuted_graph(graph: Graph, perm: Tensor) -> tuple[Graph, Tensor]:
@@ -108,7 +110,12 @@ def _permuted_graph(graph: Graph, perm: Tensor) -> tuple[Graph, Tensor]:
     inverse[perm] = torch.arange(perm.numel())
     senders, receivers = inverse[graph.senders], inverse[graph.receivers]
     order = torch.argsort(receivers * graph.num_nodes + senders)
-    return Graph(senders[order], receivers[order], graph.displacement[order], graph.num_nodes), order
+    position = None if graph.position is None else graph.position[perm]
+    batch = None if graph.batch is None else graph.batch[perm]
+    permuted = Graph(
+        senders[order], receivers[order], graph.displacement[order], graph.num_nodes, position, batch, graph.num_examples
+    )
+    return permuted, order
 
 
 def check_processor(
@@ -126,7 +133,9 @@ def check_processor(
     torch.manual_seed(seed)
     processor = cls(cls.Params.model_validate(dict(params or {})), sizes).double()
     graph = _random_graph(12, sizes.dim, generator)
-    graph = Graph(graph.senders, graph.receivers, graph.displacement.double() * sizes.connectivity_radius, graph.num_nodes)
+    # In dataset units, as builders give them: displacements and positions of order R.
+    radius = sizes.connectivity_radius
+    graph = replace(graph, displacement=graph.displacement.double() * radius, position=graph.position.double() * radius)
     x = torch.randn(graph.num_nodes, sizes.latent, generator=generator, dtype=torch.float64, requires_grad=True)
     e = torch.randn(graph.num_edges, sizes.latent, generator=generator, dtype=torch.float64, requires_grad=True)
     x_out, e_out = processor(x, e, graph)

@@ -134,12 +134,33 @@ class VonMisesGoop(_Elastic):
         return {"mu": mu, "lam": lam, "param_a": yield_strain, "param_b": np.zeros_like(mu)}
 
 
+class UndrainedClay(_Elastic):
+    """Clay loaded faster than it drains: Hencky elasticity, and yield at the undrained shear
+    strength c_u whatever the pressure (total-stress, Tresca-like), the usual model of soft-clay
+    slides. It is the von Mises return map with sigma_y = sqrt(3) c_u, which equals Tresca in pure
+    shear. ``cohesion`` is in kPa, the unit clay is reported in (values near 1 make good features)."""
+
+    name: ClassVar[str] = "tresca"
+    kernel_id: ClassVar[int] = VonMisesGoop.kernel_id
+    density: float = Field(default=1800.0, gt=0)
+    youngs_modulus: float = Field(default=1.0e6, gt=0)
+    poisson_ratio: float = Field(default=0.3, ge=0, lt=0.5)
+    cohesion: float = Field(default=1.0, gt=0, description="kPa, undrained shear strength c_u")
+
+    @staticmethod
+    def kernel_parameters(values: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        mu, lam = _lame(values["youngs_modulus"], values["poisson_ratio"])
+        yield_stress = math.sqrt(3) * 1e3 * values["cohesion"]
+        yield_strain = math.sqrt(2 / 3) * yield_stress / (2 * mu)
+        return {"mu": mu, "lam": lam, "param_a": yield_strain, "param_b": np.zeros_like(mu)}
+
+
 RIGID = "rigid"
 """The model name of kinematic bodies: prescribed motion, felt by particles through frictional contact.
 They are grid boundary conditions, not MPM particles, so they have no parameters here."""
 
 
 MODELS: dict[str, type[ConstitutiveModel]] = {
-    m.name: m for m in (DruckerPragerSand, WeaklyCompressibleFluid, VonMisesGoop)
+    m.name: m for m in (DruckerPragerSand, WeaklyCompressibleFluid, VonMisesGoop, UndrainedClay)
 }
 """Constitutive models of MPM particles, by the name materials give in ``constitutive_model``."""
