@@ -21,6 +21,7 @@ from gns_framework.data.atomic import write_text_atomic
 from gns_framework.data.metadata import load_metadata
 from gns_framework.errors import DatasetError
 from gns_framework.io.checkpoint import save_checkpoint
+from gns_framework.io.run_folder import RunFolder
 from gns_framework.plugins import load_registry
 from gns_framework.training import mlflow_tracker
 from gns_framework.training.mlflow_tracker import Outbox, Request
@@ -234,14 +235,14 @@ def test_a_server_still_down_at_the_deadline_leaves_a_command_to_send_later(tmp_
             for line in lines:
                 tracker.log_metrics({"train_loss": line["train_loss"]}, line["step"])
             tracker.close()
-    assert json.loads((run_dir / mlflow_tracker.UNSENT_FILE).read_text())["status"] == "FINISHED"
+    assert json.loads((run_dir / RunFolder.MLFLOW_UNSENT).read_text())["status"] == "FINISHED"
     monkeypatch.setattr(client, "log_batch", real_log_batch)
     monkeypatch.setattr(client, "set_terminated", real_terminated)
     monkeypatch.setattr(mlflow_tracker, "_client", lambda _: client)
     assert main(["track-sync", str(run_dir)]) == 0
     assert f"sent 3 metric value(s) of {run_dir} to MLflow run {tracker.run_id}; marked FINISHED" in capsys.readouterr().out
     run = client.get_run(tracker.run_id)
-    assert run.info.status == "FINISHED" and not (run_dir / mlflow_tracker.UNSENT_FILE).exists()
+    assert run.info.status == "FINISHED" and not (run_dir / RunFolder.MLFLOW_UNSENT).exists()
     assert sorted(m.step for m in client.get_metric_history(tracker.run_id, "train_loss")) == [1, 2, 3]
 
 

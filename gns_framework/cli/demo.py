@@ -39,7 +39,7 @@ from ..io.rollout_file import write_rollout
 from ..model.rollout import rollout
 from ..model.rollout_guard import RolloutGuard
 from ..plugins import load_registry
-from ..training.trainer import BEST_CHECKPOINT, Trainer
+from ..training.trainer import Trainer
 from .arguments import non_negative_int, positive_int
 from .envelope_option import add_outside_envelope, enforce_envelope
 
@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         trainer.close()
     print(f"short model: validation one-step loss {before['valid_one_step_loss']:.4g} -> {after['valid_one_step_loss']:.4g}")
-    best = trainer.checkpoint_dir / BEST_CHECKPOINT
+    best = trainer.run.best_checkpoint
     short = load_trained(best if best.is_file() else trainer.save(), registry)
     pretrained = load_trained(args.model, registry)
     print(f"pretrained model: {args.model} (step {pretrained.step})")

@@ -8,6 +8,7 @@ import re
 from pathlib import Path
 
 from ..errors import GnsError
+from ..io.run_folder import RunFolder
 from ..safe_names import ensure_inside, require_component, safe_component, unique_components
 from .arguments import add_allow_pickle, positive_int
 from .envelope_option import add_outside_envelope, enforce_envelope
@@ -35,7 +36,7 @@ def model_labels(recipe_names: list[str], checkpoints: list[Path]) -> list[str]:
     if len(checkpoints) == 1:
         raw = list(recipe_names)
     else:
-        raw = [f"{name}.{path.resolve().parent.parent.name}.{path.stem}" for name, path in zip(recipe_names, checkpoints)]
+        raw = [f"{name}.{RunFolder.of_checkpoint(path.resolve()).root.name}.{path.stem}" for name, path in zip(recipe_names, checkpoints)]
     return unique_components(re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip(".") or "model" for text in raw)
 
 
@@ -153,7 +154,7 @@ def _log_to_training_runs(
         files = report_files + ([animations[name]] if name in animations else [])
         own = warnings[model.path]
         tags = {"outside_envelope": "; ".join(own)} if own else None
-        tracked = log_to_recorded_run(model.path.parent.parent, metrics, model.step, files, "evaluation", tags)
+        tracked = log_to_recorded_run(RunFolder.of_checkpoint(model.path).root, metrics, model.step, files, "evaluation", tags)
         if tracked:
             print(f"logged the evaluation report of {name} to MLflow run {tracked}")
 

@@ -6,7 +6,8 @@ import argparse
 from pathlib import Path
 
 from ..importers.geoelements import NOISE_STD, import_geoelements_checkpoint
-from ..io.checkpoint import checkpoint_name, save_checkpoint
+from ..io.checkpoint import save_checkpoint
+from ..io.run_folder import RunFolder
 from ..plugins import load_registry
 from ..safe_names import safe_component
 
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     name = args.name or f"imported-{args.model.stem}"
     dataset = {"name": "npz", "path": str(args.dataset)}
     state = imported.checkpoint_state(name, dataset, registry)
-    out = args.out or Path("runs") / safe_component(name) / "checkpoints" / checkpoint_name(imported.step)
+    out = args.out or RunFolder(Path("runs") / safe_component(name)).checkpoint(imported.step)
     out.parent.mkdir(parents=True, exist_ok=True)
     save_checkpoint(out, state)
     spec, scene = imported.model, imported.scene

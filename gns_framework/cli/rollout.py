@@ -20,6 +20,7 @@ from ..assembly.data import open_dataset
 from ..assembly.trained import load_trained
 from ..errors import DatasetError
 from ..io.rollout_file import write_rollout
+from ..io.run_folder import RunFolder
 from ..model.batched_rollout import rollout_batch
 from ..model.rollout import rollout
 from ..outputs import check_folder, claim_folder
@@ -87,8 +88,8 @@ def run(args: argparse.Namespace) -> int:
         f"{dataset.path} (split {split_name})", "rollout",
     )
     recorded = loaded.metadata.model_copy(update={"outside_envelope": warnings}) if warnings else loaded.metadata
-    run_dir = args.checkpoint.parent.parent
-    out = args.out or run_dir / "rollouts"
+    run = RunFolder.of_checkpoint(args.checkpoint)
+    out = args.out or run.rollouts
     # Checked now, claimed with the first file: a rollout that stops writes nothing, not even the marker.
     check_folder(out, "rollout", args.overwrite, own=_only_rollouts)
     errors = []
@@ -110,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         errors.append(result.position_mse)
     if errors:
         tracked = log_to_recorded_run(
-            run_dir, {f"rollout_position_mse_{split_name}": sum(errors) / len(errors)}, loaded.step,
+            run.root, {f"rollout_position_mse_{split_name}": sum(errors) / len(errors)}, loaded.step,
             tags={"outside_envelope": "; ".join(warnings)} if warnings else None,
         )
         if tracked:

@@ -34,9 +34,9 @@ import torch
 
 from ..data.atomic import atomic_path, fsync_directory
 from ..errors import CheckpointError
+from .run_folder import CHECKPOINT_NAME, RunFolder
 
 FORMAT = "gns-framework/checkpoint-v1"
-_NAME = re.compile(r"^checkpoint-(\d{9})\.pt$")
 _PARTIAL = re.compile(r"^\.checkpoint-\d{9}\.pt\..+\.tmp\.pt$")
 REQUIRED = ("format", "model", "step", "recipe", "scene", "metadata", "plugins")
 DIGEST_RECORD = "gns_sha256"
@@ -45,10 +45,6 @@ HISTORY_RECORD = "gns_history"
 """Name of the record holding the id of the training history that wrote the checkpoint (read without unpickling)."""
 DAMAGED_SUFFIX = ".damaged"
 UNREADABLE = "unreadable checkpoint (truncated, corrupt or not a checkpoint)"
-
-
-def checkpoint_name(step: int) -> str:
-    return f"checkpoint-{step:09d}.pt"
 
 
 def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
@@ -171,7 +167,7 @@ def _contents(directory: Path) -> str:
     """What a directory given as a checkpoint holds, in words: its checkpoints, or its run's."""
     if names := _held(directory):
         return f"it holds {', '.join(names)}: name one of them"
-    if names := _held(directory / "checkpoints"):
+    if names := _held(RunFolder(directory).checkpoints):
         return (f"a run folder, whose checkpoints/ holds {', '.join(names)}: name one of them, or resume the newest "
                 f"with --out {directory} --resume")
     return "it holds no checkpoints (*.pt)"
@@ -182,7 +178,7 @@ def list_checkpoints(directory: str | Path) -> list[tuple[int, Path]]:
     directory = Path(directory)
     if not directory.is_dir():
         return []
-    found = [(int(m.group(1)), p) for p in directory.iterdir() if (m := _NAME.match(p.name))]
+    found = [(int(m.group(1)), p) for p in directory.iterdir() if (m := CHECKPOINT_NAME.match(p.name))]
     return sorted(found)
 
 
@@ -323,15 +319,16 @@ def set_aside_damaged(path: Path) -> Path:
     return target
 
 
-def make_room_for_a_fresh_start(checkpoint_dir: Path, restart: bool, companions: list[Path]) -> Path | None:
-    """Let a run start at step 0 writing to ``checkpoint_dir``; returns where earlier checkpoints went, if anywhere.
+def make_room_for_a_fresh_start(run: RunFolder, restart: bool) -> Path | None:
+    """Let a run start at step 0 writing to ``run``'s checkpoints; returns where earlier checkpoints went, if anywhere.
 
     A run started afresh where another left checkpoints would write over them by
     name and prune them. Without ``restart`` that is refused, naming them; with it,
-    the folder and the ``companions`` that exist (the earlier run's MLflow record)
+    the checkpoint folder and the earlier run's MLflow record (when there is one)
     move whole into ``<run>/earlier-<n>/``, where the checkpoints keep their names
     and still load, roll out and report to the run that trained them.
     """
+    checkpoint_dir = run.checkpoints
     held = _held(checkpoint_dir)
     if not held:
         return None
@@ -341,20 +338,16 @@ def make_room_for_a_fresh_start(checkpoint_dir: Path, restart: bool, companions:
             "would overwrite and prune: continue it with --resume, start afresh with --restart (moves them to "
             "earlier-N/ in the run folder), or use another run folder (--out)"
         )
-    run_dir = checkpoint_dir.parent
-    number = 1
-    while (run_dir / f"earlier-{number}").exists():
-        number += 1
-    earlier = run_dir / f"earlier-{number}"
+    earlier = run.next_earlier()
     earlier.mkdir()
-    for path in [checkpoint_dir, *companions]:
+    for path in [checkpoint_dir, run.mlflow_run]:
         if path.exists():
             try:
                 os.rename(path, earlier / path.name)
             except OSError as exc:
                 raise CheckpointError(f"{path}: could not move it to {earlier}: {exc}") from None
     fsync_directory(earlier)
-    fsync_directory(run_dir)
+    fsync_directory(run.root)
     return earlier
 
 

@@ -30,11 +30,9 @@ from typing import Any
 
 from ..data.atomic import write_text_atomic
 from ..errors import GnsError
+from ..io.run_folder import RunFolder
 from ..safe_names import ensure_inside, safe_component
 
-RUN_FILE = "mlflow_run.json"
-UNSENT_FILE = "mlflow_unsent.json"
-"""Written in the run folder when a run ends with requests MLflow never received: the status to set later."""
 DEFAULT_DATABASE = "mlflow.db"
 ARTIFACTS_FOLDER = "mlartifacts"
 _PARAMS_PER_REQUEST = 100
@@ -404,13 +402,13 @@ class MlflowTracker:
         later = f"; send them with `gns track-sync {self.run_dir}` once it is back" if self.run_dir is not None else ""
         left = self.outbox.close(later)
         if left and self.run_dir is not None:
-            write_text_atomic(self.run_dir / UNSENT_FILE, json.dumps({"run_id": self.run_id, "status": status}) + "\n")
+            write_text_atomic(RunFolder(self.run_dir).mlflow_unsent, json.dumps({"run_id": self.run_id, "status": status}) + "\n")
 
 
 def open_mlflow_tracker(run_dir: Path, tracking_uri: str, experiment: str, resume: bool) -> MlflowTracker:
     """The MLflow run of ``run_dir``: the one it logged to before when resuming there, else a new one."""
-    record = Path(run_dir) / RUN_FILE
-    kept_in = str(Path(run_dir) / "metrics.jsonl")
+    record = RunFolder(run_dir).mlflow_run
+    kept_in = str(RunFolder(run_dir).metrics)
     if resume and record.is_file():
         saved = json.loads(record.read_text())
         if saved.get("tracking_uri") == tracking_uri and saved.get("experiment") == experiment:
@@ -437,7 +435,7 @@ def log_to_recorded_run(
     tracked with MLflow (or mlflow is missing), or when its server is unreachable: the
     caller's results are on disk by then, so that is a warning, not a failure.
     """
-    record = Path(run_dir) / RUN_FILE
+    record = RunFolder(run_dir).mlflow_run
     if not record.is_file() or not mlflow_available():
         return None
     saved = json.loads(record.read_text())
@@ -473,9 +471,9 @@ def sync_run(run_dir: Path) -> tuple[str, int, str | None]:
     from .tracking import read_metrics
 
     run_dir = Path(run_dir)
-    record = run_dir / RUN_FILE
+    record = RunFolder(run_dir).mlflow_run
     if not record.is_file():
-        raise TrackingError(f"{run_dir}: no {RUN_FILE}: this run was not tracked with MLflow")
+        raise TrackingError(f"{run_dir}: no {RunFolder.MLFLOW_RUN}: this run was not tracked with MLflow")
     try:
         saved = json.loads(record.read_text())
         uri, run_id = saved["tracking_uri"], saved["run_id"]
@@ -498,7 +496,7 @@ def sync_run(run_dir: Path) -> tuple[str, int, str | None]:
         for i in range(0, len(entries), _METRICS_PER_REQUEST):
             client.log_batch(run_id, metrics=entries[i : i + _METRICS_PER_REQUEST])
         status = None
-        unsent = run_dir / UNSENT_FILE
+        unsent = RunFolder(run_dir).mlflow_unsent
         if unsent.is_file():
             status = json.loads(unsent.read_text()).get("status", "FINISHED")
             client.set_terminated(run_id, status=status)

@@ -22,8 +22,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from ..errors import GnsError
-
-LOCK_FILE = ".gns-train.lock"
+from ..io.run_folder import RunFolder
 
 
 class RunFolderBusy(GnsError):
@@ -35,7 +34,7 @@ class RunFolderLock:
 
     def __init__(self, run_dir: str | Path):
         self.run_dir = Path(run_dir)
-        self.path = self.run_dir / LOCK_FILE
+        self.path = RunFolder(self.run_dir).lock
         self._fd: int | None = None
         self._created_dir = False
 

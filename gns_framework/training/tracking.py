@@ -10,6 +10,8 @@ import time
 from pathlib import Path
 from typing import Protocol
 
+from ..io.run_folder import RunFolder
+
 
 class Tracker(Protocol):
     def log_params(self, params: dict) -> None: ...
@@ -25,12 +27,12 @@ class JsonlTracker:
     """Appends ``{"step": s, "time": t, <metric>: value}`` lines; params go to ``params.json``."""
 
     def __init__(self, run_dir: Path):
-        self.run_dir = Path(run_dir)
-        self.run_dir.mkdir(parents=True, exist_ok=True)
-        self._metrics = open(self.run_dir / "metrics.jsonl", "a")
+        self.run = RunFolder(run_dir)
+        self.run.root.mkdir(parents=True, exist_ok=True)
+        self._metrics = open(self.run.metrics, "a")
 
     def log_params(self, params: dict) -> None:
-        (self.run_dir / "params.json").write_text(json.dumps(params, indent=2, default=str) + "\n")
+        self.run.params.write_text(json.dumps(params, indent=2, default=str) + "\n")
 
     def log_metrics(self, metrics: dict[str, float], step: int) -> None:
         self._metrics.write(json.dumps({"step": step, "time": time.time(), **metrics}) + "\n")
@@ -67,5 +69,5 @@ class TrackerGroup:
 
 
 def read_metrics(run_dir: Path) -> list[dict]:
-    path = Path(run_dir) / "metrics.jsonl"
+    path = RunFolder(run_dir).metrics
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []

@@ -26,13 +26,13 @@ from ..data.windows import WindowIndex, WindowOrder, window_noise_generator
 from ..errors import CheckpointError, DatasetError, GnsError, RecipeError
 from ..evaluation.candidates import granular_particle_types
 from ..io.checkpoint import (
-    checkpoint_name,
     make_room_for_a_fresh_start,
     prune_checkpoints,
     resume_point,
     save_checkpoint,
     set_aside_damaged,
 )
+from ..io.run_folder import RunFolder
 from ..model.envelope import measure_envelope
 from ..model.loss import masked_acceleration_loss, masked_squared_error_sum
 from ..model.noise import random_walk_noise, training_noise_std
@@ -45,14 +45,11 @@ from ..runtime.precision import autocast, backward_precision
 from . import distributed
 from .distributed import Processes
 from .ema import WeightAverage
-from .mlflow_tracker import RUN_FILE
 from .optim import make_optimizer
 from .provenance import git_commit
 from .rollout_validation import validation_rollout_metrics
 from .tracking import JsonlTracker, Tracker
 
-BEST_CHECKPOINT = "best.pt"
-"""File name, in the run's checkpoint folder, of the checkpoint with the best validation-rollout score."""
 
 
 def resolve_device(name: str, where: str = "--device") -> torch.device:
@@ -112,8 +109,9 @@ class Trainer:
     ):
         self.recipe = recipe.on_dataset(dataset_path) if dataset_path is not None else recipe
         self.registry = registry
-        self.run_dir = Path(run_dir) if run_dir is not None else recipe.run_dir
-        self.checkpoint_dir = self.run_dir / "checkpoints"
+        self.run = RunFolder(Path(run_dir) if run_dir is not None else recipe.run_dir)
+        """Every path of the run folder (:mod:`gns_framework.io.run_folder`)."""
+        self.run_dir, self.checkpoint_dir = self.run.root, self.run.checkpoints
         self.processes = processes if processes is not None else Processes()
         self.rank = self.processes.rank
         self.world_size = self.processes.world_size
@@ -197,7 +195,7 @@ class Trainer:
         if reason is not None:
             warnings.warn(
                 f"{self.data.dataset.path}: {reason}: training goes on without validation "
-                f"(no validation losses or rollouts, no {BEST_CHECKPOINT})",
+                f"(no validation losses or rollouts, no {RunFolder.BEST_CHECKPOINT})",
                 stacklevel=3,
             )
             return []
@@ -314,7 +312,7 @@ class Trainer:
         earlier, error = None, None
         if self.processes.is_chief:
             try:
-                earlier = make_room_for_a_fresh_start(self.checkpoint_dir, restart, [self.run_dir / RUN_FILE])
+                earlier = make_room_for_a_fresh_start(self.run, restart)
             except GnsError as exc:
                 error = exc
         earlier, error = self.processes.broadcast((earlier, error))
@@ -326,7 +324,7 @@ class Trainer:
         """Rank 0 writes a checkpoint of the current step; every rank waits until it is on disk."""
         path = None
         if self.processes.is_chief:
-            path = save_checkpoint(self.checkpoint_dir / checkpoint_name(self.step), self.state())
+            path = save_checkpoint(self.run.checkpoint(self.step), self.state())
             prune_checkpoints(self.checkpoint_dir, self.recipe.training.keep_checkpoints, self.history)
         self.processes.barrier()
         return path
@@ -465,8 +463,8 @@ class Trainer:
         if value is None or not value < self.best["value"]:
             return None
         self.best = {"metric": self.best["metric"], "value": float(value), "step": self.step}
-        path = save_checkpoint(self.checkpoint_dir / BEST_CHECKPOINT, self.state())
-        write_text_atomic(self.checkpoint_dir / "best.json", json.dumps(self.best, indent=2) + "\n")
+        path = save_checkpoint(self.run.best_checkpoint, self.state())
+        write_text_atomic(self.run.best_record, json.dumps(self.best, indent=2) + "\n")
         return path
 
     def train(self, steps: int | None = None) -> list[float]:
@@ -540,7 +538,7 @@ class Trainer:
                 "world_size": self.world_size,
             }
         )
-        recipe_file = self.run_dir / "recipe.yaml"
+        recipe_file = self.run.recipe
         write_text_atomic(recipe_file, yaml.safe_dump(self.recipe.resolved(), sort_keys=False))
         self.tracker.log_artifact(recipe_file)
 

@@ -17,7 +17,8 @@ from training_support import gns_command, last_logged_step, subprocess_env, tiny
 from gns_framework.cli import main
 from gns_framework.config.recipe import validate_recipe
 from gns_framework.errors import CheckpointError
-from gns_framework.io.checkpoint import FORMAT, checkpoint_name, list_checkpoints, load_checkpoint
+from gns_framework.io.checkpoint import FORMAT, list_checkpoints, load_checkpoint
+from gns_framework.io.run_folder import checkpoint_name
 from gns_framework.plugins import load_registry
 from gns_framework.training.trainer import Trainer
 

@@ -9,7 +9,7 @@ import pytest
 from training_support import tiny_recipe, write_recipe
 
 from gns_framework.cli import main
-from gns_framework.training.mlflow_tracker import RUN_FILE
+from gns_framework.io.run_folder import RunFolder
 
 mlflow = pytest.importorskip("mlflow")
 
@@ -27,7 +27,7 @@ def two_recipes(uneven_dataset, tmp_path_factory):
         recipe_file = write_recipe(root / f"{name}.yaml", recipe)
         run_dir = root / f"run-{name}"
         assert main(["train", str(recipe_file), "--out", str(run_dir), "--tracking-uri", uri, "--no-progress"]) == 0
-        run_ids[name] = json.loads((run_dir / RUN_FILE).read_text())["run_id"]
+        run_ids[name] = json.loads((run_dir / RunFolder.MLFLOW_RUN).read_text())["run_id"]
     return uri, run_ids, root
 
 

@@ -21,7 +21,8 @@ from training_support import (
     write_recipe,
 )
 
-from gns_framework.io.checkpoint import checkpoint_name, list_checkpoints, load_checkpoint
+from gns_framework.io.checkpoint import list_checkpoints, load_checkpoint
+from gns_framework.io.run_folder import checkpoint_name
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds torchrun's workers through /proc")
 

@@ -23,8 +23,8 @@ from training_support import (
 )
 
 from gns_framework.cli import main
-from gns_framework.io.checkpoint import checkpoint_name
-from gns_framework.training.mlflow_tracker import RUN_FILE
+from gns_framework.io.run_folder import checkpoint_name
+from gns_framework.io.run_folder import RunFolder
 from gns_framework.training.tracking import read_metrics
 
 mlflow = pytest.importorskip("mlflow")
@@ -63,8 +63,8 @@ def test_training_tracks_to_a_sqlite_store_created_on_first_use_and_compare_read
     train(recipe_file, tmp_path / "run-b", "--steps", "2")
 
     client = mlflow.tracking.MlflowClient(f"sqlite:///{tmp_path / 'mlflow.db'}")
-    run_a = json.loads((tmp_path / "run-a" / RUN_FILE).read_text())["run_id"]
-    run_b = json.loads((tmp_path / "run-b" / RUN_FILE).read_text())["run_id"]
+    run_a = json.loads((tmp_path / "run-a" / RunFolder.MLFLOW_RUN).read_text())["run_id"]
+    run_b = json.loads((tmp_path / "run-b" / RunFolder.MLFLOW_RUN).read_text())["run_id"]
     assert run_a != run_b
     check_tracked_run(client, run_a, steps=6)  # the resumed training went on in the same MLflow run
     assert client.get_run(run_a).data.tags["changed.recipe.training.steps"] == "4 -> 6"
@@ -97,7 +97,7 @@ def test_damaged_checkpoints_never_give_the_mlflow_run_a_second_history_and_a_re
     recipe_file = write_recipe(tmp_path / "recipe.yaml", tiny_recipe(uneven_dataset, steps=2, checkpoint_every=2))
     run_dir = tmp_path / "run"
     train(recipe_file, run_dir, "--tracking-uri", store)
-    first = json.loads((run_dir / RUN_FILE).read_text())["run_id"]
+    first = json.loads((run_dir / RunFolder.MLFLOW_RUN).read_text())["run_id"]
     client = mlflow.tracking.MlflowClient(store)
     history = [(m.step, m.value) for m in client.get_metric_history(first, "train_loss")]
     checkpoint = run_dir / "checkpoints" / checkpoint_name(2)
@@ -107,9 +107,9 @@ def test_damaged_checkpoints_never_give_the_mlflow_run_a_second_history_and_a_re
     assert main([*resumed, "--resume", "--no-progress"]) == 2
     assert "every checkpoint is damaged" in capsys.readouterr().err
     train(recipe_file, run_dir, "--tracking-uri", store, "--restart")
-    second = json.loads((run_dir / RUN_FILE).read_text())["run_id"]
+    second = json.loads((run_dir / RunFolder.MLFLOW_RUN).read_text())["run_id"]
     assert second != first
-    assert json.loads((run_dir / "earlier-1" / RUN_FILE).read_text())["run_id"] == first
+    assert json.loads((run_dir / "earlier-1" / RunFolder.MLFLOW_RUN).read_text())["run_id"] == first
     assert [(m.step, m.value) for m in client.get_metric_history(first, "train_loss")] == history
     check_tracked_run(client, second, steps=2)
 
@@ -202,7 +202,7 @@ def test_training_goes_on_without_mlflow_when_the_server_is_unreachable_at_the_s
     with pytest.warns(UserWarning, match=f"MLflow at {nobody} unreachable .*training goes on without it"):
         train(recipe_file, tmp_path / "run", "--tracking-uri", nobody)
     assert [line["step"] for line in read_metrics(tmp_path / "run")] == [2]
-    assert not (tmp_path / "run" / RUN_FILE).exists()
+    assert not (tmp_path / "run" / RunFolder.MLFLOW_RUN).exists()
 
 
 def test_rollout_and_evaluation_metrics_for_an_unreachable_server_are_a_warning(tmp_path, monkeypatch):
@@ -210,7 +210,7 @@ def test_rollout_and_evaluation_metrics_for_an_unreachable_server_are_a_warning(
 
     monkeypatch.setenv("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
     nobody = f"http://127.0.0.1:{free_loopback_port()}"
-    (tmp_path / RUN_FILE).write_text(json.dumps({"tracking_uri": nobody, "experiment": "x", "run_id": "abc"}))
+    (tmp_path / RunFolder.MLFLOW_RUN).write_text(json.dumps({"tracking_uri": nobody, "experiment": "x", "run_id": "abc"}))
     with pytest.warns(UserWarning, match=f"MLflow at {nobody} unreachable .*rollout_position_mse_test 0.5 not logged to its run abc"):
         assert log_to_recorded_run(tmp_path, {"rollout_position_mse_test": 0.5}, step=3) is None
 
@@ -247,7 +247,7 @@ def test_training_tracks_to_an_mlflow_server_on_loopback(uneven_dataset, tmp_pat
     try:
         recipe_file = write_recipe(tmp_path / "recipe.yaml", tiny_recipe(uneven_dataset, steps=2))
         train(recipe_file, tmp_path / "run", "--tracking-uri", url)
-        run_id = json.loads((tmp_path / "run" / RUN_FILE).read_text())["run_id"]
+        run_id = json.loads((tmp_path / "run" / RunFolder.MLFLOW_RUN).read_text())["run_id"]
         check_tracked_run(mlflow.tracking.MlflowClient(url), run_id, steps=2)
         assert list((tmp_path / "artifacts").rglob("recipe.yaml")), "artifacts did not reach the server's store"
     finally:
@@ -300,7 +300,7 @@ def test_an_mlflow_server_that_stops_during_training_never_holds_it_up_and_gets_
         if trainer.step == start_after:
             server_down.clear()
             servers.append(start_server(tmp_path, port))
-            run_id = json.loads((run_dir / RUN_FILE).read_text())["run_id"]
+            run_id = json.loads((run_dir / RunFolder.MLFLOW_RUN).read_text())["run_id"]
             deadline = time.monotonic() + 60
             while logged_steps(client, run_id) != list(range(1, start_after)) and time.monotonic() < deadline:
                 time.sleep(0.2)
@@ -312,7 +312,7 @@ def test_an_mlflow_server_that_stops_during_training_never_holds_it_up_and_gets_
     recipe_file = write_recipe(tmp_path / "recipe.yaml", recipe)
     try:
         train(recipe_file, run_dir, "--tracking-uri", url)
-        run_id = json.loads((run_dir / RUN_FILE).read_text())["run_id"]
+        run_id = json.loads((run_dir / RunFolder.MLFLOW_RUN).read_text())["run_id"]
         assert [str(w.message) for w in recwarn if "unreachable" in str(w.message)], "no warning of the outage"
         assert "is back" in capsys.readouterr().err
         check_tracked_run(client, run_id, steps=12)

@@ -16,8 +16,10 @@ import pytest
 from test_checkpoints import flip_tensor_byte, snapshot, train_cli
 from training_support import subprocess_env, tiny_recipe
 
-from gns_framework.io.checkpoint import checkpoint_name, list_checkpoints
-from gns_framework.training.run_lock import LOCK_FILE, RunFolderLock
+from gns_framework.io.checkpoint import list_checkpoints
+from gns_framework.io.run_folder import checkpoint_name
+from gns_framework.io.run_folder import RunFolder
+from gns_framework.training.run_lock import RunFolderLock
 
 HOLD = """
 import sys, time
@@ -70,7 +72,7 @@ def test_the_lock_is_held_for_the_whole_run_and_removed_after(uneven_dataset, tm
     def train(self, *args, **kwargs):
         with pytest.raises(Exception, match="another gns train is writing"):
             RunFolderLock(run_dir).acquire()
-        seen.append(json.loads((run_dir / LOCK_FILE).read_text()))
+        seen.append(json.loads((run_dir / RunFolder.LOCK).read_text()))
         return original(self, *args, **kwargs)
 
     monkeypatch.setattr(trainer_module.Trainer, "train", train)
@@ -78,7 +80,7 @@ def test_the_lock_is_held_for_the_whole_run_and_removed_after(uneven_dataset, tm
     import os
 
     assert seen and seen[0]["pid"] == os.getpid() and seen[0]["host"] == socket.gethostname()
-    assert not (run_dir / LOCK_FILE).exists()
+    assert not (run_dir / RunFolder.LOCK).exists()
 
 
 def test_a_lock_left_by_a_process_that_is_gone_is_taken_over(uneven_dataset, tmp_path, capsys):
@@ -86,7 +88,7 @@ def test_a_lock_left_by_a_process_that_is_gone_is_taken_over(uneven_dataset, tmp
     run_dir.mkdir()
     gone = subprocess.Popen([sys.executable, "-c", "pass"])
     gone.wait()
-    (run_dir / LOCK_FILE).write_text(json.dumps({"pid": gone.pid, "host": socket.gethostname(), "since": "x"}))
+    (run_dir / RunFolder.LOCK).write_text(json.dumps({"pid": gone.pid, "host": socket.gethostname(), "since": "x"}))
     assert train_cli(tiny_recipe(uneven_dataset, steps=2), run_dir) == 0
     assert f"taking over the lock of a writer that is gone (pid {gone.pid}" in capsys.readouterr().err
     assert [s for s, _ in list_checkpoints(run_dir / "checkpoints")] == [2]

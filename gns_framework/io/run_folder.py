@@ -1,0 +1,109 @@
+"""The layout of a training run's folder, in one place: every command finds a run's files through it.
+
+::
+
+    <run>/
+        checkpoints/checkpoint-<step>.pt   resumable checkpoints (newest kept, see keep_checkpoints)
+        checkpoints/best.pt, best.json     the best by validation rollout, and its score
+        recipe.yaml, params.json           the resolved recipe and the logged parameters
+        metrics.jsonl                      every logged metric, one JSON object per line
+        mlflow_run.json                    the MLflow run it logs to (when tracked)
+        mlflow_unsent.json                 what MLflow missed at the end (gns track-sync sends it)
+        .gns-train.lock                    held by the one gns train writing here
+        rollouts/                          gns rollout's default output
+        earlier-<n>/                       an earlier history, moved aside by --restart
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+CHECKPOINT_NAME = re.compile(r"^checkpoint-(\d{9})\.pt$")
+"""A resumable checkpoint's file name; the step is group 1 (9 digits, so names sort by step)."""
+
+
+def checkpoint_name(step: int) -> str:
+    return f"checkpoint-{step:09d}.pt"
+
+
+@dataclass(frozen=True)
+class RunFolder:
+    """The files of the run in ``root``."""
+
+    root: Path
+
+    CHECKPOINTS = "checkpoints"
+    BEST_CHECKPOINT = "best.pt"
+    BEST_RECORD = "best.json"
+    RECIPE = "recipe.yaml"
+    PARAMS = "params.json"
+    METRICS = "metrics.jsonl"
+    MLFLOW_RUN = "mlflow_run.json"
+    MLFLOW_UNSENT = "mlflow_unsent.json"
+    LOCK = ".gns-train.lock"
+    ROLLOUTS = "rollouts"
+
+    def __post_init__(self):
+        object.__setattr__(self, "root", Path(self.root))
+
+    @classmethod
+    def of_checkpoint(cls, checkpoint: str | Path) -> RunFolder:
+        """The run a checkpoint file belongs to: the folder above its ``checkpoints/``."""
+        return cls(Path(checkpoint).parent.parent)
+
+    @property
+    def checkpoints(self) -> Path:
+        return self.root / self.CHECKPOINTS
+
+    def checkpoint(self, step: int) -> Path:
+        """``checkpoints/checkpoint-<step, 9 digits>.pt``: names sort by step."""
+        return self.checkpoints / checkpoint_name(step)
+
+    @property
+    def best_checkpoint(self) -> Path:
+        return self.checkpoints / self.BEST_CHECKPOINT
+
+    @property
+    def best_record(self) -> Path:
+        return self.checkpoints / self.BEST_RECORD
+
+    @property
+    def recipe(self) -> Path:
+        return self.root / self.RECIPE
+
+    @property
+    def params(self) -> Path:
+        return self.root / self.PARAMS
+
+    @property
+    def metrics(self) -> Path:
+        return self.root / self.METRICS
+
+    @property
+    def mlflow_run(self) -> Path:
+        return self.root / self.MLFLOW_RUN
+
+    @property
+    def mlflow_unsent(self) -> Path:
+        return self.root / self.MLFLOW_UNSENT
+
+    @property
+    def lock(self) -> Path:
+        return self.root / self.LOCK
+
+    @property
+    def rollouts(self) -> Path:
+        return self.root / self.ROLLOUTS
+
+    def earlier(self, number: int) -> Path:
+        """``earlier-<number>/``: where ``--restart`` moves the ``number``-th earlier history."""
+        return self.root / f"earlier-{number}"
+
+    def next_earlier(self) -> Path:
+        """The first ``earlier-<n>/`` that does not exist yet."""
+        number = 1
+        while self.earlier(number).exists():
+            number += 1
+        return self.earlier(number)
