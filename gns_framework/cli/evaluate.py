@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluation.candidates import cases_from_split, compare
     from ..evaluation.report import write_report
     from ..plugins import load_registry
-    from ..training.trainer import resolve_device
+    from ..runtime.device import resolve_device
 
     from ..outputs import check_folder, claim_folder
 

@@ -26,10 +26,10 @@ from ..model.rollout import rollout
 from ..outputs import check_folder, claim_folder
 from ..model.rollout_guard import RolloutGuard
 from ..plugins import load_registry
+from ..runtime.device import resolve_device
 from ..runtime.precision import PRECISIONS
 from ..safe_names import ensure_inside, require_component, safe_component
 from ..training.mlflow_tracker import log_to_recorded_run
-from ..training.trainer import resolve_device
 from .arguments import add_allow_pickle, non_negative_float, positive_int
 from .envelope_option import add_outside_envelope, enforce_envelope
 

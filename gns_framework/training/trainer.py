@@ -37,6 +37,7 @@ from ..model.envelope import measure_envelope
 from ..model.loss import masked_acceleration_loss, masked_squared_error_sum
 from ..model.noise import random_walk_noise, training_noise_std
 from ..plugins import Registry
+from ..runtime.device import resolve_device
 from ..runtime.activation_memory import set_recompute_activations
 from ..runtime.allocator import keep_freed_memory
 from ..runtime.deterministic import set_deterministic_sums
@@ -50,29 +51,6 @@ from .provenance import git_commit
 from .rollout_validation import validation_rollout_metrics
 from .tracking import JsonlTracker, Tracker
 
-
-
-def resolve_device(name: str, where: str = "--device") -> torch.device:
-    """The device ``name`` (auto, cpu, cuda or cuda:N) means here; a GnsError naming ``where`` when there is none."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        device = torch.device(name)
-    except (RuntimeError, ValueError, TypeError):
-        raise GnsError(f"{where} {name!r}: not a device: expected auto, cpu, cuda or cuda:N") from None
-    if device.type == "cpu":
-        return device
-    if device.type != "cuda":
-        raise GnsError(f"{where} {name!r}: not supported: expected auto, cpu, cuda or cuda:N")
-    if not torch.cuda.is_available():
-        raise GnsError(f"{where} {name!r}: no CUDA device is available on this machine (use cpu or auto)")
-    count = torch.cuda.device_count()
-    if device.index is not None and device.index >= count:
-        raise GnsError(
-            f"{where} {name!r}: this machine has {count} CUDA device{'s' if count != 1 else ''} "
-            f"(cuda:0 to cuda:{count - 1})"
-        )
-    return device
 
 
 class Trainer:

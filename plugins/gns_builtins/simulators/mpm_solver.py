@@ -11,6 +11,7 @@ import numpy as np
 import warp as wp
 
 from gns_framework.ground_truth.sampling import BodySample
+from gns_framework.runtime.device import choose_device
 from gns_framework.ground_truth.scene_spec import SceneSpec
 
 from .mpm_kernels import BOX, ELLIPSOID, PLANE, POLYGON, kernels
@@ -49,11 +50,9 @@ def init_warp(cuda_wanted: bool) -> None:
 
 
 def resolve_device(name: str) -> str:
-    """``auto`` picks the first CUDA device when there is one, else the CPU."""
+    """The Warp device ``name`` (auto, cpu, cuda or cuda:N) means here, by the project's one device policy."""
     init_warp(cuda_wanted=name.startswith("cuda"))
-    if name == "auto":
-        return "cuda:0" if wp.get_cuda_device_count() > 0 else "cpu"
-    return name
+    return choose_device(name, wp.get_cuda_device_count, "simulator.device (or --device)")
 
 
 def obstacle_arrays(obstacles: list[BodySample], d: int, vec) -> list[tuple[np.ndarray, type]]:

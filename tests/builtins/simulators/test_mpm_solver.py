@@ -8,6 +8,8 @@ import pytest
 
 from gns_builtins.simulators import mpm_solver
 
+from gns_framework.errors import GnsError
+
 
 def _noisy_init():
     """What Warp's core does on a machine without a driver: C-level writes to descriptor 2."""
@@ -19,8 +21,11 @@ def _noisy_init():
 def test_the_missing_driver_warning_is_dropped_only_when_cuda_was_not_asked_for(monkeypatch, capfd, device, warned):
     monkeypatch.setattr(mpm_solver.wp, "init", _noisy_init)
     monkeypatch.setattr(mpm_solver.wp, "get_cuda_device_count", lambda: 0)
-    chosen = mpm_solver.resolve_device(device)
-    assert chosen == ("cpu" if device == "auto" else device)
+    if device.startswith("cuda"):
+        with pytest.raises(GnsError, match="simulator.device .* no CUDA device is available"):
+            mpm_solver.resolve_device(device)
+    else:
+        assert mpm_solver.resolve_device(device) == "cpu"
     err = capfd.readouterr().err
     assert (mpm_solver.NO_CUDA_DRIVER in err) is warned
     assert "Warp: some other notice" in err, "only the driver line is dropped"
