@@ -2,7 +2,7 @@
 
 Usage:
     python benchmarks/swaps.py --data DIR --held-out DIR [--base recipes/sizes/sand2d_fast_3x32.yaml]
-        [--steps 1500] [--seeds 0] [--cases 10] [--threads 1] [--json]
+        [--steps 1500] [--seeds 0] [--cases 10] [--threads 1] [--swaps egnn knn ...] [--json]
 
 The swaps are the recipes in ``recipes/swaps/``: each differs from the reference
 recipe (``recipes/sand2d.yaml``) in one component (processor, integrator or graph
@@ -126,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--cases", type=int, default=10)
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--swaps", nargs="+", metavar="RECIPE", help="only these recipes of recipes/swaps/ (file stems); the base always runs")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -138,6 +139,8 @@ def main(argv: list[str] | None = None) -> int:
     reference = yaml.safe_load((ROOT / "recipes" / "sand2d.yaml").read_text())
     rows: list[tuple[str, str, dict, str | None]] = [("(base)", base["model"]["processor"]["name"], {}, None)]
     for path in sorted((ROOT / "recipes" / "swaps").glob("*.yaml")):
+        if args.swaps and path.stem not in args.swaps:
+            continue
         swap = yaml.safe_load(path.read_text())
         found = swapped_component(swap, reference)
         if found is None:
