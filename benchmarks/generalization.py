@@ -26,6 +26,7 @@ import argparse
 import json
 import statistics
 import sys
+import tempfile
 from pathlib import Path
 
 import torch
@@ -52,8 +53,11 @@ def dataset(scene_path: Path, out: Path, test: int, seed: int | None, registry) 
     return out
 
 
-def evaluate(model_path: Path, data: Path, registry, device) -> dict[str, dict[str, dict]]:
-    """case key -> {"learned": metrics, "mpm_half": metrics} on the test split of ``data``."""
+def evaluate(model_path: Path, data: Path, registry, device, gif: Path | None = None) -> dict[str, dict[str, dict]]:
+    """case key -> {"learned": metrics, "mpm_half": metrics} on the test split of ``data``.
+
+    With ``gif``, the learned rollout of the first case is drawn there beside the MPM's (every 4th frame).
+    """
     from gns_framework.assembly.data import open_dataset
     from gns_framework.assembly.trained import load_trained
     from gns_framework.evaluation.candidates import cases_from_split, compare
@@ -67,8 +71,17 @@ def evaluate(model_path: Path, data: Path, registry, device) -> dict[str, dict[s
         scene = model.simulator.scene
         for line in outside_envelope(model.envelope, data_set.metadata(), cases, scene.history, scene.kinematic_types):
             print(f"{data}: outside the model's envelope: {line}", file=sys.stderr)
-    report = compare([("learned", model)], cases, data_set.metadata(), registry, device,
-                     grid_scales=(0.5,), repeats=1, warmup=0)
+    with tempfile.TemporaryDirectory() as rollouts:
+        report = compare([("learned", model)], cases, data_set.metadata(), registry, device,
+                         grid_scales=(0.5,), repeats=1, warmup=0, rollout_dir=Path(rollouts) if gif else None)
+        if gif is not None:
+            from gns_framework.io.rollout_file import load_rollout
+            from gns_framework.viz.animation import animate_rollout
+
+            learned = next(e for e in report.entries if e.kind == "learned")
+            names = {t: registry.material_by_type(t).cls.name for t in model.simulator.scene.particle_types}
+            animate_rollout(load_rollout(learned.rollout_files[0]), gif, every=4, material_names=names)
+            print(f"animation: {gif}", file=sys.stderr)
     by_kind = {("learned" if e.kind == "learned" else "mpm_half"): e for e in report.entries}
     return {key: {kind: entry.cases[key] for kind, entry in by_kind.items()} for key in by_kind["learned"].cases}
 
@@ -81,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization", help="datasets are kept here")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--json", action="store_true", help="also print the per-scene figures as one JSON line")
+    parser.add_argument("--gifs", type=Path, metavar="DIR", help="draw each canonical scene's rollout beside the MPM's as DIR/<scene>.gif")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
 
@@ -95,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     canonical = {}
     for scene_path in sorted((ROOT / "scenes" / "canonical").glob("*.yaml")):
         data = dataset(scene_path, args.out / "canonical" / scene_path.stem, 1, None, registry)
-        (case,) = evaluate(args.model, data, registry, device).values()
+        gif = args.gifs / f"{scene_path.stem}.gif" if args.gifs else None
+        (case,) = evaluate(args.model, data, registry, device, gif).values()
         canonical[scene_path.stem] = case
     groups["canonical"] = canonical
 
