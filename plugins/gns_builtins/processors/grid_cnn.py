@@ -50,7 +50,21 @@ class ParticleGrid:
         base = torch.floor(u.detach())
         frac = u - base
         base = base.long()
-        self.shape = tuple(int(s) + 2 for s in base.amax(0).tolist())
+        # Each example's own grid ends one cell beyond its highest particle's cell; the batch's grids
+        # share the largest shape, and the cells beyond an example's own are masked to zero after every
+        # convolution, as zero padding at its own edge would be: an example's result never depends on
+        # the others in its batch.
+        own = torch.zeros((num_examples, dim), dtype=torch.long, device=position.device)
+        own = own.scatter_reduce(0, batch[:, None].expand(-1, dim), base + 2, "amax")
+        self.shape = tuple(int(s) for s in own.amax(0).tolist())
+        axes = [torch.arange(size, device=position.device) for size in self.shape]
+        inside = torch.ones((num_examples, *self.shape), dtype=torch.bool, device=position.device)
+        for k, axis in enumerate(axes):
+            view = [1] * (dim + 1)
+            view[0], view[k + 1] = num_examples, self.shape[k]
+            inside &= axis.view(1, -1).expand(num_examples, -1).reshape(view) < own[:, k].view([-1] + [1] * dim)
+        self.inside = inside[:, None].to(position.dtype)
+        """(B, 1, *shape) 1 in each example's own cells, 0 beyond."""
         strides = [1] * dim
         for k in range(dim - 2, -1, -1):
             strides[k] = strides[k + 1] * self.shape[k + 1]
@@ -104,7 +118,7 @@ class GridRound(nn.Module):
         for k, conv in enumerate(self.convs):
             values = conv(values)
             if k < len(self.convs) - 1:
-                values = self.activation(values)
+                values = self.activation(values) * grid.inside
         return h + self.node_mlp(torch.cat([h, grid.to_particles(values)], dim=-1))
 
 

@@ -65,3 +65,20 @@ def test_the_processor_is_invariant_to_a_translation_by_whole_cells_and_needs_po
     assert not torch.allclose(half, out), "a shift by half a cell moves the particles across their cells"
     with pytest.raises(ValueError, match="Graph.position"):
         processor(latent, edges, Graph(position.new_zeros(0, dtype=torch.long), position.new_zeros(0, dtype=torch.long), edges[:, :2], 30))
+
+
+def test_an_example_comes_out_of_a_batch_as_it_comes_out_alone():
+    """Grids of a batch share the largest shape; each example's cells beyond its own are masked like zero padding."""
+    sizes = small_sizes()
+    processor = GridProcessor(GridProcessor.Params(message_passing_steps=2, conv_layers=3), sizes).double()
+    generator = torch.Generator().manual_seed(2)
+    small = torch.rand(12, sizes.dim, generator=generator, dtype=torch.float64) * 0.3
+    large = torch.rand(20, sizes.dim, generator=generator, dtype=torch.float64) * 2.0
+    latent = torch.randn(32, sizes.latent, generator=generator, dtype=torch.float64)
+    edges = torch.zeros(0, sizes.latent, dtype=torch.float64)
+    batch = torch.cat([torch.zeros(12, dtype=torch.long), torch.ones(20, dtype=torch.long)])
+    together, _ = processor(latent, edges, _graph(torch.cat([small, large]), batch, 2))
+    alone_small, _ = processor(latent[:12], edges, _graph(small))
+    alone_large, _ = processor(latent[12:], edges, _graph(large))
+    torch.testing.assert_close(together[:12], alone_small, rtol=0, atol=1e-12)
+    torch.testing.assert_close(together[12:], alone_large, rtol=0, atol=1e-12)
