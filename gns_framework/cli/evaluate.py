@@ -27,13 +27,14 @@ def _scales(text: str) -> list[float]:
 def model_labels(recipe_names: list[str], checkpoints: list[Path]) -> list[str]:
     """One label per model, safe as a file name and unique: rollouts and GIFs are written under it.
 
-    One model is labelled by its recipe's name; several by recipe, run folder and
-    checkpoint file (``sand2d.run-a.checkpoint-000001000``), since two checkpoints
-    of one recipe often share a file name. Characters outside ``[A-Za-z0-9_.-]``
-    become ``_``, and a label seen before gets ``-2``, ``-3``, ...; what is left is a
-    safe file name (:func:`gns_framework.safe_names.unique_components`).
+    Models of different recipes are labelled by their recipes' names; models that share
+    a recipe name by recipe, run folder and checkpoint file
+    (``sand2d.run-a.checkpoint-000001000``), since two checkpoints of one recipe often
+    share a file name. Characters outside ``[A-Za-z0-9_.-]`` become ``_``, and a label
+    seen before gets ``-2``, ``-3``, ...; what is left is a safe file name
+    (:func:`gns_framework.safe_names.unique_components`).
     """
-    if len(checkpoints) == 1:
+    if len(set(recipe_names)) == len(recipe_names):
         raw = list(recipe_names)
     else:
         raw = [f"{name}.{RunFolder.of_checkpoint(path.resolve()).root.name}.{path.stem}" for name, path in zip(recipe_names, checkpoints)]

@@ -93,6 +93,10 @@ def test_model_labels_are_safe_file_names_and_unique():
     same = [Path("runs/a b/checkpoints/best.pt"), Path("runs/c/checkpoints/best.pt"), Path("runs/c/checkpoints/best.pt")]
     assert model_labels(["sand2d"] * 3, same) == ["sand2d.a_b.best", "sand2d.c.best", "sand2d.c.best-2"]
     assert model_labels(["x/../y"], [Path("m.pt")]) == ["x_.._y"]
+    # Models of different recipes keep their recipes' names, wherever their files are.
+    assert model_labels(["sand2d-fast", "sand2d-fast-grid"], [Path("models/a.pt"), Path("models/b.pt")]) == [
+        "sand2d-fast", "sand2d-fast-grid",
+    ]
 
 
 def test_evaluate_rejects_bad_scales(tmp_path: Path):
