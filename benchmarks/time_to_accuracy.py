@@ -2,15 +2,25 @@
 
 Usage:
     python benchmarks/time_to_accuracy.py --budget-minutes M --data DIR --threads T [--json]
-        [--reference recipes/sand2d.yaml] [--ours recipes/sand2d_fast_pushforward.yaml] [--points P] [--trajectories K]
+        [--held-out DIR] [--seeds S] [--reference recipes/sand2d.yaml] [--ours recipes/sand2d_fast_pushforward.yaml]
+        [--points P] [--trajectories K]
 
 Each recipe trains from scratch for M minutes of wall clock on the same dataset
-and the same number of threads, one after the other (never at once: runs that
-share the cores slow each other down). At P evenly spaced wall-clock points the
-clock stops, the current model rolls out the first K trajectories of the test
-split from their first C frames, and three errors are recorded: runout error
-(% of the true runout), final-cloud Sinkhorn distance (% of the domain size) and
-position MSE over the whole rollout. Evaluation time is not training time.
+and the same number of threads, once per seed (``--seeds``, recipe seeds 0..S-1),
+one run after the other and alternating between the recipes (reference seed 0,
+ours seed 0, reference seed 1, ...), so that load on a shared machine hits both
+alike; never two at once (runs that share the cores slow each other down). At P
+evenly spaced wall-clock points the clock stops, the model the recipe would ship
+(its weight average when it keeps one, ``training.ema_decay``, else its weights)
+rolls out the first K test trajectories of ``--held-out`` (default: the training
+dataset's test split) from their first C frames, and three errors are recorded:
+runout error (% of the true runout), final-cloud Sinkhorn distance (% of the domain
+size) and position MSE over the whole rollout. Evaluation time is not training time.
+
+Reported per recipe and time point: the mean and the spread (lowest, highest) over
+the seeds; per seed, whether the rollout error was steady (after the first third of
+the budget, no runout error above twice the best so far); and the ratio reference /
+ours of the late medians, per seed pairing and as the median with its spread.
 
 A recipe with a schedule fitted to its step budget (``schedule: cosine``) needs
 a step count: its step time is measured first on 20 throwaway steps, and
@@ -62,9 +72,9 @@ def _overrides(threads: int, steps: int | None = None) -> dict:
     return {"training": training}
 
 
-def _trainer(recipe_path: Path, data: Path, threads: int, run_dir: Path, steps: int | None = None) -> Trainer:
+def _trainer(recipe_path: Path, data: Path, threads: int, run_dir: Path, steps: int | None = None, seed: int = 0) -> Trainer:
     registry = load_registry()
-    recipe = load_recipe(recipe_path, registry, _overrides(threads, steps))
+    recipe = load_recipe(recipe_path, registry, {**_overrides(threads, steps), "seed": seed})
     # An empty tracker group tracks nothing: the benchmark prints its figures.
     return Trainer(recipe, registry, run_dir=run_dir, dataset_path=data, progress=False, tracker=TrackerGroup([]))
 
@@ -84,12 +94,20 @@ def _step_budget(recipe_path: Path, data: Path, threads: int, minutes: float, sc
     return max(CALIBRATION_STEPS, int(minutes * 60 / seconds))
 
 
-def run_recipe(recipe_path: Path, data: Path, threads: int, minutes: float, points: int, trajectories: int) -> dict:
+def run_recipe(
+    recipe_path: Path, data: Path, threads: int, minutes: float, points: int, trajectories: int,
+    seed: int = 0, held_out: Path | None = None,
+) -> dict:
     with tempfile.TemporaryDirectory() as scratch:
         scratch = Path(scratch)
         steps = _step_budget(recipe_path, data, threads, minutes, scratch)
-        trainer = _trainer(recipe_path, data, threads, scratch / "run", steps=steps if steps else 10**9)
-        test = trainer.data.dataset.split("test")
+        trainer = _trainer(recipe_path, data, threads, scratch / "run", steps=steps if steps else 10**9, seed=seed)
+        if held_out is None:
+            test = trainer.data.dataset.split("test")
+        else:
+            from gns_framework.assembly.data import open_dataset
+
+            test = open_dataset(trainer.recipe.dataset, trainer.registry, held_out).split("test")
         cases = [test[i] for i in range(min(trajectories, len(test)))]
         granular = granular_particle_types(trainer.data.scene, trainer.registry)
         marks = [minutes * 60 * (k + 1) / points for k in range(points)]
@@ -101,15 +119,33 @@ def run_recipe(recipe_path: Path, data: Path, threads: int, minutes: float, poin
                 started = time.perf_counter()
                 trainer.train_step()
                 trained += time.perf_counter() - started
-            trainer.simulator.eval()
-            scores = validation_rollout_metrics(trainer.simulator, cases, trainer.data.metadata, granular, trainer.device)
+            # What the recipe would ship: the weight average when it keeps one.
+            shipped = trainer.ema.module if trainer.ema is not None else trainer.simulator
+            shipped.eval()
+            scores = validation_rollout_metrics(shipped, cases, trainer.data.metadata, granular, trainer.device)
             trainer.simulator.train()
             point = {"minutes": trained / 60, "step": trainer.step}
             point.update({name: scores.get(key) for name, key in METRICS.items()})
             evaluations.append(point)
             print(f"  {trainer.recipe.name}: {point['minutes']:6.2f} min, step {point['step']:6d}: "
                   + ", ".join(f"{name} {point[name]:.4g}" for name in METRICS if point[name] is not None), flush=True)
-        return {"recipe": str(recipe_path), "name": trainer.recipe.name, "steps": trainer.step, "evaluations": evaluations}
+        return {
+            "recipe": str(recipe_path), "name": trainer.recipe.name, "seed": seed, "steps": trainer.step,
+            "evaluations": evaluations, "steady": steady(evaluations, minutes),
+        }
+
+
+def steady(evaluations: list[dict], minutes: float, metric: str = "runout_error_pct") -> bool | None:
+    """Whether, after the first third of the budget, no evaluation's ``metric`` exceeds twice the best so far."""
+    best, ok = None, True
+    for point in evaluations:
+        value = point[metric]
+        if value is None:
+            return None
+        if best is not None and point["minutes"] > minutes / 3 and value > 2 * best:
+            ok = False
+        best = value if best is None else min(best, value)
+    return ok
 
 
 def _late_medians(evaluations: list[dict]) -> dict:
@@ -130,12 +166,22 @@ def _ratios(errors: dict[str, dict]) -> dict:
     return ratios
 
 
-def _print_table(title: str, errors: dict[str, dict], ratios: dict) -> None:
-    print(f"\n{title:<17}" + "".join(f"{name:>20}" for name in METRICS))
-    for role, values in errors.items():
-        print(f"{role:<17}" + "".join(f"{values[n]:>20.4g}" if values[n] is not None else f"{'-':>20}" for n in METRICS))
-    print(f"{'reference / ours':<17}" + "".join(f"{ratios[n]:>20.2f}" if ratios[n] is not None else f"{'-':>20}"
-                                               for n in METRICS))
+def _spread(values: list[float]) -> dict | None:
+    """mean, median, lowest and highest of ``values`` (None when empty)."""
+    if not values:
+        return None
+    return {"mean": statistics.fmean(values), "median": statistics.median(values), "low": min(values), "high": max(values)}
+
+
+def spread_per_point(seeded: list[dict]) -> list[dict]:
+    """Per evaluation point: minutes (mean over seeds) and each metric's spread over the seeds."""
+    points = []
+    for k in range(min(len(run["evaluations"]) for run in seeded)):
+        at = [run["evaluations"][k] for run in seeded]
+        point = {"minutes": statistics.fmean(p["minutes"] for p in at)}
+        point.update({name: _spread([p[name] for p in at if p[name] is not None]) for name in METRICS})
+        points.append(point)
+    return points
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -148,7 +194,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ours", type=Path, default=REPO / "recipes" / "sand2d_fast_pushforward.yaml",
                         help="the project's best recipe (default: the fast recipe with push-forward)")
     parser.add_argument("--points", type=int, default=5, help="evaluations per run (evenly spaced in wall clock)")
-    parser.add_argument("--trajectories", type=int, default=4, help="test trajectories rolled out per evaluation")
+    parser.add_argument("--trajectories", type=int, default=20, help="test trajectories rolled out per evaluation")
+    parser.add_argument("--held-out", type=Path, help="dataset whose test split is rolled out (default: --data's)")
+    parser.add_argument("--seeds", type=int, default=3, help="runs per recipe, recipe seeds 0..S-1, alternating recipes")
     parser.add_argument("--late", type=int, default=3,
                         help="evaluations at the end whose median gives the steadier ratio (all of them if fewer)")
     args = parser.parse_args(argv)
@@ -157,19 +205,35 @@ def main(argv: list[str] | None = None) -> int:
     args.late = min(args.late, args.points)
     torch.set_num_threads(args.threads)
 
-    runs = {}
-    for role, path in (("reference", args.reference), ("ours", args.ours)):
-        print(f"{role}: {path}, {args.budget_minutes} min on {args.threads} thread(s)", flush=True)
-        runs[role] = run_recipe(path, args.data, args.threads, args.budget_minutes, args.points, args.trajectories)
-    final = {role: run["evaluations"][-1] for role, run in runs.items()}
-    late = {role: _late_medians(run["evaluations"][-args.late:]) for role, run in runs.items()}
-    ratios, late_ratios = _ratios(final), _ratios(late)
-    _print_table("final errors", final, ratios)
-    _print_table(f"median of the last {args.late}", late, late_ratios)
+    runs: dict[str, list[dict]] = {"reference": [], "ours": []}
+    for seed in range(args.seeds):
+        for role, path in (("reference", args.reference), ("ours", args.ours)):
+            print(f"{role}: {path}, seed {seed}, {args.budget_minutes} min on {args.threads} thread(s)", flush=True)
+            runs[role].append(run_recipe(path, args.data, args.threads, args.budget_minutes, args.points,
+                                         args.trajectories, seed, args.held_out))
+    summary = {role: spread_per_point(seeded) for role, seeded in runs.items()}
+    for role, points in summary.items():
+        print(f"\n{role} ({runs[role][0]['name']}), mean [lowest, highest] over {args.seeds} seed(s):")
+        for point in points:
+            print(f"  {point['minutes']:6.2f} min: " + ", ".join(
+                f"{name} {point[name]['mean']:.4g} [{point[name]['low']:.4g}, {point[name]['high']:.4g}]"
+                for name in METRICS if point[name] is not None))
+        print(f"  steady (no runout error above 2x the best so far after a third of the budget): "
+              f"{[run['steady'] for run in runs[role]]}")
+    per_seed = [_ratios({"reference": _late_medians(ref["evaluations"][-args.late:]),
+                         "ours": _late_medians(ours["evaluations"][-args.late:])})
+                for ref, ours in zip(runs["reference"], runs["ours"])]
+    late_ratio = {name: _spread([r[name] for r in per_seed if r[name] is not None]) for name in METRICS}
+    print(f"\nreference / ours, median of the last {args.late} evaluations, per seed: "
+          + "; ".join(", ".join(f"{n} {r[n]:.2f}" for n in METRICS if r[n] is not None) for r in per_seed))
+    print("over the seeds: " + ", ".join(
+        f"{name} {v['median']:.2f} [{v['low']:.2f}, {v['high']:.2f}]" for name, v in late_ratio.items() if v is not None))
     if args.json:
         print(json.dumps({"budget_minutes": args.budget_minutes, "threads": args.threads, "data": str(args.data),
-                          "runs": runs, "ratio_reference_over_ours": ratios, "late": args.late,
-                          "late_median": late, "ratio_reference_over_ours_late_median": late_ratios}))
+                          "held_out": str(args.held_out) if args.held_out else None, "seeds": args.seeds,
+                          "runs": runs, "per_point": summary, "late": args.late,
+                          "ratio_reference_over_ours_late_median_per_seed": per_seed,
+                          "ratio_reference_over_ours_late_median": late_ratio}))
     return 0
 
 

@@ -25,31 +25,56 @@ def test_both_recipes_train_on_the_same_budget_and_report_ratios(tmp_path):
     for name, raw in (("reference", reference), ("ours", ours)):
         paths[name] = tmp_path / f"{name}.yaml"
         paths[name].write_text(yaml.safe_dump(raw))
+    held_out = write_synthetic_dataset(tmp_path / "held_out", train=1, valid=0, test=2, particle_types=(6,), frames=24)
     command = [sys.executable, str(SCRIPT), "--budget-minutes", "0.05", "--data", str(data), "--threads", "1",
-               "--points", "2", "--trajectories", "1", "--reference", str(paths["reference"]), "--ours",
-               str(paths["ours"]), "--json"]
-    result = subprocess.run(command, capture_output=True, text=True, timeout=600)
+               "--points", "2", "--trajectories", "2", "--held-out", str(held_out), "--seeds", "2",
+               "--reference", str(paths["reference"]), "--ours", str(paths["ours"]), "--json"]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr
     figures = json.loads(result.stdout.strip().splitlines()[-1])
-    assert figures["budget_minutes"] == 0.05 and figures["threads"] == 1
+    assert figures["budget_minutes"] == 0.05 and figures["threads"] == 1 and figures["seeds"] == 2
+    assert figures["held_out"] == str(held_out)
     for role, name in (("reference", "tiny"), ("ours", "tiny-ours")):
-        run = figures["runs"][role]
-        assert run["name"] == name and len(run["evaluations"]) == 2
-        first, last = run["evaluations"]
-        assert 0 < first["minutes"] <= last["minutes"] and first["step"] <= last["step"]
-        # Training time is what the budget counts: at most one step beyond it.
-        assert last["minutes"] <= 0.05 * 1.5
-        for metric in ("runout_error_pct", "sinkhorn_pct", "position_mse"):
-            assert last[metric] is not None and last[metric] >= 0
+        runs = figures["runs"][role]
+        assert [run["seed"] for run in runs] == [0, 1] and all(run["name"] == name for run in runs)
+        for run in runs:
+            first, last = run["evaluations"]
+            assert 0 < first["minutes"] <= last["minutes"] and first["step"] <= last["step"]
+            # Training time is what the budget counts: at most one step beyond it.
+            assert last["minutes"] <= 0.05 * 1.5
+            for metric in ("runout_error_pct", "sinkhorn_pct", "position_mse"):
+                assert last[metric] is not None and last[metric] >= 0
+            assert run["steady"] in (True, False)
+        # The spread per point is over the seeds' values at that point.
+        for k, point in enumerate(figures["per_point"][role]):
+            values = [run["evaluations"][k]["sinkhorn_pct"] for run in runs]
+            assert point["sinkhorn_pct"]["low"] == min(values) and point["sinkhorn_pct"]["high"] == max(values)
+            assert abs(point["sinkhorn_pct"]["mean"] - sum(values) / 2) <= 1e-12 * max(values)
     # ours uses a cosine schedule: its step budget was measured so the schedule ends with the budget.
-    assert figures["runs"]["ours"]["steps"] >= 20
-    finals = {role: figures["runs"][role]["evaluations"][-1] for role in ("reference", "ours")}
-    for metric, ratio in figures["ratio_reference_over_ours"].items():
-        assert ratio == finals["reference"][metric] / finals["ours"][metric]
+    assert all(run["steps"] >= 20 for run in figures["runs"]["ours"])
     # --late defaults to 3, more than the 2 points here: both evaluations count, the median is their mean.
     assert figures["late"] == 2
-    for metric, ratio in figures["ratio_reference_over_ours_late_median"].items():
-        medians = {role: sum(e[metric] for e in figures["runs"][role]["evaluations"]) / 2 for role in finals}
-        assert figures["late_median"]["reference"][metric] == medians["reference"]
-        assert abs(ratio - medians["reference"] / medians["ours"]) <= 1e-12 * ratio
-    assert "reference / ours" in result.stdout
+    per_seed = figures["ratio_reference_over_ours_late_median_per_seed"]
+    for seed, ratios in enumerate(per_seed):
+        for metric, ratio in ratios.items():
+            medians = {role: sum(e[metric] for e in figures["runs"][role][seed]["evaluations"]) / 2
+                       for role in ("reference", "ours")}
+            assert abs(ratio - medians["reference"] / medians["ours"]) <= 1e-12 * ratio
+    for metric, spread in figures["ratio_reference_over_ours_late_median"].items():
+        assert spread["low"] == min(r[metric] for r in per_seed) and spread["high"] == max(r[metric] for r in per_seed)
+    assert "reference / ours" in result.stdout and "steady" in result.stdout
+
+
+def test_steadiness_is_judged_after_the_first_third_of_the_budget():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("tta", SCRIPT)
+    tta = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tta)
+
+    def points(*pairs):
+        return [{"minutes": m, "runout_error_pct": v} for m, v in pairs]
+
+    assert tta.steady(points((1, 50), (2, 200), (4, 20), (6, 30), (9, 39)), 9)  # 200 falls in the first third
+    assert not tta.steady(points((1, 50), (4, 20), (6, 41)), 9)  # 41 > 2 x 20 after a third
+    assert tta.steady(points((4, 20), (6, 40)), 9)  # exactly twice is not above it
