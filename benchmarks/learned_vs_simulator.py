@@ -7,6 +7,7 @@ to keep the simulator's CFL number, its substeps per frame grow with the grid
 their connectivity radius scaled to the spacing (the same ~13 neighbours each, self included):
 
     fast       the shipped model's architecture (5 x 64, one step per 2 stored frames)
+    grid       the shipped grid-processor model (models/sand2d_fast_grid.pt: grid_cnn, 32 wide, stride 2)
     reference  the paper's (10 x 128, one step per stored frame)
 
 Each learned case times full rollout steps (graph, features, model, integration) on the
@@ -86,9 +87,10 @@ def learned_model(kind: str, registry, radius_scale: float):
     from gns_framework.assembly.trained import load_trained
     from gns_framework.config.recipe import load_recipe
 
-    shipped = load_trained(ROOT / "models" / "sand2d_fast.pt", registry)
+    model_file = "sand2d_fast_grid.pt" if kind == "grid" else "sand2d_fast.pt"
+    shipped = load_trained(ROOT / "models" / model_file, registry)
     scene = replace(shipped.simulator.scene, connectivity_radius=shipped.simulator.scene.connectivity_radius * radius_scale)
-    if kind == "fast":
+    if kind in ("fast", "grid"):
         simulator = build_learned_simulator(scene, shipped.metadata, shipped.recipe.model, registry)
         simulator.load_state_dict(shipped.simulator.state_dict())
         return simulator.eval(), shipped.recipe.dataset.frame_stride
@@ -132,8 +134,10 @@ def plot(rows: list[dict], path: Path) -> None:
     figure, axis = plt.subplots(figsize=(6, 4))
     for key, label in (("mpm_s_per_frame", "MLS-MPM (substeps grow with the grid: CFL)"),
                        ("fast_s_per_frame", "learned, 5 x 64, stride 2 (shipped)"),
+                       ("grid_s_per_frame", "learned, grid processor 32 wide, stride 2 (shipped)"),
                        ("reference_s_per_frame", "learned, 10 x 128, stride 1 (reference)")):
-        axis.loglog(particles, [row[key] for row in rows], marker="o", label=label)
+        if all(key in row for row in rows):
+            axis.loglog(particles, [row[key] for row in rows], marker="o", label=label)
     axis.set_xlabel("particles")
     axis.set_ylabel("seconds per stored frame")
     axis.set_title("2D sand column on 1 CPU thread")
@@ -170,21 +174,25 @@ def main() -> int:
     rows = []
     hardware = hardware_description()
     print(f"{hardware['cpu']}, {hardware['cpu_cores_usable']} usable cores, torch threads {args.threads}, torch {hardware['torch']}")
-    print(f"{'particles':>9} {'grid':>5} {'substeps':>8} {'MPM s/frame':>12} {'fast s/frame':>13} {'ref s/frame':>12} "
-          f"{'MPM/fast':>9} {'MPM/ref':>8}")
+    print(f"{'particles':>9} {'grid':>5} {'substeps':>8} {'MPM s/frame':>12} {'fast s/frame':>13} {'grid s/frame':>13} "
+          f"{'ref s/frame':>12} {'MPM/fast':>9} {'MPM/grid':>9} {'MPM/ref':>8}")
     for target in args.particles:
         scene, sample = refined_scene(target)
         mpm = time_mpm(scene, sample, registry, args.frames)
         scale = DATA_GRID / scene.domain.grid
         fast, fast_stride = learned_model("fast", registry, scale)
         reference, _ = learned_model("reference", registry, scale)
+        grid, grid_stride = learned_model("grid", registry, scale)
         fast_frame = time_learned(fast, sample, args.repeats) / fast_stride
+        grid_frame = time_learned(grid, sample, args.repeats) / grid_stride
         reference_frame = time_learned(reference, sample, args.repeats)
         row = {"particles": sample.num_particles, "grid": scene.domain.grid, "substeps": scene.time.substeps,
-               "mpm_s_per_frame": mpm, "fast_s_per_frame": fast_frame, "reference_s_per_frame": reference_frame}
+               "mpm_s_per_frame": mpm, "fast_s_per_frame": fast_frame, "grid_s_per_frame": grid_frame,
+               "reference_s_per_frame": reference_frame}
         rows.append(row)
         print(f"{row['particles']:>9} {row['grid']:>5} {row['substeps']:>8} {mpm:>12.4f} {fast_frame:>13.4f} "
-              f"{reference_frame:>12.4f} {mpm / fast_frame:>9.2f} {mpm / reference_frame:>8.2f}", flush=True)
+              f"{grid_frame:>13.4f} {reference_frame:>12.4f} {mpm / fast_frame:>9.2f} {mpm / grid_frame:>9.2f} "
+              f"{mpm / reference_frame:>8.2f}", flush=True)
     if args.plot:
         plot(rows, args.plot)
     print(json.dumps({"threads": args.threads, "rows": rows}))
