@@ -244,7 +244,10 @@ def test_train_and_compare_with_a_hostile_experiment_name(dataset_2d, tmp_path, 
     assert Path(location.removeprefix("file://")).is_relative_to((work / "store" / "mlartifacts").resolve())
 
     assert main(["compare", experiment, "--tracking-uri", uri]) == 0, capsys.readouterr().err
-    assert (work / f"{safe_component(experiment)}-compare.png").is_file()
+    from gns_framework.cli.compare import DEFAULT_METRICS, default_plot_name
+
+    plot = default_plot_name([experiment], DEFAULT_METRICS)
+    assert plot.parent == Path(".") and "/" not in plot.name and (work / plot).is_file()
     assert sorted(p.name for p in tmp_path.rglob("*") if not p.resolve().is_relative_to(work.resolve())) == ["a"]
 
 

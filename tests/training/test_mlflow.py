@@ -41,7 +41,7 @@ def check_tracked_run(client, run_id: str, steps: int) -> None:
     params = run.data.params
     assert params["recipe.model.latent_size"] == "16"
     assert params["recipe.model.processor.name"] == "interaction_network"
-    assert params["plugins.processor/interaction_network"].startswith("gns-framework ")
+    assert params["plugins.processor/interaction_network.distribution"] == "gns-framework"
     assert params["world_size"] == "1"
     assert params["git_commit"]
     assert EXPECTED_METRICS <= set(run.data.metrics)

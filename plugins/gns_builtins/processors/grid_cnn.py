@@ -82,7 +82,11 @@ class ParticleGrid:
         self.num_examples = num_examples
 
     def to_grid(self, values: Tensor) -> Tensor:
-        """(N, F) particle values -> (B, F + 1, *shape): tent-weighted mean per cell, then the weights' sum."""
+        """(N, F) particle values -> (B, F + 1, *shape): tent-weighted mean per cell, then the weights' sum.
+
+        The sums are taken in the positions' precision (float32 under bfloat16 autocast).
+        """
+        values = values.to(self.weights.dtype)
         features = values.shape[1]
         weighted = torch.cat([values[:, None, :] * self.weights[..., None], self.weights[..., None]], dim=-1)
         grid = values.new_zeros(self.num_cells, features + 1)
@@ -94,7 +98,7 @@ class ParticleGrid:
 
     def to_particles(self, grid: Tensor) -> Tensor:
         """(B, F, *shape) grid values -> (N, F), tent-interpolated at each particle."""
-        flat = grid.movedim(1, -1).reshape(self.num_cells, grid.shape[1])
+        flat = grid.movedim(1, -1).reshape(self.num_cells, grid.shape[1]).to(self.weights.dtype)
         return (flat[self.cells] * self.weights[..., None]).sum(1)
 
 
@@ -119,7 +123,7 @@ class GridRound(nn.Module):
             values = conv(values)
             if k < len(self.convs) - 1:
                 values = self.activation(values) * grid.inside
-        return h + self.node_mlp(torch.cat([h, grid.to_particles(values)], dim=-1))
+        return h + self.node_mlp(torch.cat([h, grid.to_particles(values).to(h.dtype)], dim=-1))
 
 
 class GridProcessor(Processor):
@@ -148,8 +152,8 @@ class GridProcessor(Processor):
     def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:
         if graph.position is None:
             raise ValueError("grid_cnn needs the particles' positions (Graph.position); the learned simulator gives them")
-        local = torch.zeros_like(node_latent).index_add(0, graph.receivers, edge_latent)
-        node_latent = node_latent + self.edge_mlp(torch.cat([node_latent, local], dim=-1))
+        local = edge_latent.new_zeros(node_latent.shape).index_add(0, graph.receivers, edge_latent)
+        node_latent = node_latent + self.edge_mlp(torch.cat([node_latent, local.to(node_latent.dtype)], dim=-1))
         grid = ParticleGrid(graph.position, graph.batch, graph.num_examples, self.spacing)
         for round_ in self.rounds:
             node_latent = round_(node_latent, grid)
