@@ -67,10 +67,10 @@ def variant(base: dict, kind: str, spec: dict, data: Path, steps: int, seed: int
 
 def not_runnable(kind: str, spec: dict, swap: dict, registry) -> str | None:
     """Why a swap cannot be measured on the base's data here, or None."""
-    import importlib.util
+    from gns_framework.cli.check import missing_module
 
     cls = registry.get(kind, spec["name"])
-    missing = [m for m in getattr(cls, "optional_modules", ()) if importlib.util.find_spec(m) is None]
+    missing = [m for m in getattr(cls, "optional_modules", ()) if missing_module(m) is not None]
     if missing:
         return f"needs {', '.join(missing)} (not installed)"
     if swap["model"].get("periodic"):

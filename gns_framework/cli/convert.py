@@ -82,8 +82,9 @@ def renumbered(trajectory, mapping: dict[int, int]):
     import numpy as np
 
     types = trajectory.particle_type
-    lookup = np.vectorize(lambda t: mapping.get(int(t), int(t)), otypes=[types.dtype])
-    return replace(trajectory, particle_type=lookup(types) if types.size else types)
+    present, where = np.unique(types, return_inverse=True)
+    renamed = np.array([mapping.get(int(t), int(t)) for t in present], dtype=types.dtype)
+    return replace(trajectory, particle_type=renamed[where].reshape(types.shape))
 
 
 def _layout(registry, name: str, option: str):

@@ -58,11 +58,8 @@ class ParticleGrid:
         own = own.scatter_reduce(0, batch[:, None].expand(-1, dim), base + 2, "amax")
         self.shape = tuple(int(s) for s in own.amax(0).tolist())
         axes = [torch.arange(size, device=position.device) for size in self.shape]
-        inside = torch.ones((num_examples, *self.shape), dtype=torch.bool, device=position.device)
-        for k, axis in enumerate(axes):
-            view = [1] * (dim + 1)
-            view[0], view[k + 1] = num_examples, self.shape[k]
-            inside &= axis.view(1, -1).expand(num_examples, -1).reshape(view) < own[:, k].view([-1] + [1] * dim)
+        cell = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1)  # (*shape, d) cell coordinates
+        inside = (cell[None] < own.view(num_examples, *[1] * dim, dim)).all(-1)
         self.inside = inside[:, None].to(position.dtype)
         """(B, 1, *shape) 1 in each example's own cells, 0 beyond."""
         strides = [1] * dim

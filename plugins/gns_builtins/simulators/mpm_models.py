@@ -115,6 +115,14 @@ class WeaklyCompressibleFluid(ConstitutiveModel):
         }
 
 
+def _von_mises_arrays(youngs: np.ndarray, poisson: np.ndarray, yield_stress: np.ndarray) -> dict[str, np.ndarray]:
+    """The von Mises return map's kernel inputs for a uniaxial yield stress ``yield_stress`` (Pa)."""
+    mu, lam = _lame(youngs, poisson)
+    # Largest deviatoric Hencky strain norm: |dev tau| = 2 mu |dev eps| <= sqrt(2/3) sigma_y.
+    yield_strain = math.sqrt(2 / 3) * yield_stress / (2 * mu)
+    return {"mu": mu, "lam": lam, "param_a": yield_strain, "param_b": np.zeros_like(mu)}
+
+
 class VonMisesGoop(_Elastic):
     """Goop: Hencky elasticity with von Mises plasticity; flows where the deviatoric stress
     exceeds ``yield_stress`` and keeps its volume while it flows (a Bingham-like paste)."""
@@ -128,10 +136,7 @@ class VonMisesGoop(_Elastic):
 
     @staticmethod
     def kernel_parameters(values: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        mu, lam = _lame(values["youngs_modulus"], values["poisson_ratio"])
-        # Largest deviatoric Hencky strain norm: |dev tau| = 2 mu |dev eps| <= sqrt(2/3) sigma_y.
-        yield_strain = math.sqrt(2 / 3) * values["yield_stress"] / (2 * mu)
-        return {"mu": mu, "lam": lam, "param_a": yield_strain, "param_b": np.zeros_like(mu)}
+        return _von_mises_arrays(values["youngs_modulus"], values["poisson_ratio"], values["yield_stress"])
 
 
 class UndrainedClay(_Elastic):
@@ -149,10 +154,8 @@ class UndrainedClay(_Elastic):
 
     @staticmethod
     def kernel_parameters(values: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        mu, lam = _lame(values["youngs_modulus"], values["poisson_ratio"])
         yield_stress = math.sqrt(3) * 1e3 * values["cohesion"]
-        yield_strain = math.sqrt(2 / 3) * yield_stress / (2 * mu)
-        return {"mu": mu, "lam": lam, "param_a": yield_strain, "param_b": np.zeros_like(mu)}
+        return _von_mises_arrays(values["youngs_modulus"], values["poisson_ratio"], yield_stress)
 
 
 RIGID = "rigid"
