@@ -49,11 +49,10 @@ from pathlib import Path
 import torch
 
 from gns_framework.config.recipe import load_recipe
-from gns_framework.evaluation.candidates import granular_particle_types
 from gns_framework.plugins import load_registry
-from gns_framework.training.rollout_validation import validation_rollout_metrics
 from gns_framework.training.tracking import TrackerGroup
 from gns_framework.training.trainer import Trainer
+from gns_framework.training.validation import mean_rollout_scores
 
 REPO = Path(__file__).resolve().parents[1]
 METRICS = {
@@ -61,7 +60,7 @@ METRICS = {
     "sinkhorn_pct": "valid_rollout_sinkhorn_pct",
     "position_mse": "valid_rollout_mse",
 }
-"""Reported name -> key of :func:`validation_rollout_metrics`."""
+"""Reported name -> tracked validation name (:meth:`gns_framework.plugins.Registry.validation_metrics`)."""
 CALIBRATION_STEPS = 20
 
 
@@ -109,7 +108,6 @@ def run_recipe(
 
             test = open_dataset(trainer.recipe.dataset, trainer.registry, held_out).split("test")
         cases = [test[i] for i in range(min(trajectories, len(test)))]
-        granular = granular_particle_types(trainer.data.scene, trainer.registry)
         marks = [minutes * 60 * (k + 1) / points for k in range(points)]
         trained, evaluations = 0.0, []
         trainer.simulator.train()
@@ -122,7 +120,7 @@ def run_recipe(
             # What the recipe would ship: the weight average when it keeps one.
             shipped = trainer.ema.module if trainer.ema is not None else trainer.simulator
             shipped.eval()
-            scores = validation_rollout_metrics(shipped, cases, trainer.data.metadata, granular, trainer.device)
+            scores = mean_rollout_scores(shipped, cases, trainer.validation.score_rollout)
             trainer.simulator.train()
             point = {"minutes": trained / 60, "step": trainer.step}
             point.update({name: scores.get(key) for name, key in METRICS.items()})

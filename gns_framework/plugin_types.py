@@ -27,12 +27,17 @@ class Metric:
             position gives an inf error by itself) and must give None when
             ``pair.same_particles`` is False. Any other metric compares the clouds; it
             sees finite stand-in positions, and is inf wherever the rollout diverged.
+        validation: also measured while training, on the validation rollouts, as
+            ``valid_rollout_<validation>`` (mean over the rollouts where it can be
+            taken), which ``training.best_metric`` may then choose; None: evaluation only.
+            A single metric only, not a family.
     """
 
     name: str
     unit: str
     function: Callable[[Any], Any | None | Mapping[str, Any]]
     pairwise: bool = False
+    validation: str | None = None
 
 
 @dataclass(frozen=True)

@@ -156,6 +156,19 @@ class Registry:
                     f"variable {DISABLE_ENV}"
                 )
             self._metrics[name] = entry
+        tracked: dict[str, MetricEntry] = {}
+        for entry in self._metrics.values():
+            tracked_as = entry.metric.validation
+            if tracked_as is None:
+                continue
+            if tracked_as in tracked:
+                first = tracked[tracked_as]
+                raise PluginError(
+                    f"two metrics are tracked in validation as valid_rollout_{tracked_as}: {first.metric.name!r} "
+                    f"from {first.provider} and {entry.metric.name!r} from {entry.provider}; uninstall one of them, "
+                    f"or disable its plugin with the environment variable {DISABLE_ENV}"
+                )
+            tracked[tracked_as] = entry
 
     def _check_material_types(self) -> None:
         seen: dict[int, ComponentEntry] = {}
@@ -271,6 +284,10 @@ class Registry:
                 f"{self.broken_note()}"
             )
         return [entry.metric for entry in self._metrics.values()]
+
+    def validation_metrics(self) -> dict[str, Metric]:
+        """``valid_rollout_<validation>`` -> metric, for each installed metric measured while training."""
+        return {f"valid_rollout_{m.validation}": m for m in self.metrics() if m.validation is not None}
 
     def metric_entries(self) -> list[MetricEntry]:
         """Every installed metric with its provider, in the order the plugins were registered."""

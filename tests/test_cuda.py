@@ -16,11 +16,11 @@ from tiny import tiny_recipe_mapping
 
 from gns_framework.assembly.ground_truth import build_ground_truth_simulator as build_ground_truth
 from gns_framework.config.recipe import validate_recipe
-from gns_framework.evaluation.candidates import granular_particle_types
+from gns_framework.evaluation.rollout_scores import validation_rollout_scorer
 from gns_framework.ground_truth.scene_spec import parse_scene
 from gns_framework.model.rollout import rollout
-from gns_framework.training.rollout_validation import validation_rollout_metrics
 from gns_framework.training.trainer import Trainer
+from gns_framework.training.validation import mean_rollout_scores
 
 pytestmark = pytest.mark.cuda
 
@@ -98,10 +98,10 @@ def test_evaluation_metrics_on_the_gpu_match_the_cpu(dataset_multimaterial, tmp_
     trainer = _trainer(dataset_multimaterial, tmp_path, registry, "cpu")
     trainer.train(5)
     trajectories = [trainer.data.dataset.split("valid")[0]]
-    granular = granular_particle_types(trainer.data.scene, registry)
-    on_cpu = validation_rollout_metrics(trainer.simulator, trajectories, trainer.data.metadata, granular, torch.device("cpu"))
+    scene, metadata = trainer.data.scene, trainer.data.metadata
+    on_cpu = mean_rollout_scores(trainer.simulator, trajectories, validation_rollout_scorer(registry, scene, metadata, torch.device("cpu")))
     gpu_model = copy.deepcopy(trainer.simulator).to("cuda")
-    on_gpu = validation_rollout_metrics(gpu_model, trajectories, trainer.data.metadata, granular, torch.device("cuda"))
+    on_gpu = mean_rollout_scores(gpu_model, trajectories, validation_rollout_scorer(registry, scene, metadata, torch.device("cuda")))
     assert on_cpu.keys() == on_gpu.keys()
     for name, value in on_cpu.items():
         assert np.isfinite(on_gpu[name]) and abs(on_gpu[name] - value) <= 1e-3 * abs(value) + 1e-9, name

@@ -9,7 +9,7 @@ import warnings
 import pytest
 
 from gns_framework.contracts import COMPONENT_KINDS, Params, Processor
-from gns_framework.errors import PluginError, PluginWarning
+from gns_framework.errors import PluginError, PluginWarning, RecipeError
 from gns_framework.hookspecs import hookimpl
 from gns_framework.plugins import DISABLE_ENV, load_registry
 
@@ -134,7 +134,6 @@ def test_a_broken_plugin_is_skipped_with_one_warning_naming_it(broken_distributi
 
 
 def test_a_missing_component_names_the_broken_plugin_that_may_provide_it(broken_distribution):
-    from gns_framework.errors import RecipeError
 
     with pytest.warns(PluginWarning):
         registry = load_registry()
@@ -223,6 +222,29 @@ def test_metric_clashes_and_non_records_name_the_plugin():
         load_registry(plugins=[("twin-metric", _metric_plugin(twin))])
     with pytest.raises(PluginError, match="plugin 'bad-metric'.*not a gns_framework.plugin_types.Metric"):
         load_registry(plugins=[("bad-metric", _metric_plugin({"name": "x"}))])
+
+
+def test_a_plugins_metric_can_be_tracked_in_validation_and_chosen_for_best_pt(tmp_path):
+    from tiny import tiny_recipe_mapping
+
+    from gns_framework.config.recipe import validate_recipe
+    from gns_framework.plugin_types import Metric
+
+    spread = Metric("spread_pct", "%, a plugin's measure", lambda pair: None, validation="spread_pct")
+    registry = load_registry(plugins=[("spread-metric", _metric_plugin(spread))])
+    tracked = registry.validation_metrics()
+    assert tracked["valid_rollout_spread_pct"] is spread
+    assert tracked["valid_rollout_deposit_error_pct"].name == "deposit_error_pct"
+    raw = tiny_recipe_mapping(tmp_path)
+    raw["training"]["best_metric"] = "valid_rollout_spread_pct"
+    assert validate_recipe(raw, registry).training.best_metric == "valid_rollout_spread_pct"
+    with pytest.raises(RecipeError, match=r"training.best_metric: unknown validation metric 'valid_rollout_spread_pct'.*"
+                                          r"measured in validation: .*valid_rollout_deposit_error_pct"):
+        validate_recipe(raw, load_registry())
+    twin = Metric("another_sinkhorn", "%, another", lambda pair: None, validation="sinkhorn_pct")
+    with pytest.raises(PluginError, match="tracked in validation as valid_rollout_sinkhorn_pct: 'sinkhorn_final_pct' "
+                                          "from plugin 'builtin-metrics'.*'another_sinkhorn' from plugin 'twin-tracked'"):
+        load_registry(plugins=[("twin-tracked", _metric_plugin(twin))])
 
 
 def test_a_registry_without_metrics_says_how_to_get_them():

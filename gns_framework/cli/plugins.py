@@ -37,6 +37,9 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(rows, indent=2))
         return 0
     print(_table(rows, COLUMNS))
+    if "metric" in kinds:
+        tracked = ", ".join(f"{name} ({m.name})" for name, m in registry.validation_metrics().items())
+        print(f"\nmeasured in training's validation rollouts (training.best_metric chooses one): {tracked}")
     if "material" in kinds:
         print()
         print(_particle_types(registry))
@@ -66,6 +69,7 @@ def _metric_row(entry: MetricEntry) -> dict:
         "kind": "metric",
         "name": entry.metric.name,
         "unit": entry.metric.unit,
+        "validation": None if entry.metric.validation is None else f"valid_rollout_{entry.metric.validation}",
         "source": source,
         "plugin": entry.plugin,
         "distribution": f"{entry.distribution} {entry.version}",

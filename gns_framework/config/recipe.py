@@ -175,13 +175,11 @@ class TrainingSpec(_Strict):
         description="valid trajectories rolled out in full at each validation (0: one-step loss only); "
         "the checkpoint with the best best_metric so far is kept as checkpoints/best.pt",
     )
-    best_metric: Literal[
-        "valid_rollout_mse", "valid_rollout_sinkhorn_pct", "valid_rollout_runout_error_pct",
-        "valid_rollout_extent_error_pct", "valid_rollout_height_error_pct", "valid_rollout_deposit_error_pct",
-    ] = Field(
+    best_metric: str = Field(
         "valid_rollout_mse",
-        description="rollout metric (lower is better, mean over the validation rollouts) that picks best.pt; "
-        "deposit: the mean of each rollout's final extent and height errors",
+        description="rollout metric (lower is better, mean over the validation rollouts) that picks best.pt: "
+        "valid_rollout_<name> of an installed metric measured in validation (`gns plugins --kind metric` lists them); "
+        "valid_rollout_deposit_error_pct is the mean of each rollout's final extent and height errors",
     )
 
 
@@ -270,6 +268,15 @@ def _component_problems(raw: dict, registry: Registry) -> list[tuple[str, str]]:
             registry.resolve(kind, component, loc)
         except RecipeError as exc:
             problems += exc.problems
+    training = raw.get("training") if isinstance(raw.get("training"), dict) else {}
+    best = training.get("best_metric")
+    if isinstance(best, str):
+        tracked = sorted(registry.validation_metrics())
+        if best not in tracked:
+            problems.append(
+                ("training.best_metric", f"unknown validation metric {best!r}{did_you_mean(best, tracked)}; "
+                 f"measured in validation: {', '.join(tracked)}")
+            )
     materials = model.get("materials")
     if isinstance(materials, list):
         known = registry.names("material")

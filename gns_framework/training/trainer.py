@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import json
 import math
 import time
 import uuid
 import warnings
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -19,12 +17,11 @@ from tqdm import tqdm
 from ..assembly.data import prepare_data
 from ..assembly.learned import build_learned_simulator, plugin_versions
 from ..assembly.scene import scene_to_dict
+from ..evaluation.rollout_scores import validation_rollout_scorer
 from ..config.recipe import Recipe
 from ..data.atomic import write_text_atomic
-from ..data.batch import ParticleBatch
-from ..data.windows import WindowIndex, WindowOrder, window_noise_generator
+from ..data.windows import WindowIndex, WindowOrder
 from ..errors import CheckpointError, DatasetError, GnsError, RecipeError
-from ..evaluation.candidates import granular_particle_types
 from ..io.checkpoint import (
     make_room_for_a_fresh_start,
     prune_checkpoints,
@@ -34,27 +31,29 @@ from ..io.checkpoint import (
 )
 from ..io.run_folder import RunFolder
 from ..model.envelope import measure_envelope
-from ..model.loss import masked_acceleration_loss, masked_squared_error_sum
-from ..model.noise import random_walk_noise, training_noise_std
+from ..model.noise import training_noise_std
 from ..plugins import Registry
 from ..runtime.device import resolve_device
 from ..runtime.activation_memory import set_recompute_activations
 from ..runtime.allocator import keep_freed_memory
 from ..runtime.deterministic import set_deterministic_sums
 from ..runtime.host_sync import avoids_read_backs, read_back
-from ..runtime.precision import autocast, backward_precision
 from . import distributed
 from .distributed import Processes
 from .ema import WeightAverage
 from .optim import make_optimizer
 from .provenance import git_commit
-from .rollout_validation import validation_rollout_metrics
+from .step import TrainingStep
 from .tracking import JsonlTracker, Tracker
-
+from .validation import Validation, validation_windows
 
 
 class Trainer:
-    """Trains the simulator a recipe describes.
+    """Trains the simulator a recipe describes: a loop over its optimisation step and validation.
+
+    :class:`~.step.TrainingStep` does one optimisation step; :class:`~.validation.Validation`
+    measures the model and keeps ``best.pt``; the trainer builds both from the recipe,
+    runs them, logs, checkpoints and resumes.
 
     Args:
         recipe: validated recipe.
@@ -109,9 +108,6 @@ class Trainer:
                                       "global context (step_context): set it to 0 for this dataset")])
         self.windows = self._training_windows()
         self.order = WindowOrder(len(self.windows), recipe.training.batch_size, recipe.seed, self.rank, self.world_size)
-        self.validation_batches = self._validation_batches() if self.processes.is_chief else []
-        valid = self.data.valid if self.processes.is_chief and self.data.valid is not None else []
-        self.validation_trajectories = [valid[i] for i in range(min(recipe.training.validation_rollouts, len(valid)))]
         self.envelope = (
             measure_envelope(
                 self.data.metadata,
@@ -134,13 +130,15 @@ class Trainer:
             self.simulator.parameters(), recipe.training.optimizer, recipe.training.steps
         )
         decay = recipe.training.ema_decay
-        self.ema = WeightAverage(self.simulator, decay) if decay else None
-        """The weight average that validation, best.pt and rollouts use (training.ema_decay), or None."""
+        self.optimisation = TrainingStep(
+            self.simulator, self.model, self.windows, self.order, self.noise_std, self.optimizer, self.scheduler,
+            WeightAverage(self.simulator, decay) if decay else None, self.processes, self.device,
+            seed=recipe.seed, pushforward_steps=recipe.training.pushforward_steps, precision=recipe.training.precision,
+        )
+        self.validation = self._validation()
         self.step = 0
         self.history = uuid.uuid4().hex
         """Id of this run's history (kept across resumes, recorded in each checkpoint): retention prunes only its own."""
-        self.best: dict = {"metric": recipe.training.best_metric, "value": math.inf, "step": None}
-        """The best validation-rollout score so far and its step (restored on resume)."""
         self.tracker = None
         if self.processes.is_chief:
             self.tracker = tracker if tracker is not None else JsonlTracker(self.run_dir)
@@ -162,25 +160,30 @@ class Trainer:
                 f"{' + training.pushforward_steps' if ahead else ''} = {history + ahead}"
             ) from None
 
-    def _validation_batches(self):
-        valid, history = self.data.valid, self.recipe.model.history
-        reason = "no valid split" if valid is None else "an empty valid split" if len(valid) == 0 else None
-        if reason is None:
-            try:
-                index = WindowIndex(valid, history)
-            except ValueError:
-                reason = f"no valid trajectory longer than history = {history} frames"
-        if reason is not None:
-            warnings.warn(
-                f"{self.data.dataset.path}: {reason}: training goes on without validation "
-                f"(no validation losses or rollouts, no {RunFolder.BEST_CHECKPOINT})",
-                stacklevel=3,
+    def _validation(self) -> Validation:
+        """Rank 0's validation: fixed one-step windows and the first ``validation_rollouts`` valid trajectories.
+
+        The other ranks get an empty one: validation is rank 0's, on the bare model.
+        """
+        spec, valid = self.recipe.training, self.data.valid
+        batches, trajectories = [], []
+        if self.processes.is_chief:
+            batches = validation_windows(
+                valid, self.recipe.model.history, spec.validation_windows, spec.batch_size, str(self.data.dataset.path)
             )
-            return []
-        count = min(self.recipe.training.validation_windows, len(index))
-        picks = np.unique(np.linspace(0, len(index) - 1, count).round().astype(int))
-        size = self.recipe.training.batch_size
-        return [index.batch(picks[i : i + size]) for i in range(0, len(picks), size)]
+            trajectories = [valid[i] for i in range(min(spec.validation_rollouts, len(valid)))] if batches else []
+        score = validation_rollout_scorer(self.registry, self.data.scene, self.data.metadata, self.device)
+        return Validation(batches, trajectories, score, spec.best_metric, self.run, self.device)
+
+    @property
+    def ema(self) -> WeightAverage | None:
+        """The weight average that validation, best.pt and rollouts use (training.ema_decay), or None."""
+        return self.optimisation.ema
+
+    @property
+    def best(self) -> dict:
+        """The best validation-rollout score so far and its step (restored on resume)."""
+        return self.validation.best
 
     def state(self) -> dict:
         """Everything a checkpoint needs to rebuild and resume this run."""
@@ -196,7 +199,7 @@ class Trainer:
             "scene": scene_to_dict(self.data.scene),
             "metadata": self.data.metadata.to_json_dict(),
             "plugins": plugin_versions(self.recipe, self.registry, self.data.scene),
-            "best": dict(self.best),
+            "best": dict(self.validation.best),
             **({"ema": self.ema.state_dict()} if self.ema is not None else {}),
             "history": self.history,
             **({"envelope": self.envelope.to_dict()} if self.envelope is not None else {}),
@@ -242,14 +245,13 @@ class Trainer:
                     raise CheckpointError(f"{source}: ema: not a weight average of this model ({type(exc).__name__}: {exc})") from None
             else:
                 # A run that turns the average on when resumed averages from the weights it resumes with.
-                self.ema = WeightAverage(self.simulator, self.ema.decay)
+                self.optimisation.ema = WeightAverage(self.simulator, self.ema.decay)
         self.step = int(state["step"])
         # A checkpoint written before histories were recorded starts a new one: its folder's older
         # checkpoints, which record none, are then never pruned.
         if isinstance(state.get("history"), str):
             self.history = state["history"]
-        if "best" in state and state["best"].get("metric") == self.best["metric"]:
-            self.best = dict(state["best"])
+        self.validation.restore_best(state.get("best"))
         # A checkpoint's CUDA generator states (older checkpoints have them) are ignored: nothing
         # draws from them, and restoring them failed with fewer GPUs visible than when it was written.
 
@@ -308,128 +310,19 @@ class Trainer:
         return path
 
     def train_step(self) -> tuple[Tensor, int]:
-        """One optimiser step on this process's windows of the current step.
+        """One optimiser step on this process's windows of the current step (:class:`~.step.TrainingStep`).
 
-        The loss is the squared error averaged over the predicted particles of the
-        *global* batch (every rank's windows): each rank divides its error sum by the
-        all-reduced particle count and multiplies by the world size, which DDP's
-        gradient averaging divides out again. So W processes of B windows take
-        exactly the step of one process with the same W x B windows, whatever the
-        particle counts of the windows.
-
-        Nothing here waits for the device: the batch and its noise are built on the
-        host and copied from pinned memory without blocking when training on a GPU,
-        and the loss stays a device tensor; :meth:`train` reads it back (the one
-        host synchronisation) every step on the CPU and only at logging,
-        validation and checkpoint steps on a GPU. The graph builder's edge count is
-        the other read-back a step needs (``radius_pairs``).
-
-        Returns:
-            the global batch's loss, a float64 scalar tensor on the device, and its
-            particle count (both identical on every rank).
+        Returns the global batch's loss (a float64 device tensor, which :meth:`train`
+        reads back every step on the CPU and only at logging, validation and
+        checkpoint steps on a GPU) and its particle count.
         """
-        batch = self.windows.batch(self.order.indices(self.step))
-        noise = self._training_noise()
-        if self.device.type == "cuda":
-            batch, noise = batch.pinned(), noise.pin_memory()
-        batch = batch.to(self.device)
-        unrolled = self._pushforward_steps()
-        if unrolled:
-            batch = self._pushed_forward(batch, unrolled)
-        mask = self.simulator.predicted_mask(batch.particle_type)
-        noise = noise.to(self.device, non_blocking=True) * mask[:, None, None]
-        precision = self.recipe.training.precision
-        with autocast(precision, self.device):
-            prediction, target = self.model(batch, noise)
-        error_sum = masked_squared_error_sum(prediction.to(target.dtype), target, mask)
-        local = torch.stack([error_sum.detach().double(), mask.sum().double()])
-        global_error, global_predicted = self.processes.sum(local).unbind()
-        predicted = global_predicted.clamp(min=1.0)
-        loss = error_sum * self.world_size / predicted.to(error_sum.dtype)
-        self.optimizer.zero_grad(set_to_none=True)
-        with backward_precision(precision, self.device):
-            loss.backward()
-        self.optimizer.step()
-        if self.ema is not None:
-            self.ema.update(self.simulator)
-        self.scheduler.step()
-        global_particles = sum(self.windows.num_particles(self.order.window_at(p)) for p in self.order.step_positions(self.step))
+        loss, particles = self.optimisation(self.step)
         self.step += 1
-        return global_error / predicted, global_particles
+        return loss, particles
 
-    def _pushforward_steps(self) -> int:
-        """k of this step's push-forward, uniform in 0..``training.pushforward_steps``, the same on every rank."""
-        most = self.recipe.training.pushforward_steps
-        if not most:
-            return 0
-        return int(np.random.default_rng([self.recipe.seed, 2, self.step]).integers(0, most + 1))
-
-    @torch.no_grad()
-    def _pushed_forward(self, batch: ParticleBatch, steps: int) -> ParticleBatch:
-        """``batch`` with its inputs rolled ``steps`` on by the model itself, and the true frame after them as target.
-
-        No gradient flows through the unrolled steps (the push-forward trick): the
-        model is trained on the inputs its own rollouts produce, as it will meet them,
-        at the cost of ``steps`` extra forward passes. Kinematic particles follow their
-        true positions.
-        """
-        truth = torch.cat([batch.next_position[:, None], batch.ahead], dim=1)
-        sequence = batch.position_sequence
-        for step in range(steps):
-            rolled = self.simulator.predict_next_position(replace(batch, position_sequence=sequence), prescribed=truth[:, step])
-            sequence = torch.cat([sequence[:, 1:], rolled[:, None]], dim=1)
-        return replace(batch, position_sequence=sequence, next_position=truth[:, steps])
-
-    def _training_noise(self) -> Tensor:
-        """This process's random-walk noise of the current step on the host, (N, C, d) float32.
-
-        Each window's rows come from its own generator, seeded by (seed, step, the
-        window's place in the step's global batch): every rank draws only its own
-        windows' noise, and W processes of B windows get exactly the noise of one
-        process training on the same W x B windows.
-        """
-        parts = []
-        for position in self.order.positions(self.step):
-            slot = position - self.order.step_positions(self.step).start
-            window = self.order.window_at(position)
-            shape = torch.empty((self.windows.num_particles(window), self.recipe.model.history, self.data.scene.dim))
-            parts.append(random_walk_noise(shape, self.noise_std, window_noise_generator(self.recipe.seed, self.step, slot)))
-        return torch.cat(parts)
-
-    @torch.no_grad()
     def validate(self) -> dict[str, float]:
-        """One-step loss and next-position MSE on fixed, noise-free windows of the valid split.
-
-        Of the weight average when the recipe keeps one (what best.pt and rollouts use), else of the weights.
-        """
-        if not self.validation_batches:
-            # Also the case on every rank but 0: validation is rank 0's, on the bare model.
-            return {}
-        model = self.ema.module if self.ema is not None else self.simulator
-        model.eval()
-        losses, position_errors = [], []
-        for batch in self.validation_batches:
-            batch = batch.to(self.device)
-            mask = model.predicted_mask(batch.particle_type)
-            prediction, target = model(batch, torch.zeros_like(batch.position_sequence))
-            losses.append(float(masked_acceleration_loss(prediction, target, mask)))
-            next_position = model.integrator.next_position(
-                batch.position_sequence, model.output_stats.denormalize(prediction)
-            )
-            position_errors.append(float(((next_position - batch.next_position)[mask] ** 2).mean()))
-        metrics = {"valid_one_step_loss": float(np.mean(losses)), "valid_one_step_position_mse": float(np.mean(position_errors))}
-        if self.validation_trajectories:
-            metrics.update(
-                validation_rollout_metrics(
-                    model,
-                    self.validation_trajectories,
-                    self.data.metadata,
-                    granular_particle_types(self.data.scene, self.registry),
-                    self.device,
-                )
-            )
-        model.train()
-        return metrics
+        """Validation metrics of the weight average when the recipe keeps one (what best.pt and rollouts use), else of the weights."""
+        return self.validation.measure(self.ema.module if self.ema is not None else self.simulator)
 
     def keep_if_best(self, metrics: dict[str, float]) -> Path | None:
         """Write ``checkpoints/best.pt`` (and ``best.json``) when ``metrics`` beat the best rollout score so far.
@@ -437,13 +330,7 @@ class Trainer:
         Only rank 0 validates, so only rank 0 ever writes it; the numbered
         checkpoints' retention never touches it.
         """
-        value = metrics.get(self.best["metric"])
-        if value is None or not value < self.best["value"]:
-            return None
-        self.best = {"metric": self.best["metric"], "value": float(value), "step": self.step}
-        path = save_checkpoint(self.run.best_checkpoint, self.state())
-        write_text_atomic(self.run.best_record, json.dumps(self.best, indent=2) + "\n")
-        return path
+        return self.validation.keep_if_best(metrics, self.step, self.state)
 
     def train(self, steps: int | None = None) -> list[float]:
         """Train until ``steps`` (default: the recipe's) total steps; returns this call's losses."""

@@ -59,8 +59,10 @@ def test_the_particle_types_taken_and_free_are_listed(capsys, with_ballast):
 
 def test_one_kind_lists_only_its_rows(capsys):
     out = run_plugins(capsys, "--kind", "metric")
-    kinds = {line.split()[0] for line in out.splitlines()[1:] if line.strip()}
+    table, _, tracked = out.partition("\n\n")
+    kinds = {line.split()[0] for line in table.splitlines()[1:]}
     assert kinds == {"metric"} and "free particle types" not in out
+    assert "training.best_metric" in tracked and "valid_rollout_deposit_error_pct (deposit_error_pct)" in tracked
     assert "free particle types: 0-2, 4, 9-1023" in run_plugins(capsys, "--kind", "material")
 
 
@@ -72,6 +74,7 @@ def test_json_rows_carry_each_kinds_own_fields(capsys):
     assert by_kind["material"]["clay"]["particle_type"] == 8 and by_kind["material"]["rigid"]["kinematic"] is True
     assert by_kind["metric"]["mse_full"]["unit"].startswith("L^2")
     assert by_kind["metric"]["mse_full"]["distribution"].startswith("gns-framework ")
+    assert by_kind["metric"]["mse_full"]["validation"] == "valid_rollout_mse" and by_kind["metric"]["mse_final"]["validation"] is None
     train = by_kind["command"]["train"]
     assert train["module"] == "gns_framework.cli.train" and train["source"].endswith("train.py")
     assert all(row["source"].endswith(".py") and row["plugin"] for row in rows)

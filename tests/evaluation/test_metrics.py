@@ -213,6 +213,8 @@ def test_final_extent_and_pile_height_errors_of_a_constructed_pile():
     metrics = measure(lower, truth, dt=0.01, bounds=[(0.0, 1.0), (-0.1, 1.0)], granular_types={SAND})
     # heights above the floor at -0.1: 0.08 + 0.1 predicted, 0.1 + 0.1 true
     assert metrics["height_error_pct"].item() == pytest.approx(100 * 0.02 / 0.2)
+    # The deposit error is the mean of the two: (10 % + 10 %) / 2.
+    assert metrics["deposit_error_pct"].item() == pytest.approx(10.0)
 
 
 def test_pile_profile_and_its_error_by_hand():

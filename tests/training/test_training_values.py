@@ -192,10 +192,10 @@ def test_trainer_loss_masks_kinematic_particles_and_scales_for_the_world(dataset
     kinematic = batch.particle_type == KINEMATIC_TYPE
     assert 0 < kinematic.sum() < batch.num_particles
     stub = FixedPrediction(batch.position_sequence.shape[-1])
-    trainer.model = stub
+    trainer.optimisation.model = stub
     world_size = 1
     if other is not None:
-        trainer.processes, trainer.world_size, world_size = TwoProcesses(world_size=2, other=other), 2, 2
+        trainer.optimisation.processes, world_size = TwoProcesses(world_size=2, other=other), 2
     other = other or (0.0, 0.0)
 
     loss, particles = trainer.train_step()

@@ -29,9 +29,9 @@ def test_the_trained_step_sees_the_models_own_rollout_and_the_true_frame_after_i
     trainer = tiny_trainer(recipe, tmp_path, registry)
     windows = trainer.windows.batch(trainer.order.indices(0))
     assert windows.ahead.shape == (windows.num_particles, 2, 2)
-    monkeypatch.setattr(trainer, "_pushforward_steps", lambda: 2)
+    monkeypatch.setattr(trainer.optimisation, "pushforward_steps", lambda step: 2)
     recording = Recording(trainer.simulator)
-    trainer.model = recording
+    trainer.optimisation.model = recording
     with torch.no_grad():
         first = trainer.simulator.predict_next_position(windows, prescribed=windows.next_position)
         rolled = torch.cat([windows.position_sequence[:, 1:], first[:, None]], dim=1)
@@ -51,14 +51,12 @@ def test_the_unrolled_steps_are_drawn_per_step_within_the_bound(dataset_2d, regi
     recipe = tiny_recipe(dataset_2d, registry)
     recipe = recipe.model_copy(update={"training": recipe.training.model_copy(update={"pushforward_steps": 3})})
     trainer = tiny_trainer(recipe, tmp_path, registry)
-    drawn = []
-    for step in range(40):
-        trainer.step = step
-        drawn.append(trainer._pushforward_steps())
+    drawn = [trainer.optimisation.pushforward_steps(step) for step in range(40)]
     assert set(drawn) == {0, 1, 2, 3}
-    trainer.step = 7
-    assert trainer._pushforward_steps() == drawn[7], "a resumed run draws the same"
     trainer.close()
+    again = tiny_trainer(recipe, tmp_path / "again", registry)
+    assert again.optimisation.pushforward_steps(7) == drawn[7], "a resumed run draws the same"
+    again.close()
 
 
 def test_a_negative_pushforward_is_refused_with_its_location(dataset_2d, registry):

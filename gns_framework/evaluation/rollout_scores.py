@@ -1,0 +1,41 @@
+"""The scorer of training's validation rollouts, from the installed metrics measured in validation."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+
+from ..contracts import Scene
+from ..data.metadata import DatasetMetadata
+from ..data.trajectory import Trajectory
+from ..model.learned_simulator import LearnedSimulator
+from ..plugins import Registry
+from .candidates import granular_particle_types, learned_positions
+from .report import Prediction, score_prediction
+
+
+def validation_rollout_scorer(
+    registry: Registry, scene: Scene, metadata: DatasetMetadata, device: torch.device
+) -> Callable[[LearnedSimulator, Trajectory], dict[str, float]]:
+    """``score(simulator, trajectory)``: ``{valid_rollout_<validation>: error}`` of one full rollout.
+
+    Each installed metric with a ``validation`` name is measured as ``gns evaluate``
+    measures it, on the rollout from the trajectory's first C frames: a diverged
+    rollout scores ``inf`` in every metric, so it can never be the best. A metric
+    that cannot be taken on the scene (runout without granular particles) is absent.
+    """
+    tracked = registry.validation_metrics()
+    metrics = list(tracked.values())
+    granular = granular_particle_types(scene, registry)
+
+    def score(simulator: LearnedSimulator, trajectory: Trajectory) -> dict[str, float]:
+        prediction = Prediction(learned_positions(simulator, trajectory, device))
+        values = score_prediction(
+            prediction, trajectory, simulator.scene.history, metadata, granular_types=granular,
+            kinematic_types=simulator.scene.kinematic_types, metrics=metrics,
+        )
+        found = {name: values.get(metric.name) for name, metric in tracked.items()}
+        return {name: float(value.item()) for name, value in found.items() if value is not None}
+
+    return score

@@ -1,0 +1,156 @@
+"""One optimisation step: a batch of noisy training windows, push-forward, the loss, the backward and the update.
+
+The model learns accelerations from windows of C past positions (Sanchez-Gonzalez et
+al. 2020). Two things make what it learns hold over a long rollout, where its inputs
+are its own predictions:
+
+- random-walk noise on the input positions (the target is corrected so that the
+  next position stays the true one), so it learns to pull a drifted state back;
+- push-forward (Brandstetter et al. 2022): the window is first rolled on k steps by
+  the model itself, without gradient, and it learns the true frame after them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..data.batch import ParticleBatch
+from ..data.windows import WindowIndex, WindowOrder, window_noise_generator
+from ..model.learned_simulator import LearnedSimulator
+from ..model.loss import masked_squared_error_sum
+from ..model.noise import random_walk_noise
+from ..runtime.precision import Precision, autocast, backward_precision
+from .distributed import Processes
+from .ema import WeightAverage
+
+
+class TrainingStep:
+    """The optimisation step of a run, called once per step number.
+
+    Args:
+        simulator: the bare model (its predicted mask, its own push-forward rollouts).
+        model: what the loss is taken through: ``simulator``, or its DDP wrapper,
+            whose backward averages the gradients over the ranks.
+        windows, order: the train split's windows and which of them each step and rank takes.
+        noise_std: per-step standard deviation of the random-walk input noise (L).
+        optimizer, scheduler: the update and its learning-rate schedule.
+        ema: the weight average updated after every update, or None.
+        processes: this process's place in a torchrun job.
+        seed: the run's seed (noise and push-forward draws are seeded by it and the step).
+        pushforward_steps: the most push-forward steps (0: none).
+        precision: of the forward and backward (``training.precision``).
+    """
+
+    def __init__(
+        self,
+        simulator: LearnedSimulator,
+        model: torch.nn.Module,
+        windows: WindowIndex,
+        order: WindowOrder,
+        noise_std: float,
+        optimizer: torch.optim.Optimizer,
+        scheduler,
+        ema: WeightAverage | None,
+        processes: Processes,
+        device: torch.device,
+        *,
+        seed: int,
+        pushforward_steps: int = 0,
+        precision: Precision = "float32",
+    ):
+        self.simulator, self.model = simulator, model
+        self.windows, self.order = windows, order
+        self.noise_std = noise_std
+        self.optimizer, self.scheduler, self.ema = optimizer, scheduler, ema
+        self.processes, self.device = processes, device
+        self.seed, self.most_pushforward, self.precision = seed, pushforward_steps, precision
+
+    def __call__(self, step: int) -> tuple[Tensor, int]:
+        """Optimiser step number ``step`` on this process's windows of it.
+
+        The loss is the squared error averaged over the predicted particles of the
+        *global* batch (every rank's windows): each rank divides its error sum by the
+        all-reduced particle count and multiplies by the world size, which DDP's
+        gradient averaging divides out again. So W processes of B windows take
+        exactly the step of one process with the same W x B windows, whatever the
+        particle counts of the windows.
+
+        Nothing here waits for the device: the batch and its noise are built on the
+        host and copied from pinned memory without blocking when training on a GPU,
+        and the loss stays a device tensor (the caller reads it back when it needs
+        it). The graph builder's edge count is the one read-back a step needs
+        (``radius_pairs``).
+
+        Returns:
+            the global batch's loss, a float64 scalar tensor on the device, and its
+            particle count (both identical on every rank).
+        """
+        batch = self.windows.batch(self.order.indices(step))
+        noise = self.noise(step)
+        if self.device.type == "cuda":
+            batch, noise = batch.pinned(), noise.pin_memory()
+        batch = batch.to(self.device)
+        unrolled = self.pushforward_steps(step)
+        if unrolled:
+            batch = self.pushed_forward(batch, unrolled)
+        mask = self.simulator.predicted_mask(batch.particle_type)
+        noise = noise.to(self.device, non_blocking=True) * mask[:, None, None]
+        with autocast(self.precision, self.device):
+            prediction, target = self.model(batch, noise)
+        error_sum = masked_squared_error_sum(prediction.to(target.dtype), target, mask)
+        local = torch.stack([error_sum.detach().double(), mask.sum().double()])
+        global_error, global_predicted = self.processes.sum(local).unbind()
+        predicted = global_predicted.clamp(min=1.0)
+        loss = error_sum * self.processes.world_size / predicted.to(error_sum.dtype)
+        self.optimizer.zero_grad(set_to_none=True)
+        with backward_precision(self.precision, self.device):
+            loss.backward()
+        self.optimizer.step()
+        if self.ema is not None:
+            self.ema.update(self.simulator)
+        self.scheduler.step()
+        particles = sum(self.windows.num_particles(self.order.window_at(p)) for p in self.order.step_positions(step))
+        return global_error / predicted, particles
+
+    def pushforward_steps(self, step: int) -> int:
+        """k of step ``step``'s push-forward, uniform in 0..``pushforward_steps``, the same on every rank."""
+        if not self.most_pushforward:
+            return 0
+        return int(np.random.default_rng([self.seed, 2, step]).integers(0, self.most_pushforward + 1))
+
+    @torch.no_grad()
+    def pushed_forward(self, batch: ParticleBatch, steps: int) -> ParticleBatch:
+        """``batch`` with its inputs rolled ``steps`` on by the model itself, and the true frame after them as target.
+
+        No gradient flows through the unrolled steps (the push-forward trick): the
+        model is trained on the inputs its own rollouts produce, as it will meet them,
+        at the cost of ``steps`` extra forward passes. Kinematic particles follow their
+        true positions.
+        """
+        truth = torch.cat([batch.next_position[:, None], batch.ahead], dim=1)
+        sequence = batch.position_sequence
+        for k in range(steps):
+            rolled = self.simulator.predict_next_position(replace(batch, position_sequence=sequence), prescribed=truth[:, k])
+            sequence = torch.cat([sequence[:, 1:], rolled[:, None]], dim=1)
+        return replace(batch, position_sequence=sequence, next_position=truth[:, steps])
+
+    def noise(self, step: int) -> Tensor:
+        """This process's random-walk noise of step ``step`` on the host, (N, C, d) float32.
+
+        Each window's rows come from its own generator, seeded by (seed, step, the
+        window's place in the step's global batch): every rank draws only its own
+        windows' noise, and W processes of B windows get exactly the noise of one
+        process training on the same W x B windows.
+        """
+        history, dim = self.simulator.scene.history, self.simulator.scene.dim
+        first = self.order.step_positions(step).start
+        parts = []
+        for position in self.order.positions(step):
+            window = self.order.window_at(position)
+            shape = torch.empty((self.windows.num_particles(window), history, dim))
+            parts.append(random_walk_noise(shape, self.noise_std, window_noise_generator(self.seed, step, position - first)))
+        return torch.cat(parts)
