@@ -173,8 +173,8 @@ def main(argv: list[str] | None = None) -> int:
                 flush=True,
             )
     base_row = results[0]
-    print(f"\n| kind | swap | one-step loss | Sinkhorn % median / worst | runout % median / worst | "
-          f"train step vs base | rollout vs base |")
+    print("\n| kind | swap | one-step loss | Sinkhorn % median / worst | runout % median / worst | "
+          "train step vs base | rollout vs base |")
     print("|---|---|---:|---:|---:|---:|---:|")
     for row in results:
         if "skipped" in row:

@@ -6,7 +6,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-import torch
 
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.model.batched_rollout import rollout_batch

@@ -9,8 +9,6 @@ import shutil
 import socket
 import subprocess
 import sys
-import time
-from pathlib import Path
 
 import pytest
 from test_checkpoints import flip_tensor_byte, snapshot, train_cli

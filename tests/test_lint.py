@@ -1,0 +1,34 @@
+"""The project passes its own lint configuration ([tool.ruff] in pyproject.toml): no unused imports or
+names, no undefined names, no syntax errors, in the package, the plugins, tests, benchmarks and scripts."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+CHECKED = ("gns_framework", "plugins", "tests", "benchmarks", "parity", "scripts")
+
+
+def _ruff() -> list[str]:
+    found = shutil.which("ruff", path=str(Path(sys.executable).parent)) or shutil.which("ruff")
+    if found is None:
+        pytest.skip("ruff is not installed (pip install -e .[test] installs it)")
+    return [found]
+
+
+def test_the_project_passes_ruff():
+    result = subprocess.run([*_ruff(), "check", "--output-format", "concise", *CHECKED], cwd=REPO,
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_the_check_catches_an_unused_import(tmp_path):
+    (tmp_path / "bad.py").write_text("import os\n")
+    result = subprocess.run([*_ruff(), "check", "--config", str(REPO / "pyproject.toml"), "bad.py"], cwd=tmp_path,
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 1 and "F401" in result.stdout
