@@ -39,6 +39,11 @@ class Metric:
     pairwise: bool = False
     validation: str | None = None
 
+    @property
+    def tracked_as(self) -> str | None:
+        """``valid_rollout_<validation>``, its name in training's metrics and ``training.best_metric``; None if untracked."""
+        return None if self.validation is None else f"valid_rollout_{self.validation}"
+
 
 @dataclass(frozen=True)
 class Command:

@@ -158,13 +158,13 @@ class Registry:
             self._metrics[name] = entry
         tracked: dict[str, MetricEntry] = {}
         for entry in self._metrics.values():
-            tracked_as = entry.metric.validation
+            tracked_as = entry.metric.tracked_as
             if tracked_as is None:
                 continue
             if tracked_as in tracked:
                 first = tracked[tracked_as]
                 raise PluginError(
-                    f"two metrics are tracked in validation as valid_rollout_{tracked_as}: {first.metric.name!r} "
+                    f"two metrics are tracked in validation as {tracked_as}: {first.metric.name!r} "
                     f"from {first.provider} and {entry.metric.name!r} from {entry.provider}; uninstall one of them, "
                     f"or disable its plugin with the environment variable {DISABLE_ENV}"
                 )
@@ -287,7 +287,7 @@ class Registry:
 
     def validation_metrics(self) -> dict[str, Metric]:
         """``valid_rollout_<validation>`` -> metric, for each installed metric measured while training."""
-        return {f"valid_rollout_{m.validation}": m for m in self.metrics() if m.validation is not None}
+        return {m.tracked_as: m for m in self.metrics() if m.tracked_as is not None}
 
     def metric_entries(self) -> list[MetricEntry]:
         """Every installed metric with its provider, in the order the plugins were registered."""

@@ -4,20 +4,15 @@ data outside it, and it holds on a canonical scene it never trained on, in a box
 from __future__ import annotations
 
 import csv
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from cli_runner import gns
 
 from gns_framework.assembly.trained import load_trained
 
 REPO = Path(__file__).resolve().parents[1]
 MODEL = REPO / "models" / "sand2d_general.pt"
-
-
-def gns(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "gns_framework.cli", *args], capture_output=True, text=True, timeout=900)
 
 
 def test_the_envelope_it_records_is_the_card_s(registry):

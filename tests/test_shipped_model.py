@@ -3,21 +3,16 @@
 from __future__ import annotations
 
 import csv
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from cli_runner import gns
 
 from gns_framework.assembly.trained import load_trained
 
 REPO = Path(__file__).resolve().parents[1]
 MODEL = REPO / "models" / "sand2d_fast.pt"
 SCENE = REPO / "scenes" / "demo_sand_2d.yaml"
-
-
-def gns(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "gns_framework.cli", *args], capture_output=True, text=True, timeout=900)
 
 
 def test_the_shipped_model_is_small_and_loads_on_the_cpu(registry):

@@ -69,7 +69,7 @@ def _metric_row(entry: MetricEntry) -> dict:
         "kind": "metric",
         "name": entry.metric.name,
         "unit": entry.metric.unit,
-        "validation": None if entry.metric.validation is None else f"valid_rollout_{entry.metric.validation}",
+        "validation": entry.metric.tracked_as,
         "source": source,
         "plugin": entry.plugin,
         "distribution": f"{entry.distribution} {entry.version}",

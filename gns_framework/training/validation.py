@@ -110,9 +110,6 @@ class Validation:
         self.device = device
         self.best: dict = {"metric": best_metric, "value": math.inf, "step": None}
 
-    def __bool__(self) -> bool:
-        return bool(self.batches)
-
     @torch.no_grad()
     def measure(self, model: LearnedSimulator) -> dict[str, float]:
         """One-step loss and next-position MSE on the fixed windows, then the rollouts' mean errors.

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import meshio
 import yaml
+from cli_runner import gns
 from tiny import tiny_recipe_mapping
 
 SCENE = """
@@ -22,10 +21,6 @@ blocks:
     size: [0.2, 0.25]
     properties: {friction: {range: [0.6, 0.8]}}
 """
-
-
-def gns(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "gns_framework.cli", *args], capture_output=True, text=True, timeout=900)
 
 
 def test_evaluate_writes_table_plots_vtk_and_gif(tmp_path: Path):
