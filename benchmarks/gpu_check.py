@@ -64,6 +64,13 @@ RESERVED_GIB = 4.0
 """CUDA context, model, Adam state and allocator slack, as the CPU table's "largest scene" assumes."""
 
 
+def is_cuda(device) -> bool:
+    """runtime.device.is_cuda, imported when first asked (the imports part times torch's import)."""
+    from gns_framework.runtime.device import is_cuda as on_cuda
+
+    return on_cuda(device)
+
+
 def emit(part: str, **figures) -> None:
     """One output line: ``gpu_check: <part> key=value ...`` (floats with 4 significant digits), flushed."""
     text = " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in figures.items())
@@ -127,7 +134,7 @@ def info(args) -> None:
     import torch
 
     device = torch.device(args.device)
-    if device.type == "cuda":
+    if is_cuda(device):
         if not torch.cuda.is_available():
             raise SystemExit("gpu_check: --device cuda but torch sees no GPU")
         props = torch.cuda.get_device_properties(device)
@@ -172,7 +179,7 @@ def ddp(args) -> None:
     from gns_framework.training.distributed import backend_for, process_group_timeout
 
     device = torch.device(args.device)
-    if device.type == "cuda":
+    if is_cuda(device):
         if not torch.cuda.is_available():
             raise SystemExit("gpu_check: --device cuda but torch sees no GPU")
         if device.index is None:  # set_device and the group's device_id need an index
@@ -184,16 +191,16 @@ def ddp(args) -> None:
     with tempfile.TemporaryDirectory() as folder:
         store = dist.FileStore(str(Path(folder) / "store"), 1)
         started = time.perf_counter()
-        if device.type == "cuda":
+        if is_cuda(device):
             torch.cuda.set_device(device)
         dist.init_process_group(backend=backend, store=store, rank=0, world_size=1, timeout=timeout,
-                                device_id=device if device.type == "cuda" else None)
+                                device_id=device if is_cuda(device) else None)
         try:
             group_s = time.perf_counter() - started
             torch.manual_seed(0)
             model = torch.nn.Sequential(torch.nn.Linear(64, 128), torch.nn.ReLU(), torch.nn.Linear(128, 3)).to(device)
             wrapped = torch.nn.parallel.DistributedDataParallel(
-                model, device_ids=[device.index] if device.type == "cuda" else None)
+                model, device_ids=[device.index] if is_cuda(device) else None)
             optimizer = torch.optim.Adam(wrapped.parameters(), lr=1e-3)
             inputs = torch.randn(4096, 64, device=device)
             seconds = []
@@ -203,7 +210,7 @@ def ddp(args) -> None:
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()  # DDP's reducer all-reduces the gradients through the backend
                 optimizer.step()
-                if device.type == "cuda":
+                if is_cuda(device):
                     torch.cuda.synchronize(device)
                 seconds.append(time.perf_counter() - started)
             total = torch.ones(8, device=device)
@@ -226,7 +233,7 @@ def ddp(args) -> None:
 
 def _median_seconds(function, device, repeat: int, deadline: float) -> tuple[float, int]:
     """Median seconds of ``function()`` after one warm-up, as many repeats (up to ``repeat``) as fit."""
-    from gns_framework.training.trainer import synchronize
+    from gns_framework.runtime.device import synchronize
 
     function()
     synchronize(device)
@@ -308,7 +315,7 @@ def _simulator(scene, device):
 def peak_bytes(device) -> int:
     import torch
 
-    if device.type == "cuda":
+    if is_cuda(device):
         return torch.cuda.max_memory_allocated(device)
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
@@ -317,7 +324,7 @@ def _sync_count(step, device) -> int | str:
     """Host synchronisations in one ``step()``, from CUDA's sync debug mode (``n/a`` on the CPU)."""
     import torch
 
-    if device.type != "cuda":
+    if not is_cuda(device):
         return "n/a"
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -384,7 +391,7 @@ class _Case:
         """Seconds of each phase in one step synchronised between phases; ``graph_s`` is one graph build alone."""
         import torch
 
-        from gns_framework.training.trainer import synchronize
+        from gns_framework.runtime.device import synchronize
 
         synchronize(self.device)
         started = time.perf_counter()
@@ -418,11 +425,11 @@ def scale(args) -> None:
     import torch
 
     from gns_framework.runtime.activation_memory import set_recompute_activations
-    from gns_framework.training.trainer import synchronize
+    from gns_framework.runtime.device import synchronize
 
     deadline = min(part_deadline(), STARTED + args.budget_s)
     device = torch.device(args.device)
-    total = torch.cuda.get_device_properties(device).total_memory if device.type == "cuda" else None
+    total = torch.cuda.get_device_properties(device).total_memory if is_cuda(device) else None
     best_fit: dict | None = None  # the largest bfloat16 + recompute training case measured
     seconds_per_edge: dict[str, float] = {}  # the slowest warm-up step per edge so far, by phase
     edges_per_particle = 20.6  # the 3D lattice scene's, until measured
@@ -454,7 +461,7 @@ def scale(args) -> None:
             case = None
             try:
                 set_recompute_activations(memory == "recompute")
-                if device.type == "cuda":
+                if is_cuda(device):
                     torch.cuda.empty_cache()
                     torch.cuda.reset_peak_memory_stats(device)
                 case = _Case(scene, precision, phase, device, memory == "recompute")
@@ -470,7 +477,7 @@ def scale(args) -> None:
                 warmup_s = time.perf_counter() - started
                 seconds_per_edge[phase] = max(seconds_per_edge.get(phase, 0.0), warmup_s / max(edges, 1))
                 edges_per_particle = edges / particles
-                if device.type == "cuda":
+                if is_cuda(device):
                     torch.cuda.reset_peak_memory_stats(device)
                 seconds: list[float] = []
                 while len(seconds) < repeat and left(deadline) > 1.5 * (seconds[-1] if seconds else warmup_s):
@@ -482,14 +489,14 @@ def scale(args) -> None:
                 figures = {"status": "ok", "edges": edges, "repeats": len(seconds),
                            "step_s": statistics.median(seconds) if seconds else warmup_s, "warmup_s": warmup_s,
                            "peak_gb": peak / 2**30,
-                           "bytes_per_edge": (peak - base) / max(edges, 1) if device.type == "cuda" else "n/a",
+                           "bytes_per_edge": (peak - base) / max(edges, 1) if is_cuda(device) else "n/a",
                            "cpu_table_bytes_per_edge": cpu_bytes}
                 if not seconds:
                     figures["status"] = "warmup_only"  # the deadline came before a timed step would fit
                 emit("step", **label, **figures)
                 if phase == "train" and memory == "stored":
                     stored_fit.add(precision)
-                if (phase, precision, memory) == ("train", "bfloat16", "recompute") and device.type == "cuda":
+                if (phase, precision, memory) == ("train", "bfloat16", "recompute") and is_cuda(device):
                     best_fit = {"particles": particles, "edges": edges, "bytes_per_edge": figures["bytes_per_edge"]}
                 if left(deadline) > 1.5 * figures["step_s"] + 1:
                     emit("phases", **label, **case.split())
@@ -502,7 +509,7 @@ def scale(args) -> None:
             finally:
                 del case
                 set_recompute_activations(False)
-                if device.type == "cuda":
+                if is_cuda(device):
                     torch.cuda.empty_cache()
     if best_fit is not None and total is not None and best_fit["bytes_per_edge"] != "n/a":
         per_particle = best_fit["edges"] / best_fit["particles"] * max(best_fit["bytes_per_edge"], 1.0)

@@ -32,6 +32,7 @@ from ..data.trajectory import Trajectory
 from ..io.rollout_file import save_rollout
 from ..safe_names import ensure_inside, unique_components
 from ..plugin_types import Metric
+from ..runtime.device import is_cuda
 from .metrics import DEFAULT_HORIZONS, ParticleRollout, RolloutPair, metric_units, rollout_metrics, summarise
 from .timing import Timing, format_hardware, hardware_description, time_call
 
@@ -202,7 +203,7 @@ def evaluate(
     reference = next((e for e in entries if e.reference), None)
     if reference is not None:
         entries = [_with_speedup(e, reference.seconds) for e in entries]
-    gpu = next((c.device for c in candidates if c.device and torch.device(c.device).type == "cuda"), None)
+    gpu = next((c.device for c in candidates if is_cuda(c.device)), None)
     return Report(
         entries, error_metric, len(cases), repeats, warmup, metadata.dt, hardware_description(gpu),
         metric_units(metrics),

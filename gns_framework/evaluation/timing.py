@@ -17,6 +17,8 @@ from typing import TypeVar
 
 import torch
 
+from ..runtime.device import is_cuda, synchronize
+
 T = TypeVar("T")
 
 
@@ -35,12 +37,6 @@ class Timing:
     def spread(self) -> float:
         """max - min of the repeats, s: how far to trust the median."""
         return max(self.seconds) - min(self.seconds)
-
-
-def synchronize(device: torch.device | str | None) -> None:
-    """Wait for queued work on ``device``: CUDA kernels run asynchronously to Python."""
-    if device is not None and torch.device(device).type == "cuda":
-        torch.cuda.synchronize(device)
 
 
 def time_call(
@@ -89,7 +85,7 @@ def hardware_description(device: torch.device | str | None = None) -> dict[str, 
         "python": platform.python_version(),
         "device": str(device or "cpu"),
     }
-    if device is not None and torch.device(device).type == "cuda":
+    if is_cuda(device):
         description["gpu"] = torch.cuda.get_device_name(device)
     return description
 

@@ -23,7 +23,7 @@ from torch import Tensor
 
 from ..assembly.learned import build_learned_simulator, plugin_versions
 from ..assembly.scene import scene_to_dict
-from ..config.recipe import ModelSpec, validate_recipe
+from ..config.recipe import REFERENCE_NOISE_STD, ModelSpec, validate_recipe
 from ..contracts import Scene
 from ..data.metadata import DatasetMetadata, load_metadata, parse_metadata
 from ..errors import CheckpointError, GnsError
@@ -35,8 +35,8 @@ from .geoelements_layout import Architecture, ParameterMap
 
 HISTORY = 6
 """geoelements' INPUT_SEQUENCE_LENGTH: 6 positions, 5 velocities."""
-NOISE_STD = 6.7e-4
-"""geoelements' default ``--noise_std``; its normalisation uses sqrt(std^2 + noise_std^2)."""
+NOISE_STD = REFERENCE_NOISE_STD
+"""geoelements' default ``--noise_std`` (the reference's); its normalisation uses sqrt(std^2 + noise_std^2)."""
 PROPERTY_NAME = "friction"
 """geoelements' ``material_property``: tan of the friction angle, one column."""
 

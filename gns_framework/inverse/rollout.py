@@ -19,6 +19,7 @@ from torch.utils.checkpoint import checkpoint
 
 from ..data.batch import ParticleBatch
 from ..model.learned_simulator import LearnedSimulator
+from ..model.history import advance_window
 
 
 def _advance(simulator: LearnedSimulator, state: ParticleBatch, sequence: Tensor, material_property: Tensor | None,
@@ -32,7 +33,7 @@ def _advance(simulator: LearnedSimulator, state: ParticleBatch, sequence: Tensor
         current = replace(state, position_sequence=sequence, material_property=material_property)
         next_position = simulator.predict_next_position(current, prescribed=next_prescribed)
         frames.append(next_position)
-        sequence = torch.cat([sequence[:, 1:], next_position[:, None]], dim=1)
+        sequence = advance_window(sequence, next_position)
     return sequence, torch.stack(frames)
 
 

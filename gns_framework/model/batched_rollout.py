@@ -27,6 +27,7 @@ from ..runtime.precision import Precision
 from .learned_simulator import LearnedSimulator
 from .rollout import _check_simulates, rollout_step
 from .rollout_guard import RolloutGuard
+from .history import advance_window
 
 
 def _per_particle_bounds(trajectories: Sequence[Trajectory]) -> torch.Tensor:
@@ -104,7 +105,7 @@ def rollout_batch(
                 mine = violation.particles[(violation.particles >= lo) & (violation.particles < hi)] - lo
                 if mine.size:
                     violations[index].append(replace(violation, particles=mine))
-        sequence = torch.cat([sequence[:, 1:], continued[:, None]], dim=1)
+        sequence = advance_window(sequence, continued)
     moving_host = moving.cpu().numpy()
     return [
         Rollout(

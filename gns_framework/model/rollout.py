@@ -25,6 +25,8 @@ from ..runtime.host_sync import avoids_read_backs
 from ..runtime.precision import Precision, autocast
 from .learned_simulator import LearnedSimulator
 from .rollout_guard import GuardViolation, RolloutGuard
+from .history import advance_window
+from ..runtime.device import is_cuda
 
 
 @torch.inference_mode()
@@ -92,7 +94,7 @@ def rollout(
         next_position, continued = rollout_step(simulator, guard, current, kinematic, kinematic_truth[step], precision)
         for done, raw in frames.push(step, next_position):
             checked(done, raw)
-        sequence = torch.cat([sequence[:, 1:], continued[:, None]], dim=1)
+        sequence = advance_window(sequence, continued)
     for done, raw in frames.drain():
         checked(done, raw)
     return Rollout(
@@ -150,7 +152,7 @@ class HostFrames:
         """
         if not avoids_read_backs(self.device):
             return [(step, frame)]
-        cuda = self.device.type == "cuda"
+        cuda = is_cuda(self.device)
         buffer = self.free.pop() if self.free else torch.empty(frame.shape, dtype=frame.dtype, pin_memory=cuda)
         buffer.copy_(frame, non_blocking=cuda)
         event = None

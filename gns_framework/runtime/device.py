@@ -51,3 +51,18 @@ def _torch_cuda_devices() -> int:
 def resolve_device(name: str, where: str = "--device") -> torch.device:
     """The torch device ``name`` (auto, cpu, cuda or cuda:N) means here, for the learned model."""
     return torch.device(choose_device(name, _torch_cuda_devices, where))
+
+
+def is_cuda(device: torch.device | str | None) -> bool:
+    """Whether ``device`` is a CUDA GPU: the one test behind every CUDA-only step.
+
+    Pinned host buffers, ``torch.cuda.synchronize``, TF32, NCCL and per-rank GPU
+    binding exist only there; ``None`` (no device given) is the CPU.
+    """
+    return device is not None and torch.device(device).type == "cuda"
+
+
+def synchronize(device: torch.device | str | None) -> None:
+    """Wait for the work queued on ``device``: CUDA kernels run asynchronously to Python (a no-op elsewhere)."""
+    if is_cuda(device):
+        torch.cuda.synchronize(device)

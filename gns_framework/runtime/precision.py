@@ -28,10 +28,11 @@ def autocast(precision: Precision, device: torch.device | str) -> contextlib.Abs
     """The context in which the model's products run in ``precision`` (float32: autocast off)."""
     import torch  # here: naming the choices (recipes, CLI help) needs no torch
 
-    device_type = torch.device(device).type
-    if precision == "tf32" and device_type == "cuda":
+    from .device import is_cuda
+
+    if precision == "tf32" and is_cuda(device):
         return _cuda_tf32()
-    return torch.autocast(device_type, dtype=torch.bfloat16, enabled=precision == "bfloat16")
+    return torch.autocast(torch.device(device).type, dtype=torch.bfloat16, enabled=precision == "bfloat16")
 
 
 def backward_precision(precision: Precision, device: torch.device | str) -> contextlib.AbstractContextManager:
@@ -40,9 +41,9 @@ def backward_precision(precision: Precision, device: torch.device | str) -> cont
     Autocast is not entered for the backward (its ops follow the forward's dtypes);
     TF32 is a process setting, so the backward's float32 products need it again.
     """
-    import torch
+    from .device import is_cuda
 
-    return _cuda_tf32() if precision == "tf32" and torch.device(device).type == "cuda" else contextlib.nullcontext()
+    return _cuda_tf32() if precision == "tf32" and is_cuda(device) else contextlib.nullcontext()
 
 
 @contextlib.contextmanager

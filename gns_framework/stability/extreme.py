@@ -20,7 +20,7 @@ import torch
 from torch import Tensor
 
 from ..assembly.learned import build_learned_simulator
-from ..config.recipe import ModelSpec
+from ..config.recipe import REFERENCE_NOISE_STD, ModelSpec
 from ..contracts import Scene
 from ..data.batch import ParticleBatch
 from ..data.metadata import DatasetMetadata
@@ -52,7 +52,7 @@ def tiny_simulator(
     """A small model (latent 16, 2 message-passing steps) on the extreme scene; ``zero_std`` also drops the noise."""
     torch.manual_seed(seed)
     model = ModelSpec(latent_size=16, mlp_hidden_size=16, mlp_hidden_layers=1, type_embedding_size=4,
-                      noise_std=0.0 if zero_std else 6.7e-4,
+                      noise_std=0.0 if zero_std else REFERENCE_NOISE_STD,
                       processor={"name": processor, "message_passing_steps": 2})
     return build_learned_simulator(extreme_scene(dim), extreme_metadata(dim, zero_std), model, registry)
 

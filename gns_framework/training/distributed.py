@@ -21,6 +21,8 @@ import torch
 import torch.distributed as dist
 from torch import Tensor, nn
 
+from ..runtime.device import is_cuda
+
 
 @dataclass(frozen=True)
 class Processes:
@@ -56,7 +58,7 @@ class Processes:
         than ``local_rank + 1``: then its GPU is the first it sees. ``visible_gpus``
         defaults to ``torch.cuda.device_count()``.
         """
-        if not (self.distributed and requested.type == "cuda"):
+        if not (self.distributed and is_cuda(requested)):
             return requested
         visible = torch.cuda.device_count() if visible_gpus is None else visible_gpus
         return torch.device("cuda", self.local_rank if self.local_rank < visible else 0)
@@ -65,7 +67,7 @@ class Processes:
         """``module`` behind DistributedDataParallel when distributed (its forward averages gradients)."""
         if not self.distributed:
             return module
-        device_ids = [device.index] if device.type == "cuda" else None
+        device_ids = [device.index] if is_cuda(device) else None
         return nn.parallel.DistributedDataParallel(module, device_ids=device_ids)
 
     def sum(self, tensor: Tensor) -> Tensor:
@@ -126,14 +128,14 @@ def process_group_timeout(environ: dict[str, str] | None = None) -> timedelta:
 
 def backend_for(device: torch.device) -> str:
     """nccl between GPUs, gloo between CPU processes."""
-    return "nccl" if device.type == "cuda" else "gloo"
+    return "nccl" if is_cuda(device) else "gloo"
 
 
 def start(processes: Processes, device: torch.device) -> torch.device:
     """Join the process group (torchrun's env:// rendezvous) and return this process's device."""
     device = processes.device(device)
     if processes.distributed and not dist.is_initialized():
-        if device.type == "cuda":
+        if is_cuda(device):
             torch.cuda.set_device(device)
         store, _, _ = next(dist.rendezvous("env://", processes.rank, processes.world_size))
         # torchrun can keep one store across elastic restarts; without a per-attempt prefix a
@@ -146,7 +148,7 @@ def start(processes: Processes, device: torch.device) -> torch.device:
             store=store,
             rank=processes.rank,
             world_size=processes.world_size,
-            device_id=device if device.type == "cuda" else None,
+            device_id=device if is_cuda(device) else None,
             timeout=process_group_timeout(),
         )
     return device

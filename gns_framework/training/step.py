@@ -24,8 +24,10 @@ from ..model.learned_simulator import LearnedSimulator
 from ..model.loss import masked_squared_error_sum
 from ..model.noise import random_walk_noise
 from ..runtime.precision import Precision, autocast, backward_precision
+from ..runtime.device import is_cuda
 from .distributed import Processes
 from .ema import WeightAverage
+from ..model.history import advance_window
 
 
 class TrainingStep:
@@ -91,7 +93,7 @@ class TrainingStep:
         """
         batch = self.windows.batch(self.order.indices(step))
         noise = self.noise(step)
-        if self.device.type == "cuda":
+        if is_cuda(self.device):
             batch, noise = batch.pinned(), noise.pin_memory()
         batch = batch.to(self.device)
         unrolled = self.pushforward_steps(step)
@@ -135,7 +137,7 @@ class TrainingStep:
         sequence = batch.position_sequence
         for k in range(steps):
             rolled = self.simulator.predict_next_position(replace(batch, position_sequence=sequence), prescribed=truth[:, k])
-            sequence = torch.cat([sequence[:, 1:], rolled[:, None]], dim=1)
+            sequence = advance_window(sequence, rolled)
         return replace(batch, position_sequence=sequence, next_position=truth[:, steps])
 
     def noise(self, step: int) -> Tensor:

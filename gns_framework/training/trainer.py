@@ -33,7 +33,7 @@ from ..io.run_folder import RunFolder
 from ..model.envelope import measure_envelope
 from ..model.noise import training_noise_std
 from ..plugins import Registry
-from ..runtime.device import resolve_device
+from ..runtime.device import resolve_device, synchronize
 from ..runtime.activation_memory import set_recompute_activations
 from ..runtime.allocator import keep_freed_memory
 from ..runtime.deterministic import set_deterministic_sums
@@ -425,12 +425,6 @@ def time_to_go(step: int, total: int, done: int, seconds: float) -> str:
     minutes = round(left / 60)
     span = f"{minutes // 60} h {minutes % 60} min" if minutes >= 60 else f"{max(minutes, 1)} min"
     return f"step {step} of {total}, {pace:.3g} steps/s: about {span} to go"
-
-
-def synchronize(device: torch.device) -> None:
-    """Wait for the work queued on ``device`` (a no-op on the CPU)."""
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
 
 
 def _read_losses(unread: list[tuple[int, Tensor]]) -> list[float]:

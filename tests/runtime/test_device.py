@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from gns_framework.errors import GnsError
-from gns_framework.runtime.device import choose_device, resolve_device
+from gns_framework.runtime.device import choose_device, is_cuda, resolve_device, synchronize
 
 
 @pytest.mark.parametrize(
@@ -35,3 +35,20 @@ def test_a_device_the_machine_lacks_is_one_line_naming_the_field(name, count, me
 def test_the_models_device_is_a_torch_device():
     assert resolve_device("cpu") == torch.device("cpu")
     assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+
+
+@pytest.mark.parametrize("device, cuda", [("cpu", False), (torch.device("cpu"), False), (None, False),
+                                          ("cuda", True), ("cuda:1", True), (torch.device("cuda", 0), True),
+                                          ("meta", False)])
+def test_one_predicate_says_whether_a_device_is_cuda(device, cuda):
+    assert is_cuda(device) is cuda
+
+
+def test_synchronize_waits_only_on_cuda(monkeypatch):
+    waited = []
+    monkeypatch.setattr(torch.cuda, "synchronize", lambda device=None: waited.append(device))
+    synchronize("cpu")
+    synchronize(None)
+    assert waited == []
+    synchronize("cuda:0")
+    assert waited == ["cuda:0"]
