@@ -255,7 +255,7 @@ def sums(args) -> None:
     """
     import torch
 
-    from gns_builtins import segment_sum
+    from gns_builtins._kernels import segment_sum
 
     deadline = part_deadline()
     device = torch.device(args.device)
@@ -526,7 +526,7 @@ def chunks(args) -> None:
     """
     import torch
 
-    import gns_builtins.chunked as chunked
+    import gns_builtins._kernels.chunked as chunked
 
     device = torch.device(args.device)
     scene = _lattice(args.particles)

@@ -61,7 +61,7 @@ def refined_scene(particles: int):
 
 def time_mpm(scene, sample, registry, frames: int) -> float:
     """Seconds per stored frame of the MPM on ``scene`` (after one untimed frame)."""
-    from gns_builtins.simulators.mpm_solver import MpmSolver
+    from gns_builtins.simulators._mpm.solver import MpmSolver
     from gns_framework.assembly.ground_truth import build_ground_truth_simulator
 
     simulator = build_ground_truth_simulator(scene, registry, "benchmark scene")

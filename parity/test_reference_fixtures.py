@@ -30,3 +30,17 @@ def test_case_uses_the_documented_format(reference_case):
     missing = [key for key in required if key not in reference_case]
     assert not missing, f"{reference_case.path}: missing members {missing}"
     assert reference_case.meta["reference"]["repository"].endswith("geoelements/gns")
+
+
+@pytest.mark.parametrize("stage", ["latents", "outputs", "training"])
+def test_the_plain_interaction_step_matches_reference(reference_case, stage):
+    """The paper's form of the step (``edge_block: plain``), not only the fused one, reproduces the reference."""
+    imported = reference_case.import_model()
+    steps = getattr(imported.simulator.processor, "steps", None)
+    if steps is None:
+        pytest.skip(f"{reference_case.name}: its processor has no interaction steps")
+    for step in steps:
+        step.edge_block = "plain"
+    deviations = compare_case(reference_case, imported, [stage])
+    failed = [str(d) for d in deviations if not d.ok]
+    assert deviations and not failed, f"{reference_case.name}, {stage} (plain):\n  " + "\n  ".join(failed)

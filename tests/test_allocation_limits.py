@@ -10,7 +10,7 @@ import struct
 import numpy as np
 import pytest
 import yaml
-from gns_builtins.datasets import tfrecord_format as tf
+from gns_builtins.datasets._formats import tfrecord_format as tf
 from scene_builders import mixed
 
 from gns_framework import limits

@@ -161,7 +161,7 @@ def test_dimension_disagreeing_with_metadata_is_located(registry, tmp_path):
 
 
 def test_a_record_that_is_not_a_trajectory_is_located(registry, tmp_path):
-    from gns_builtins.datasets.tfrecord_format import Feature, SequenceExample, write_records
+    from gns_builtins.datasets._formats.tfrecord_format import Feature, SequenceExample, write_records
 
     traj = soft_sphere_trajectory(0, frames=5, block=2)
     registry.get("dataset", "tfrecord").write(tmp_path, synthetic_metadata([traj], 2), {"train": [traj]})

@@ -15,7 +15,7 @@ import torch
 from tiny import tiny_recipe, tiny_trainer
 
 import gns_framework.runtime.host_sync as host_sync
-from gns_builtins.processors import edge_block
+from gns_builtins._kernels import edge_block
 from gns_framework.model import learned_simulator as simulator_module
 from gns_framework.model import rollout as rollout_module
 from gns_framework.model.rollout import rollout
@@ -58,7 +58,7 @@ def no_host_reads(monkeypatch, documented: list):
             patch.setattr(torch.Tensor, name, forbidden(name))
         for module in (host_sync, trainer_module):
             patch.setattr(module, "read_back", counted)
-        from gns_builtins.graph_builders import cell_list
+        from gns_builtins._kernels import cell_list
         patch.setattr(cell_list, "read_back", counted)
         yield
 
@@ -162,7 +162,7 @@ def test_the_radius_graph_waits_for_the_device_once_per_chunk_at_the_dispatch_le
     With the explicit read-back of the candidate count (counted by the tests above) that is
     two waits per graph build of one chunk, against seven before (four torch.unique, two masks).
     """
-    from gns_builtins.graph_builders import cell_list
+    from gns_builtins._kernels import cell_list
 
     from gns_framework.runtime.host_sync import SyncCounter
 

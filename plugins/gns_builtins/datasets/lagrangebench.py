@@ -42,7 +42,7 @@ from gns_framework.data.particle_spacing import particle_spacing
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
 
-from .numbering import trajectory_numbers
+from ._formats.numbering import trajectory_numbers
 
 OPTIONAL_FIELDS = ("material_property", "step_context")
 PER_SPLIT_KEYS = ("sequence_length_", "num_trajs_")

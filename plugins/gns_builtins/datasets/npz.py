@@ -26,7 +26,7 @@ from gns_framework.data.metadata import DatasetMetadata
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
 
-from .npz_common import NpzSplitsDataset, open_npz, read_array_pickle
+from ._formats.npz_common import NpzSplitsDataset, open_npz, read_array_pickle
 
 
 class GeoelementsNpzDataset(NpzSplitsDataset):

@@ -25,7 +25,7 @@ from gns_framework.data.metadata import DatasetMetadata
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
 
-from .npz_common import NpzSplitsDataset, open_npz, read_member
+from ._formats.npz_common import NpzSplitsDataset, open_npz, read_member
 
 FIELDS = ("position", "particle_type", "material_property", "step_context", "bounds", "walls")
 

@@ -35,8 +35,8 @@ from gns_framework.data.metadata import DatasetMetadata, load_metadata
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
 
-from .numbering import trajectory_numbers
-from .tfrecord_format import Feature, SequenceExample, read_records, write_records
+from ._formats.numbering import trajectory_numbers
+from ._formats.tfrecord_format import Feature, SequenceExample, read_records, write_records
 
 
 class TfRecordDataset(Dataset):

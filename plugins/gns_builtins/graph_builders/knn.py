@@ -8,7 +8,7 @@ from torch import Tensor
 
 from gns_framework.contracts import Graph, GraphBuilder, Params
 
-from .cell_list import squared_distance
+from .._kernels.cell_list import squared_distance
 
 _PAIRS_PER_CHUNK = 1 << 22
 """Bounds the memory of the distance block of one chunk of receivers."""

@@ -12,7 +12,7 @@ from gns_framework.errors import RecipeError
 from gns_framework.model.periodic import PeriodicBox
 from gns_framework.runtime.host_sync import PerDevice
 
-from .cell_list import radius_pairs
+from .._kernels.cell_list import radius_pairs
 
 
 class PeriodicRadiusGraphBuilder(GraphBuilder):

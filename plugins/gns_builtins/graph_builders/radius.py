@@ -6,7 +6,7 @@ from torch import Tensor
 
 from gns_framework.contracts import Graph, GraphBuilder, Params
 
-from .cell_list import radius_pairs
+from .._kernels.cell_list import radius_pairs
 
 
 class RadiusGraphBuilder(GraphBuilder):

@@ -11,7 +11,7 @@ from torch import Tensor
 from gns_framework.contracts import Graph, GraphBuilder, Params, Scene
 from gns_framework.errors import PluginError
 
-from .cell_list import squared_distance
+from .._kernels.cell_list import squared_distance
 
 _SEARCH_MARGIN = 1 + 2**-10
 """torch-cluster compares in its own rounding; search slightly wider, then filter exactly."""

@@ -7,7 +7,7 @@ from torch import Tensor
 
 from gns_framework.contracts import Graph, ModelSizes, Params, Processor
 
-from .interaction_network import InteractionStep
+from .interaction_network import EdgeBlock, InteractionStep
 
 
 class SharedInteractionNetwork(Processor):
@@ -21,10 +21,11 @@ class SharedInteractionNetwork(Processor):
 
     class Params(Params):
         message_passing_steps: int = Field(10, ge=1, description="M, times the one step is applied")
+        edge_block: EdgeBlock = Field("fused", description="fused (chunked, fast) or plain (the paper's lines); equal results")
 
     def __init__(self, params: Params, sizes: ModelSizes):
         super().__init__(params, sizes)
-        self.step = InteractionStep(sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers)
+        self.step = InteractionStep(sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers, params.edge_block)
 
     def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:
         for _ in range(self.params.message_passing_steps):

@@ -18,7 +18,7 @@ from gns_framework.data.trajectory import Trajectory
 from gns_framework.ground_truth.sampling import BodySample, SceneSample, sample_scene
 from gns_framework.ground_truth.scene_spec import SceneSpec
 
-from .mpm_models import MODELS, RIGID, ConstitutiveModel
+from ._mpm.models import MODELS, RIGID, ConstitutiveModel
 
 
 class MlsMpm(GroundTruthSimulator):
@@ -119,7 +119,7 @@ class MlsMpm(GroundTruthSimulator):
         }
 
     def simulate(self, scene: SceneSpec, seed: int) -> Trajectory:
-        from .mpm_solver import MpmSolver
+        from ._mpm.solver import MpmSolver
 
         sample = sample_scene(scene, seed)
         scene = sample.scene  # this trajectory's domain: extent and face conditions drawn

@@ -16,7 +16,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from gns_builtins.datasets.tfrecord_format import SequenceExample, read_records
+from gns_builtins.datasets._formats.tfrecord_format import SequenceExample, read_records
 
 from gns_framework.cli import main
 from gns_framework.errors import DatasetError

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gns_framework.contracts import Scene
-from gns_builtins.graph_builders.cell_list import radius_pairs
+from gns_builtins._kernels.cell_list import radius_pairs
 from gns_builtins.graph_builders.radius import RadiusGraphBuilder
 
 
@@ -122,7 +122,7 @@ def test_builder_returns_displacements():
 
 def test_chunked_search_finds_the_same_edges(monkeypatch):
     """Chunks of a few candidates (cuts inside and between receivers' ranges) change no edge and no order."""
-    from gns_builtins.graph_builders import cell_list
+    from gns_builtins._kernels import cell_list
 
     position, batch, radius = make(3, [60, 40], 0.3, 7)
     whole = radius_pairs(position, batch, radius)

@@ -33,7 +33,7 @@ def scene_in(bounds: list[list[float]], grid: int, **domain) -> dict:
 
 
 def solver_for(raw: dict, registry):
-    from gns_builtins.simulators.mpm_solver import MpmSolver
+    from gns_builtins.simulators._mpm.solver import MpmSolver
 
     scene = parse_scene(raw)
     simulator = build_ground_truth_simulator(scene, registry, "<test>")

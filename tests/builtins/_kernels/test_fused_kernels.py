@@ -11,9 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from float_tolerances import assert_close_to_reference
-from gns_builtins import chunked, fused_kernels
-from gns_builtins.processors import edge_block as edge_block_module
-from gns_builtins.processors.edge_block import edge_block, node_table, table_rows
+from gns_builtins._kernels import chunked, fused_kernels
+from gns_builtins._kernels import edge_block as edge_block_module
+from gns_builtins._kernels.edge_block import edge_block, node_table, table_rows
 from gns_framework.layers import NormedMLP
 
 requires_kernels = pytest.mark.skipif(fused_kernels.library() is None, reason="no C compiler: fused kernels not built")

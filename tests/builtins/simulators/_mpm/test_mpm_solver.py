@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from gns_builtins.simulators import mpm_solver
+from gns_builtins.simulators._mpm import solver as mpm_solver
 
 from gns_framework.errors import GnsError
 
@@ -35,7 +35,7 @@ def test_undrained_clay_yields_at_its_cohesion_in_the_von_mises_return_map():
     """tresca: sigma_y = sqrt(3) c_u (kPa -> Pa), so the yield strain is sqrt(2/3) sigma_y / (2 mu) = c_u / (sqrt(2) mu)."""
     import numpy as np
 
-    from gns_builtins.simulators.mpm_models import MODELS, VonMisesGoop
+    from gns_builtins.simulators._mpm.models import MODELS, VonMisesGoop
 
     model = MODELS["tresca"]
     assert model.kernel_id == VonMisesGoop.kernel_id

@@ -14,7 +14,7 @@ from gns_framework.ground_truth.sampling import BodySample
 from gns_framework.runtime.device import choose_device
 from gns_framework.ground_truth.scene_spec import SceneSpec
 
-from .mpm_kernels import BOX, ELLIPSOID, PLANE, POLYGON, kernels
+from .kernels import BOX, ELLIPSOID, PLANE, POLYGON, kernels
 
 GRID_MARGIN = 3
 """Grid cells beyond each wall, so every particle's 3^d stencil stays on the grid."""
@@ -168,7 +168,7 @@ class MpmSolver:
             # A plain launch of P2G's deterministic atomics reads their record counts and an overflow
             # flag back to the host after every substep (three waits for the GPU); launched from a
             # captured graph they reduce their fixed-size record buffers and read nothing back. The
-            # buffers are sized for the 3^d adds every thread makes (mpm_kernels), so none can overflow.
+            # buffers are sized for the 3^d adds every thread makes (kernels.py), so none can overflow.
             with wp.ScopedCapture(device=self.device) as capture:
                 self.launches[0].launch()
             self.p2g_graph = capture.graph

@@ -2,7 +2,7 @@
 
 Done on whole (E, H) tensors, every elementwise operation of the edge MLP streams
 the activations through main memory, as long in all as the matrix products. The
-chunked edge block (``processors/edge_block.py``) instead takes each chunk of edges
+chunked edge block (``edge_block.py``) instead takes each chunk of edges
 through every layer while it sits in cache, with a hand-written backward; these are
 its generic parts: chunking, the dtype of the products under autocast, and the
 layers after the first, forward and backward. (The edge encoder, tried the same

@@ -35,8 +35,8 @@ from torch.autograd.function import once_differentiable
 from gns_framework.runtime.activation_memory import recompute_activations
 from gns_framework.runtime.host_sync import avoids_read_backs
 
-from .. import fused_kernels
-from ..chunked import (
+from . import fused_kernels
+from .chunked import (
     add_product,
     chunk_size,
     chunks,
@@ -47,7 +47,7 @@ from ..chunked import (
     product_into,
     widest_dtype,
 )
-from ..segment_sum import needs_ordered_sums, segment_sum_, sorted_segment_sum_
+from .segment_sum import needs_ordered_sums, segment_sum_, sorted_segment_sum_
 
 
 def node_table(x: Tensor, first_weight: Tensor, first_bias: Tensor) -> Tensor:
@@ -67,7 +67,7 @@ def table_rows(senders: Tensor, receivers: Tensor, num_nodes: int) -> Tensor:
 
 class Plan(NamedTuple):
     """How one call runs: edges per chunk, the products' dtype, whether the receivers are sorted,
-    and whether sums at nodes go through :mod:`~gns_builtins.segment_sum` instead of ``index_add_``."""
+    and whether sums at nodes go through :mod:`~gns_builtins._kernels.segment_sum` instead of ``index_add_``."""
 
     chunk_size: int
     products: torch.dtype

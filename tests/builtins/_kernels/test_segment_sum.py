@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from gns_builtins.segment_sum import segment_sum_, sorted_segment_sum_
+from gns_builtins._kernels.segment_sum import segment_sum_, sorted_segment_sum_
 
 
 def _case(seed: int, rows: int = 500, nodes: int = 37, features: int = 8):
@@ -59,7 +59,7 @@ def test_sums_are_as_accurate_as_float32_allows_against_a_float64_reference():
 
 
 def test_deterministic_sums_switch_picks_the_path_on_accelerators_only():
-    from gns_builtins.segment_sum import needs_ordered_sums
+    from gns_builtins._kernels.segment_sum import needs_ordered_sums
 
     from gns_framework.runtime.deterministic import deterministic_sums, set_deterministic_sums
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from gns_builtins import chunked
-from gns_builtins.processors import edge_block as edge_block_module
-from gns_builtins.processors.edge_block import edge_block, node_table, table_rows
+from gns_builtins._kernels import chunked
+from gns_builtins._kernels import edge_block as edge_block_module
+from gns_builtins._kernels.edge_block import edge_block, node_table, table_rows
 from gns_framework.layers import NormedMLP
 
 

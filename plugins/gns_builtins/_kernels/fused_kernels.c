@@ -1,4 +1,4 @@
-/* Fused elementwise passes of the chunked edge block (processors/edge_block.py).
+/* Fused elementwise passes of the chunked edge block (_kernels/edge_block.py).
  *
  * Each function does in one pass over a chunk of rows what takes the torch path
  * three to five passes and as many OpenMP fork/joins. Tensors are float32,

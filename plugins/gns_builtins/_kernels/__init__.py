@@ -1,0 +1,1 @@
+"""Numerical kernels the built-in components share: not components themselves (none is registered)."""
