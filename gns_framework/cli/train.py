@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from ..config.recipe import load_recipe
+from ..errors import GnsError
 from ..io.checkpoint import list_checkpoints
 from ..plugins import load_registry
 from ..training import distributed
@@ -43,12 +44,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "record of their MLflow run move to <run>/earlier-N/, nothing is deleted. Without --resume or --restart "
         "such a folder is refused",
     )
+    parser.add_argument(
+        "--init-from",
+        type=Path,
+        metavar="CHECKPOINT",
+        help="fine-tune: start at step 0 from the weights of a trained checkpoint of the same model and scene "
+        "(its weight average when it has one) with a fresh optimiser and schedule, e.g. on more data of the "
+        "same envelope; recorded in every checkpoint. Not with --resume (a resumed run keeps its own weights)",
+    )
     parser.add_argument("--device", help="cpu, cuda or cuda:N (overrides training.device)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_tracking_arguments(parser, "<run>/metrics.jsonl", "the recipe's name")
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.init_from is not None and args.resume is not None:
+        raise GnsError(
+            "--init-from and --resume: a resumed run continues from its own checkpoint; fine-tune into a new run "
+            "folder (--out NEW) with --init-from alone"
+        )
     registry = load_registry()
     overrides: dict = {}
     if args.steps is not None:
@@ -92,6 +106,9 @@ def _train(trainer: Trainer, args: argparse.Namespace) -> int:
         earlier = trainer.start_afresh(restart)
         if earlier is not None:
             say(f"starting afresh at step 0; the earlier run's checkpoints are kept in {earlier}")
+        if args.init_from is not None:
+            step = trainer.initialize_from(args.init_from)
+            say(f"fine-tuning from {args.init_from} (trained {step} steps)")
     # MLflow only once the data and any checkpoint have loaded, so a run that cannot start leaves no trace there;
     # a run from step 0 is a new history, so a new MLflow run.
     if processes.is_chief:

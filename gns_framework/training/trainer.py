@@ -23,6 +23,7 @@ from ..data.atomic import write_text_atomic
 from ..data.windows import WindowIndex, WindowOrder
 from ..errors import CheckpointError, DatasetError, GnsError, RecipeError
 from ..io.checkpoint import (
+    load_checkpoint,
     make_room_for_a_fresh_start,
     prune_checkpoints,
     resume_point,
@@ -138,6 +139,8 @@ class Trainer:
         self.validation = self._validation()
         self.step = 0
         self.history = uuid.uuid4().hex
+        self.initialized_from: dict | None = None
+        """The trained checkpoint (path and step) this run was fine-tuned from (:meth:`initialize_from`), or None."""
         """Id of this run's history (kept across resumes, recorded in each checkpoint): retention prunes only its own."""
         self.tracker = None
         if self.processes.is_chief:
@@ -202,6 +205,7 @@ class Trainer:
             "best": dict(self.validation.best),
             **({"ema": self.ema.state_dict()} if self.ema is not None else {}),
             "history": self.history,
+            **({"initialized_from": self.initialized_from} if self.initialized_from is not None else {}),
             **({"envelope": self.envelope.to_dict()} if self.envelope is not None else {}),
         }
 
@@ -213,14 +217,7 @@ class Trainer:
                 f"{source}: {missing[0]}: missing, so it cannot be trained on: roll it out with `gns rollout`, "
                 "or start a new run (--out NEW)"
             )
-        saved_model = state["recipe"].get("model", {})
-        current = self.recipe.resolved()["model"]
-        differing = sorted(k for k in set(saved_model) | set(current) if saved_model.get(k) != current.get(k))
-        if differing:
-            details = "; ".join(f"model.{k}: checkpoint {saved_model.get(k)!r}, recipe {current.get(k)!r}" for k in differing)
-            raise CheckpointError(f"{source}: written for a different model: {details}")
-        if state["scene"] != scene_to_dict(self.data.scene):
-            raise CheckpointError(f"{source}: scene: written for {state['scene']}, this dataset gives {scene_to_dict(self.data.scene)}")
+        self._check_same_model(state, source)
         try:
             self.simulator.load_state_dict(state["model"])
             self.optimizer.load_state_dict(state["optimizer"])
@@ -252,8 +249,60 @@ class Trainer:
         if isinstance(state.get("history"), str):
             self.history = state["history"]
         self.validation.restore_best(state.get("best"))
+        if isinstance(state.get("initialized_from"), dict):
+            self.initialized_from = state["initialized_from"]
         # A checkpoint's CUDA generator states (older checkpoints have them) are ignored: nothing
         # draws from them, and restoring them failed with fewer GPUs visible than when it was written.
+
+    def _check_same_model(self, state: dict, source: str) -> None:
+        """Refuse a checkpoint of another model (recipe's model section) or scene, naming every difference."""
+        saved_model = state["recipe"].get("model", {})
+        current = self.recipe.resolved()["model"]
+        differing = sorted(k for k in set(saved_model) | set(current) if saved_model.get(k) != current.get(k))
+        if differing:
+            details = "; ".join(f"model.{k}: checkpoint {saved_model.get(k)!r}, recipe {current.get(k)!r}" for k in differing)
+            raise CheckpointError(f"{source}: written for a different model: {details}")
+        if state["scene"] != scene_to_dict(self.data.scene):
+            raise CheckpointError(f"{source}: scene: written for {state['scene']}, this dataset gives {scene_to_dict(self.data.scene)}")
+
+    def initialize_from(self, checkpoint: str | Path) -> int:
+        """Fine-tuning: start this run at step 0 from a trained model's weights; returns that model's step.
+
+        The weights are the checkpoint's weight average when it keeps one (what its
+        rollouts use), else its weights, with its normalisation statistics (the weights
+        were learned against them). The optimiser, the learning-rate schedule, the
+        best-checkpoint record and this run's weight average start afresh. The
+        checkpoint must be of the same model (the recipe's ``model`` section) and scene
+        (particle types, bounds, connectivity radius): anything else is refused, naming
+        each difference. The source is recorded in every checkpoint (``initialized_from``).
+        """
+        path = Path(checkpoint)
+        state = None
+        error = None
+        if self.processes.is_chief:
+            try:
+                state = load_checkpoint(path)
+                for key in ("recipe", "scene", "model"):
+                    if key not in state:
+                        raise CheckpointError(f"{path}: {key}: missing, so no model can be fine-tuned from it")
+                self._check_same_model(state, str(path))
+            except GnsError as exc:
+                error = exc
+        # Rank 0 reads; every rank starts from the same weights.
+        state, error = self.processes.broadcast((state, error))
+        if error is not None:
+            raise error
+        weights = state["ema"]["model"] if isinstance(state.get("ema"), dict) else state["model"]
+        try:
+            self.simulator.load_state_dict(weights)
+        except RuntimeError as exc:
+            raise CheckpointError(
+                f"{path}: its weights do not fit this recipe's parameters: {str(exc).splitlines()[0]}"
+            ) from None
+        if self.ema is not None:
+            self.optimisation.ema = WeightAverage(self.simulator, self.ema.decay)
+        self.initialized_from = {"checkpoint": str(path), "step": int(state.get("step", 0))}
+        return self.initialized_from["step"]
 
     def resume(self, checkpoint: str | Path | None = None) -> Path | None:
         """Resume from ``checkpoint``, or from the newest good one of this run when None.

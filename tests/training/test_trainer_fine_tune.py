@@ -1,0 +1,75 @@
+"""Fine-tuning (gns train --init-from): step 0 from a trained model's weights, fresh optimiser, source recorded."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from training_support import tiny_recipe, write_recipe
+
+from gns_framework.cli import main
+from gns_framework.config.recipe import validate_recipe
+from gns_framework.errors import CheckpointError
+from gns_framework.io.checkpoint import list_checkpoints, load_checkpoint
+from gns_framework.plugins import load_registry
+from gns_framework.training.trainer import Trainer
+
+
+def make_trainer(recipe: dict, run_dir) -> Trainer:
+    registry = load_registry()
+    return Trainer(validate_recipe(recipe, registry), registry, run_dir=run_dir, progress=False)
+
+
+@pytest.fixture(scope="module")
+def trained(uneven_dataset, tmp_path_factory):
+    """A 4-step run with a weight average, and its checkpoint."""
+    run = tmp_path_factory.mktemp("trained")
+    trainer = make_trainer(tiny_recipe(uneven_dataset, steps=4, checkpoint_every=4, ema_decay=0.5), run)
+    trainer.start_afresh()
+    trainer.train(4)
+    trainer.close()
+    (_, path), = list_checkpoints(run / "checkpoints")[-1:]
+    return path
+
+
+def test_fine_tuning_starts_from_the_weight_average_at_step_0_with_a_fresh_optimiser(uneven_dataset, trained, tmp_path):
+    source = load_checkpoint(trained)
+    tuned = make_trainer(tiny_recipe(uneven_dataset, steps=8, ema_decay=0.5), tmp_path / "tuned")
+    tuned.start_afresh()
+    assert tuned.initialize_from(trained) == 4
+    assert tuned.step == 0
+    state = tuned.simulator.state_dict()
+    for key, value in source["ema"]["model"].items():
+        assert torch.equal(state[key], value), key
+    # The weight average differs from the last weights, so taking the average is a choice that shows.
+    assert any(not torch.equal(source["ema"]["model"][k], source["model"][k]) for k in source["model"])
+    assert tuned.optimizer.state_dict()["state"] == {}
+    assert tuned.state()["initialized_from"] == {"checkpoint": str(trained), "step": 4}
+    assert tuned.ema is not None and torch.equal(tuned.ema.module.state_dict()[key], state[key])
+
+
+def test_a_checkpoint_of_another_model_is_refused_naming_the_difference(uneven_dataset, trained, tmp_path):
+    recipe = tiny_recipe(uneven_dataset)
+    recipe["model"]["latent_size"] = 8
+    other = make_trainer(recipe, tmp_path / "other")
+    with pytest.raises(CheckpointError, match="model.latent_size: checkpoint 16, recipe 8"):
+        other.initialize_from(trained)
+
+
+def test_gns_train_init_from_trains_and_records_the_source_in_every_checkpoint(uneven_dataset, trained, tmp_path, capsys):
+    recipe = write_recipe(tmp_path / "tuned.yaml", tiny_recipe(uneven_dataset, steps=4, checkpoint_every=2))
+    run = tmp_path / "run"
+    assert main(["train", str(recipe), "--out", str(run), "--no-tracking", "--no-progress", "--init-from", str(trained)]) == 0
+    assert f"fine-tuning from {trained} (trained 4 steps)" in capsys.readouterr().out
+    written = list_checkpoints(run / "checkpoints")
+    assert [step for step, _ in written] == [2, 4]
+    for _, path in written:
+        assert load_checkpoint(path)["initialized_from"] == {"checkpoint": str(trained), "step": 4}
+
+
+def test_init_from_with_resume_is_refused_before_anything_is_written(uneven_dataset, trained, tmp_path, capsys):
+    recipe = write_recipe(tmp_path / "tuned.yaml", tiny_recipe(uneven_dataset))
+    run = tmp_path / "run"
+    code = main(["train", str(recipe), "--out", str(run), "--no-tracking", "--resume", "--init-from", str(trained)])
+    assert code != 0
+    assert "--init-from and --resume" in capsys.readouterr().err
+    assert not run.exists()
