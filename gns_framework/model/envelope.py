@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
+from typing import cast
 
 import numpy as np
 
@@ -95,6 +96,54 @@ class Envelope:
     def from_dict(cls, raw: dict) -> "Envelope":
         return cls(**raw)
 
+    def union(self, earlier: "Envelope") -> "Envelope":
+        """This envelope widened by ``earlier``'s ranges: a model fine-tuned on this data was trained on both.
+
+        Materials, property ranges, extents, walls, speeds and counts are joined. The
+        particle spacing and learned step are this data's (the model is now fitted to
+        them); a different dimension or frame stride is no model that was trained on both.
+        """
+        if (earlier.dim, earlier.frame_stride) != (self.dim, self.frame_stride):
+            raise ValueError(
+                f"envelopes of {earlier.dim}D stride {earlier.frame_stride} and {self.dim}D stride "
+                f"{self.frame_stride} cannot be joined"
+            )
+
+        def span(a: list, b: list) -> list:
+            return [min(a[0], b[0]), max(a[1], b[1])]
+
+        properties = dict(earlier.properties)
+        for name, values in self.properties.items():
+            properties[name] = span(properties[name], values) if name in properties else list(values)
+        walls = None
+        if self.walls is not None or earlier.walls is not None:
+            walls = {}
+            for face in sorted(set(self.walls or {}) | set(earlier.walls or {})):
+                mine, theirs = (self.walls or {}).get(face), (earlier.walls or {}).get(face)
+                if mine is None or theirs is None:
+                    walls[face] = dict(cast(dict, mine or theirs))  # a face of one of the two
+                    continue
+                frictions = [f for f in (mine["friction"], theirs["friction"]) if f is not None]
+                walls[face] = {
+                    "friction": span(frictions[0], frictions[-1]) if frictions else None,
+                    "slip": bool(mine["slip"] or theirs["slip"]),
+                    "no_slip": bool(mine["no_slip"] or theirs["no_slip"]),
+                }
+        return Envelope(
+            dim=self.dim,
+            particle_spacing=self.particle_spacing,
+            step_dt=self.step_dt,
+            frame_stride=self.frame_stride,
+            particle_types=sorted(set(self.particle_types) | set(earlier.particle_types)),
+            materials={**earlier.materials, **self.materials},
+            properties=properties,
+            extent=[span(a, b) for a, b in zip(self.extent, earlier.extent)],
+            walls=walls,
+            max_speed=max(self.max_speed, earlier.max_speed),
+            particle_count=span(self.particle_count, earlier.particle_count),
+            frames=span(self.frames, earlier.frames) if self.frames and earlier.frames else list(self.frames or earlier.frames),
+        )
+
     def rows(self) -> list[tuple[str, str]]:
         """(quantity, trained range) in words, for model cards and ``gns info``."""
         axes = "xyz"
@@ -124,6 +173,7 @@ def _wall_kinds(seen: dict) -> str:
 
 def _property_values(trajectory: Trajectory, column: int, moving: np.ndarray) -> np.ndarray:
     """A property column of the moving particles (of all particles when none moves)."""
+    assert trajectory.material_property is not None  # the callers check it
     values = trajectory.material_property[:, column]
     return values[moving] if moving.any() else values
 
@@ -287,7 +337,7 @@ def outside_envelope(
                 elif friction == 0:
                     ok, value = seen["slip"], "slip"
                 else:
-                    ok = seen["friction"] is not None and _within(friction, *seen["friction"], WALL_SLACK)
+                    ok = seen["friction"] is not None and _within(friction, *cast("tuple[float, float]", seen["friction"]), WALL_SLACK)
                     value = f"friction {friction:.3g}"
                 if not ok:
                     findings.add(f"wall {face}", value, _wall_kinds(seen), key)

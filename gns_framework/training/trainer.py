@@ -31,7 +31,7 @@ from ..io.checkpoint import (
     set_aside_damaged,
 )
 from ..io.run_folder import RunFolder
-from ..model.envelope import measure_envelope
+from ..model.envelope import Envelope, measure_envelope
 from ..model.noise import training_noise_std
 from ..plugins import Registry
 from ..runtime.device import resolve_device, synchronize
@@ -258,7 +258,11 @@ class Trainer:
         """Refuse a checkpoint of another model (recipe's model section) or scene, naming every difference."""
         saved_model = state["recipe"].get("model", {})
         current = self.recipe.resolved()["model"]
-        differing = sorted(k for k in set(saved_model) | set(current) if saved_model.get(k) != current.get(k))
+        # The radius the model uses is the scene's (the recipe's, else the data's default): compared there, so
+        # a recipe that spells out the radius its checkpoint took from the data is the same model.
+        differing = sorted(
+            k for k in set(saved_model) | set(current) if k != "connectivity_radius" and saved_model.get(k) != current.get(k)
+        )
         if differing:
             details = "; ".join(f"model.{k}: checkpoint {saved_model.get(k)!r}, recipe {current.get(k)!r}" for k in differing)
             raise CheckpointError(f"{source}: written for a different model: {details}")
@@ -274,7 +278,8 @@ class Trainer:
         best-checkpoint record and this run's weight average start afresh. The
         checkpoint must be of the same model (the recipe's ``model`` section) and scene
         (particle types, bounds, connectivity radius): anything else is refused, naming
-        each difference. The source is recorded in every checkpoint (``initialized_from``).
+        each difference. The source is recorded in every checkpoint (``initialized_from``),
+        and the recorded envelope joins the checkpoint's to this data's (:meth:`Envelope.union`).
         """
         path = Path(checkpoint)
         state = None
@@ -301,6 +306,12 @@ class Trainer:
             ) from None
         if self.ema is not None:
             self.optimisation.ema = WeightAverage(self.simulator, self.ema.decay)
+        if self.envelope is not None and isinstance(state.get("envelope"), dict):
+            # The model was trained on both datasets: it may roll out what either held.
+            try:
+                self.envelope = self.envelope.union(Envelope.from_dict(state["envelope"]))
+            except (TypeError, ValueError) as exc:
+                raise CheckpointError(f"{path}: envelope: cannot be joined with this data's ({exc})") from None
         self.initialized_from = {"checkpoint": str(path), "step": int(state.get("step", 0))}
         return self.initialized_from["step"]
 

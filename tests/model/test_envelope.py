@@ -101,3 +101,38 @@ def test_only_the_inputs_are_judged_and_many_trajectories_are_counted_once_per_q
     wide = [_column(0.1, 0.2, extent=(2.5, 0.6), key=f"w{i}") for i in range(3)]
     (line,) = outside_envelope(ENVELOPE, _metadata(), wide, history=6)
     assert "in trajectory 'w0' and 2 more" in line
+
+
+def _envelope(**changes) -> Envelope:
+    base = Envelope(
+        dim=2, particle_spacing=0.0104, step_dt=0.01, frame_stride=2, particle_types=[6],
+        materials={"6": "sand"}, properties={"friction": [0.5, 0.7]}, extent=[[0.75, 1.5], [0.5, 0.8]],
+        walls={"x_min": {"friction": [0.3, 0.4], "slip": False, "no_slip": False},
+               "y_min": {"friction": None, "slip": True, "no_slip": False}},
+        max_speed=2.0, particle_count=[500, 3000], frames=[120, 120],
+    )
+    return replace(base, **changes)
+
+
+def test_a_fine_tuned_models_envelope_joins_both_datasets():
+    earlier = _envelope()
+    later = _envelope(
+        particle_spacing=0.0105, particle_types=[3, 6], materials={"3": "rigid", "6": "sand"},
+        properties={"friction": [0.6, 0.9]}, extent=[[1.0, 2.0], [0.4, 0.6]],
+        walls={"x_min": {"friction": [0.35, 0.6], "slip": True, "no_slip": False},
+               "y_min": {"friction": [0.3, 0.5], "slip": False, "no_slip": False}},
+        max_speed=1.5, particle_count=[800, 4000], frames=[100, 120],
+    )
+    joined = later.union(earlier)
+    assert joined.particle_spacing == 0.0105, "the spacing is the new data's"
+    assert joined.particle_types == [3, 6] and joined.materials == {"3": "rigid", "6": "sand"}
+    assert joined.properties == {"friction": [0.5, 0.9]}
+    assert joined.extent == [[0.75, 2.0], [0.4, 0.8]]
+    assert joined.walls == {"x_min": {"friction": [0.3, 0.6], "slip": True, "no_slip": False},
+                            "y_min": {"friction": [0.3, 0.5], "slip": True, "no_slip": False}}
+    assert joined.max_speed == 2.0 and joined.particle_count == [500, 4000] and joined.frames == [100, 120]
+
+
+def test_envelopes_of_another_stride_do_not_join():
+    with pytest.raises(ValueError, match="stride 1"):
+        _envelope().union(_envelope(frame_stride=1))

@@ -9,7 +9,7 @@ from training_support import tiny_recipe, write_recipe
 from gns_framework.cli import main
 from gns_framework.config.recipe import validate_recipe
 from gns_framework.errors import CheckpointError
-from gns_framework.io.checkpoint import list_checkpoints, load_checkpoint
+from gns_framework.io.checkpoint import list_checkpoints, load_checkpoint, save_checkpoint
 from gns_framework.plugins import load_registry
 from gns_framework.training.trainer import Trainer
 
@@ -73,3 +73,26 @@ def test_init_from_with_resume_is_refused_before_anything_is_written(uneven_data
     assert code != 0
     assert "--init-from and --resume" in capsys.readouterr().err
     assert not run.exists()
+
+
+def test_a_radius_spelled_out_is_the_same_model_and_another_radius_is_refused(uneven_dataset, trained, tmp_path):
+    radius = load_checkpoint(trained)["scene"]["connectivity_radius"]
+    same = tiny_recipe(uneven_dataset)
+    same["model"]["connectivity_radius"] = radius
+    make_trainer(same, tmp_path / "same").initialize_from(trained)
+    other = tiny_recipe(uneven_dataset)
+    other["model"]["connectivity_radius"] = 2 * radius
+    with pytest.raises(CheckpointError, match="scene: written for"):
+        make_trainer(other, tmp_path / "other").initialize_from(trained)
+
+
+def test_the_fine_tuned_envelope_holds_the_source_models_data_too(uneven_dataset, trained, tmp_path):
+    # The source model saw scenes of 1 to 10^6 particles (as if its data were another dataset's).
+    state = load_checkpoint(trained)
+    state["envelope"]["particle_count"] = [1, 10**6]
+    source = save_checkpoint(tmp_path / "source.pt", state)
+    tuned = make_trainer(tiny_recipe(uneven_dataset), tmp_path / "tuned")
+    own = list(tuned.envelope.particle_count)
+    assert own != [1, 10**6]
+    tuned.initialize_from(source)
+    assert tuned.state()["envelope"]["particle_count"] == [1, 10**6]
