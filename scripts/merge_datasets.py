@@ -76,16 +76,21 @@ def merge(sources: list[Path], out: Path, valid_each: int | None, test_each: int
     return {k: len(v) for k, v in splits.items()}
 
 
-def main() -> int:
+def parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("sources", nargs="+", type=Path, help="dataset folders (safe layout), two or more")
     parser.add_argument("--out", type=Path, required=True, help="new dataset folder")
     parser.add_argument("--valid-each", type=int, help="valid trajectories taken from each source (default all)")
     parser.add_argument("--test-each", type=int, help="test trajectories taken from each source (default all)")
     parser.add_argument("--radius", type=float, help="default connectivity radius (default the first source's)")
-    args = parser.parse_args()
+    return parser
+
+
+def main() -> int:
+    parser_ = parser()
+    args = parser_.parse_args()
     if len(args.sources) < 2:
-        parser.error("give two or more datasets to merge")
+        parser_.error("give two or more datasets to merge")
     from gns_framework.errors import GnsError
 
     try:
