@@ -1,7 +1,7 @@
 """What a reader opens to follow one training step and one rollout step: files and lines.
 
-Runs one training step (``Trainer.train_step``, after a first one has made every
-lazy choice) and one rollout step (``rollout`` of one frame) of the reference
+Runs one training step (the trainer's step room, ``training/step.py``, where the tree
+has one, else ``Trainer.train_step``, after a first step has made every lazy choice) and one rollout step (``rollout`` of one frame) of the reference
 model (interaction network, 10 steps, latent 128) on a small dataset made here,
 under ``sys.settrace``, and records every project source file whose code ran
 (``gns_framework/`` and ``plugins/gns_builtins/``). It prints per step the files,
@@ -117,8 +117,13 @@ def measure(edge_block: str | None) -> dict:
         recipe = recipe_for(data, run, edge_block)
         trainer = Trainer(recipe, load_registry(), run_dir=run, progress=False)
         trainer.train_step()  # the first step makes every lazy choice (kernels, plans)
+        # The step's own room where the tree has one (training/step.py); before it, the trainer's method.
+        room = getattr(trainer, "optimisation", None)
         with LineTrace(roots) as training:
-            trainer.train_step()
+            if room is not None:
+                room(trainer.step)
+            else:
+                trainer.train_step()
         trajectory = open_dataset(recipe.dataset, load_registry(), data).split("test")[0]
         simulator = trainer.simulator.eval()
         with torch.no_grad():
