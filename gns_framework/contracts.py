@@ -12,7 +12,7 @@ dimensions, C positions of history, L latent size, B examples.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar, Literal
@@ -31,6 +31,12 @@ class Params(BaseModel):
     is expected is the text it was written as (see ``gns_framework.config.yaml_files``)."""
 
     model_config = ConfigDict(extra="forbid", coerce_numbers_to_str=True)
+
+
+ComponentParams = Params
+"""The same class under a second name, for a component's ``class Params(ComponentParams)``: inside a
+class body that defines ``Params``, the name ``Params`` is the attribute being defined, and type
+checkers read ``class Params(Params)`` as a cyclic definition."""
 
 
 @dataclass(frozen=True)
@@ -163,7 +169,7 @@ class GraphBuilder(ABC):
     missing ones); any component class may declare it."""
     """Whether it connects particles across periodic boundaries (minimum image)."""
 
-    def __init__(self, params: Params, scene: Scene):
+    def __init__(self, params: ComponentParams, scene: Scene):
         self.params = params
         self.scene = scene
 
@@ -184,7 +190,7 @@ class Encoder(nn.Module, ABC):
     name: ClassVar[str]
     Params: ClassVar[type[Params]] = Params
 
-    def __init__(self, params: Params, sizes: ModelSizes):
+    def __init__(self, params: ComponentParams, sizes: ModelSizes):
         super().__init__()
         self.params = params
 
@@ -199,7 +205,7 @@ class Processor(nn.Module, ABC):
     name: ClassVar[str]
     Params: ClassVar[type[Params]] = Params
 
-    def __init__(self, params: Params, sizes: ModelSizes):
+    def __init__(self, params: ComponentParams, sizes: ModelSizes):
         super().__init__()
         self.params = params
 
@@ -214,7 +220,7 @@ class Decoder(nn.Module, ABC):
     name: ClassVar[str]
     Params: ClassVar[type[Params]] = Params
 
-    def __init__(self, params: Params, sizes: ModelSizes):
+    def __init__(self, params: ComponentParams, sizes: ModelSizes):
         super().__init__()
         self.params = params
 
@@ -246,7 +252,7 @@ class Integrator(ABC):
     ``a = -omega^2 x`` (2 for symplectic Euler and velocity Verlet); 0 when no step is
     stable (explicit Euler); None without a physical form. ``gns stability`` checks it."""
 
-    def __init__(self, params: Params):
+    def __init__(self, params: ComponentParams):
         self.params = params
 
     @abstractmethod
@@ -295,7 +301,7 @@ class Dataset(ABC):
     Params: ClassVar[type[Params]] = Params
     writable: ClassVar[bool] = False
 
-    def __init__(self, params: Params, path: Path, allow_pickle: bool = False):
+    def __init__(self, params: ComponentParams, path: Path, allow_pickle: bool = False):
         """``allow_pickle``: the user's grant to unpickle anything from the files under ``path``.
 
         It comes from one command's ``--allow-pickle FOLDER`` for this folder,
@@ -324,7 +330,7 @@ class Dataset(ABC):
 
     @classmethod
     def write(
-        cls, path: Path, metadata: "DatasetMetadata", splits: dict[str, Sequence["Trajectory"]]
+        cls, path: Path, metadata: "DatasetMetadata", splits: Mapping[str, Sequence["Trajectory"]]
     ) -> None:
         """Write ``metadata`` and ``splits`` in this layout (only when ``writable``)."""
         raise NotImplementedError(f"dataset layout {cls.name!r} is read-only")
@@ -343,7 +349,7 @@ class GroundTruthSimulator(ABC):
     constitutive_models: ClassVar[tuple[str, ...]] = ()
     """The :attr:`Material.constitutive_model` values this simulator can move."""
 
-    def __init__(self, params: Params, materials: dict[str, type[Material]]):
+    def __init__(self, params: ComponentParams, materials: dict[str, type[Material]]):
         self.params = params
         self.materials = materials
 

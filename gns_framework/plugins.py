@@ -21,7 +21,7 @@ import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import pluggy
 from pydantic import BaseModel, ValidationError
@@ -45,7 +45,9 @@ class ComponentEntry:
 
     kind: str
     name: str
-    cls: type
+    cls: type[Any]
+    """The component class: a subclass of its kind's contract (``contracts.COMPONENT_KINDS[kind]``), whose class
+    attributes (``particle_type``, ``Params``, ...) depend on the kind."""
     plugin: str
     distribution: str
     version: str
@@ -147,28 +149,28 @@ class Registry:
             of_kind[entry.name] = entry
         self._check_material_types()
         self._metrics: dict[str, MetricEntry] = {}
-        for entry in metrics:
-            name = entry.metric.name
+        for metric_entry in metrics:
+            name = metric_entry.metric.name
             if name in self._metrics:
                 raise PluginError(
                     f"two metrics are named {name!r}: from {self._metrics[name].provider} and from "
-                    f"{entry.provider}; uninstall one of them, or disable its plugin with the environment "
+                    f"{metric_entry.provider}; uninstall one of them, or disable its plugin with the environment "
                     f"variable {DISABLE_ENV}"
                 )
-            self._metrics[name] = entry
+            self._metrics[name] = metric_entry
         tracked: dict[str, MetricEntry] = {}
-        for entry in self._metrics.values():
-            tracked_as = entry.metric.tracked_as
+        for metric_entry in self._metrics.values():
+            tracked_as = metric_entry.metric.tracked_as
             if tracked_as is None:
                 continue
             if tracked_as in tracked:
-                first = tracked[tracked_as]
+                first_metric = tracked[tracked_as]
                 raise PluginError(
-                    f"two metrics are tracked in validation as {tracked_as}: {first.metric.name!r} "
-                    f"from {first.provider} and {entry.metric.name!r} from {entry.provider}; uninstall one of them, "
-                    f"or disable its plugin with the environment variable {DISABLE_ENV}"
+                    f"two metrics are tracked in validation as {tracked_as}: {first_metric.metric.name!r} "
+                    f"from {first_metric.provider} and {metric_entry.metric.name!r} from {metric_entry.provider}; "
+                    f"uninstall one of them, or disable its plugin with the environment variable {DISABLE_ENV}"
                 )
-            tracked[tracked_as] = entry
+            tracked[tracked_as] = metric_entry
 
     def _check_material_types(self) -> None:
         seen: dict[int, ComponentEntry] = {}
@@ -218,7 +220,7 @@ class Registry:
         """The entry points of ``distribution`` that failed to load."""
         return [b for b in self.broken if b.distribution == distribution]
 
-    def get(self, kind: str, name: str) -> type:
+    def get(self, kind: str, name: str) -> type[Any]:
         return self.entry(kind, name).cls
 
     def resolve(
@@ -227,7 +229,7 @@ class Registry:
         spec: ComponentSpec | Mapping[str, Any],
         where: Sequence[str] = (),
         source: str | Path | None = None,
-    ) -> tuple[type, BaseModel]:
+    ) -> tuple[type[Any], BaseModel]:
         """The component class a spec names and its validated ``Params``: the one place names become components.
 
         Args:
@@ -244,7 +246,8 @@ class Registry:
         if isinstance(spec, ComponentSpec):
             name, params = spec.name, spec.params
         else:
-            name, params = spec.get("name"), {k: v for k, v in spec.items() if k != "name"}
+            # A string: the callers check it first (config.recipe._component_problems).
+            name, params = cast(str, spec.get("name")), {k: v for k, v in spec.items() if k != "name"}
         try:
             cls = self.get(kind, name)
         except PluginError as exc:
@@ -421,9 +424,9 @@ def collect_components(
 
 def hook_results(
     pm: pluggy.PluginManager, origin: dict[str, tuple[str, str]], hook_name: str
-) -> list[tuple[object, str, list | tuple]]:
+) -> list[tuple[pluggy.HookImpl, str, list | tuple]]:
     """``(implementation, where, returned list)`` of every implementation of ``hook_name``, each called once."""
-    results = []
+    results: list[tuple[pluggy.HookImpl, str, list | tuple]] = []
     for impl in getattr(pm.hook, hook_name).get_hookimpls():
         dist, version = origin.get(impl.plugin_name, ("<unknown distribution>", "?"))
         where = f"plugin {impl.plugin_name!r} ({dist} {version}), hook {hook_name}"

@@ -44,6 +44,7 @@ from .contracts import (
 from .model.periodic import PeriodicBox
 
 if TYPE_CHECKING:
+    from .data.trajectory import Trajectory
     from .ground_truth.scene_spec import SceneSpec
 
 __all__ = [
@@ -60,7 +61,7 @@ __all__ = [
 ]
 
 
-def _expect(condition: bool, message: str) -> None:
+def _expect(condition: object, message: str) -> None:
     if not condition:
         raise AssertionError(message)
 
@@ -135,6 +136,7 @@ def check_processor(
     graph = _random_graph(12, sizes.dim, generator)
     # In dataset units, as builders give them: displacements and positions of order R.
     radius = sizes.connectivity_radius
+    assert graph.position is not None  # _random_graph gives it
     graph = replace(graph, displacement=graph.displacement.double() * radius, position=graph.position.double() * radius)
     x = torch.randn(graph.num_nodes, sizes.latent, generator=generator, dtype=torch.float64, requires_grad=True)
     e = torch.randn(graph.num_edges, sizes.latent, generator=generator, dtype=torch.float64, requires_grad=True)
@@ -309,7 +311,7 @@ def check_material(cls: type[Material], constitutive_models: Collection[str] | N
     _expect(density is None or density > 0, f"{cls.name}: physical_parameters['density'] must be > 0 kg/m^3, got {density!r}")
 
 
-def _random_trajectories(count: int, dim: int, frames: int, types: tuple[int, ...], seed: int) -> list:
+def _random_trajectories(count: int, dim: int, frames: int, types: tuple[int, ...], seed: int) -> list[Trajectory]:
     from .data.trajectory import Trajectory
 
     rng = np.random.default_rng(seed)

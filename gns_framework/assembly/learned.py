@@ -54,6 +54,8 @@ def build_learned_simulator(
         output_stats = Stats(metadata.vel_mean, metadata.vel_std, noise_std)
     context_stats = None
     if scene.context_size:
+        # scene_from_data refuses a context without these statistics.
+        assert metadata.context_mean is not None and metadata.context_std is not None
         context_stats = Stats(metadata.context_mean, metadata.context_std)
     return LearnedSimulator(
         scene=scene,

@@ -68,10 +68,10 @@ def scene_from_data(
             f"{source}: metadata.json: context_mean/context_std: needed with {context_size} entries for the step_context"
         )
 
-    periodic = model.periodic if model.periodic is not None else metadata.periodic_boundary_conditions
-    if periodic is not None and len(periodic) != metadata.dim:
-        raise RecipeError(None, [("model.periodic", f"has {len(periodic)} entries but the data has dim = {metadata.dim}")])
-    periodic = tuple(bool(p) for p in periodic) if periodic and any(periodic) else ()
+    given = model.periodic if model.periodic is not None else metadata.periodic_boundary_conditions
+    if given is not None and len(given) != metadata.dim:
+        raise RecipeError(None, [("model.periodic", f"has {len(given)} entries but the data has dim = {metadata.dim}")])
+    periodic = tuple(bool(p) for p in given) if given and any(given) else ()
 
     wall_conditions = _wall_conditions(trajectories, model.wall_conditions, bool(model.wall_features), source)
 
@@ -112,7 +112,7 @@ def _wall_conditions(trajectories: Sequence[Trajectory], asked: bool | None, wal
             f"{source}: walls: model.wall_conditions needs every trajectory's face conditions; "
             f"{len(missing)} trajectory(ies) record none (first: {missing[0]!r}); generate the data with `gns generate`"
         )
-    no_slip = [t.key for t in trajectories if (t.walls[:, 1] > 0).any()]
+    no_slip = [t.key for t in trajectories if t.walls is not None and (t.walls[:, 1] > 0).any()]  # all have walls
     if no_slip:
         raise DatasetError(
             f"{source}: walls: trajectory {no_slip[0]!r} has a no-slip face; wall conditions as model inputs "

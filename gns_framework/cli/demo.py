@@ -106,7 +106,9 @@ def run(args: argparse.Namespace) -> int:
         trainer.close()
     print(f"short model: validation one-step loss {before['valid_one_step_loss']:.4g} -> {after['valid_one_step_loss']:.4g}")
     best = trainer.run.best_checkpoint
-    short = load_trained(best if best.is_file() else trainer.save(), registry)
+    saved = best if best.is_file() else trainer.save()
+    assert saved is not None  # one process: rank 0 writes it
+    short = load_trained(saved, registry)
     pretrained = load_trained(args.model, registry)
     print(f"pretrained model: {args.model} (step {pretrained.step})")
 

@@ -73,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
     paths = write_outputs(inversion, result, out, gif=not args.no_gif)
     for path in paths.values():
         tracker.log_artifact(path)
+    assert result.best is not None  # solve sets it
     tracker.log_metrics({"final_loss": result.loss, "best_iteration": result.best.iteration, "seconds": result.seconds},
                         result.iterations)
     tracker.close()
@@ -84,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
     )
     errors = result.errors(inversion.truth)
     if errors:
+        assert inversion.truth is not None  # the errors are against it
         print("true " + ", ".join(f"{name} {inversion.truth[name]} (error {errors[name]:.2f} %)" for name in errors))
     for kind, path in paths.items():
         print(f"{kind}: {path}")

@@ -112,6 +112,7 @@ def _train(trainer: Trainer, args: argparse.Namespace) -> int:
     # MLflow only once the data and any checkpoint have loaded, so a run that cannot start leaves no trace there;
     # a run from step 0 is a new history, so a new MLflow run.
     if processes.is_chief:
+        assert trainer.tracker is not None  # rank 0 has one
         trainer.tracker = with_mlflow(args, trainer.recipe.name, trainer.run_dir, trainer.tracker, resumed is not None)
     if processes.distributed:
         say(f"training on {processes.world_size} processes ({trainer.device.type})")

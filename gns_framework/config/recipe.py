@@ -245,8 +245,9 @@ def validate_recipe(raw: dict, registry: Registry, source: str | Path | None = N
 
 def _component_problems(raw: dict, registry: Registry) -> list[tuple[str, str]]:
     problems: list[tuple[str, str]] = []
-    model = raw.get("model") if isinstance(raw.get("model"), dict) else {}
-    sections = [(("model", s), s, model.get(s)) for s in COMPONENT_SECTIONS]
+    raw_model = raw.get("model")
+    model: dict = raw_model if isinstance(raw_model, dict) else {}
+    sections: list[tuple[tuple[str, ...], str, Any]] = [(("model", s), s, model.get(s)) for s in COMPONENT_SECTIONS]
     sections.append((("dataset",), "dataset", raw.get("dataset")))
     for loc, kind, spec in sections:
         if spec is None or not isinstance(spec, dict):
@@ -268,7 +269,8 @@ def _component_problems(raw: dict, registry: Registry) -> list[tuple[str, str]]:
             registry.resolve(kind, component, loc)
         except RecipeError as exc:
             problems += exc.problems
-    training = raw.get("training") if isinstance(raw.get("training"), dict) else {}
+    raw_training = raw.get("training")
+    training: dict = raw_training if isinstance(raw_training, dict) else {}
     best = training.get("best_metric")
     if isinstance(best, str):
         tracked = sorted(registry.validation_metrics())
@@ -303,7 +305,7 @@ def load_recipe(path: str | Path, registry: Registry, overrides: dict | None = N
     if overrides:
         raw = _merged(raw, overrides)
     recipe = validate_recipe(raw, registry, path)
-    overridden = isinstance((overrides or {}).get("dataset"), dict) and "path" in overrides["dataset"]
+    overridden = overrides is not None and isinstance(overrides.get("dataset"), dict) and "path" in overrides["dataset"]
     if overridden:
         return recipe
     resolved = resolve_named_path(recipe.dataset.path, path, missing="as_named")

@@ -38,7 +38,7 @@ import pickletools
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -478,8 +478,9 @@ class _Interpreter:
                 )
             formats.append(field_dtype)
             offsets.append(offset)
-        spec = {"names": list(names), "formats": formats, "offsets": offsets, "itemsize": elsize}
-        return np.dtype(spec, align=alignment > 1)
+        return np.dtype(
+            {"names": list(names), "formats": formats, "offsets": offsets, "itemsize": elsize}, align=alignment > 1
+        )
 
     # --- arrays --------------------------------------------------------------------------------------------
 
@@ -504,7 +505,7 @@ class _Interpreter:
             return _object_array(data, shape, fortran)
         return self.numeric(data, dtype, shape, "F" if fortran else "C")
 
-    def numeric(self, data: Any, dtype: np.dtype, shape: tuple[int, ...], order: str) -> np.ndarray:
+    def numeric(self, data: Any, dtype: np.dtype, shape: tuple[int, ...], order: Literal["C", "F"]) -> np.ndarray:
         if type(data) is not bytes:
             raise _Refused(self.position, f"a {dtype} array whose data is {_kind(data)}", "bytes")
         if len(data) != math.prod(shape) * dtype.itemsize:

@@ -91,8 +91,8 @@ def collate(examples: Sequence[ParticleBatch]) -> ParticleBatch:
     offsets = np.cumsum([0] + [e.num_examples for e in examples])
     cat = lambda name: None if getattr(examples[0], name) is None else torch.cat([getattr(e, name) for e in examples])  # noqa: E731
     return ParticleBatch(
-        position_sequence=cat("position_sequence"),
-        particle_type=cat("particle_type"),
+        position_sequence=torch.cat([e.position_sequence for e in examples]),
+        particle_type=torch.cat([e.particle_type for e in examples]),
         batch=torch.cat([e.batch + int(o) for e, o in zip(examples, offsets[:-1])]),
         num_examples=int(offsets[-1]),
         next_position=cat("next_position"),

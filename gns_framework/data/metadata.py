@@ -68,9 +68,9 @@ class DatasetMetadata(BaseModel):
             if len(getattr(self, field)) != self.dim:
                 raise ValueError(f"{field} has {len(getattr(self, field))} entries but dim = {self.dim}")
         for field in ("vel_std", "acc_std", "context_std"):
-            values = getattr(self, field) or []
-            if any(v < 0 or not math.isfinite(v) for v in values):
-                raise ValueError(f"{field} must be finite and >= 0, got {values}")
+            stds = getattr(self, field) or []
+            if any(v < 0 or not math.isfinite(v) for v in stds):
+                raise ValueError(f"{field} must be finite and >= 0, got {stds}")
         for lo, hi in self.bounds:
             if not lo < hi:
                 raise ValueError(f"bounds must be (lower, upper) with lower < upper, got {(lo, hi)}")

@@ -38,7 +38,7 @@ class StridedSplit(Sequence[Trajectory]):
     def __len__(self) -> int:
         return len(self._split)
 
-    def __getitem__(self, index):  # type: ignore[override]
+    def __getitem__(self, index):
         if isinstance(index, slice):
             return [self[i] for i in range(*index.indices(len(self)))]
         return strided(self._split[index], self._stride)
@@ -55,7 +55,7 @@ class FrameStrideDataset(Dataset):
     def __init__(self, dataset: Dataset, stride: int, kinematic_types: Collection[int]):
         """``kinematic_types``: the particle types the statistics leave out (kinematic materials)."""
         super().__init__(dataset.params, dataset.path, allow_pickle=dataset.allow_pickle)
-        self.name = dataset.name
+        self.name = dataset.name  # type: ignore[misc]  # the wrapped layout's name, per instance (a ClassVar elsewhere)
         self.inner = dataset
         self.stride = stride
         self.kinematic_types = tuple(kinematic_types)

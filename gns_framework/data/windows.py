@@ -39,7 +39,7 @@ class WindowIndex:
         trajectory, start = self.pairs[index]
         return window(self.trajectories[trajectory], int(start), self.history, ahead=self.ahead)
 
-    def batch(self, indices: Sequence[int]) -> ParticleBatch:
+    def batch(self, indices: Sequence[int] | np.ndarray) -> ParticleBatch:
         return collate([self.example(i) for i in indices])
 
 
@@ -68,6 +68,7 @@ class WindowOrder:
             generator = torch.Generator().manual_seed(self.seed * 1_000_003 + epoch)
             self._permutation = torch.randperm(self.num_windows, generator=generator).numpy()
             self._epoch = epoch
+        assert self._permutation is not None  # made with the epoch
         return self._permutation
 
     def step_positions(self, step: int) -> range:

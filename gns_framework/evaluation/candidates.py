@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import replace
+from typing import cast
 
 import numpy as np
 import torch
@@ -59,7 +60,7 @@ def learned_positions_batch(
         except RolloutDiverged:
             for i in indices:
                 out[i] = learned_positions(simulator, cases[i], device)
-    return out
+    return cast("list[np.ndarray]", out)  # every case is filled in
 
 
 def learned_candidate(model: LoadedModel, name: str, device: torch.device, batch: int = 1) -> Candidate:

@@ -22,6 +22,7 @@ import math
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
 from functools import cached_property
+from typing import cast
 
 import torch
 from torch import Tensor
@@ -364,10 +365,10 @@ class RolloutPair:
         """(predicted, true) final horizontal extent of the granular particles, (B,) each, L; None without them."""
         if not self.granular_types:
             return None
-        return tuple(
+        return cast("tuple[Tensor, Tensor]", tuple(
             horizontal_extent(r.position[:, -1], r.of_types(self.granular_types), self.runout_axis)
             for r in (self.predicted, self.target)
-        )
+        ))
 
     @cached_property
     def final_heights(self) -> tuple[Tensor, Tensor] | None:
@@ -376,10 +377,10 @@ class RolloutPair:
             return None
         axis = self.vertical_axis % len(self.bounds)
         floor = float(self.bounds[axis][0])
-        return tuple(
+        return cast("tuple[Tensor, Tensor]", tuple(
             torch.where(r.of_types(self.granular_types), r.position[:, -1, :, axis] - floor, -torch.inf).amax(-1)
             for r in (self.predicted, self.target)
-        )
+        ))
 
     @cached_property
     def profile_error(self) -> tuple[Tensor, Tensor] | None:

@@ -449,8 +449,9 @@ def _spread_over_cases(report: Report) -> list[str]:
         parts = []
         for metric in SPREAD_METRICS:
             values = [c.get(metric) for c in e.cases.values()]
-            if values and all(v is not None for v in values):
-                parts.append(f"{metric} {_format(float(np.median(values)))} / {_format(max(values))}")
+            present = [v for v in values if v is not None]
+            if values and len(present) == len(values):
+                parts.append(f"{metric} {_format(float(np.median(present)))} / {_format(max(present))}")
         if parts:
             lines.append(f"- {e.name}: " + "; ".join(parts))
     return lines if len(lines) > 3 else []

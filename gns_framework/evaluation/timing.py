@@ -54,7 +54,7 @@ def time_call(
     for _ in range(warmup):
         fn()
     seconds = []
-    result = None
+    result: T  # set by the first of the repeats (at least one)
     for _ in range(repeats):
         synchronize(device)
         start = clock()

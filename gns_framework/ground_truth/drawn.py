@@ -30,6 +30,7 @@ from __future__ import annotations
 import json
 from collections.abc import Iterable, Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -74,6 +75,7 @@ def _body(body: BodySample, materials: Mapping[str, type[Material]], obstacle: b
 def drawn_record(sample: SceneSample, materials: Mapping[str, type[Material]]) -> dict:
     """``{location: {field: value}}`` of one drawn scene: its domain, every block and obstacle."""
     scene = sample.scene
+    assert scene is not None  # sample_scene draws it
     walls = scene.domain.wall_conditions()
     faces = FACES[: 2 * scene.dim]
     record: dict = {
@@ -141,6 +143,6 @@ def true_velocity(record: Mapping, particle_type: int) -> list[float] | None:
 
 def true_property(record: Mapping, name: str, particle_type: int | None) -> float | None:
     """The value of property ``name`` shared by the blocks concerned (every block if no type); None otherwise."""
-    values = {body.get(name) if not isinstance(body.get(name), dict) else None
-              for body in _blocks(record, particle_type)}
+    values: set[Any] = {body.get(name) if not isinstance(body.get(name), dict) else None
+                        for body in _blocks(record, particle_type)}
     return float(values.pop()) if len(values) == 1 and None not in values else None

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from collections.abc import Collection
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -115,7 +116,7 @@ def generate_dataset(
         raise ValueError("a dataset needs at least one trajectory")
     splits = simulate_splits(scene, simulator, counts, progress)
     kinematic_types = [m.particle_type for m in simulator.materials.values() if m.kinematic]
-    extras = {"generated_from": provenance(scene, simulator, counts)}
+    extras: dict[str, Any] = {"generated_from": provenance(scene, simulator, counts)}
     if "train" in splits:
         statistics = splits["train"]
     else:

@@ -81,11 +81,13 @@ class SceneSample:
     @property
     def bounds(self) -> np.ndarray:
         """(d, 2) float32 lower and upper wall per axis of the drawn domain, metres."""
+        assert self.scene is not None  # sample_scene draws it
         return np.asarray(self.scene.domain.bounds, dtype=np.float32)
 
     @property
     def walls(self) -> np.ndarray:
         """(2d, 2) float32 per face (``FACES`` order): Coulomb friction coefficient, 1 if no-slip else 0."""
+        assert self.scene is not None  # sample_scene draws it
         return np.asarray(self.scene.domain.wall_conditions(), dtype=np.float32)
 
     @property
@@ -212,6 +214,7 @@ def _particles(
     if body.shape == "plane":
         return shapes.plane_layer(lower, angle, bounds, spacing, scene.particles_per_cell)
     if body.shape == "polygon":
+        assert vertices is not None  # a polygon has them (SceneSpec checks it)
         points = shapes.polygon_lattice(vertices, spacing)
     else:
         points = shapes.rotate_xy(fill(body.shape, lower, size, spacing), angle, lower + size / 2)
@@ -303,7 +306,7 @@ def _sample_bodies(scene: SceneSpec, rng: np.random.Generator) -> tuple[list[Bod
     boxes: list = []
     gap = scene.particle_spacing
     for location, body in scene.bodies_with_location():
-        count = int(round(body.count.low)) if body.count.is_fixed else int(rng.integers(body.count.low, body.count.high + 1))
+        count = int(round(body.count.low)) if body.count.is_fixed else int(rng.integers(int(body.count.low), int(body.count.high + 1)))
         for copy in range(count):
             where = location if body.count.is_fixed and body.count.low == 1 else f"{location}[{copy}]"
             for _ in range(PLACEMENT_TRIES if scene.no_overlap else 1):

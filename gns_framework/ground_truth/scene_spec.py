@@ -541,10 +541,10 @@ class SceneSpec(Spec):
                     if field != "position" and is_spanned(value):
                         found.append((f"{where}.{field}[{axis}]", "span applies to positions only"))
             for field in ("angle", "friction"):
-                value = getattr(body, field, None)
-                if value is not None and value.per == "particle":
+                setting = getattr(body, field, None)
+                if setting is not None and setting.per == "particle":
                     found.append((f"{where}.{field}", "per: particle applies to properties only"))
-                if value is not None and is_spanned(value):
+                if setting is not None and is_spanned(setting):
                     found.append((f"{where}.{field}", "span applies to positions only"))
             for field in ("properties", "parameters"):
                 for name, value in (getattr(body, field, None) or {}).items():
@@ -600,8 +600,8 @@ def _shape_problems(where: str, obstacle: Obstacle, dim: int) -> list[tuple[str,
             found.append((f"{where}.vertices", "a polygon needs at least 3 vertices [[x, y], ...]"))
     elif obstacle.vertices is not None:
         found.append((f"{where}.vertices", f"only polygons take vertices, not a {obstacle.shape}"))
-    if obstacle.shape == "plane" and not all(-90 < a < 90 for a in obstacle.angle.range):
-        slope = list(obstacle.angle.range)
+    if obstacle.shape == "plane" and not all(-90 < a < 90 for a in (obstacle.angle.low, obstacle.angle.high)):
+        slope = [obstacle.angle.low, obstacle.angle.high]
         found.append((f"{where}.angle", f"a plane's slope must lie in (-90, 90) degrees, got {slope}"))
     moving = obstacle.velocity is not None and any(v.low != 0 or v.high != 0 for v in obstacle.velocity)
     if moving and obstacle.is_static_shape:
@@ -613,9 +613,10 @@ def _outside_domain(where: str, body: Block | Obstacle, bounds: list[tuple[float
     """Axes where a body's box leaves the domain: its swept box for a moving obstacle, its turned box
     for a rotated block."""
     found = []
+    assert body.size is not None  # the caller checks it
     velocity = body.velocity or [_zero()] * len(bounds)
     turned = isinstance(body, Block) and not (body.angle.is_fixed and body.angle.low == 0.0)
-    reach = _rotated_half_extents(body) if turned else None
+    reach = _rotated_half_extents(body) if turned and isinstance(body, Block) else None
     for axis, ((lo, hi), pos, size, vel) in enumerate(zip(bounds, body.position, body.size, velocity)):
         if is_spanned(pos):
             if size.high > hi - lo:
@@ -644,7 +645,7 @@ def _rotated_half_extents(block: Block) -> tuple[float, float]:
     where tan t = +-b / a (mod 90 degrees), so those angles are all it needs.
     """
     a, b = block.size[0].high / 2, block.size[1].high / 2
-    low, high = block.angle.range
+    low, high = block.angle.low, block.angle.high
     candidates = {low, high}
     for critical in (math.degrees(math.atan2(b, a)), math.degrees(math.atan2(a, b))):
         for turn in range(math.floor((low - critical) / 90) - 1, math.ceil((high + critical) / 90) + 2):

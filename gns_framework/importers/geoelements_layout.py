@@ -189,10 +189,15 @@ class ParameterMap:
 
     def state_dict(self, reference: dict[str, Tensor]) -> dict[str, Tensor]:
         """Built-in parameters from a geoelements ``state_dict`` (folding a single type's embedding)."""
-        ours = {self.name(k): self.tensor(k, v) for k, v in reference.items() if self.name(k) is not None}
+        ours: dict[str, Tensor] = {}
+        for k, v in reference.items():
+            ours_name = self.name(k)
+            if ours_name is not None:
+                ours[ours_name] = self.tensor(k, v)
         if self.folds_embedding:
             row = reference[EMBEDDING_KEY][self.particle_types[0]]
             weight = reference[ENCODER_NODE_FIRST_WEIGHT][:, self.embedding_columns]
             name = built_in_name(ENCODER_NODE_FIRST_BIAS)
+            assert name is not None  # the encoder's first bias has a built-in counterpart
             ours[name] = reference[ENCODER_NODE_FIRST_BIAS] + weight @ row
         return ours

@@ -189,7 +189,8 @@ def parse_invert_config(raw: dict, source: str | Path) -> tuple[InvertConfig, di
     except ValidationError as exc:
         problems += problems_from(exc, InvertConfig)
     unknowns: dict[str, PropertyUnknown | VelocityUnknown] = {}
-    raw_unknowns = raw.get("unknowns") if isinstance(raw.get("unknowns"), dict) else {}
+    listed = raw.get("unknowns")
+    raw_unknowns: dict = listed if isinstance(listed, dict) else {}
     for name, spec in raw_unknowns.items():
         if not isinstance(spec, dict):
             problems.append((f"unknowns.{name}", f"expected a mapping such as {{bounds: [low, high]}}, got {spec!r}"))
@@ -201,6 +202,7 @@ def parse_invert_config(raw: dict, source: str | Path) -> tuple[InvertConfig, di
             problems += problems_from(exc, kind, ("unknowns", name))
     if problems:
         raise RecipeError(source, problems)
+    assert config is not None  # it validated: no problem
     return config, unknowns
 
 

@@ -71,13 +71,16 @@ class _Evaluator:
     def __call__(self, u: np.ndarray) -> tuple[float, np.ndarray]:
         self.count += 1
         point = torch.tensor(u, dtype=self.dtype, requires_grad=True)
-        value = self.loss(point)
-        held_out = None
-        if isinstance(value, tuple):
-            value, held_out = value
+        returned = self.loss(point)
+        loss: Tensor
+        held_out: Tensor | None = None
+        if isinstance(returned, tuple):
+            loss, held_out = returned
+        else:
+            loss = returned
         self.held_out = None if held_out is None else float(held_out.detach())
-        (gradient,) = torch.autograd.grad(value, point)
-        value, gradient = float(value.detach()), gradient.detach().double().numpy()
+        (loss_gradient,) = torch.autograd.grad(loss, point)
+        value, gradient = float(loss.detach()), loss_gradient.detach().double().numpy()
         if not (np.isfinite(value) and np.isfinite(gradient).all()):
             raise InversionDiverged(
                 f"loss: non-finite {'value' if not np.isfinite(value) else 'gradient'} at evaluation {self.count} "
@@ -126,21 +129,23 @@ def lbfgs(loss: LossFunction, u0: np.ndarray, iterations: int, on_iteration: Obs
     evaluate = _Evaluator(loss, describe, dtype)
     scale = max(evaluate(u0)[0], np.finfo(np.float64).tiny)
 
+    accepted_count = 1
+    last_evaluated = np.asarray(u0, dtype=np.float64).copy()
+
     def scaled(u: np.ndarray) -> tuple[float, np.ndarray]:
+        nonlocal last_evaluated
         value, gradient = evaluate(u)
-        accepted.last = np.asarray(u).copy()
+        last_evaluated = np.asarray(u).copy()
         return value / scale, gradient / scale
 
     def accepted(intermediate_result) -> None:
         # SciPy passes the OptimizeResult only to a parameter of exactly this name.
         # The held-out misfit of the accepted point: SciPy evaluated it last unless a line search went on.
+        nonlocal accepted_count
         x = np.asarray(intermediate_result.x).copy()
-        held_out = evaluate.held_out if np.array_equal(x, accepted.last) else None
-        on_iteration(Iterate(accepted.count, float(intermediate_result.fun) * scale, x, held_out))
-        accepted.count += 1
-
-    accepted.count = 1
-    accepted.last = np.asarray(u0, dtype=np.float64).copy()
+        held_out = evaluate.held_out if np.array_equal(x, last_evaluated) else None
+        on_iteration(Iterate(accepted_count, float(intermediate_result.fun) * scale, x, held_out))
+        accepted_count += 1
     result = minimize(
         scaled, np.asarray(u0, dtype=np.float64), jac=True, method="L-BFGS-B",
         bounds=[(0.0, 1.0)] * len(u0), callback=accepted,

@@ -17,6 +17,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import torch
@@ -144,7 +145,7 @@ def check_against_model(
         raise RecipeError(source, problems)
 
 
-def observed_frames(frames: str | list[int], history: int, num_frames: int) -> list[int]:
+def observed_frames(frames: Literal["last", "all"] | list[int], history: int, num_frames: int) -> list[int]:
     """Trajectory frame indices the loss compares, sorted."""
     if frames == "last":
         return [num_frames - 1]
@@ -238,6 +239,7 @@ class InverseProblem:
                 chosen = (self.state.particle_type == unknown.particle_type)[:, None, None]
                 sequence = torch.where(chosen, rebuilt, sequence)
             else:
+                assert material_property is not None  # a property unknown: the model has properties (zeros if unrecorded)
                 chosen = self._particles(unknown)[:, None]
                 column = torch.zeros(len(scene.property_names), dtype=torch.bool, device=u.device)
                 column[scene.property_names.index(name)] = True

@@ -120,6 +120,7 @@ def true_values(dataset: str | Path, trajectory: Trajectory, unknowns: dict, sim
     truth: dict = {}
     names = list(simulator.scene.property_names)
     for name, unknown in unknowns.items():
+        value: list[float] | float | None
         if isinstance(unknown, VelocityUnknown):
             value = None if record is None else true_velocity(record, unknown.particle_type)
         else:

@@ -237,8 +237,8 @@ def latest_good_checkpoint(directory: str | Path) -> tuple[Path, dict[str, Any]]
         except CheckpointError as exc:
             damaged.append(exc)
             continue
-        for exc in damaged:
-            warnings.warn(f"skipping damaged checkpoint: {exc}", stacklevel=2)
+        for error in damaged:
+            warnings.warn(f"skipping damaged checkpoint: {error}", stacklevel=2)
         return found
     if damaged:
         reasons = "\n".join(f"  {exc}" for exc in damaged)

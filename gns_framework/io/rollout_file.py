@@ -30,6 +30,7 @@ import json
 import zipfile
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -45,8 +46,10 @@ OPTIONAL_FIELDS = ("material_property", "bounds", "walls")
 
 def _validated_fields(
     src: str, fields: dict[str, np.ndarray | None], metadata: DatasetMetadata
-) -> dict[str, np.ndarray | None]:
+) -> dict[str, Any]:
     """Check a rollout file's arrays (every field but ``metadata_json``); return them with canonical dtypes.
+
+    Each is an array; only those of ``OPTIONAL_FIELDS`` may be None.
 
     Raises DatasetError naming ``src`` (the file) and the field at fault.
     """

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 from xml.etree import ElementTree
 
 import numpy as np
@@ -102,7 +103,8 @@ def write_rollout_vtk(
     Returns ``{"predicted": <pvd>, "ground_truth": <pvd>}``; frame times count from
     the first input frame. ``progress(frames_written, frames_in_all)`` counts both series.
     """
-    common = {
+    assert rollout.metadata is not None  # a rollout file always has it
+    common: dict[str, Any] = {
         "dt": rollout.metadata.dt,
         "particle_type": rollout.particle_type,
         "material_property": rollout.material_property,

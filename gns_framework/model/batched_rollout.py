@@ -26,15 +26,17 @@ from ..data.trajectory import Trajectory
 from ..runtime.precision import Precision
 from .learned_simulator import LearnedSimulator
 from .rollout import _check_simulates, rollout_step
-from .rollout_guard import RolloutGuard
+from .rollout_guard import GuardViolation, RolloutGuard
 from .history import advance_window
 
 
 def _per_particle_bounds(trajectories: Sequence[Trajectory]) -> torch.Tensor:
     """(N, d, 2) float64 walls of every stacked particle: its own scene's bounds."""
-    return torch.from_numpy(
-        np.concatenate([np.broadcast_to(np.asarray(t.bounds, np.float64), (t.num_particles, *np.shape(t.bounds))) for t in trajectories])
-    )
+    per_particle = []
+    for t in trajectories:
+        assert t.bounds is not None  # the caller checks they all have their box
+        per_particle.append(np.broadcast_to(np.asarray(t.bounds, np.float64), (t.num_particles, *np.shape(t.bounds))))
+    return torch.from_numpy(np.concatenate(per_particle))
 
 
 def _same_fields(simulator: LearnedSimulator, trajectories: Sequence[Trajectory]) -> list[Trajectory]:
@@ -92,7 +94,7 @@ def rollout_batch(
     predicted = torch.empty_like(truth)
     previous = torch.from_numpy(np.concatenate([t.position[history - 1] for t in trajectories]))
     sequence = state.position_sequence
-    violations = [[] for _ in trajectories]
+    violations: list[list[GuardViolation]] = [[] for _ in trajectories]
     label = ", ".join(t.key for t in trajectories[:3]) + (f", ... ({len(trajectories)} in all)" if len(trajectories) > 3 else "")
     for step in range(steps):
         current = replace(state, position_sequence=sequence)

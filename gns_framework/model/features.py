@@ -60,6 +60,12 @@ def edge_feature_size(scene: Scene) -> int:
 class FeatureBuilder(nn.Module):
     """Builds node and edge features; owns the particle-type embedding when one is needed."""
 
+    bounds: Tensor  # buffers (register_buffer)
+    walled_dims: Tensor
+    walled_bounds: Tensor
+    walled_faces: Tensor
+    type_row: Tensor
+
     def __init__(
         self,
         scene: Scene,
@@ -122,8 +128,11 @@ class FeatureBuilder(nn.Module):
         if self.type_embedding is not None:
             parts.append(self.type_embedding(self.type_row[particle_type]))
         if scene.property_names:
+            assert material_property is not None, "the scene has material properties: the data records them"
             parts.append(material_property.reshape(n, len(scene.property_names)))
         if scene.context_size:
+            # build_learned_simulator gives context statistics to a scene with context, whose data records it.
+            assert self.context_stats is not None and context is not None
             parts.append(self.context_stats.normalize(context))
         return torch.cat(parts, dim=-1)
 

@@ -24,6 +24,8 @@ from .periodic import PeriodicBox
 class LearnedSimulator(nn.Module):
     """Predicts the next positions of every particle from its last C positions."""
 
+    kinematic_type: Tensor  # a buffer (register_buffer)
+
     def __init__(
         self,
         scene: Scene,
@@ -129,6 +131,7 @@ class LearnedSimulator(nn.Module):
         Returns:
             predicted and target normalised outputs, (N, d) each.
         """
+        assert batch.next_position is not None  # training windows have their target
         sequence = self.box.unwrap_history(batch.position_sequence)
         next_position = self.box.unwrap_next(sequence[:, -1], batch.next_position)
         noisy_sequence = sequence + position_noise

@@ -22,6 +22,9 @@ class Stats(nn.Module):
     A zero std (a constant quantity) is replaced by 1 so normalising never divides by 0.
     """
 
+    mean: Tensor  # buffers (register_buffer)
+    std: Tensor
+
     def __init__(self, mean: list[float], std: list[float], noise_std: float = 0.0):
         super().__init__()
         combined = noise_combined_std(std, noise_std)

@@ -16,7 +16,7 @@ any other read fail (``tests/runtime/test_host_sync.py``).
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 import torch
 import torch.utils._python_dispatch
@@ -34,8 +34,9 @@ def avoids_read_backs(device: torch.device) -> bool:
     return device.type != "cpu"
 
 
-def read_back(tensor: Tensor) -> list:
-    """The values of ``tensor`` as a (nested) list on the host: one of the documented waits for the device."""
+def read_back(tensor: Tensor) -> Any:
+    """The values of ``tensor`` as a (nested) list on the host (a number for a 0-d tensor): one of the
+    documented waits for the device."""
     return tensor.tolist()
 
 

@@ -10,27 +10,31 @@ checkpoints keep both (``model``: raw, ``ema``: the average) and resume exactly.
 
 from __future__ import annotations
 
+from typing import Generic, TypeVar, cast
+
 import torch
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
+ModelT = TypeVar("ModelT", bound=torch.nn.Module)
 
-class WeightAverage:
+
+class WeightAverage(Generic[ModelT]):
     """``average = decay * average + (1 - decay) * weights`` after every optimiser step.
 
     The first update copies the weights (no bias towards the initial ones). Buffers
     (normalisation statistics, type tables) are the model's own: they do not train.
     """
 
-    def __init__(self, model: torch.nn.Module, decay: float):
+    def __init__(self, model: ModelT, decay: float):
         if not 0.0 < decay < 1.0:
             raise ValueError(f"ema_decay must lie in (0, 1), got {decay}")
         self.decay = decay
         self._averaged = AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(decay), use_buffers=False)
 
     @property
-    def module(self) -> torch.nn.Module:
+    def module(self) -> ModelT:
         """The model with the averaged weights."""
-        return self._averaged.module
+        return cast(ModelT, self._averaged.module)  # AveragedModel holds a deep copy of the model
 
     @torch.no_grad()
     def update(self, model: torch.nn.Module) -> None:

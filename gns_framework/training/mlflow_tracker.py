@@ -26,7 +26,7 @@ import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from ..data.atomic import write_text_atomic
 from ..errors import GnsError
@@ -219,6 +219,7 @@ class Outbox:
                             f"are given up from now on (they stay in {self.kept_in})",
                             stacklevel=3,
                         )
+                    assert oldest.step is not None  # a batch of metrics has its step
                     self._given_up_steps.append(oldest.step)
             self._waiting.append(request)
             self._changed.notify()
@@ -246,9 +247,9 @@ class Outbox:
                 requests = self._next()
             try:
                 if requests[0].metrics is None:
-                    requests[0].send()
-                else:
-                    self._send_metrics([entry for request in requests for entry in request.metrics])
+                    cast("Callable[[], None]", requests[0].send)()  # a request without metrics has send
+                else:  # a run of metrics batches (_next)
+                    self._send_metrics([entry for request in requests for entry in cast(list, request.metrics)])
             except Exception as error:  # noqa: BLE001 - whatever the server does, training goes on
                 if not server_unreachable(error):
                     what = requests[0].what
@@ -308,7 +309,7 @@ class Outbox:
         self._thread.join(timeout=self.close_seconds + 1.0)
         with self._changed:
             left = list(self._waiting)
-        steps = sorted(self._given_up_steps + [r.step for r in left if r.metrics is not None])
+        steps = sorted(self._given_up_steps + [cast(int, r.step) for r in left if r.metrics is not None])
         others = [r.what for r in left if r.metrics is None]
         if steps or others:
             parts = [f"metrics of {len(steps)} logs (steps {steps[0]} to {steps[-1]})"] if steps else []

@@ -56,7 +56,7 @@ class TrainingStep:
         noise_std: float,
         optimizer: torch.optim.Optimizer,
         scheduler,
-        ema: WeightAverage | None,
+        ema: WeightAverage[LearnedSimulator] | None,
         processes: Processes,
         device: torch.device,
         *,
@@ -133,6 +133,7 @@ class TrainingStep:
         at the cost of ``steps`` extra forward passes. Kinematic particles follow their
         true positions.
         """
+        assert batch.next_position is not None and batch.ahead is not None  # windows drawn with push-forward steps
         truth = torch.cat([batch.next_position[:, None], batch.ahead], dim=1)
         sequence = batch.position_sequence
         for k in range(steps):

@@ -174,7 +174,9 @@ class Trainer:
             batches = validation_windows(
                 valid, self.recipe.model.history, spec.validation_windows, spec.batch_size, str(self.data.dataset.path)
             )
-            trajectories = [valid[i] for i in range(min(spec.validation_rollouts, len(valid)))] if batches else []
+            if batches:
+                assert valid is not None  # windows come only from a valid split
+                trajectories = [valid[i] for i in range(min(spec.validation_rollouts, len(valid)))]
         score = validation_rollout_scorer(self.registry, self.data.scene, self.data.metadata, self.device)
         return Validation(batches, trajectories, score, spec.best_metric, self.run, self.device)
 
@@ -432,7 +434,7 @@ class Trainer:
                 metrics["train_loss"] = float(np.mean(losses[-spec.log_every :]))
                 metrics["steps_per_s"] = window_steps / window_seconds
                 metrics["particles_per_s"] = window_particles / window_seconds
-                metrics["lr"] = self.scheduler.get_last_lr()[0]
+                metrics["lr"] = float(self.scheduler.get_last_lr()[0])
                 window_steps, window_particles, window_started = 0, 0, None
             if validates:
                 window_started = None
@@ -455,7 +457,9 @@ class Trainer:
 
     def _track_run(self) -> None:
         """Parameters and resolved recipe of the run, for the tracker (rank 0)."""
-        self.tracker.log_params(
+        tracker = self.tracker
+        assert tracker is not None  # rank 0, which has one
+        tracker.log_params(
             {
                 "recipe": self.recipe.resolved(),
                 "plugins": plugin_versions(self.recipe, self.registry, self.data.scene),
@@ -465,7 +469,7 @@ class Trainer:
         )
         recipe_file = self.run.recipe
         write_text_atomic(recipe_file, yaml.safe_dump(self.recipe.resolved(), sort_keys=False))
-        self.tracker.log_artifact(recipe_file)
+        tracker.log_artifact(recipe_file)
 
     def close(self, failed: bool = False) -> None:
         if self.tracker is not None:

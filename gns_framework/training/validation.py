@@ -49,6 +49,7 @@ def validation_windows(
     """
     reason = "no valid split" if valid is None else "an empty valid split" if len(valid) == 0 else None
     if reason is None:
+        assert valid is not None
         try:
             index = WindowIndex(valid, history)
         except ValueError:
@@ -127,6 +128,7 @@ class Validation:
             prediction, target = model(batch, torch.zeros_like(batch.position_sequence))
             losses.append(float(masked_acceleration_loss(prediction, target, mask)))
             next_position = model.integrator.next_position(batch.position_sequence, model.output_stats.denormalize(prediction))
+            assert batch.next_position is not None  # validation windows have their target
             position_errors.append(float(((next_position - batch.next_position)[mask] ** 2).mean()))
         metrics = {"valid_one_step_loss": float(np.mean(losses)), "valid_one_step_position_mse": float(np.mean(position_errors))}
         if self.trajectories:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -80,7 +81,8 @@ def animate_side_by_side(
 
     projection = "3d" if dim == 3 else None
     fig = plt.figure(figsize=(10, 5))
-    axes = [fig.add_subplot(1, 2, k + 1, projection=projection) for k in range(2)]
+    # Axes, or Axes3D for the 3d projection (which matplotlib's types do not tell apart): set_zlim, scatter(x, y, z).
+    axes: list[Any] = [fig.add_subplot(1, 2, k + 1, projection=projection) for k in range(2)]
 
     def draw(t: int) -> list:
         stage = "input" if t < first_rolled_out_frame else "rollout"
@@ -120,6 +122,7 @@ def animate_rollout(
     progress: Callable[[int, int], None] | None = None,
 ) -> Path:
     """GIF of a rollout with its metadata (as loaded from a file), input frames included (:func:`animate_side_by_side`)."""
+    assert rollout.metadata is not None  # a rollout file always has it
     return animate_side_by_side(
         path,
         rollout.predicted_trajectory(),

@@ -88,6 +88,13 @@ def library() -> ctypes.CDLL | None:
     return lib
 
 
+def _kernels() -> ctypes.CDLL:
+    """The loaded kernels, for the functions below: their callers check :func:`applies` first."""
+    lib = library()
+    assert lib is not None, "the fused kernels are unavailable: check applies() first"
+    return lib
+
+
 def applies(*tensors: Tensor | None) -> bool:
     """Whether the kernels can take these tensors: float32 (int64 indices), contiguous, on CPU, and built."""
     for t in tensors:
@@ -105,7 +112,7 @@ def _address(t: Tensor | None) -> int | None:
 def bias_relu_(a: Tensor, bias: Tensor) -> Tensor:
     """``a = relu(a + bias)`` in place; ``a`` (C, H), ``bias`` (H,)."""
     rows, width = a.shape
-    library().bias_relu(rows, width, a.data_ptr(), bias.data_ptr())
+    _kernels().bias_relu(rows, width, a.data_ptr(), bias.data_ptr())
     return a
 
 
@@ -131,7 +138,7 @@ def layer_norm_residual(
     """
     rows, width = a.shape
     mean, rstd = (a.new_empty(rows, 1), a.new_empty(rows, 1)) if stats else (None, None)
-    library().layer_norm_residual(
+    _kernels().layer_norm_residual(
         rows, width, a.data_ptr(), _address(bias), gamma.data_ptr(), beta.data_ptr(), eps, residual.data_ptr(),
         out.data_ptr(), aggregate.data_ptr(), receivers.data_ptr(), _address(mean), _address(rstd),
     )
@@ -161,7 +168,7 @@ def layer_norm_backward(
     """
     rows, width = a.shape
     grad_a = torch.empty_like(a)
-    library().layer_norm_backward(
+    _kernels().layer_norm_backward(
         rows, width, _address(grad_aggregate), receivers.data_ptr(), _address(grad_out), a.data_ptr(),
         mean.data_ptr(), rstd.data_ptr(), gamma.data_ptr(), grad_a.data_ptr(), grad_residual.data_ptr(),
         grad_gamma.data_ptr(), grad_beta.data_ptr(), _address(grad_bias),
@@ -172,5 +179,5 @@ def layer_norm_backward(
 def relu_backward_(grad: Tensor, z: Tensor, grad_bias: Tensor | None) -> Tensor:
     """``grad`` zeroed where ``z`` (a ReLU output) is 0, in place; its column sum added into ``grad_bias``."""
     rows, width = grad.shape
-    library().relu_backward(rows, width, grad.data_ptr(), z.data_ptr(), _address(grad_bias))
+    _kernels().relu_backward(rows, width, grad.data_ptr(), z.data_ptr(), _address(grad_bias))
     return grad

@@ -28,7 +28,7 @@ from __future__ import annotations
 import json
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -126,7 +126,7 @@ class LagrangeBenchDataset(Dataset):
         return TrajectorySequence(keys, load, str(file), metadata.dim)
 
     @classmethod
-    def write(cls, path: Path, metadata: DatasetMetadata, splits: dict[str, Sequence[Trajectory]]) -> None:
+    def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:
         import h5py
 
         path = Path(path)
@@ -147,7 +147,7 @@ class LagrangeBenchDataset(Dataset):
         write_text_atomic(path / "metadata.json", json.dumps(document, indent=2) + "\n")
 
 
-def lagrangebench_metadata(path: Path, metadata: DatasetMetadata, splits: dict[str, Sequence[Trajectory]]) -> dict:
+def lagrangebench_metadata(path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> dict:
     """``metadata`` in LagrangeBench's terms, with the lengths and counts of ``splits`` (to be written under ``path``).
 
     Every key of ``metadata`` is kept; with ``write_every``, ``dt`` becomes the solver

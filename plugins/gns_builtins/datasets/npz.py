@@ -15,8 +15,9 @@ where gns-framework counts frames (T); the layout converts both ways.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -57,10 +58,10 @@ class GeoelementsNpzDataset(NpzSplitsDataset):
         return TrajectorySequence(list(archive.files), load, str(file), self.metadata().dim)
 
     @classmethod
-    def write(cls, path: Path, metadata: DatasetMetadata, splits: dict[str, Sequence[Trajectory]]) -> None:
+    def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:
         path = Path(path)
         for split, trajectories in splits.items():
-            arrays = {}
+            arrays: dict[str, Any] = {}  # Any: numpy's stub would match **arrays to savez_compressed's allow_pickle too
             for index, traj in enumerate(trajectories):
                 if traj.step_context is not None:
                     raise DatasetError(f"{path / split}.npz: {traj.key}: the geoelements layout has no step_context")

@@ -13,12 +13,13 @@ Layout of ``<split>.npz`` (one group of members per trajectory, keys sorted)::
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from gns_framework.contracts import Params
+from gns_framework.contracts import ComponentParams
 from gns_framework.data.atomic import atomic_path, write_text_atomic
 from gns_framework.data.lazy import TrajectorySequence
 from gns_framework.data.metadata import DatasetMetadata
@@ -36,7 +37,7 @@ class SafeDataset(NpzSplitsDataset):
     name = "safe"
     writable = True
 
-    class Params(Params):
+    class Params(ComponentParams):
         pass
 
     def split(self, name: str) -> Sequence[Trajectory]:
@@ -56,8 +57,9 @@ class SafeDataset(NpzSplitsDataset):
         def load(key: str) -> Trajectory:
             fields = groups[key]
             get = lambda f: read_member(archive, file, f"{key}/{f}") if f in fields else None  # noqa: E731
-            return Trajectory(
-                get("position"), get("particle_type"), get("material_property"), get("step_context"), key,
+            return Trajectory(  # position and particle_type: present (checked above)
+                read_member(archive, file, f"{key}/position"), read_member(archive, file, f"{key}/particle_type"),
+                get("material_property"), get("step_context"), key,
                 get("bounds"), get("walls"),
             )
 
@@ -66,10 +68,10 @@ class SafeDataset(NpzSplitsDataset):
         return TrajectorySequence(list(groups), load, str(file), self.metadata().dim)
 
     @classmethod
-    def write(cls, path: Path, metadata: DatasetMetadata, splits: dict[str, Sequence[Trajectory]]) -> None:
+    def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:
         path = Path(path)
         for split, trajectories in splits.items():
-            arrays: dict[str, np.ndarray] = {}
+            arrays: dict[str, Any] = {}  # Any: numpy's stub would match **arrays to savez_compressed's allow_pickle too
             for index, traj in enumerate(trajectories):
                 key = traj.key or f"trajectory_{index:05d}"
                 arrays[f"{key}/position"] = np.asarray(traj.position, dtype=np.float32)

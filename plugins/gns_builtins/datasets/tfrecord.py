@@ -21,13 +21,13 @@ are numbered in order.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 from pydantic import Field
 
-from gns_framework.contracts import Dataset, Params
+from gns_framework.contracts import Dataset, ComponentParams
 from gns_framework.data.atomic import atomic_path, write_text_atomic
 from gns_framework.data.consistency import checked
 from gns_framework.data.lazy import TrajectorySequence
@@ -45,8 +45,10 @@ class TfRecordDataset(Dataset):
     name = "tfrecord"
     writable = True
 
-    class Params(Params):
+    class Params(ComponentParams):
         verify_checksums: bool = Field(True, description="check every record's CRC-32C (slow without google-crc32c)")
+
+    params: Params  # the validated Params above (the base class assigns it)
 
     def metadata(self) -> DatasetMetadata:
         stored = load_metadata(self.path)
@@ -75,7 +77,7 @@ class TfRecordDataset(Dataset):
         return TrajectorySequence([str(i) for i in range(len(records))], load, str(file), metadata.dim)
 
     @classmethod
-    def write(cls, path: Path, metadata: DatasetMetadata, splits: dict[str, Sequence[Trajectory]]) -> None:
+    def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:
         path = Path(path)
         # Checked before any file is written, so a refused dataset leaves no partial copy.
         for split, trajectories in splits.items():

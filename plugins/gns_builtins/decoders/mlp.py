@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from gns_framework.contracts import Decoder, ModelSizes, Params
+from gns_framework.contracts import Decoder, ModelSizes, ComponentParams
 from gns_framework.layers import MLP
 
 
@@ -13,7 +13,7 @@ class MLPDecoder(Decoder):
 
     name = "mlp"
 
-    class Params(Params):
+    class Params(ComponentParams):
         pass
 
     def __init__(self, params: Params, sizes: ModelSizes):

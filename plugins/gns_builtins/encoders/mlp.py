@@ -6,7 +6,7 @@ import torch
 from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
-from gns_framework.contracts import Encoder, ModelSizes, Params
+from gns_framework.contracts import Encoder, ModelSizes, ComponentParams
 from gns_framework.layers import NormedMLP
 from gns_framework.runtime.activation_memory import recompute_activations
 
@@ -22,7 +22,7 @@ class MLPEncoder(Encoder):
 
     name = "mlp"
 
-    class Params(Params):
+    class Params(ComponentParams):
         pass
 
     def __init__(self, params: Params, sizes: ModelSizes):

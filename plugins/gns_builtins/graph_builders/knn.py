@@ -6,7 +6,7 @@ import torch
 from pydantic import Field
 from torch import Tensor
 
-from gns_framework.contracts import Graph, GraphBuilder, Params
+from gns_framework.contracts import Graph, GraphBuilder, ComponentParams
 
 from .._kernels.cell_list import squared_distance
 
@@ -31,10 +31,12 @@ class KnnGraphBuilder(GraphBuilder):
 
     name = "knn"
 
-    class Params(Params):
+    class Params(ComponentParams):
         k: int = Field(16, ge=1, description="neighbours per receiving particle")
         self_edges: bool = Field(True, description="a particle is its own neighbour (counts towards k)")
         max_radius: float | None = Field(None, gt=0, description="drop neighbours at distance >= this (dataset units)")
+
+    params: Params  # the validated Params above (the base class assigns it)
 
     def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:
         n = position.shape[0]

@@ -7,7 +7,7 @@ import itertools
 import torch
 from torch import Tensor
 
-from gns_framework.contracts import Graph, GraphBuilder, Params, Scene
+from gns_framework.contracts import Graph, GraphBuilder, ComponentParams, Scene
 from gns_framework.errors import RecipeError
 from gns_framework.model.periodic import PeriodicBox
 from gns_framework.runtime.host_sync import PerDevice
@@ -32,7 +32,7 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
     name = "periodic_radius"
     supports_periodic = True
 
-    class Params(Params):
+    class Params(ComponentParams):
         pass
 
     def __init__(self, params: Params, scene: Scene):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from gns_framework.contracts import Graph, GraphBuilder, Params
+from gns_framework.contracts import Graph, GraphBuilder, ComponentParams
 
 from .._kernels.cell_list import radius_pairs
 
@@ -19,7 +19,7 @@ class RadiusGraphBuilder(GraphBuilder):
 
     name = "radius"
 
-    class Params(Params):
+    class Params(ComponentParams):
         pass
 
     def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:

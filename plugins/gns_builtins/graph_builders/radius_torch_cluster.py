@@ -8,7 +8,7 @@ import torch
 from pydantic import Field
 from torch import Tensor
 
-from gns_framework.contracts import Graph, GraphBuilder, Params, Scene
+from gns_framework.contracts import Graph, GraphBuilder, ComponentParams, Scene
 from gns_framework.errors import PluginError
 
 from .._kernels.cell_list import squared_distance
@@ -33,8 +33,10 @@ class TorchClusterRadiusGraphBuilder(GraphBuilder):
     optional_modules = ("torch_cluster",)
     """Modules this component needs that the project does not install by default (``gns check`` looks for them)."""
 
-    class Params(Params):
+    class Params(ComponentParams):
         initial_max_neighbors: int = Field(64, ge=1, description="first neighbour cap; doubled until no particle reaches it")
+
+    params: Params  # the validated Params above (the base class assigns it)
 
     def __init__(self, params: Params, scene: Scene):
         super().__init__(params, scene)

@@ -6,7 +6,7 @@ from collections.abc import Callable
 
 from torch import Tensor
 
-from gns_framework.contracts import Integrator, Params
+from gns_framework.contracts import Integrator, ComponentParams
 
 
 class ExplicitEuler(Integrator):
@@ -35,7 +35,7 @@ class ExplicitEuler(Integrator):
     symplectic = False
     stability_bound = 0.0
 
-    class Params(Params):
+    class Params(ComponentParams):
         pass
 
     def next_position(self, position_sequence: Tensor, prediction: Tensor) -> Tensor:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from gns_framework.contracts import Integrator, Params
+from gns_framework.contracts import Integrator, ComponentParams
 
 
 class VelocityEuler(Integrator):
@@ -24,7 +24,7 @@ class VelocityEuler(Integrator):
     name = "velocity_euler"
     predicts = "velocity"
 
-    class Params(Params):
+    class Params(ComponentParams):
         pass
 
     def next_position(self, position_sequence: Tensor, prediction: Tensor) -> Tensor:

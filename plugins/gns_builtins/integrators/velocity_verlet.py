@@ -6,7 +6,7 @@ from collections.abc import Callable
 
 from torch import Tensor
 
-from gns_framework.contracts import Integrator, Params
+from gns_framework.contracts import Integrator, ComponentParams
 
 
 class VelocityVerlet(Integrator):
@@ -34,7 +34,7 @@ class VelocityVerlet(Integrator):
     symplectic = True
     stability_bound = 2.0
 
-    class Params(Params):
+    class Params(ComponentParams):
         pass
 
     def next_position(self, position_sequence: Tensor, prediction: Tensor) -> Tensor:

@@ -23,7 +23,7 @@ import torch
 from pydantic import Field
 from torch import Tensor, nn
 
-from gns_framework.contracts import Graph, ModelSizes, Params, Processor
+from gns_framework.contracts import Graph, ModelSizes, ComponentParams, Processor
 from gns_framework.layers import MLP, NormedMLP
 
 
@@ -59,7 +59,7 @@ class EquivariantProcessor(Processor):
 
     name = "egnn"
 
-    class Params(Params):
+    class Params(ComponentParams):
         message_passing_steps: int = Field(10, ge=1, description="M, number of unshared steps")
 
     def __init__(self, params: Params, sizes: ModelSizes):

@@ -6,7 +6,7 @@ import torch
 from pydantic import Field
 from torch import Tensor, nn
 
-from gns_framework.contracts import Graph, ModelSizes, Params, Processor
+from gns_framework.contracts import Graph, ModelSizes, ComponentParams, Processor
 from gns_framework.layers import NormedMLP
 
 
@@ -60,7 +60,7 @@ class GraphAttentionProcessor(Processor):
 
     name = "graph_attention"
 
-    class Params(Params):
+    class Params(ComponentParams):
         message_passing_steps: int = Field(10, ge=1, description="M, number of unshared steps")
         heads: int = Field(4, ge=1, description="attention heads; must divide the latent size")
 

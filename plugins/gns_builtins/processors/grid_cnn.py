@@ -28,7 +28,7 @@ import torch
 from pydantic import Field
 from torch import Tensor, nn
 
-from gns_framework.contracts import Graph, ModelSizes, Params, Processor
+from gns_framework.contracts import Graph, ModelSizes, ComponentParams, Processor
 from gns_framework.layers import NormedMLP
 
 
@@ -128,7 +128,7 @@ class GridProcessor(Processor):
 
     name = "grid_cnn"
 
-    class Params(Params):
+    class Params(ComponentParams):
         message_passing_steps: int = Field(2, ge=1, description="M, rounds of particles -> grid -> CNN -> particles")
         cell_size: float = Field(1.0, gt=0, description="grid spacing, in connectivity radii R")
         conv_layers: int = Field(4, ge=2, description="3^d convolutions per round")

@@ -15,16 +15,19 @@ its checkpoints are imported by reordering the first-layer columns.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import TYPE_CHECKING, Literal, cast
 
 import torch
 from pydantic import Field
 from torch import Tensor, nn
 
-from gns_framework.contracts import Graph, ModelSizes, Params, Processor
+from gns_framework.contracts import Graph, ModelSizes, ComponentParams, Processor
 from gns_framework.layers import NormedMLP
 
 from .._kernels.edge_block import edge_block, node_table, table_rows
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
 
 EdgeBlock = Literal["fused", "plain"]
@@ -58,13 +61,14 @@ class InteractionStep(nn.Module):
     def _fused(self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor) -> tuple[Tensor, Tensor]:
         """The same step with the edge update and aggregation in one chunked, fused pass."""
         mlp = self.edge_mlp.mlp
-        first = mlp.linears[0]
+        linears = cast("Sequence[nn.Linear]", mlp.linears)  # layers.MLP: a ModuleList of nn.Linear
+        first = linears[0]
         # The first edge layer is linear in [e, x_r, x_s]: project the N nodes once and
         # gather, instead of multiplying E concatenated rows (same result, ~40% fewer FLOPs).
         table = node_table(x, first.weight, first.bias)
         rows = table_rows(senders, receivers, x.shape[0])
-        weights = [first.weight[:, : self.latent]] + [linear.weight for linear in mlp.linears[1:]]
-        biases = [linear.bias for linear in mlp.linears[1:]]
+        weights = [first.weight[:, : self.latent]] + [linear.weight for linear in linears[1:]]
+        biases: list[Tensor] = [linear.bias for linear in linears[1:]]
         e_new, aggregate = edge_block(e, table, rows, receivers, weights, biases, self.edge_mlp.norm)
         node_update = self.node_mlp(torch.cat([x, aggregate], dim=-1))
         return x + node_update, e_new
@@ -75,7 +79,7 @@ class InteractionNetwork(Processor):
 
     name = "interaction_network"
 
-    class Params(Params):
+    class Params(ComponentParams):
         message_passing_steps: int = Field(10, ge=1, description="M, number of unshared steps")
         edge_block: EdgeBlock = Field("fused", description="fused (chunked, fast) or plain (the paper's lines); equal results")
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pydantic import Field
 from torch import Tensor
 
-from gns_framework.contracts import Graph, ModelSizes, Params, Processor
+from gns_framework.contracts import Graph, ModelSizes, ComponentParams, Processor
 
 from .interaction_network import EdgeBlock, InteractionStep
 
@@ -19,9 +19,11 @@ class SharedInteractionNetwork(Processor):
 
     name = "shared_interaction_network"
 
-    class Params(Params):
+    class Params(ComponentParams):
         message_passing_steps: int = Field(10, ge=1, description="M, times the one step is applied")
         edge_block: EdgeBlock = Field("fused", description="fused (chunked, fast) or plain (the paper's lines); equal results")
+
+    params: Params  # the validated Params above (the base class assigns it)
 
     def __init__(self, params: Params, sizes: ModelSizes):
         super().__init__(params, sizes)

@@ -13,7 +13,7 @@ import math
 import numpy as np
 from pydantic import Field, ValidationError
 
-from gns_framework.contracts import GroundTruthSimulator, Params
+from gns_framework.contracts import GroundTruthSimulator, ComponentParams
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.ground_truth.sampling import BodySample, SceneSample, sample_scene
 from gns_framework.ground_truth.scene_spec import SceneSpec
@@ -28,9 +28,11 @@ class MlsMpm(GroundTruthSimulator):
     dims = (2, 3)
     constitutive_models = (*MODELS, RIGID)
 
-    class Params(Params):
+    class Params(ComponentParams):
         device: str = Field(default="auto", description="Warp device: 'cpu', 'cuda', 'cuda:0' or 'auto'")
         cfl: float = Field(default=0.5, gt=0, le=1, description="substep dt must stay below cfl * dx / wave speed")
+
+    params: Params  # the validated Params above (the base class assigns it)
 
     def check(self, scene: SceneSpec) -> list[tuple[str, str]]:
         """Adds constitutive-parameter validation, the elastic-wave CFL limit and the viscous limit
@@ -98,7 +100,9 @@ class MlsMpm(GroundTruthSimulator):
         volume = scene.particle_spacing**scene.dim
         parts: dict[str, list[np.ndarray]] = {}
         for block in sample.blocks:
-            model: type[ConstitutiveModel] = MODELS[self.materials[block.material].constitutive_model]
+            constitutive_model = self.materials[block.material].constitutive_model
+            assert constitutive_model is not None  # scene_problems checks every block's material has one
+            model: type[ConstitutiveModel] = MODELS[constitutive_model]
             n = block.num_particles
             defaults = model(**self.materials[block.material].physical_parameters).model_dump()
             values = {
@@ -122,6 +126,7 @@ class MlsMpm(GroundTruthSimulator):
         from ._mpm.solver import MpmSolver
 
         sample = sample_scene(scene, seed)
+        assert sample.scene is not None  # sample_scene draws it
         scene = sample.scene  # this trajectory's domain: extent and face conditions drawn
         solver = MpmSolver(
             scene,

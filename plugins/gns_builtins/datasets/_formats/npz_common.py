@@ -55,6 +55,7 @@ def read_array_pickle(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> np
     array = _read_plain(archive, path, key)
     if array is not None:
         return array
+    assert archive.zip is not None  # open (numpy drops it on close)
     try:
         return read_npy_object_array(archive.zip, f"{key}.npy")
     except RefusedGlobal as exc:

@@ -135,6 +135,7 @@ def _fields(buf: bytes) -> Iterator[tuple[int, int, int | bytes]]:
     while pos < len(buf):
         tag, pos = _read_varint(buf, pos)
         number, wire = tag >> 3, tag & 7
+        value: int | bytes
         if wire == VARINT:
             value, pos = _read_varint(buf, pos)
         elif wire == FIXED64:
@@ -149,6 +150,13 @@ def _fields(buf: bytes) -> Iterator[tuple[int, int, int | bytes]]:
         else:
             raise ValueError(f"unsupported wire type {wire}")
         yield number, wire, value
+
+
+def _message(value: int | bytes) -> bytes:
+    """The bytes of a field that holds a message or a packed list; a varint there is malformed data."""
+    if isinstance(value, int):
+        raise ValueError("a varint where a length-delimited field is expected")
+    return value
 
 
 def _field(number: int, payload: bytes) -> bytes:
@@ -166,19 +174,21 @@ class Feature:
     def parse(cls, buf: bytes) -> "Feature":
         for number, _, payload in _fields(buf):
             if number == 1:
-                return cls("bytes", [bytes(v) for n, _, v in _fields(payload) if n == 1])
+                return cls("bytes", [bytes(v) for n, _, v in _fields(_message(payload)) if n == 1])
             if number == 2:
                 floats: list[np.ndarray] = []
-                for n, wire, v in _fields(payload):
+                for n, wire, v in _fields(_message(payload)):
                     if n == 1:
-                        floats.append(np.frombuffer(v, dtype="<f4"))
+                        floats.append(np.frombuffer(_message(v), dtype="<f4"))
                 return cls("float", np.concatenate(floats) if floats else np.zeros(0, np.float32))
             if number == 3:
                 ints: list[int] = []
-                for n, wire, v in _fields(payload):
-                    if n == 1 and wire == VARINT:
+                for n, wire, v in _fields(_message(payload)):
+                    if n != 1:
+                        continue
+                    if isinstance(v, int):  # wire == VARINT
                         ints.append(v)
-                    elif n == 1:
+                    else:  # packed
                         pos = 0
                         while pos < len(v):
                             value, pos = _read_varint(v, pos)
@@ -207,11 +217,11 @@ class SequenceExample:
         lists: dict[str, list[Feature]] = {}
         for number, _, payload in _fields(buf):
             if number == 1:
-                for key, value in _map_entries(payload):
+                for key, value in _map_entries(_message(payload)):
                     context[key] = Feature.parse(value)
             elif number == 2:
-                for key, value in _map_entries(payload):
-                    lists[key] = [Feature.parse(f) for n, _, f in _fields(value) if n == 1]
+                for key, value in _map_entries(_message(payload)):
+                    lists[key] = [Feature.parse(_message(f)) for n, _, f in _fields(value) if n == 1]
         return cls(context, lists)
 
     def serialize(self) -> bytes:
@@ -232,7 +242,7 @@ def _map_entries(buf: bytes) -> Iterator[tuple[str, bytes]]:
         if number != 1:
             continue
         key, value = "", b""
-        for n, _, v in _fields(entry):
+        for n, _, v in _fields(_message(entry)):
             if n == 1:
                 key = bytes(v).decode()
             elif n == 2:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from typing import ClassVar
+from typing import ClassVar, TypeVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -40,7 +40,11 @@ class ConstitutiveModel(BaseModel, ABC):
         return math.inf
 
 
-def _lame(youngs: np.ndarray, poisson: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+_Values = TypeVar("_Values", np.ndarray, np.float64)
+"""Per-particle arrays, or one value."""
+
+
+def _lame(youngs: _Values, poisson: _Values) -> tuple[_Values, _Values]:
     mu = youngs / (2 * (1 + poisson))
     lam = youngs * poisson / ((1 + poisson) * (1 - 2 * poisson))
     return mu, lam

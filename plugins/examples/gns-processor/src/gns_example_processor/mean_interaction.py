@@ -17,7 +17,7 @@ import torch
 from pydantic import Field
 from torch import Tensor, nn
 
-from gns_framework.contracts import Graph, ModelSizes, Params, Processor
+from gns_framework.contracts import ComponentParams, Graph, ModelSizes, Processor
 from gns_framework.layers import NormedMLP
 
 
@@ -43,7 +43,7 @@ class MeanInteractionNetwork(Processor):
 
     name = "mean_interaction_network"
 
-    class Params(Params):
+    class Params(ComponentParams):
         message_passing_steps: int = Field(10, ge=1, description="M, number of unshared steps")
 
     def __init__(self, params: Params, sizes: ModelSizes):
