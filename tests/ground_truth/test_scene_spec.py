@@ -157,3 +157,17 @@ def test_polygons_are_2d_and_rotated_blocks_must_stay_in_the_domain():
         {"material": "rigid", "shape": "polygon", "position": [0.1, 0.1, 0.1], "vertices": [[0, 0], [1, 0], [0, 1]]}
     ]}
     assert "polygons are 2D" in problems(raw)["obstacles[0].shape"]
+
+
+def test_a_drawn_choice_of_angles_is_checked_at_each_choice():
+    # A one_of angle on a plane (and on a turned block) was read as a range and crashed validation.
+    raw = mixed()
+    raw["obstacles"] = [{"material": "rigid", "shape": "plane", "position": [0.1, 0.1], "angle": {"one_of": [10, 95]}}]
+    assert "(-90, 90) degrees" in problems(raw)["obstacles[0].angle"]
+    fine = mixed()
+    fine["obstacles"] = [{"material": "rigid", "shape": "plane", "position": [0.1, 0.1], "angle": {"one_of": [5, 20]}}]
+    parse_scene(fine)
+    turned = mixed()
+    turned["blocks"][0]["angle"] = {"one_of": [0, 30]}
+    # Turned by 30 degrees, the block's corners leave the domain: found, not a crash.
+    assert "outside the domain" in problems(turned)["blocks[0].position[0]"]

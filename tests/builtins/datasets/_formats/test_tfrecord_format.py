@@ -45,6 +45,16 @@ def test_unpacked_repeated_values_are_read_too():
     np.testing.assert_array_equal(tf.Feature.parse(unpacked_floats).values, [2.5, -1.0])
 
 
+@pytest.mark.parametrize("malformed", [b"\x18\x05", b"\x10\x05", b"\x08\x05"], ids=["int64", "float", "bytes"])
+def test_a_varint_where_a_list_belongs_is_malformed_data_not_a_crash(malformed):
+    # Field 3, 2 or 1 of a Feature holds a list (length-delimited); a varint there is a damaged record,
+    # reported as ValueError, which the reader turns into a DatasetError naming file and record.
+    with pytest.raises(ValueError, match="varint where a length-delimited field is expected"):
+        tf.Feature.parse(malformed)
+    with pytest.raises(ValueError, match="varint where a length-delimited field is expected"):
+        tf.SequenceExample.parse(b"\x08\x05")
+
+
 @given(st.lists(st.integers(min_value=-(2**63), max_value=2**63 - 1), max_size=20))
 def test_int64_lists_round_trip(values):
     parsed = tf.Feature.parse(tf.Feature("int64", np.array(values, dtype=np.int64)).serialize())
