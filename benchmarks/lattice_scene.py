@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import torch
 
-from gns_framework.contracts import Scene
+from gns_framework.contracts import ModelSetup
 from gns_framework.data.batch import ParticleBatch
 from gns_framework.data.metadata import DatasetMetadata
 
@@ -33,7 +33,7 @@ ACC_MEAN, ACC_STD = [5.24e-07, 2.36e-07], [2.58e-04, 2.96e-04]
 
 @dataclass(frozen=True)
 class LatticeScene:
-    scene: Scene
+    scene: ModelSetup
     metadata: DatasetMetadata
     batch: ParticleBatch
     """A window with ``next_position``: training input and rollout state at once."""
@@ -62,7 +62,7 @@ def lattice_scene(particles: int, dim: int = 2, seed: int = 0) -> LatticeScene:
         bounds=[list(b) for b in bounds], sequence_length=HISTORY + 1, default_connectivity_radius=RADIUS,
         dim=dim, dt=0.0025, vel_mean=vel_mean, vel_std=vel_std, acc_mean=acc_mean, acc_std=acc_std,
     )
-    scene = Scene(dim=dim, bounds=bounds, connectivity_radius=RADIUS, particle_types=PARTICLE_TYPES, history=HISTORY)
+    scene = ModelSetup(dim=dim, bounds=bounds, connectivity_radius=RADIUS, particle_types=PARTICLE_TYPES, history=HISTORY)
     # A small random walk so velocities and accelerations are realistic in size.
     velocity = torch.randn((particles, HISTORY, dim), generator=generator) * torch.tensor(vel_std)
     trajectory = position[:, None] + torch.cumsum(velocity, 1) - velocity.sum(1, keepdim=True)

@@ -39,7 +39,7 @@ from .contracts import (
     MaterialProperty,
     ModelSizes,
     Processor,
-    Scene,
+    ModelSetup,
 )
 from .model.periodic import PeriodicBox
 
@@ -84,9 +84,9 @@ def small_sizes(dim: int = 2, latent: int = 16, connectivity_radius: float = 0.1
     )
 
 
-def small_scene(dim: int = 2, connectivity_radius: float = 0.1, periodic: tuple[bool, ...] = ()) -> Scene:
+def small_scene(dim: int = 2, connectivity_radius: float = 0.1, periodic: tuple[bool, ...] = ()) -> ModelSetup:
     """A unit-box scene with one material."""
-    return Scene(
+    return ModelSetup(
         dim=dim,
         bounds=tuple((0.0, 1.0) for _ in range(dim)),
         connectivity_radius=connectivity_radius,
@@ -212,7 +212,7 @@ def _canonical_edges(graph: Graph) -> set[tuple[int, int]]:
 
 
 def check_graph_builder(
-    cls: type[GraphBuilder], params: Mapping | None = None, scene: Scene | None = None, seed: int = 0
+    cls: type[GraphBuilder], params: Mapping | None = None, scene: ModelSetup | None = None, seed: int = 0
 ) -> None:
     """Edge invariants of a graph builder on random scenes of two examples.
 

@@ -137,7 +137,7 @@ def interaction_step(
 
 
 @dataclass
-class Scene:
+class ModelSetup:
     bounds: list[tuple[float, float]]
     radius: float
     clamp: float
@@ -146,7 +146,7 @@ class Scene:
 
 def normalized_acceleration(
     history: Tensor, particle_type: list[int], properties: Tensor | None, example: list[int],
-    scene: Scene, stats: Statistics, weights: Weights,
+    scene: ModelSetup, stats: Statistics, weights: Weights,
 ) -> tuple[Tensor, list[tuple[int, int]]]:
     """Encode, process, decode: (N, d) normalised accelerations, and the graph's (sender, receiver) pairs."""
     position = history[:, -1]
@@ -166,7 +166,7 @@ def next_position(history: Tensor, acceleration: Tensor) -> Tensor:
 
 def training_loss(
     history: Tensor, label: Tensor, noise: Tensor, particle_type: list[int], properties: Tensor | None,
-    example: list[int], scene: Scene, stats: Statistics, weights: Weights,
+    example: list[int], scene: ModelSetup, stats: Statistics, weights: Weights,
 ) -> tuple[Tensor, Tensor]:
     """Target (N, d) and loss of one training step on noisy inputs (Sec. 3 of the paper).
 

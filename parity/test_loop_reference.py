@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from gns_framework.assembly.learned import build_learned_simulator
 from gns_framework.config.recipe import ComponentSpec, ModelSpec
-from gns_framework.contracts import Scene
+from gns_framework.contracts import ModelSetup
 from gns_framework.data.batch import ParticleBatch
 from gns_framework.data.metadata import DatasetMetadata
 from gns_framework.model.learned_simulator import LearnedSimulator
@@ -70,7 +70,7 @@ def build(spec: dict):
         vel_mean=rng.normal(0, 1e-3, dim).tolist(), vel_std=(rng.uniform(0.5, 1.5, dim) * VELOCITY_SCALE).tolist(),
         acc_mean=rng.normal(0, 1e-4, dim).tolist(), acc_std=(rng.uniform(0.5, 1.5, dim) * VELOCITY_SCALE).tolist(),
     )
-    scene = Scene(
+    scene = ModelSetup(
         dim=dim, bounds=bounds, connectivity_radius=RADIUS, particle_types=tuple(spec["types"]),
         kinematic_types=tuple(t for t in spec["types"] if t == KINEMATIC),
         property_names=("friction",) if spec["with_property"] else (), history=history,
@@ -101,7 +101,7 @@ def build(spec: dict):
     return simulator, metadata, scene, batch, noise
 
 
-def loop_inputs(simulator: LearnedSimulator, metadata: DatasetMetadata, scene: Scene):
+def loop_inputs(simulator: LearnedSimulator, metadata: DatasetMetadata, scene: ModelSetup):
     """The restatement's weights, statistics and scene, read from the built-in simulator."""
 
     def f64(t):
@@ -127,7 +127,7 @@ def loop_inputs(simulator: LearnedSimulator, metadata: DatasetMetadata, scene: S
         acc_mean=torch.tensor(metadata.acc_mean, dtype=torch.float64),
         acc_std=ref.combined_std(metadata.acc_std, NOISE_STD),
     )
-    loop_scene = ref.Scene(list(scene.bounds), scene.connectivity_radius, scene.boundary_clamp_limit, set(scene.kinematic_types))
+    loop_scene = ref.ModelSetup(list(scene.bounds), scene.connectivity_radius, scene.boundary_clamp_limit, set(scene.kinematic_types))
     return weights, stats, loop_scene
 
 

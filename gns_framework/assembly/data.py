@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..config.recipe import DatasetSpec, Recipe
-from ..contracts import Dataset, Scene
+from ..contracts import Dataset, ModelSetup
 from ..data.array_pickle import pickle_granted
 from ..data.metadata import DatasetMetadata
 from ..data.stride import FrameStrideDataset
@@ -41,7 +41,7 @@ class PreparedData:
     metadata: DatasetMetadata
     train: Sequence[Trajectory]
     valid: Sequence[Trajectory] | None
-    scene: Scene
+    scene: ModelSetup
 
 
 def prepare_data(recipe: Recipe, registry: Registry, allow_pickle: Path | None = None) -> PreparedData:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..config.recipe import COMPONENT_SECTIONS, ModelSpec, Recipe
-from ..contracts import ModelSizes, Scene
+from ..contracts import ModelSizes, ModelSetup
 from ..data.metadata import DatasetMetadata
 from ..errors import RecipeError
 from ..model.features import FeatureBuilder, edge_feature_size, node_feature_size
@@ -13,7 +13,7 @@ from ..model.normalization import Stats
 from ..plugins import Registry
 
 
-def model_sizes(scene: Scene, model: ModelSpec) -> ModelSizes:
+def model_sizes(scene: ModelSetup, model: ModelSpec) -> ModelSizes:
     """Input, latent and output widths of the encoder, processor and decoder for ``scene``."""
     return ModelSizes(
         node_in=node_feature_size(scene, model.type_embedding_size),
@@ -28,7 +28,7 @@ def model_sizes(scene: Scene, model: ModelSpec) -> ModelSizes:
 
 
 def build_learned_simulator(
-    scene: Scene, metadata: DatasetMetadata, model: ModelSpec, registry: Registry
+    scene: ModelSetup, metadata: DatasetMetadata, model: ModelSpec, registry: Registry
 ) -> LearnedSimulator:
     """Instantiate the components a recipe names, sized from the scene and normalised by the data's statistics."""
     sizes = model_sizes(scene, model)
@@ -69,7 +69,7 @@ def build_learned_simulator(
     )
 
 
-def plugin_versions(recipe: Recipe, registry: Registry, scene: Scene) -> dict[str, dict[str, str]]:
+def plugin_versions(recipe: Recipe, registry: Registry, scene: ModelSetup) -> dict[str, dict[str, str]]:
     """``kind/name -> {"distribution", "version", "plugin"}`` of every component the recipe uses and of the
     installed materials of the scene's particle types (an imported model may have types no material is installed for).
 

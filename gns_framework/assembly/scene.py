@@ -9,7 +9,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..config.recipe import ModelSpec
-from ..contracts import Scene
+from ..contracts import ModelSetup
 from ..data.metadata import DatasetMetadata
 from ..data.trajectory import Trajectory
 from ..errors import DatasetError, RecipeError
@@ -22,7 +22,7 @@ def scene_from_data(
     model: ModelSpec,
     registry: Registry,
     source: str = "dataset",
-) -> Scene:
+) -> ModelSetup:
     """Build the scene a model is sized for.
 
     Materials: the recipe's ``model.materials`` or, by default, those whose particle
@@ -75,7 +75,7 @@ def scene_from_data(
 
     wall_conditions = _wall_conditions(trajectories, model.wall_conditions, bool(model.wall_features), source)
 
-    return Scene(
+    return ModelSetup(
         dim=metadata.dim,
         bounds=tuple((float(lo), float(hi)) for lo, hi in metadata.bounds),
         connectivity_radius=float(model.connectivity_radius or metadata.default_connectivity_radius),
@@ -121,15 +121,15 @@ def _wall_conditions(trajectories: Sequence[Trajectory], asked: bool | None, wal
     return True
 
 
-def scene_to_dict(scene: Scene) -> dict:
+def scene_to_dict(scene: ModelSetup) -> dict:
     """JSON-ready form of a scene (stored in checkpoints)."""
     return json.loads(json.dumps(dataclasses.asdict(scene)))
 
 
-def scene_from_dict(raw: dict) -> Scene:
+def scene_from_dict(raw: dict) -> ModelSetup:
     fields = dict(raw)
     fields["bounds"] = tuple(tuple(float(v) for v in b) for b in raw["bounds"])
     for key in ("particle_types", "kinematic_types", "property_names"):
         fields[key] = tuple(raw[key])
     fields["periodic"] = tuple(raw.get("periodic", ()))
-    return Scene(**fields)
+    return ModelSetup(**fields)

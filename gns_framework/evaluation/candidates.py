@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from ..assembly.trained import LoadedModel
-from ..contracts import Scene
+from ..contracts import ModelSetup
 from ..data.metadata import DatasetMetadata
 from ..data.stride import strided
 from ..data.trajectory import Trajectory
@@ -191,7 +191,7 @@ def compare(
     )
 
 
-def granular_particle_types(scene: Scene, registry: Registry) -> list[int]:
+def granular_particle_types(scene: ModelSetup, registry: Registry) -> list[int]:
     """The scene's particle types whose material is granular (runout and pile profile are measured on them)."""
     materials = {t: registry.material_by_type(t).cls for t in scene.particle_types}
     return [t for t, m in materials.items() if m.granular]

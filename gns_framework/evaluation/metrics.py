@@ -2,7 +2,7 @@
 
 Every function takes a batch of B rollouts whose particles are padded to a common
 count N; a boolean ``mask`` marks the real particles. Kinematic particles (those of
-the types whose material is kinematic, ``Scene.kinematic_types``) follow prescribed
+the types whose material is kinematic, ``ModelSetup.kinematic_types``) follow prescribed
 paths in both rollouts, so they are left out of every error.
 
 A metric is a :class:`~gns_framework.plugin_types.Metric` record (name, unit, function of a :class:`RolloutPair`)
@@ -47,7 +47,7 @@ class ParticleRollout:
         mask: (B, N) bool, True for real particles (False pads shorter examples).
         start: (B, N, d) the last input frame the rollout starts from, or None.
         kinematic_types: the particle types whose material is kinematic (prescribed,
-            left out of every error): ``Scene.kinematic_types``.
+            left out of every error): ``ModelSetup.kinematic_types``.
     """
 
     position: Tensor

@@ -6,7 +6,7 @@ from collections.abc import Callable
 
 import torch
 
-from ..contracts import Scene
+from ..contracts import ModelSetup
 from ..data.metadata import DatasetMetadata
 from ..data.trajectory import Trajectory
 from ..model.learned_simulator import LearnedSimulator
@@ -16,7 +16,7 @@ from .report import Prediction, score_prediction
 
 
 def validation_rollout_scorer(
-    registry: Registry, scene: Scene, metadata: DatasetMetadata, device: torch.device
+    registry: Registry, scene: ModelSetup, metadata: DatasetMetadata, device: torch.device
 ) -> Callable[[LearnedSimulator, Trajectory], dict[str, float]]:
     """``score(simulator, trajectory)``: ``{valid_rollout_<validation>: error}`` of one full rollout.
 

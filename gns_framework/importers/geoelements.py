@@ -24,7 +24,7 @@ from torch import Tensor
 from ..assembly.learned import build_learned_simulator, plugin_versions
 from ..assembly.scene import scene_to_dict
 from ..config.recipe import REFERENCE_NOISE_STD, ModelSpec, validate_recipe
-from ..contracts import Scene
+from ..contracts import ModelSetup
 from ..data.metadata import DatasetMetadata, load_metadata, parse_metadata
 from ..errors import CheckpointError, GnsError
 from ..model.learned_simulator import LearnedSimulator
@@ -59,7 +59,7 @@ class ImportedCheckpoint:
 
     simulator: LearnedSimulator
     model: ModelSpec
-    scene: Scene
+    scene: ModelSetup
     metadata: DatasetMetadata
     parameter_map: ParameterMap
     optimizer_state: dict | None
@@ -149,7 +149,7 @@ def import_geoelements_checkpoint(
     walls_width = (HISTORY - 1) * metadata.dim + 2 * metadata.dim
     types = _particle_types(particle_types, architecture, source)
     names = _property_names(material_properties, architecture, walls_width, source)
-    scene = Scene(
+    scene = ModelSetup(
         dim=metadata.dim,
         bounds=tuple((float(lo), float(hi)) for lo, hi in metadata.bounds),
         connectivity_radius=float(metadata.default_connectivity_radius),

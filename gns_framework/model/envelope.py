@@ -22,7 +22,7 @@ from typing import cast
 
 import numpy as np
 
-from ..contracts import Scene
+from ..contracts import ModelSetup
 from ..data.metadata import DatasetMetadata
 from ..data.particle_spacing import particle_spacing
 from ..data.trajectory import Trajectory
@@ -195,7 +195,7 @@ def _speed(position: np.ndarray, moving: np.ndarray, dt: float) -> float:
 def measure_envelope(
     metadata: DatasetMetadata,
     trajectories: Sequence[Trajectory],
-    scene: Scene,
+    scene: ModelSetup,
     materials: dict[int, str],
     frame_stride: int,
 ) -> Envelope:

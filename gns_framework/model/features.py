@@ -24,7 +24,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from ..contracts import Graph, Scene
+from ..contracts import Graph, ModelSetup
 from .normalization import Stats
 
 
@@ -46,14 +46,14 @@ def safe_norm(vector: Tensor) -> Tensor:
     return torch.where(nonzero, norm, torch.zeros_like(norm))
 
 
-def node_feature_size(scene: Scene, type_embedding_size: int) -> int:
+def node_feature_size(scene: ModelSetup, type_embedding_size: int) -> int:
     size = (scene.history - 1) * scene.dim
     size += 2 * len(scene.wall_dims) * (2 if scene.wall_conditions else 1)
     size += type_embedding_size if scene.uses_type_embedding else 0
     return size + len(scene.property_names) + scene.context_size
 
 
-def edge_feature_size(scene: Scene) -> int:
+def edge_feature_size(scene: ModelSetup) -> int:
     return scene.dim + 1
 
 
@@ -68,7 +68,7 @@ class FeatureBuilder(nn.Module):
 
     def __init__(
         self,
-        scene: Scene,
+        scene: ModelSetup,
         velocity_stats: Stats,
         type_embedding_size: int,
         context_stats: Stats | None = None,

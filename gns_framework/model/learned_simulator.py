@@ -13,7 +13,7 @@ from dataclasses import replace
 import torch
 from torch import Tensor, nn
 
-from ..contracts import Decoder, Encoder, Graph, GraphBuilder, Integrator, Processor, Scene
+from ..contracts import Decoder, Encoder, Graph, GraphBuilder, Integrator, Processor, ModelSetup
 from ..data.batch import ParticleBatch
 from ..runtime.host_sync import avoids_read_backs
 from .features import FeatureBuilder
@@ -28,7 +28,7 @@ class LearnedSimulator(nn.Module):
 
     def __init__(
         self,
-        scene: Scene,
+        scene: ModelSetup,
         features: FeatureBuilder,
         graph_builder: GraphBuilder,
         encoder: Encoder,

@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ..contracts import Scene
+from ..contracts import ModelSetup
 from ..runtime.host_sync import PerDevice
 
 
@@ -22,7 +22,7 @@ class PeriodicBox:
         scene: its ``bounds`` give the box; ``periodic_dims`` the wrapping dimensions.
     """
 
-    def __init__(self, scene: Scene):
+    def __init__(self, scene: ModelSetup):
         self.dims = list(scene.periodic_dims)
         bounds = torch.tensor(scene.bounds, dtype=torch.float64)
         self.lower = bounds[self.dims, 0]

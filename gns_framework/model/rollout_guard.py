@@ -20,7 +20,7 @@ import torch
 from torch import Tensor
 
 from ..config.recipe import RolloutGuardSpec
-from ..contracts import Scene
+from ..contracts import ModelSetup
 from ..errors import RolloutDiverged
 from ..runtime.host_sync import PerDevice
 
@@ -55,7 +55,7 @@ class RolloutGuard:
             particle's previous position and puts escaped particles back onto the wall they passed.
     """
 
-    def __init__(self, scene: Scene, margin: float | None = None, on_violation: str = "stop"):
+    def __init__(self, scene: ModelSetup, margin: float | None = None, on_violation: str = "stop"):
         if on_violation not in ("stop", "clamp"):
             raise ValueError(f"on_violation must be 'stop' or 'clamp', got {on_violation!r}")
         bounds = torch.tensor(scene.bounds, dtype=torch.float64)
@@ -68,7 +68,7 @@ class RolloutGuard:
         self._walled = PerDevice(self._make_walled)
 
     @classmethod
-    def from_spec(cls, scene: Scene, spec: RolloutGuardSpec) -> "RolloutGuard":
+    def from_spec(cls, scene: ModelSetup, spec: RolloutGuardSpec) -> "RolloutGuard":
         return cls(scene, spec.margin, spec.on_violation)
 
     def with_bounds(self, bounds) -> "RolloutGuard":

@@ -21,7 +21,7 @@ from torch import Tensor
 
 from ..assembly.learned import build_learned_simulator
 from ..config.recipe import REFERENCE_NOISE_STD, ModelSpec
-from ..contracts import Scene
+from ..contracts import ModelSetup
 from ..data.batch import ParticleBatch
 from ..data.metadata import DatasetMetadata
 from ..model.learned_simulator import LearnedSimulator
@@ -34,8 +34,8 @@ TYPES = (3, 5, 6)
 """Kinematic (3), water (5) and sand (6): the type embedding and the kinematic path are exercised."""
 
 
-def extreme_scene(dim: int) -> Scene:
-    return Scene(dim=dim, bounds=((0.0, 1.0),) * dim, connectivity_radius=RADIUS, particle_types=TYPES,
+def extreme_scene(dim: int) -> ModelSetup:
+    return ModelSetup(dim=dim, bounds=((0.0, 1.0),) * dim, connectivity_radius=RADIUS, particle_types=TYPES,
                  kinematic_types=(3,), history=HISTORY)
 
 

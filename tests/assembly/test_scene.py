@@ -9,7 +9,7 @@ import torch
 
 from gns_framework.assembly.learned import build_learned_simulator
 from gns_framework.config.recipe import ModelSpec
-from gns_framework.contracts import Scene
+from gns_framework.contracts import ModelSetup
 from gns_framework.data.batch import ParticleBatch
 from gns_framework.data.metadata import DatasetMetadata
 from gns_framework.plugins import load_registry
@@ -19,7 +19,7 @@ METADATA = DatasetMetadata(
     bounds=[(0.0, 1.0), (0.0, 1.0)], sequence_length=10, default_connectivity_radius=0.1, dim=2, dt=0.01,
     vel_mean=[0.0, 0.0], vel_std=[1e-3, 1e-3], acc_mean=[0.0, 0.0], acc_std=[1e-4, 1e-4],
 )
-WATER = Scene(dim=2, bounds=((0.0, 1.0), (0.0, 1.0)), connectivity_radius=0.1, particle_types=(5,))
+WATER = ModelSetup(dim=2, bounds=((0.0, 1.0), (0.0, 1.0)), connectivity_radius=0.1, particle_types=(5,))
 REFERENCE = ModelSpec()
 """The paper's sizes: latent 128, two hidden layers of 128, 10 steps, type embedding 16."""
 PERIODIC_REFERENCE = ModelSpec(graph_builder={"name": "periodic_radius"})
@@ -40,7 +40,7 @@ EXPECTED_PARAMETERS = {
 }
 
 
-def simulator_for(scene: Scene):
+def simulator_for(scene: ModelSetup):
     return build_learned_simulator(scene, METADATA, PERIODIC_REFERENCE if scene.periodic_dims else REFERENCE, REGISTRY)
 
 

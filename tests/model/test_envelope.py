@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from gns_framework.contracts import Scene
+from gns_framework.contracts import ModelSetup
 from gns_framework.data.metadata import DatasetMetadata
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.model.envelope import Envelope, measure_envelope, outside_envelope
@@ -37,7 +37,7 @@ def _column(width: float, height: float, *, spacing: float = SPACING, friction: 
     ).validated("test")
 
 
-SCENE = Scene(dim=2, bounds=((0.0, 2.0), (0.0, 1.0)), connectivity_radius=0.025, particle_types=(6,),
+SCENE = ModelSetup(dim=2, bounds=((0.0, 2.0), (0.0, 1.0)), connectivity_radius=0.025, particle_types=(6,),
               property_names=("friction",))
 TRAINED = [
     _column(0.1, 0.2, friction=0.5, extent=(0.8, 0.5), key="a"),

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import torch
 
-from gns_framework.contracts import Scene
+from gns_framework.contracts import ModelSetup
 from gns_framework.model.features import FeatureBuilder, node_feature_size
 from gns_framework.model.normalization import Stats
 
 
 def _scene(**kw):
     base = dict(dim=2, bounds=((0.0, 1.0), (0.0, 1.0)), connectivity_radius=0.1, particle_types=(5,))
-    return Scene(**{**base, **kw})
+    return ModelSetup(**{**base, **kw})
 
 
 def test_single_material_scene_has_no_type_embedding():

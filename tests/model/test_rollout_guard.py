@@ -12,7 +12,7 @@ from tiny import tiny_recipe, tiny_trainer
 
 from gns_framework.cli import main
 from gns_framework.config.recipe import validate_recipe
-from gns_framework.contracts import Scene
+from gns_framework.contracts import ModelSetup
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError, RecipeError, RolloutDiverged
 from gns_framework.io.checkpoint import load_checkpoint, save_checkpoint
@@ -25,7 +25,7 @@ from gns_framework.stability.extreme import extreme_metadata, tiny_simulator
 pytestmark = [pytest.mark.stability, pytest.mark.usefixtures("one_torch_thread")]
 
 REGISTRY = load_registry()
-BOX = Scene(dim=2, bounds=((0.0, 1.0), (0.0, 2.0)), connectivity_radius=0.1, particle_types=(5,))
+BOX = ModelSetup(dim=2, bounds=((0.0, 1.0), (0.0, 2.0)), connectivity_radius=0.1, particle_types=(5,))
 
 
 def resting(particles: int = 9) -> Trajectory:
@@ -68,7 +68,7 @@ def test_clamp_continues_from_the_previous_position_and_the_walls():
 
 
 def test_periodic_dimensions_have_no_walls_to_leave():
-    periodic = Scene(dim=2, bounds=((0.0, 1.0), (0.0, 1.0)), connectivity_radius=0.1, particle_types=(5,),
+    periodic = ModelSetup(dim=2, bounds=((0.0, 1.0), (0.0, 1.0)), connectivity_radius=0.1, particle_types=(5,),
                      periodic=(True, False))
     position = torch.tensor([[7.0, 0.5]])
     assert RolloutGuard(periodic, margin=0.0).check(0, position, position)[1] == []

@@ -7,7 +7,7 @@ import itertools
 import torch
 from torch import Tensor
 
-from gns_framework.contracts import Graph, GraphBuilder, ComponentParams, Scene
+from gns_framework.contracts import Graph, GraphBuilder, ComponentParams, ModelSetup
 from gns_framework.errors import RecipeError
 from gns_framework.model.periodic import PeriodicBox
 from gns_framework.runtime.host_sync import PerDevice
@@ -35,7 +35,7 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
     class Params(ComponentParams):
         pass
 
-    def __init__(self, params: Params, scene: Scene):
+    def __init__(self, params: Params, scene: ModelSetup):
         super().__init__(params, scene)
         self.box = PeriodicBox(scene)
         self._shifts = PerDevice(self._make_shifts)

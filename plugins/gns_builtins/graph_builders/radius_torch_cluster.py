@@ -8,7 +8,7 @@ import torch
 from pydantic import Field
 from torch import Tensor
 
-from gns_framework.contracts import Graph, GraphBuilder, ComponentParams, Scene
+from gns_framework.contracts import Graph, GraphBuilder, ComponentParams, ModelSetup
 from gns_framework.errors import PluginError
 
 from .._kernels.cell_list import squared_distance
@@ -38,7 +38,7 @@ class TorchClusterRadiusGraphBuilder(GraphBuilder):
 
     params: Params  # the validated Params above (the base class assigns it)
 
-    def __init__(self, params: Params, scene: Scene):
+    def __init__(self, params: Params, scene: ModelSetup):
         super().__init__(params, scene)
         try:
             self._torch_cluster = importlib.import_module("torch_cluster")

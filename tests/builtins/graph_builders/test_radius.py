@@ -7,7 +7,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gns_framework.contracts import Scene
+from gns_framework.contracts import ModelSetup
 from gns_builtins._kernels.cell_list import radius_pairs
 from gns_builtins.graph_builders.radius import RadiusGraphBuilder
 
@@ -113,7 +113,7 @@ def test_far_apart_particles_do_not_overflow_cell_keys():
 
 
 def test_builder_returns_displacements():
-    scene = Scene(dim=2, bounds=((0, 1), (0, 1)), connectivity_radius=0.3, particle_types=(5,))
+    scene = ModelSetup(dim=2, bounds=((0, 1), (0, 1)), connectivity_radius=0.3, particle_types=(5,))
     position = torch.tensor([[0.1, 0.1], [0.3, 0.1]])
     graph = RadiusGraphBuilder(RadiusGraphBuilder.Params(), scene).build(position, torch.zeros(2, dtype=torch.long), 1)
     for s, r, d in zip(graph.senders, graph.receivers, graph.displacement):

@@ -1,0 +1,40 @@
+"""The graph a builder returns and processors pass messages over."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from torch import Tensor
+
+
+@dataclass(frozen=True)
+class Graph:
+    """Directed connectivity of one batch of particles.
+
+    Attributes:
+        senders: (E,) int64 index of the particle each edge comes from.
+        receivers: (E,) int64 index of the particle each edge points to (messages
+            are summed at receivers). Built-in builders sort edges by
+            (receiver, sender).
+        displacement: (E, d) float, ``p_sender - p_receiver`` in dataset units
+            (minimum image in periodic domains).
+        num_nodes: N.
+        position: (N, d) float, each particle's current position in dataset units, for
+            processors that work on space itself (a grid) rather than on edges; the
+            learned simulator attaches it, builders need not (None: not given).
+        batch: (N,) int64 example index of each particle (non-decreasing), or None
+            (one example), so such processors keep the examples of a batch apart.
+        num_examples: B.
+    """
+
+    senders: Tensor
+    receivers: Tensor
+    displacement: Tensor
+    num_nodes: int
+    position: Tensor | None = None
+    batch: Tensor | None = None
+    num_examples: int = 1
+
+    @property
+    def num_edges(self) -> int:
+        return int(self.senders.shape[0])
