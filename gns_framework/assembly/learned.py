@@ -5,7 +5,7 @@ from __future__ import annotations
 from ..config.recipe import COMPONENT_SECTIONS, ModelSpec, Recipe
 from ..contracts import ModelSizes, ModelSetup
 from ..data.metadata import DatasetMetadata
-from ..errors import RecipeError
+from ..errors import GnsError, RecipeError
 from ..model.features import FeatureBuilder, edge_feature_size, node_feature_size
 from ..model.learned_simulator import LearnedSimulator
 from ..model.noise import training_noise_std
@@ -25,6 +25,28 @@ def model_sizes(scene: ModelSetup, model: ModelSpec) -> ModelSizes:
         dim=scene.dim,
         connectivity_radius=scene.connectivity_radius,
     )
+
+
+def training_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str]]:
+    """What a recipe's components say against training it: an integrator whose position map is another's.
+
+    Rolling out a model already trained with such an integrator is left alone (its
+    checkpoints load); only training one more is refused.
+    """
+    problems: list[tuple[str, str]] = []
+    try:
+        integrator = registry.get("integrator", recipe.model.integrator.name)
+    except GnsError:
+        return problems  # an unknown name is the schema's to report
+    same = integrator.same_position_map_as
+    if same is not None:
+        problems.append((
+            "model.integrator.name",
+            f"{integrator.name!r} moves particles with {same!r}'s position map when it sees positions only, so a "
+            f"learned model trains exactly the same with either: use {same!r} (the {integrator.name!r} scheme itself "
+            "is studied under force laws by gns stability)",
+        ))
+    return problems
 
 
 def build_learned_simulator(

@@ -24,6 +24,7 @@ import importlib
 import sys
 from pathlib import Path
 
+from ..assembly.learned import training_problems
 from ..config.recipe import COMPONENT_SECTIONS, Recipe, load_recipe
 from ..errors import GnsError, RecipeError
 from ..plugins import Registry, load_registry
@@ -104,7 +105,7 @@ def data_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str]]:
 def check_recipe(file: Path, registry: Registry, with_data: bool = True) -> None:
     """RecipeError listing every problem of ``file`` that stops training; returns when there is none."""
     recipe = load_recipe(file, registry)  # schema problems first: nothing else can be read without a valid recipe
-    problems = component_problems(recipe, registry)
+    problems = component_problems(recipe, registry) + training_problems(recipe, registry)
     if with_data:
         problems += data_problems(recipe, registry)
     if problems:

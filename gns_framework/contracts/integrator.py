@@ -26,6 +26,12 @@ class Integrator(ABC):
     name: ClassVar[str]
     Params: ClassVar[type[Params]] = Params
     predicts: ClassVar[Literal["acceleration", "velocity"]] = "acceleration"
+    same_position_map_as: ClassVar[str | None] = None
+    """The integrator whose position map this one shares, when its scheme differs only in
+    ``advance``. With a history of positions alone, explicit Euler and velocity Verlet move
+    a particle by ``p[t+1] = 2 p[t] - p[t-1] + a`` exactly as semi-implicit Euler does: a
+    learned model trains the same with either, so training refuses the duplicate and names
+    this one, while ``gns stability`` still studies its ``advance`` under force laws."""
     symplectic: ClassVar[bool] = False
     """Whether ``advance`` is symplectic: below its stability bound the energy stays bounded, with no drift."""
     stability_bound: ClassVar[float | None] = None

@@ -15,7 +15,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from ..assembly.data import prepare_data
-from ..assembly.learned import build_learned_simulator, plugin_versions
+from ..assembly.learned import build_learned_simulator, plugin_versions, training_problems
 from ..assembly.scene import scene_to_dict
 from ..evaluation.rollout_scores import validation_rollout_scorer
 from ..config.recipe import Recipe
@@ -103,6 +103,9 @@ class Trainer:
                 torch.set_num_threads(recipe.training.threads)
             keep_freed_memory()
 
+        refused = training_problems(self.recipe, registry)
+        if refused:
+            raise RecipeError(None, refused)
         self.data = prepare_data(self.recipe, registry, allow_pickle=allow_pickle)
         if recipe.training.pushforward_steps and self.data.scene.context_size:
             raise RecipeError(None, [("training.pushforward_steps", "push-forward needs data without a per-frame "

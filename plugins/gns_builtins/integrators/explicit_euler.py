@@ -32,6 +32,7 @@ class ExplicitEuler(Integrator):
 
     name = "explicit_euler"
     predicts = "acceleration"
+    same_position_map_as = "semi_implicit_euler"
     symplectic = False
     stability_bound = 0.0
 

@@ -31,6 +31,7 @@ class VelocityVerlet(Integrator):
 
     name = "velocity_verlet"
     predicts = "acceleration"
+    same_position_map_as = "semi_implicit_euler"
     symplectic = True
     stability_bound = 2.0
 

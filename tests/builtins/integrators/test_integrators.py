@@ -104,3 +104,35 @@ def test_order_of_accuracy_of_the_physical_form(name, order):
         return abs(float(x) - math.cos(1.0))
 
     assert math.log2(position_error(0.02) / position_error(0.01)) == pytest.approx(order, abs=0.1)
+
+
+SHARING = [n for n in NAMES if REGISTRY.get("integrator", n).same_position_map_as]
+
+
+def test_the_duplicates_are_declared():
+    assert sorted(SHARING) == ["explicit_euler", "velocity_verlet"]
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.sampled_from(SHARING) if SHARING else st.nothing(), arrays("float64", (5, 3, 2), elements=finite),
+       arrays("float64", (5, 2), elements=finite))
+def test_an_integrator_that_says_it_shares_a_position_map_does(name, history, prediction):
+    # The fact on the component is what training refuses it by: it must be true.
+    mine, theirs = make(name), make(REGISTRY.get("integrator", name).same_position_map_as)
+    history, prediction = torch.from_numpy(history), torch.from_numpy(prediction)
+    torch.testing.assert_close(mine.next_position(history, prediction), theirs.next_position(history, prediction),
+                               rtol=0, atol=1e-12 * (1 + float(history.abs().max() + prediction.abs().max())))
+    following = theirs.next_position(history, prediction)
+    torch.testing.assert_close(mine.target(history, following), theirs.target(history, following),
+                               rtol=0, atol=1e-11 * (1 + float(history.abs().max() + prediction.abs().max())))
+
+
+def test_every_other_acceleration_integrator_has_a_position_map_of_its_own():
+    # A new integrator that duplicates semi-implicit Euler without saying so would train the same model.
+    history = torch.tensor([[[0.0, 0.0], [0.1, 0.3], [0.25, 0.5]]], dtype=torch.float64)
+    prediction = torch.tensor([[0.4, -0.2]], dtype=torch.float64)
+    reference = make("semi_implicit_euler").next_position(history, prediction)
+    for name in NAMES:
+        if name in SHARING or name == "semi_implicit_euler":
+            continue
+        assert not torch.allclose(make(name).next_position(history, prediction), reference), name
