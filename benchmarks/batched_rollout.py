@@ -65,13 +65,17 @@ def main(argv: list[str] | None = None) -> int:
     rollout(model.simulator, scenes[0])  # warm-up
     alone_s, alone = timed(lambda: [rollout(model.simulator, s) for s in scenes])
     per_scene = alone_s / len(scenes)
-    print(f"{args.model}: {len(scenes)} scenes of {base.num_particles} particles, "
-          f"{alone[0].num_steps} learned steps each, {args.threads} thread(s)")
+    print(
+        f"{args.model}: {len(scenes)} scenes of {base.num_particles} particles, "
+        f"{alone[0].num_steps} learned steps each, {args.threads} thread(s)"
+    )
     print(f"{'batch':>6} {'s per scene':>12} {'vs one at a time':>17} {'max |diff| final frame (m)':>27}")
     print(f"{1:>6} {per_scene:>12.4f} {1.0:>17.2f} {0.0:>27.2e}")
     for size in args.batch:
         seconds, batched = timed(
-            lambda size=size: [r for i in range(0, len(scenes), size) for r in rollout_batch(model.simulator, scenes[i : i + size])]
+            lambda size=size: [
+                r for i in range(0, len(scenes), size) for r in rollout_batch(model.simulator, scenes[i : i + size])
+            ]
         )
         diff = max(float(np.abs(b.predicted[-1] - a.predicted[-1]).max()) for a, b in zip(alone, batched))
         print(f"{size:>6} {seconds / len(scenes):>12.4f} {per_scene / (seconds / len(scenes)):>17.2f} {diff:>27.2e}")

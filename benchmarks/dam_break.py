@@ -49,12 +49,16 @@ def dam_break(viscosity: float, cells: int, floor: str) -> dict:
     return {
         "name": f"martin_moyce_eta_{viscosity:g}",
         "dim": 2,
-        "domain": {"bounds": [[0.0, 7 * A], [0.0, 3 * A]], "grid": 7 * cells,
-                   "walls": {"x_min": "slip", "x_max": "slip", "y_min": floor, "y_max": "slip"}},
+        "domain": {
+            "bounds": [[0.0, 7 * A], [0.0, 3 * A]],
+            "grid": 7 * cells,
+            "walls": {"x_min": "slip", "x_max": "slip", "y_min": floor, "y_max": "slip"},
+        },
         "time": {"frame_dt": frame_dt, "substeps": int(np.ceil(frame_dt / min(limits))), "frames": 36},
         "jitter": 0.0,
-        "blocks": [{"material": "water", "position": [0.0, 0.0], "size": [A, 2 * A],
-                    "parameters": {"viscosity": viscosity}}],
+        "blocks": [
+            {"material": "water", "position": [0.0, 0.0], "size": [A, 2 * A], "parameters": {"viscosity": viscosity}}
+        ],
     }
 
 
@@ -87,16 +91,27 @@ def ritter_run(viscosity: float, registry, cells: int = 10) -> tuple[np.ndarray,
     [0.15, 0.45] s, before the rarefaction comes back from the far wall; frictionless bed, ``cells`` across h0."""
     dx = RITTER_H0 / cells
     frame_dt = 0.01
-    scene = parse_scene({
-        "name": "ritter",
-        "dim": 2,
-        "domain": {"bounds": [[0.0, 4 * RITTER_L], [0.0, 2 * RITTER_H0]], "grid": round(4 * RITTER_L / dx),
-                   "wall_friction": 0.0},
-        "time": {"frame_dt": frame_dt, "substeps": int(np.ceil(frame_dt / (0.5 * dx / 21.6))), "frames": 46},
-        "jitter": 0.0,
-        "blocks": [{"material": "water", "position": [0.0, 0.0], "size": [RITTER_L, RITTER_H0],
-                    "parameters": {"viscosity": viscosity}}],
-    })
+    scene = parse_scene(
+        {
+            "name": "ritter",
+            "dim": 2,
+            "domain": {
+                "bounds": [[0.0, 4 * RITTER_L], [0.0, 2 * RITTER_H0]],
+                "grid": round(4 * RITTER_L / dx),
+                "wall_friction": 0.0,
+            },
+            "time": {"frame_dt": frame_dt, "substeps": int(np.ceil(frame_dt / (0.5 * dx / 21.6))), "frames": 46},
+            "jitter": 0.0,
+            "blocks": [
+                {
+                    "material": "water",
+                    "position": [0.0, 0.0],
+                    "size": [RITTER_L, RITTER_H0],
+                    "parameters": {"viscosity": viscosity},
+                }
+            ],
+        }
+    )
     position = build_ground_truth_simulator(scene, registry, "<ritter>").simulate(scene, 0).position
     times = np.arange(scene.time.frames) * frame_dt
 
@@ -124,22 +139,36 @@ def runup(viscosity: float, floor: str, registry) -> float:
     raw["blocks"][0].update(size=[0.2, 0.4], parameters={"viscosity": viscosity})
     raw["domain"]["walls"] = {"y_min": floor}
     raw["time"]["substeps"] = 40
-    position = build_ground_truth_simulator(parse_scene(raw), registry, "<runup>").simulate(parse_scene(raw), 0).position
+    position = (
+        build_ground_truth_simulator(parse_scene(raw), registry, "<runup>").simulate(parse_scene(raw), 0).position
+    )
     near = position[:, :, 0] > raw["domain"]["bounds"][0][1] - 0.05
     return max(float(np.quantile(y[m], 0.995)) for y, m in zip(position[:, :, 1], near) if m.sum() > 5)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--viscosity", type=float, nargs="+", default=[0.0, 1e-3, 0.1, 1.0],
-                        help="dynamic viscosities to run, Pa s (water: 1e-3)")
+    parser.add_argument(
+        "--viscosity",
+        type=float,
+        nargs="+",
+        default=[0.0, 1e-3, 0.1, 1.0],
+        help="dynamic viscosities to run, Pa s (water: 1e-3)",
+    )
     parser.add_argument("--cells", type=int, default=20, help="grid cells across the column width a")
-    parser.add_argument("--floor", choices=("no_slip", "slip"), default="no_slip",
-                        help="floor of the Martin & Moyce tank (default no_slip, a real floor)")
+    parser.add_argument(
+        "--floor",
+        choices=("no_slip", "slip"),
+        default="no_slip",
+        help="floor of the Martin & Moyce tank (default no_slip, a real floor)",
+    )
     parser.add_argument("--plot", type=Path, help="write the figure (front positions, Ritter profile) to this PNG")
-    parser.add_argument("--runup", action="store_true",
-                        help="only print the run-up on the far wall of scenes/water_dam_break_2d.yaml per viscosity, "
-                             "with a slip and a no-slip floor")
+    parser.add_argument(
+        "--runup",
+        action="store_true",
+        help="only print the run-up on the far wall of scenes/water_dam_break_2d.yaml per viscosity, "
+        "with a slip and a no-slip floor",
+    )
     args = parser.parse_args()
     registry = load_registry()
     if args.runup:
@@ -156,17 +185,21 @@ def main() -> None:
         print(f"{t:5.2f} {z:13.2f} {1 + 2 * t:7.2f}{row}")
     for eta, (T, front) in runs.items():
         error = (np.interp(MARTIN_MOYCE_T, T, front) - MARTIN_MOYCE_Z) / MARTIN_MOYCE_Z
-        print(f"eta {eta:g} Pa s: front vs Martin & Moyce mean {100 * error.mean():+.1f} %, "
-              f"largest {100 * error[np.argmax(np.abs(error))]:+.1f} %")
+        print(
+            f"eta {eta:g} Pa s: front vs Martin & Moyce mean {100 * error.mean():+.1f} %, "
+            f"largest {100 * error[np.argmax(np.abs(error))]:+.1f} %"
+        )
     centres, surface, at_dam = ritter_run(args.viscosity[0], registry)
     exact = ritter_depth(centres, RITTER_TIME)
     c = np.sqrt(G * RITTER_H0)
     # Ritter holds away from the tip, where the flow is shallow and resistance has not acted: up to 3/4 of the way.
     fan = (centres > RITTER_L - c * RITTER_TIME) & (centres < RITTER_L + 1.5 * c * RITTER_TIME)
-    print(f"Ritter, h0 = {RITTER_H0} m, reservoir {RITTER_L} m, frictionless, eta {args.viscosity[0]:g}: "
-          f"depth at the dam site {at_dam / RITTER_H0:.3f} h0 (Ritter 4/9 = {4 / 9:.3f}); at t = {RITTER_TIME} s "
-          f"the surface in the rarefaction fan is off by {100 * np.abs(surface - exact)[fan].mean() / RITTER_H0:.1f} % "
-          f"of h0 on average")
+    print(
+        f"Ritter, h0 = {RITTER_H0} m, reservoir {RITTER_L} m, frictionless, eta {args.viscosity[0]:g}: "
+        f"depth at the dam site {at_dam / RITTER_H0:.3f} h0 (Ritter 4/9 = {4 / 9:.3f}); at t = {RITTER_TIME} s "
+        f"the surface in the rarefaction fan is off by {100 * np.abs(surface - exact)[fan].mean() / RITTER_H0:.1f} % "
+        f"of h0 on average"
+    )
     if args.plot:
         import matplotlib
 

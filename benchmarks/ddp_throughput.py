@@ -43,12 +43,17 @@ def write_recipe(folder: Path, dataset: Path, args: argparse.Namespace, device: 
         "name": "throughput",
         "dataset": {"path": str(dataset)},
         "model": {
-            "latent_size": args.latent, "mlp_hidden_size": args.latent,
+            "latent_size": args.latent,
+            "mlp_hidden_size": args.latent,
             "processor": {"name": "interaction_network", "message_passing_steps": args.message_passing_steps},
         },
         "training": {
-            "steps": args.steps, "batch_size": args.batch_size, "log_every": args.log_every,
-            "validate_every": 10 * args.steps, "checkpoint_every": 10 * args.steps, "device": device,
+            "steps": args.steps,
+            "batch_size": args.batch_size,
+            "log_every": args.log_every,
+            "validate_every": 10 * args.steps,
+            "checkpoint_every": 10 * args.steps,
+            "device": device,
         },
     }
     path = folder / f"recipe-{device}.yaml"
@@ -59,9 +64,27 @@ def write_recipe(folder: Path, dataset: Path, args: argparse.Namespace, device: 
 def measure(recipe: Path, processes: int, threads: int, run_dir: Path) -> tuple[float, float]:
     """Median steps/s and particles/s over the logged windows after the first (warm-up)."""
     command = [
-        sys.executable, "-m", "torch.distributed.run", "--nnodes", "1", "--nproc-per-node", str(processes),
-        "--master-addr", "127.0.0.1", "--master-port", str(free_port()), "--local-addr", "127.0.0.1",
-        "-m", "gns_framework.cli", "train", str(recipe), "--out", str(run_dir), "--no-tracking", "--no-progress",
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--nnodes",
+        "1",
+        "--nproc-per-node",
+        str(processes),
+        "--master-addr",
+        "127.0.0.1",
+        "--master-port",
+        str(free_port()),
+        "--local-addr",
+        "127.0.0.1",
+        "-m",
+        "gns_framework.cli",
+        "train",
+        str(recipe),
+        "--out",
+        str(run_dir),
+        "--no-tracking",
+        "--no-progress",
     ]
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), PYTHONPATH=str(ROOT))
     subprocess.run(command, env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -96,14 +119,16 @@ def main() -> int:
 
     print(
         f"gns train throughput: latent {args.latent}, {args.message_passing_steps} message-passing steps, "
-        f"{args.block ** 2} particles per window, {args.batch_size} windows per process; "
+        f"{args.block**2} particles per window, {args.batch_size} windows per process; "
         f"{cores} CPU cores, {gpus} GPUs{'' if gpus else ' (no GPU available: CPU rows only)'}"
     )
     print(f"{'device':<7}{'processes':>10}{'threads':>9}{'steps/s':>10}{'particles/s':>13}{'scaling':>9}")
     base = {}
     for device, processes, threads, steps, particles in rows:
         base.setdefault(device, particles)
-        print(f"{device:<7}{processes:>10}{threads:>9}{steps:>10.2f}{particles:>13.0f}{particles / base[device]:>8.2f}x")
+        print(
+            f"{device:<7}{processes:>10}{threads:>9}{steps:>10.2f}{particles:>13.0f}{particles / base[device]:>8.2f}x"
+        )
     return 0
 
 

@@ -72,8 +72,17 @@ def evaluate(model_path: Path, data: Path, registry, device, gif: Path | None = 
         for line in outside_envelope(model.envelope, data_set.metadata(), cases, scene.history, scene.kinematic_types):
             print(f"{data}: outside the model's envelope: {line}", file=sys.stderr)
     with tempfile.TemporaryDirectory() as rollouts:
-        report = compare([("learned", model)], cases, data_set.metadata(), registry, device,
-                         grid_scales=(0.5,), repeats=1, warmup=0, rollout_dir=Path(rollouts) if gif else None)
+        report = compare(
+            [("learned", model)],
+            cases,
+            data_set.metadata(),
+            registry,
+            device,
+            grid_scales=(0.5,),
+            repeats=1,
+            warmup=0,
+            rollout_dir=Path(rollouts) if gif else None,
+        )
         if gif is not None:
             from gns_framework.io.rollout_file import load_rollout
             from gns_framework.viz.animation import animate_rollout
@@ -94,7 +103,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization", help="datasets are kept here")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--json", action="store_true", help="also print the per-scene figures as one JSON line")
-    parser.add_argument("--gifs", type=Path, metavar="DIR", help="draw each canonical scene's rollout beside the MPM's as DIR/<scene>.gif")
+    parser.add_argument(
+        "--gifs",
+        type=Path,
+        metavar="DIR",
+        help="draw each canonical scene's rollout beside the MPM's as DIR/<scene>.gif",
+    )
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
 
@@ -104,7 +118,9 @@ def main(argv: list[str] | None = None) -> int:
     device = torch.device("cpu")
     groups = {}
     if args.held_out:
-        data = dataset(ROOT / "scenes" / "sand_general_2d.yaml", args.out / "held_out", args.held_out, args.seed, registry)
+        data = dataset(
+            ROOT / "scenes" / "sand_general_2d.yaml", args.out / "held_out", args.held_out, args.seed, registry
+        )
         groups["held-out"] = evaluate(args.model, data, registry, device)
     canonical = {}
     for scene_path in sorted((ROOT / "scenes" / "canonical").glob("*.yaml")):
@@ -114,7 +130,9 @@ def main(argv: list[str] | None = None) -> int:
         canonical[scene_path.stem] = case
     groups["canonical"] = canonical
 
-    header = f"{'group':<10} {'scene':<26} " + " ".join(f"{m.replace('_error_pct', '').replace('_final_pct', ''):>9}" for m in MEASURES)
+    header = f"{'group':<10} {'scene':<26} " + " ".join(
+        f"{m.replace('_error_pct', '').replace('_final_pct', ''):>9}" for m in MEASURES
+    )
     print(f"{args.model}: errors against the MPM at the data's grid, % (sinkhorn: % of the largest domain side)")
     print(header + f" {'mpm/2 sinkhorn':>15}")
     rows = []
@@ -124,8 +142,14 @@ def main(argv: list[str] | None = None) -> int:
             values = [learned.get(m) for m in MEASURES]
             cells = " ".join(f"{v:>9.2f}" if v is not None else f"{'-':>9}" for v in values)
             print(f"{group:<10} {key:<26} {cells} {half.get('sinkhorn_final_pct') or float('nan'):>15.2f}")
-            rows.append({"group": group, "scene": key, **{m: learned.get(m) for m in MEASURES},
-                         "mpm_half_sinkhorn_final_pct": half.get("sinkhorn_final_pct")})
+            rows.append(
+                {
+                    "group": group,
+                    "scene": key,
+                    **{m: learned.get(m) for m in MEASURES},
+                    "mpm_half_sinkhorn_final_pct": half.get("sinkhorn_final_pct"),
+                }
+            )
     print()
     verdicts = []
     for group in groups:
@@ -135,8 +159,10 @@ def main(argv: list[str] | None = None) -> int:
             median, worst = statistics.median(values), max(values)
             ok = median <= GOAL["median"] and worst <= GOAL["worst"]
             verdicts.append(ok)
-            print(f"{group:<10} {measure:<18} median {median:6.2f} %  worst {worst:6.2f} %  "
-                  f"goal <= {GOAL['median']:g} / {GOAL['worst']:g} %: {'met' if ok else 'NOT met'}")
+            print(
+                f"{group:<10} {measure:<18} median {median:6.2f} %  worst {worst:6.2f} %  "
+                f"goal <= {GOAL['median']:g} / {GOAL['worst']:g} %: {'met' if ok else 'NOT met'}"
+            )
         below = sum(r["sinkhorn_final_pct"] < r["mpm_half_sinkhorn_final_pct"] for r in chosen)
         verdicts.append(below == len(chosen))
         print(f"{group:<10} sinkhorn below the half-resolution MPM on {below} of {len(chosen)} scenes")

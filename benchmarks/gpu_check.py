@@ -54,10 +54,15 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 sys.path.insert(0, str(REPO / "tests"))
 
 CPU_BYTES_PER_EDGE = {
-    ("rollout", "float32", "stored"): 2123, ("rollout", "tf32", "stored"): 2123, ("rollout", "bfloat16", "stored"): 1515,
-    ("train", "float32", "stored"): 24108, ("train", "tf32", "stored"): 24108,
-    ("train", "float32", "recompute"): 7713, ("train", "tf32", "recompute"): 7713,
-    ("train", "bfloat16", "stored"): 15735, ("train", "bfloat16", "recompute"): 5016,
+    ("rollout", "float32", "stored"): 2123,
+    ("rollout", "tf32", "stored"): 2123,
+    ("rollout", "bfloat16", "stored"): 1515,
+    ("train", "float32", "stored"): 24108,
+    ("train", "tf32", "stored"): 24108,
+    ("train", "float32", "recompute"): 7713,
+    ("train", "tf32", "recompute"): 7713,
+    ("train", "bfloat16", "stored"): 15735,
+    ("train", "bfloat16", "recompute"): 5016,
 }
 """Peak bytes per edge measured on the CPU (docs/performance.md, benchmarks/memory_per_edge.py)."""
 RESERVED_GIB = 4.0
@@ -113,15 +118,30 @@ def imports(args) -> None:
     distribution = importlib.metadata.distribution("gns-framework")
     entries = registry.entries()
     builtins = [e for e in entries if e.distribution == "gns-framework" and e.plugin.startswith("builtin-")]
-    emit("imports", torch=torch.__version__, torch_s=torch_s, gns_s=project_s, components=len(entries),
-         builtins=len(builtins), kinds=len(registry.kinds()), gns_framework=Path(gns_framework.__file__).parent,
-         dist_info=Path(str(distribution.locate_file(""))))
-    required = {"processor": "interaction_network", "graph_builder": "radius", "dataset": "safe",
-                "integrator": "semi_implicit_euler", "simulator": "mls_mpm"}
+    emit(
+        "imports",
+        torch=torch.__version__,
+        torch_s=torch_s,
+        gns_s=project_s,
+        components=len(entries),
+        builtins=len(builtins),
+        kinds=len(registry.kinds()),
+        gns_framework=Path(gns_framework.__file__).parent,
+        dist_info=Path(str(distribution.locate_file(""))),
+    )
+    required = {
+        "processor": "interaction_network",
+        "graph_builder": "radius",
+        "dataset": "safe",
+        "integrator": "semi_implicit_euler",
+        "simulator": "mls_mpm",
+    }
     missing = [f"{kind}:{name}" for kind, name in required.items() if name not in registry.names(kind)]
     if missing:
-        raise SystemExit(f"gpu_check: the registry lacks the built-ins {missing}: gns-framework's entry points are "
-                         "not installed (gpu_check.sh installs them from gpu_wheels/)")
+        raise SystemExit(
+            f"gpu_check: the registry lacks the built-ins {missing}: gns-framework's entry points are "
+            "not installed (gpu_check.sh installs them from gpu_wheels/)"
+        )
     import subprocess
 
     listed = subprocess.run([sys.executable, "-m", "gns_framework.cli", "plugins"], capture_output=True, text=True)
@@ -138,12 +158,24 @@ def info(args) -> None:
         if not torch.cuda.is_available():
             raise SystemExit("gpu_check: --device cuda but torch sees no GPU")
         props = torch.cuda.get_device_properties(device)
-        emit("device", name=props.name.replace(" ", "_"), count=torch.cuda.device_count(),
-             memory_gb=props.total_memory / 2**30, capability=f"{props.major}.{props.minor}",
-             torch=torch.__version__, cuda=torch.version.cuda, python=sys.version.split()[0])
+        emit(
+            "device",
+            name=props.name.replace(" ", "_"),
+            count=torch.cuda.device_count(),
+            memory_gb=props.total_memory / 2**30,
+            capability=f"{props.major}.{props.minor}",
+            torch=torch.__version__,
+            cuda=torch.version.cuda,
+            python=sys.version.split()[0],
+        )
     else:
-        emit("device", name="cpu", threads=torch.get_num_threads(), torch=torch.__version__,
-             python=sys.version.split()[0])
+        emit(
+            "device",
+            name="cpu",
+            threads=torch.get_num_threads(),
+            torch=torch.__version__,
+            python=sys.version.split()[0],
+        )
     for module in ("pydantic", "warp", "mlflow", "geomloss", "torch_geometric", "pytest"):
         spec = importlib.util.find_spec(module)
         emit("module", name=module, present=spec is not None)
@@ -193,14 +225,21 @@ def ddp(args) -> None:
         started = time.perf_counter()
         if is_cuda(device):
             torch.cuda.set_device(device)
-        dist.init_process_group(backend=backend, store=store, rank=0, world_size=1, timeout=timeout,
-                                device_id=device if is_cuda(device) else None)
+        dist.init_process_group(
+            backend=backend,
+            store=store,
+            rank=0,
+            world_size=1,
+            timeout=timeout,
+            device_id=device if is_cuda(device) else None,
+        )
         try:
             group_s = time.perf_counter() - started
             torch.manual_seed(0)
             model = torch.nn.Sequential(torch.nn.Linear(64, 128), torch.nn.ReLU(), torch.nn.Linear(128, 3)).to(device)
             wrapped = torch.nn.parallel.DistributedDataParallel(
-                model, device_ids=[device.index] if is_cuda(device) else None)
+                model, device_ids=[device.index] if is_cuda(device) else None
+            )
             optimizer = torch.optim.Adam(wrapped.parameters(), lr=1e-3)
             inputs = torch.randn(4096, 64, device=device)
             seconds = []
@@ -219,9 +258,16 @@ def ddp(args) -> None:
             dist.broadcast_object_list(box, src=0)
             dist.barrier()
             ok = bool(total.eq(1).all()) and box == [{"rank": 0}] and bool(torch.isfinite(loss))
-            emit("ddp", ranks=dist.get_world_size(), backend=dist.get_backend(), group_s=group_s,
-                 timeout_s=timeout.total_seconds(), steps=args.steps, step_ms=1e3 * statistics.median(seconds),
-                 collectives="ok" if ok else "wrong")
+            emit(
+                "ddp",
+                ranks=dist.get_world_size(),
+                backend=dist.get_backend(),
+                group_s=group_s,
+                timeout_s=timeout.total_seconds(),
+                steps=args.steps,
+                step_ms=1e3 * statistics.median(seconds),
+                collectives="ok" if ok else "wrong",
+            )
             if not ok:
                 raise SystemExit("gpu_check: a collective of the one-rank group gave a wrong result")
         finally:
@@ -271,9 +317,11 @@ def sums(args) -> None:
         sorted_keys, sorted_rows = keys[order], rows[order]
         # index_add: the atomic path (training.deterministic: false); ordered: the deterministic CSR segment
         # sum of any keys (a stable sort first, as the senders need); ordered_sorted: of receiver-sorted keys.
-        paths = {"index_add": lambda: out.zero_().index_add_(0, keys, rows),
-                 "ordered": lambda: segment_sum.segment_sum_(out.zero_(), keys, rows),
-                 "ordered_sorted": lambda: segment_sum.sorted_segment_sum_(out.zero_(), sorted_keys, sorted_rows)}
+        paths = {
+            "index_add": lambda: out.zero_().index_add_(0, keys, rows),
+            "ordered": lambda: segment_sum.segment_sum_(out.zero_(), keys, rows),
+            "ordered_sorted": lambda: segment_sum.sorted_segment_sum_(out.zero_(), sorted_keys, sorted_rows),
+        }
         reference = paths["index_add"]().clone()
         for name, function in paths.items():
             label = dict(path=name, rows=rows_n, nodes=nodes, features=args.features)
@@ -284,8 +332,15 @@ def sums(args) -> None:
             seconds, repeats = _median_seconds(function, device, args.repeat, deadline)
             estimates[name] = seconds / rows_n
             error = float((function() - reference).abs().max() / reference.abs().max().clamp(min=1e-30))
-            emit("sums", **label, status="ok", repeats=repeats, ms=1e3 * seconds, gb_s=moved / seconds / 1e9,
-                 max_rel_diff_vs_index_add=error)
+            emit(
+                "sums",
+                **label,
+                status="ok",
+                repeats=repeats,
+                ms=1e3 * seconds,
+                gb_s=moved / seconds / 1e9,
+                max_rel_diff_vs_index_add=error,
+            )
 
 
 estimates: dict[str, float] = {}
@@ -358,7 +413,10 @@ class _Case:
         if phase == "train":
             self.optimizer, self.scheduler = make_optimizer(self.simulator.parameters(), OptimizerSpec(), total_steps=1)
             generator = torch.Generator().manual_seed(0)
-            self.noise = lambda: random_walk_noise(scene.batch.position_sequence, 6.7e-4, generator).to(device) * self.mask[:, None, None]
+            self.noise = lambda: (
+                random_walk_noise(scene.batch.position_sequence, 6.7e-4, generator).to(device)
+                * self.mask[:, None, None]
+            )
         self.inference = torch.inference_mode
 
     def edges(self) -> int:
@@ -418,7 +476,11 @@ def _cases(particles: int, precisions: list[str], large: bool) -> list[tuple[str
         rest = [(p, "rollout", "stored") for p in ("bfloat16", *[p for p in precisions if p != "bfloat16"])]
         rest += [(p, "train", m) for p in precisions for m in ("recompute", "stored") if (p, "train", m) != first[0]]
         return first + rest
-    return [(p, phase, m) for p in precisions for phase, m in (("rollout", "stored"), ("train", "stored"), ("train", "recompute"))]
+    return [
+        (p, phase, m)
+        for p in precisions
+        for phase, m in (("rollout", "stored"), ("train", "stored"), ("train", "recompute"))
+    ]
 
 
 def scale(args) -> None:
@@ -455,8 +517,14 @@ def scale(args) -> None:
             if total is not None and edges is not None:
                 predicted = edges * cpu_bytes + RESERVED_GIB * 2**30
                 if predicted > total:
-                    emit("step", **label, status="predicted_oom", edges=edges, predicted_gb=predicted / 2**30,
-                         memory_gb=total / 2**30)
+                    emit(
+                        "step",
+                        **label,
+                        status="predicted_oom",
+                        edges=edges,
+                        predicted_gb=predicted / 2**30,
+                        memory_gb=total / 2**30,
+                    )
                     continue
             case = None
             try:
@@ -468,8 +536,14 @@ def scale(args) -> None:
                 base = peak_bytes(device)
                 edges = case.edges()
                 if total is not None and edges * cpu_bytes + RESERVED_GIB * 2**30 > total:
-                    emit("step", **label, status="predicted_oom", edges=edges,
-                         predicted_gb=(edges * cpu_bytes + RESERVED_GIB * 2**30) / 2**30, memory_gb=total / 2**30)
+                    emit(
+                        "step",
+                        **label,
+                        status="predicted_oom",
+                        edges=edges,
+                        predicted_gb=(edges * cpu_bytes + RESERVED_GIB * 2**30) / 2**30,
+                        memory_gb=total / 2**30,
+                    )
                     continue
                 started = time.perf_counter()
                 case.step()  # warm-up
@@ -486,11 +560,16 @@ def scale(args) -> None:
                     synchronize(device)
                     seconds.append(time.perf_counter() - started)
                 peak = peak_bytes(device)
-                figures = {"status": "ok", "edges": edges, "repeats": len(seconds),
-                           "step_s": statistics.median(seconds) if seconds else warmup_s, "warmup_s": warmup_s,
-                           "peak_gb": peak / 2**30,
-                           "bytes_per_edge": (peak - base) / max(edges, 1) if is_cuda(device) else "n/a",
-                           "cpu_table_bytes_per_edge": cpu_bytes}
+                figures = {
+                    "status": "ok",
+                    "edges": edges,
+                    "repeats": len(seconds),
+                    "step_s": statistics.median(seconds) if seconds else warmup_s,
+                    "warmup_s": warmup_s,
+                    "peak_gb": peak / 2**30,
+                    "bytes_per_edge": (peak - base) / max(edges, 1) if is_cuda(device) else "n/a",
+                    "cpu_table_bytes_per_edge": cpu_bytes,
+                }
                 if not seconds:
                     figures["status"] = "warmup_only"  # the deadline came before a timed step would fit
                 emit("step", **label, **figures)
@@ -513,9 +592,17 @@ def scale(args) -> None:
                     torch.cuda.empty_cache()
     if best_fit is not None and total is not None and best_fit["bytes_per_edge"] != "n/a":
         per_particle = best_fit["edges"] / best_fit["particles"] * max(best_fit["bytes_per_edge"], 1.0)
-        emit("largest", precision="bfloat16", memory="recompute", phase="train",
-             particles_est=int((total - RESERVED_GIB * 2**30) / per_particle), from_particles=best_fit["particles"],
-             bytes_per_edge=best_fit["bytes_per_edge"], memory_gb=total / 2**30, method="linear_in_edges")
+        emit(
+            "largest",
+            precision="bfloat16",
+            memory="recompute",
+            phase="train",
+            particles_est=int((total - RESERVED_GIB * 2**30) / per_particle),
+            from_particles=best_fit["particles"],
+            bytes_per_edge=best_fit["bytes_per_edge"],
+            memory_gb=total / 2**30,
+            method="linear_in_edges",
+        )
 
 
 def chunks(args) -> None:
@@ -556,9 +643,18 @@ def chunks(args) -> None:
     loss_rel = abs(a_loss - b_loss) / max(abs(b_loss), 1e-30)
     grad_rel = float(torch.linalg.norm(a_grads - b_grads) / torch.linalg.norm(b_grads).clamp(min=1e-30))
     ok = loss_rel <= 1e-4 and grad_rel <= 1e-3
-    emit("chunks", compared=f"{device.type}_chunked_vs_cpu", particles=args.particles, edges=edges,
-         chunks=-(-edges // a_chunk), chunk_rows=a_chunk, cpu_chunk_rows=b_chunk, loss_rel_diff=loss_rel,
-         grad_rel_diff=grad_rel, status="ok" if ok else "differ")
+    emit(
+        "chunks",
+        compared=f"{device.type}_chunked_vs_cpu",
+        particles=args.particles,
+        edges=edges,
+        chunks=-(-edges // a_chunk),
+        chunk_rows=a_chunk,
+        cpu_chunk_rows=b_chunk,
+        loss_rel_diff=loss_rel,
+        grad_rel_diff=grad_rel,
+        status="ok" if ok else "differ",
+    )
     if not ok:
         raise SystemExit("gpu_check: the chunked training step differs from the CPU's")
 
@@ -588,8 +684,14 @@ def mpm(args) -> None:
     trajectory = simulator.simulate(scene, seed=0)
     seconds = time.perf_counter() - started
     finite = bool(torch.isfinite(torch.from_numpy(trajectory.position)).all())
-    emit("mpm", particles=trajectory.num_particles, frames=args.frames, substeps=scene.time.substeps,
-         s_per_frame=seconds / args.frames, finite=finite)
+    emit(
+        "mpm",
+        particles=trajectory.num_particles,
+        frames=args.frames,
+        substeps=scene.time.substeps,
+        s_per_frame=seconds / args.frames,
+        finite=finite,
+    )
     if not finite:
         raise SystemExit("gpu_check: the MPM produced non-finite positions")
 
@@ -622,16 +724,30 @@ def main() -> None:
 
     sub.choices["scale"].add_argument("--precisions", nargs="+", choices=PRECISIONS, default=list(PRECISIONS))
     sub.choices["scale"].add_argument("--repeat", type=int, default=5)
-    sub.choices["scale"].add_argument("--large", type=int, default=500_000,
-                                      help="from this size on, bfloat16 + recompute training runs first")
-    sub.choices["scale"].add_argument("--budget-s", type=float, default=1e9,
-                                      help="seconds for the whole part (also bounded by GPU_CHECK_PART_LIMIT_S)")
+    sub.choices["scale"].add_argument(
+        "--large", type=int, default=500_000, help="from this size on, bfloat16 + recompute training runs first"
+    )
+    sub.choices["scale"].add_argument(
+        "--budget-s",
+        type=float,
+        default=1e9,
+        help="seconds for the whole part (also bounded by GPU_CHECK_PART_LIMIT_S)",
+    )
     sub.choices["mpm"].add_argument("--frames", type=int, default=10)
     sub.choices["mpm"].add_argument("--grid", type=int, default=96, help="grid cells along the box (24: 768 particles)")
     sub.add_parser("data").add_argument("out")
     args = parser.parse_args()
-    {"imports": imports, "info": info, "tests": tests, "ddp": ddp, "sums": sums, "chunks": chunks,
-     "scale": scale, "mpm": mpm, "data": data}[args.command](args)
+    {
+        "imports": imports,
+        "info": info,
+        "tests": tests,
+        "ddp": ddp,
+        "sums": sums,
+        "chunks": chunks,
+        "scale": scale,
+        "mpm": mpm,
+        "data": data,
+    }[args.command](args)
 
 
 if __name__ == "__main__":

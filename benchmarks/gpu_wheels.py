@@ -55,8 +55,13 @@ except ImportError:  # an interpreter without packaging still has pip's copy
 REPO = Path(__file__).resolve().parents[1]
 PROJECT = "gns-framework"
 DEVICE_PYTHON = "3.12"
-DEVICE_PLATFORMS = ("manylinux_2_28_x86_64", "manylinux_2_27_x86_64", "manylinux_2_17_x86_64",
-                    "manylinux2014_x86_64", "manylinux1_x86_64")
+DEVICE_PLATFORMS = (
+    "manylinux_2_28_x86_64",
+    "manylinux_2_27_x86_64",
+    "manylinux_2_17_x86_64",
+    "manylinux2014_x86_64",
+    "manylinux1_x86_64",
+)
 """The ``pip download --platform`` flags of the device tool's README for its GPU machine."""
 CHECK_EXTRAS = ("eval",)
 """Extras whose requirements the check needs besides the project's own: geomloss (the
@@ -70,8 +75,24 @@ OPTIONAL = {
 """Requirements the check runs without: the parts that need them report ``skipped``."""
 NEVER_CARRIED = {"torch"}
 """The machine's own torch is used: a carried one would be GBs and the wrong CUDA build."""
-DEVICE_HAS = {"numpy", "pluggy", "pyyaml", "tqdm", "scipy", "h5py", "matplotlib", "packaging", "pytest",
-              "hypothesis", "torch-geometric", "filelock", "jinja2", "sympy", "networkx", "fsspec"}
+DEVICE_HAS = {
+    "numpy",
+    "pluggy",
+    "pyyaml",
+    "tqdm",
+    "scipy",
+    "h5py",
+    "matplotlib",
+    "packaging",
+    "pytest",
+    "hypothesis",
+    "torch-geometric",
+    "filelock",
+    "jinja2",
+    "sympy",
+    "networkx",
+    "fsspec",
+}
 """Installed on the lent machine's image (device tool, KINDS.md, read 2026-11-17) and large: not
 carried. A version there that does not satisfy a requirement is reported by ``install``."""
 MiB = 2**20
@@ -99,10 +120,18 @@ def wheel_metadata(path: Path):
 def marker_environment(python: str) -> dict[str, str]:
     """PEP 508 marker values of CPython ``python`` on x86-64 Linux (the device, or the local one)."""
     major, minor = python.split(".")[:2]
-    return {"python_version": f"{major}.{minor}", "python_full_version": f"{major}.{minor}.0",
-            "implementation_name": "cpython", "platform_python_implementation": "CPython",
-            "sys_platform": "linux", "platform_system": "Linux", "platform_machine": "x86_64",
-            "os_name": "posix", "implementation_version": f"{major}.{minor}.0", "extra": ""}
+    return {
+        "python_version": f"{major}.{minor}",
+        "python_full_version": f"{major}.{minor}.0",
+        "implementation_name": "cpython",
+        "platform_python_implementation": "CPython",
+        "sys_platform": "linux",
+        "platform_system": "Linux",
+        "platform_machine": "x86_64",
+        "os_name": "posix",
+        "implementation_version": f"{major}.{minor}.0",
+        "extra": "",
+    }
 
 
 def applies(requirement: Requirement, environment: dict[str, str], extras: tuple[str, ...] = ()) -> bool:
@@ -136,10 +165,25 @@ def python_tag(python: str) -> str:
 def _pip_download(spec: str, python: str, folder: Path) -> Path:
     """One wheel of ``spec`` for CPython ``python`` on manylinux x86_64 (no dependencies), its path."""
     before = set(folder.iterdir())
-    command = [sys.executable, "-m", "pip", "download", "-q", "--no-deps", "--only-binary=:all:",
-               "--python-version", python, "--implementation", "cp", "--abi", python_tag(python),
-               *[flag for platform in DEVICE_PLATFORMS for flag in ("--platform", platform)],
-               "-d", str(folder), spec]
+    command = [
+        sys.executable,
+        "-m",
+        "pip",
+        "download",
+        "-q",
+        "--no-deps",
+        "--only-binary=:all:",
+        "--python-version",
+        python,
+        "--implementation",
+        "cp",
+        "--abi",
+        python_tag(python),
+        *[flag for platform in DEVICE_PLATFORMS for flag in ("--platform", platform)],
+        "-d",
+        str(folder),
+        spec,
+    ]
     _run(command)
     new = set(folder.iterdir()) - before
     name = normalize(Requirement(spec).name)
@@ -225,18 +269,27 @@ def prepare(out: Path, pythons: list[str], limit_mib: float) -> int:
             queue.extend(requirements_of(wheel_metadata(wheel), environment))
         carried[python_tag(python)] = sorted(p.name for p in folder.iterdir())
     shutil.rmtree(staging)
-    manifest = {"pyproject_sha256": _pyproject_sha256(), "made": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-                "pythons": pythons, "wheels": carried}
+    manifest = {
+        "pyproject_sha256": _pyproject_sha256(),
+        "made": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "pythons": pythons,
+        "wheels": carried,
+    }
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
     size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
     travel = size + _working_tree_bytes(out)
     for tag, names in carried.items():
         print(f"gpu_check: prepare python={tag} wheels={len(names)} names={','.join(names)}")
-    print(f"gpu_check: prepare folder={out} size_mib={size / MiB:.2f} travel_mib={travel / MiB:.2f} "
-          f"limit_mib={limit_mib:g} seconds={time.perf_counter() - started:.1f}")
+    print(
+        f"gpu_check: prepare folder={out} size_mib={size / MiB:.2f} travel_mib={travel / MiB:.2f} "
+        f"limit_mib={limit_mib:g} seconds={time.perf_counter() - started:.1f}"
+    )
     if size > limit_mib * MiB or travel > limit_mib * MiB:
-        print(f"gpu_wheels: {out} ({size / MiB:.1f} MiB) with the working tree ({travel / MiB:.1f} MiB) is over "
-              f"the {limit_mib:g} MiB that travels to the device", file=sys.stderr)
+        print(
+            f"gpu_wheels: {out} ({size / MiB:.1f} MiB) with the working tree ({travel / MiB:.1f} MiB) is over "
+            f"the {limit_mib:g} MiB that travels to the device",
+            file=sys.stderr,
+        )
         return 1
     return 0
 
@@ -247,16 +300,21 @@ def _pyproject_sha256() -> str:
 
 def _working_tree_files() -> list[str]:
     """Paths (relative) of what travels with the working tree: tracked and untracked-not-ignored files."""
-    listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
-                            cwd=REPO, capture_output=True, check=True).stdout
+    listed = subprocess.run(
+        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+        cwd=REPO,
+        capture_output=True,
+        check=True,
+    ).stdout
     return [name for name in listed.decode().split("\0") if name and (REPO / name).is_file()]
 
 
 def _working_tree_bytes(exclude: Path) -> int:
     """Bytes of what travels with the working tree, less ``exclude``."""
     exclude = exclude.resolve()
-    return sum((REPO / name).stat().st_size for name in _working_tree_files()
-               if exclude not in (REPO / name).resolve().parents)
+    return sum(
+        (REPO / name).stat().st_size for name in _working_tree_files() if exclude not in (REPO / name).resolve().parents
+    )
 
 
 # --------------------------------------------------------------------------- install
@@ -333,18 +391,27 @@ def install(wheels: Path, target: Path) -> int:
     folder = wheels / tag
     if not folder.is_dir() and _already_complete():
         # The project's own environment (its .venv, CI): nothing to carry, nothing to install.
-        print(f"gpu_check: install python={tag} installed=none target=none missing_optional=none "
-              f"seconds={time.perf_counter() - started:.2f} already=gns-framework_and_its_requirements", flush=True)
+        print(
+            f"gpu_check: install python={tag} installed=none target=none missing_optional=none "
+            f"seconds={time.perf_counter() - started:.2f} already=gns-framework_and_its_requirements",
+            flush=True,
+        )
         return 0
     if not folder.is_dir():
         made = sorted(p.name for p in wheels.iterdir() if p.is_dir()) if wheels.is_dir() else []
-        print(f"gpu_wheels: no wheels for Python {sys.version.split()[0]} in {folder} (made for: "
-              f"{', '.join(made) or 'nothing'}): run benchmarks/gpu_check.sh --prepare", file=sys.stderr)
+        print(
+            f"gpu_wheels: no wheels for Python {sys.version.split()[0]} in {folder} (made for: "
+            f"{', '.join(made) or 'nothing'}): run benchmarks/gpu_check.sh --prepare",
+            file=sys.stderr,
+        )
         return 1
     manifest = wheels / "manifest.json"
     if manifest.is_file() and json.loads(manifest.read_text()).get("pyproject_sha256") != _pyproject_sha256():
-        print("gpu_check: install warning=pyproject.toml_changed_since_prepare (entry points may be stale: "
-              "run gpu_check.sh --prepare again)", flush=True)
+        print(
+            "gpu_check: install warning=pyproject.toml_changed_since_prepare (entry points may be stale: "
+            "run gpu_check.sh --prepare again)",
+            flush=True,
+        )
     chosen, missing_optional, problems = plan(folder)
     for problem in problems:
         print(f"gpu_wheels: {problem}", file=sys.stderr)
@@ -352,13 +419,32 @@ def install(wheels: Path, target: Path) -> int:
         return 1
     if chosen:
         target.mkdir(parents=True, exist_ok=True)
-        subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-index", "--no-deps", "--no-compile",
-                        "--no-cache-dir", "--disable-pip-version-check", "--upgrade", "--target", str(target),
-                        *map(str, chosen)], check=True)
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "pip",
+                "install",
+                "-q",
+                "--no-index",
+                "--no-deps",
+                "--no-compile",
+                "--no-cache-dir",
+                "--disable-pip-version-check",
+                "--upgrade",
+                "--target",
+                str(target),
+                *map(str, chosen),
+            ],
+            check=True,
+        )
     names = ",".join(sorted(wheel_name_version(p)[0] + "==" + wheel_name_version(p)[1] for p in chosen)) or "none"
-    print(f"gpu_check: install python={tag} installed={names} target={target} "
-          f"missing_optional={','.join(sorted(missing_optional)) or 'none'} "
-          f"seconds={time.perf_counter() - started:.2f}", flush=True)
+    print(
+        f"gpu_check: install python={tag} installed={names} target={target} "
+        f"missing_optional={','.join(sorted(missing_optional)) or 'none'} "
+        f"seconds={time.perf_counter() - started:.2f}",
+        flush=True,
+    )
     for name, why in sorted(missing_optional.items()):
         print(f"gpu_check: install optional={name} skipped: {why}", flush=True)
     return 0
@@ -369,15 +455,21 @@ def main() -> None:
     sub = parser.add_subparsers(dest="command", required=True)
     made = sub.add_parser("prepare")
     made.add_argument("--out", type=Path, default=REPO / "gpu_wheels")
-    made.add_argument("--python", action="append", default=[],
-                      help=f"also for this CPython (X.Y); {DEVICE_PYTHON} (the device) always")
+    made.add_argument(
+        "--python",
+        action="append",
+        default=[],
+        help=f"also for this CPython (X.Y); {DEVICE_PYTHON} (the device) always",
+    )
     made.add_argument("--limit-mib", type=float, default=64.0)
     put = sub.add_parser("install")
     put.add_argument("--wheels", type=Path, default=REPO / "gpu_wheels")
     put.add_argument("--target", type=Path, required=True)
     args = parser.parse_args()
     if args.command == "prepare":
-        sys.exit(prepare(args.out, args.python or [f"{sys.version_info.major}.{sys.version_info.minor}"], args.limit_mib))
+        sys.exit(
+            prepare(args.out, args.python or [f"{sys.version_info.major}.{sys.version_info.minor}"], args.limit_mib)
+        )
     sys.exit(install(args.wheels, args.target))
 
 

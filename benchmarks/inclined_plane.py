@@ -73,8 +73,13 @@ def block_on_plane(angle: float, friction: float, dim: int = 2) -> dict:
             }
         ],
         "obstacles": [
-            {"material": "rigid", "shape": "plane", "position": [*point, 0.05][:dim], "angle": angle,
-             "friction": friction}
+            {
+                "material": "rigid",
+                "shape": "plane",
+                "position": [*point, 0.05][:dim],
+                "angle": angle,
+                "friction": friction,
+            }
         ],
     }
 
@@ -116,8 +121,10 @@ def main() -> None:
     if first_slide is None:
         print("no angle in the range slides")
     else:
-        print(f"measured threshold: between {first_slide - 1:g} and {first_slide:g} deg "
-              f"(analytical {analytical:.2f} deg; midpoint off by {first_slide - 0.5 - analytical:+.1f} deg)")
+        print(
+            f"measured threshold: between {first_slide - 1:g} and {first_slide:g} deg "
+            f"(analytical {analytical:.2f} deg; midpoint off by {first_slide - 0.5 - analytical:+.1f} deg)"
+        )
 
 
 if __name__ == "__main__":

@@ -97,13 +97,20 @@ def invert_case(args, index: int, registry) -> dict:
     inversion = prepare(config, unknowns, "benchmark", registry)
     result = solve(inversion)
     value = result.unknowns[args.unknown]
-    return {"key": inversion.trajectory.key, "recovered": value if isinstance(value, list) else [value],
-            "seconds": result.seconds, "loss": result.loss, "iterations": result.iterations, "inversion": inversion,
-            "result": result}
+    return {
+        "key": inversion.trajectory.key,
+        "recovered": value if isinstance(value, list) else [value],
+        "seconds": result.seconds,
+        "loss": result.loss,
+        "iterations": result.iterations,
+        "inversion": inversion,
+        "result": result,
+    }
 
 
-def golden_section_mpm(scene, simulator, key: str, observed: np.ndarray, stride: int, truth: float, target: float,
-                       bounds: list[float]) -> dict:
+def golden_section_mpm(
+    scene, simulator, key: str, observed: np.ndarray, stride: int, truth: float, target: float, bounds: list[float]
+) -> dict:
     """Golden-section search of block 0's friction by MPM runs, until within ``target`` relative error of the truth."""
     from gns_framework.ground_truth.scene_spec import Range
 
@@ -113,8 +120,9 @@ def golden_section_mpm(scene, simulator, key: str, observed: np.ndarray, stride:
     def misfit(friction: float) -> float:
         nonlocal evaluations
         evaluations += 1
-        block = scene.blocks[0].model_copy(update={"properties": {**scene.blocks[0].properties,
-                                                                   "friction": Range(range=(friction, friction))}})
+        block = scene.blocks[0].model_copy(
+            update={"properties": {**scene.blocks[0].properties, "friction": Range(range=(friction, friction))}}
+        )
         variant = scene.model_copy(update={"blocks": [block, *scene.blocks[1:]]})
         final = simulator.simulate(variant, seed).position[::stride][len(observed) - 1]
         return float(((final - observed[-1]) ** 2).mean())
@@ -132,8 +140,12 @@ def golden_section_mpm(scene, simulator, key: str, observed: np.ndarray, stride:
             b = low + GOLDEN * (high - low)
             fb = misfit(b)
     estimate = 0.5 * (low + high)
-    return {"estimate": estimate, "evaluations": evaluations, "seconds": time.perf_counter() - started,
-            "error_pct": 100 * abs(estimate - truth) / truth}
+    return {
+        "estimate": estimate,
+        "evaluations": evaluations,
+        "seconds": time.perf_counter() - started,
+        "error_pct": 100 * abs(estimate - truth) / truth,
+    }
 
 
 def peak_rss_child(args, checkpoint_every: int | None) -> float:
@@ -164,13 +176,22 @@ print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", type=Path, default=Path("models/sand2d_fast.pt"))
-    parser.add_argument("--data", type=Path, required=True, help="gns generate output of the model's scene, unseen seeds")
+    parser.add_argument(
+        "--data", type=Path, required=True, help="gns generate output of the model's scene, unseen seeds"
+    )
     parser.add_argument("--split", default="test")
     parser.add_argument("--unknown", choices=("friction", "initial_velocity"), default="friction")
-    parser.add_argument("--bounds", type=float, nargs=2, default=None, help="default: 0.4 1.0 (friction), 0 1.2 (velocity x)")
+    parser.add_argument(
+        "--bounds", type=float, nargs=2, default=None, help="default: 0.4 1.0 (friction), 0 1.2 (velocity x)"
+    )
     parser.add_argument("--bounds-y", type=float, nargs=2, default=[-0.2, 1.2], help="velocity y bounds (2D scenes)")
-    parser.add_argument("--gravity", type=float, nargs=2, help="gx gy: the block starts in free flight; its input "
-                        "frames are rebuilt ballistically and the truth is its launch velocity")
+    parser.add_argument(
+        "--gravity",
+        type=float,
+        nargs=2,
+        help="gx gy: the block starts in free flight; its input "
+        "frames are rebuilt ballistically and the truth is its launch velocity",
+    )
     parser.add_argument("--sand-type", type=int, default=6)
     parser.add_argument("--cases", type=int, default=5)
     parser.add_argument("--optimizer", choices=("adam", "lbfgs"), default="adam")
@@ -183,8 +204,12 @@ def main() -> int:
     parser.add_argument("--mpm-baseline", action="store_true")
     parser.add_argument("--memory", action="store_true")
     parser.add_argument("--picture", type=Path, help="write the first case's convergence plot and GIF into this folder")
-    parser.add_argument("--record", type=Path, help="JSON-lines file of finished cases: each case is appended when "
-                        "done, and cases already there are read instead of inverted again (a stopped run continues)")
+    parser.add_argument(
+        "--record",
+        type=Path,
+        help="JSON-lines file of finished cases: each case is appended when "
+        "done, and cases already there are read instead of inverted again (a stopped run continues)",
+    )
     parser.add_argument("--json", action="store_true", help="(the JSON line is always printed last)")
     args = parser.parse_args()
     if args.frames not in ("last", "all"):
@@ -202,7 +227,11 @@ def main() -> int:
     scene = SceneSpec.model_validate(metadata["generated_from"]["scene"])
     cases = []
     print(f"{'case':<18}{'truth':>18}{'recovered':>18}{'error %':>9}{'seconds':>9}{'iterations':>11}")
-    recorded = [json.loads(line) for line in args.record.read_text().splitlines()] if args.record and args.record.exists() else []
+    recorded = (
+        [json.loads(line) for line in args.record.read_text().splitlines()]
+        if args.record and args.record.exists()
+        else []
+    )
     for index in range(args.cases):
         if index < len(recorded):
             case = recorded[index]
@@ -214,8 +243,9 @@ def main() -> int:
             if args.unknown == "initial_velocity" and not args.gravity:
                 problem = case["inversion"].problem
                 case["launch"] = truth
-                truth = input_frame_velocity(case["inversion"].trajectory.position, problem.simulator.scene.history,
-                                             problem.metadata.dt)
+                truth = input_frame_velocity(
+                    case["inversion"].trajectory.position, problem.simulator.scene.history, problem.metadata.dt
+                )
             error = 100 * float(np.linalg.norm(np.subtract(case["recovered"], truth)) / np.linalg.norm(truth))
             case.update(truth=truth, error_pct=error)
             cases.append(case)
@@ -223,19 +253,31 @@ def main() -> int:
                 with args.record.open("a") as record:
                     record.write(json.dumps({k: case[k] for k in RECORDED if k in case}) + "\n")
         fmt = lambda v: ", ".join(f"{x:.3f}" for x in v)  # noqa: E731
-        print(f"{case['key']:<18}{fmt(truth):>18}{fmt(case['recovered']):>18}{error:>9.2f}{case['seconds']:>9.1f}"
-              f"{case['iterations']:>11}")
+        print(
+            f"{case['key']:<18}{fmt(truth):>18}{fmt(case['recovered']):>18}{error:>9.2f}{case['seconds']:>9.1f}"
+            f"{case['iterations']:>11}"
+        )
         if index == 0 and args.picture and "inversion" in case:
             from gns_framework.inverse.solve import write_outputs
 
             args.picture.mkdir(parents=True, exist_ok=True)
             write_outputs(case["inversion"], case["result"], args.picture)
     errors = [c["error_pct"] for c in cases]
-    summary = {"unknown": args.unknown, "loss": args.loss, "frames": args.frames, "optimizer": args.optimizer, "iterations": args.iterations,
-               "cases": len(cases), "median_error_pct": float(np.median(errors)), "worst_error_pct": float(max(errors)),
-               "median_seconds": float(np.median([c["seconds"] for c in cases]))}
-    print(f"median error {summary['median_error_pct']:.2f} %, worst {summary['worst_error_pct']:.2f} %, "
-          f"median {summary['median_seconds']:.1f} s per inversion")
+    summary = {
+        "unknown": args.unknown,
+        "loss": args.loss,
+        "frames": args.frames,
+        "optimizer": args.optimizer,
+        "iterations": args.iterations,
+        "cases": len(cases),
+        "median_error_pct": float(np.median(errors)),
+        "worst_error_pct": float(max(errors)),
+        "median_seconds": float(np.median([c["seconds"] for c in cases])),
+    }
+    print(
+        f"median error {summary['median_error_pct']:.2f} %, worst {summary['worst_error_pct']:.2f} %, "
+        f"median {summary['median_seconds']:.1f} s per inversion"
+    )
 
     if args.mpm_baseline and args.unknown == "friction":
         from gns_framework.assembly.trained import load_trained
@@ -244,29 +286,41 @@ def main() -> int:
         dataset = open_dataset(model_recipe.dataset, registry, args.data)
         stride = model_recipe.dataset.frame_stride
         simulator = build_ground_truth_simulator(scene, registry, "metadata.json: generated_from")
-        print(f"\n{'case':<18}{'learned s':>10}{'MPM search s':>13}{'MPM runs':>9}{'MPM error %':>12}{'learned/MPM':>12}")
+        print(
+            f"\n{'case':<18}{'learned s':>10}{'MPM search s':>13}{'MPM runs':>9}{'MPM error %':>12}{'learned/MPM':>12}"
+        )
         ratios = []
         for index, case in enumerate(cases):
             observed = dataset.split(args.split)[index].position
             target = max(case["error_pct"], 0.05) / 100
-            search = golden_section_mpm(scene, simulator, case["key"], observed, stride, case["truth"][0], target,
-                                        args.bounds)
+            search = golden_section_mpm(
+                scene, simulator, case["key"], observed, stride, case["truth"][0], target, args.bounds
+            )
             ratios.append(case["seconds"] / search["seconds"])
             case["mpm"] = search
-            print(f"{case['key']:<18}{case['seconds']:>10.1f}{search['seconds']:>13.1f}{search['evaluations']:>9}"
-                  f"{search['error_pct']:>12.2f}{ratios[-1]:>12.1f}")
+            print(
+                f"{case['key']:<18}{case['seconds']:>10.1f}{search['seconds']:>13.1f}{search['evaluations']:>9}"
+                f"{search['error_pct']:>12.2f}{ratios[-1]:>12.1f}"
+            )
         summary["time_ratio_learned_over_mpm_median"] = float(np.median(ratios))
-        print(f"median time ratio learned / MPM search at equal error: {summary['time_ratio_learned_over_mpm_median']:.1f}")
+        print(
+            f"median time ratio learned / MPM search at equal error: {summary['time_ratio_learned_over_mpm_median']:.1f}"
+        )
 
     if args.memory:
         base = peak_rss_child(args, None)
         whole = peak_rss_child(args, 0)
         checkpointed = peak_rss_child(args, args.checkpoint_every)
-        summary["memory_mib"] = {"load_only": base, "no_checkpointing": whole,
-                                 f"checkpoint_every_{args.checkpoint_every}": checkpointed}
-        print(f"\npeak RSS, one full-length loss and gradient: load only {base:.0f} MiB, without checkpointing "
-              f"{whole:.0f} MiB (+{whole - base:.0f}), checkpoint every {args.checkpoint_every} steps {checkpointed:.0f} MiB "
-              f"(+{checkpointed - base:.0f})")
+        summary["memory_mib"] = {
+            "load_only": base,
+            "no_checkpointing": whole,
+            f"checkpoint_every_{args.checkpoint_every}": checkpointed,
+        }
+        print(
+            f"\npeak RSS, one full-length loss and gradient: load only {base:.0f} MiB, without checkpointing "
+            f"{whole:.0f} MiB (+{whole - base:.0f}), checkpoint every {args.checkpoint_every} steps {checkpointed:.0f} MiB "
+            f"(+{checkpointed - base:.0f})"
+        )
     summary["per_case"] = [{k: c[k] for k in (*RECORDED, "mpm") if k in c} for c in cases]
     print(json.dumps(summary))
     return 0

@@ -59,10 +59,19 @@ def lattice_scene(particles: int, dim: int = 2, seed: int = 0) -> LatticeScene:
     vel_mean = (VEL_MEAN + VEL_MEAN[1:])[:dim]
     acc_mean = (ACC_MEAN + ACC_MEAN[1:])[:dim]
     metadata = DatasetMetadata(
-        bounds=[list(b) for b in bounds], sequence_length=HISTORY + 1, default_connectivity_radius=RADIUS,
-        dim=dim, dt=0.0025, vel_mean=vel_mean, vel_std=vel_std, acc_mean=acc_mean, acc_std=acc_std,
+        bounds=[list(b) for b in bounds],
+        sequence_length=HISTORY + 1,
+        default_connectivity_radius=RADIUS,
+        dim=dim,
+        dt=0.0025,
+        vel_mean=vel_mean,
+        vel_std=vel_std,
+        acc_mean=acc_mean,
+        acc_std=acc_std,
     )
-    scene = ModelSetup(dim=dim, bounds=bounds, connectivity_radius=RADIUS, particle_types=PARTICLE_TYPES, history=HISTORY)
+    scene = ModelSetup(
+        dim=dim, bounds=bounds, connectivity_radius=RADIUS, particle_types=PARTICLE_TYPES, history=HISTORY
+    )
     # A small random walk so velocities and accelerations are realistic in size.
     velocity = torch.randn((particles, HISTORY, dim), generator=generator) * torch.tensor(vel_std)
     trajectory = position[:, None] + torch.cumsum(velocity, 1) - velocity.sum(1, keepdim=True)

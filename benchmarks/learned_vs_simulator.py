@@ -44,18 +44,22 @@ def refined_scene(particles: int):
     from gns_framework.ground_truth.scene_spec import Range, load_scene
 
     scene = load_scene(ROOT / "scenes" / "demo_sand_2d.yaml")
-    block = scene.blocks[0].model_copy(update={
-        "size": [Range(range=(0.15, 0.15)), Range(range=(0.25, 0.25))],
-        "properties": {"friction": Range(range=(0.7, 0.7))},
-    })
+    block = scene.blocks[0].model_copy(
+        update={
+            "size": [Range(range=(0.15, 0.15)), Range(range=(0.25, 0.25))],
+            "properties": {"friction": Range(range=(0.7, 0.7))},
+        }
+    )
     # Particle count ~ (0.15 x 0.25 m) x (particles per cell / dx)^2 = 0.15 grid^2 for 2 per cell on a 1 m box.
     grid = max(DATA_GRID, round(math.sqrt(particles / (0.15 * 0.25 * scene.particles_per_cell**2))))
     substeps = math.ceil(DATA_SUBSTEPS * grid / DATA_GRID)
-    scene = scene.model_copy(update={
-        "blocks": [block],
-        "domain": scene.domain.model_copy(update={"grid": grid}),
-        "time": scene.time.model_copy(update={"substeps": substeps, "frames": 2}),
-    })
+    scene = scene.model_copy(
+        update={
+            "blocks": [block],
+            "domain": scene.domain.model_copy(update={"grid": grid}),
+            "time": scene.time.model_copy(update={"substeps": substeps, "frames": 2}),
+        }
+    )
     return scene, sample_scene(scene, 0)
 
 
@@ -89,7 +93,9 @@ def learned_model(kind: str, registry, radius_scale: float):
 
     model_file = "sand2d_fast_grid.pt" if kind == "grid" else "sand2d_fast.pt"
     shipped = load_trained(ROOT / "models" / model_file, registry)
-    scene = replace(shipped.simulator.scene, connectivity_radius=shipped.simulator.scene.connectivity_radius * radius_scale)
+    scene = replace(
+        shipped.simulator.scene, connectivity_radius=shipped.simulator.scene.connectivity_radius * radius_scale
+    )
     if kind in ("fast", "grid"):
         simulator = build_learned_simulator(scene, shipped.metadata, shipped.recipe.model, registry)
         simulator.load_state_dict(shipped.simulator.state_dict())
@@ -132,10 +138,12 @@ def plot(rows: list[dict], path: Path) -> None:
 
     particles = [row["particles"] for row in rows]
     figure, axis = plt.subplots(figsize=(6, 4))
-    for key, label in (("mpm_s_per_frame", "MLS-MPM (substeps grow with the grid: CFL)"),
-                       ("fast_s_per_frame", "learned, 5 x 64, stride 2 (shipped)"),
-                       ("grid_s_per_frame", "learned, grid processor 32 wide, stride 2 (shipped)"),
-                       ("reference_s_per_frame", "learned, 10 x 128, stride 1 (reference)")):
+    for key, label in (
+        ("mpm_s_per_frame", "MLS-MPM (substeps grow with the grid: CFL)"),
+        ("fast_s_per_frame", "learned, 5 x 64, stride 2 (shipped)"),
+        ("grid_s_per_frame", "learned, grid processor 32 wide, stride 2 (shipped)"),
+        ("reference_s_per_frame", "learned, 10 x 128, stride 1 (reference)"),
+    ):
         if all(key in row for row in rows):
             axis.loglog(particles, [row[key] for row in rows], marker="o", label=label)
     axis.set_xlabel("particles")
@@ -155,7 +163,9 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--frames", type=int, default=2, help="MPM frames timed per size")
     parser.add_argument("--plot", type=Path, help="also draw time per frame against particles into this PNG")
-    parser.add_argument("--replot", type=Path, help="only draw --plot from the JSON line an earlier run printed (in this file)")
+    parser.add_argument(
+        "--replot", type=Path, help="only draw --plot from the JSON line an earlier run printed (in this file)"
+    )
     parser.add_argument("--json", action="store_true", help="(the JSON line is always printed last)")
     args = parser.parse_args()
     if args.replot:
@@ -173,9 +183,13 @@ def main() -> int:
     time_mpm(warm_scene, warm_sample, registry, 1)  # compiles the kernels
     rows = []
     hardware = hardware_description()
-    print(f"{hardware['cpu']}, {hardware['cpu_cores_usable']} usable cores, torch threads {args.threads}, torch {hardware['torch']}")
-    print(f"{'particles':>9} {'grid':>5} {'substeps':>8} {'MPM s/frame':>12} {'fast s/frame':>13} {'grid s/frame':>13} "
-          f"{'ref s/frame':>12} {'MPM/fast':>9} {'MPM/grid':>9} {'MPM/ref':>8}")
+    print(
+        f"{hardware['cpu']}, {hardware['cpu_cores_usable']} usable cores, torch threads {args.threads}, torch {hardware['torch']}"
+    )
+    print(
+        f"{'particles':>9} {'grid':>5} {'substeps':>8} {'MPM s/frame':>12} {'fast s/frame':>13} {'grid s/frame':>13} "
+        f"{'ref s/frame':>12} {'MPM/fast':>9} {'MPM/grid':>9} {'MPM/ref':>8}"
+    )
     for target in args.particles:
         scene, sample = refined_scene(target)
         mpm = time_mpm(scene, sample, registry, args.frames)
@@ -186,13 +200,22 @@ def main() -> int:
         fast_frame = time_learned(fast, sample, args.repeats) / fast_stride
         grid_frame = time_learned(grid, sample, args.repeats) / grid_stride
         reference_frame = time_learned(reference, sample, args.repeats)
-        row = {"particles": sample.num_particles, "grid": scene.domain.grid, "substeps": scene.time.substeps,
-               "mpm_s_per_frame": mpm, "fast_s_per_frame": fast_frame, "grid_s_per_frame": grid_frame,
-               "reference_s_per_frame": reference_frame}
+        row = {
+            "particles": sample.num_particles,
+            "grid": scene.domain.grid,
+            "substeps": scene.time.substeps,
+            "mpm_s_per_frame": mpm,
+            "fast_s_per_frame": fast_frame,
+            "grid_s_per_frame": grid_frame,
+            "reference_s_per_frame": reference_frame,
+        }
         rows.append(row)
-        print(f"{row['particles']:>9} {row['grid']:>5} {row['substeps']:>8} {mpm:>12.4f} {fast_frame:>13.4f} "
-              f"{grid_frame:>13.4f} {reference_frame:>12.4f} {mpm / fast_frame:>9.2f} {mpm / grid_frame:>9.2f} "
-              f"{mpm / reference_frame:>8.2f}", flush=True)
+        print(
+            f"{row['particles']:>9} {row['grid']:>5} {row['substeps']:>8} {mpm:>12.4f} {fast_frame:>13.4f} "
+            f"{grid_frame:>13.4f} {reference_frame:>12.4f} {mpm / fast_frame:>9.2f} {mpm / grid_frame:>9.2f} "
+            f"{mpm / reference_frame:>8.2f}",
+            flush=True,
+        )
     if args.plot:
         plot(rows, args.plot)
     print(json.dumps({"threads": args.threads, "rows": rows}))

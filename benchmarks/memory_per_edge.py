@@ -36,9 +36,12 @@ from step_time import Stepper, benchmark_model  # noqa: E402
 from gns_framework.runtime.activation_memory import set_recompute_activations  # noqa: E402
 
 MODES = [
-    ("rollout", "float32", False), ("rollout", "bfloat16", False),
-    ("train", "float32", False), ("train", "float32", True),
-    ("train", "bfloat16", False), ("train", "bfloat16", True),
+    ("rollout", "float32", False),
+    ("rollout", "bfloat16", False),
+    ("train", "float32", False),
+    ("train", "float32", True),
+    ("train", "bfloat16", False),
+    ("train", "bfloat16", True),
 ]
 GPUS_GB = {"80 GB (A100/H100)": 80, "141 GB (H200)": 141}
 RESERVED_GB = 4
@@ -75,8 +78,13 @@ def measure(sizes: list[int], dim: int) -> list[dict]:
     for phase, precision, recompute in MODES:
         small, large = (one(particles, dim, phase, precision, recompute) for particles in sizes)
         per_edge = (large["peak_bytes"] - small["peak_bytes"]) / (large["edges"] - small["edges"])
-        row = {"phase": phase, "precision": precision, "activations": "recomputed" if recompute else "stored",
-               "bytes_per_edge": per_edge, "edges": [small["edges"], large["edges"]]}
+        row = {
+            "phase": phase,
+            "precision": precision,
+            "activations": "recomputed" if recompute else "stored",
+            "bytes_per_edge": per_edge,
+            "edges": [small["edges"], large["edges"]],
+        }
         for gpu, gb in GPUS_GB.items():
             edges = (gb - RESERVED_GB) * 2**30 / per_edge
             row[gpu] = {"edges": edges, "particles": edges / NEIGHBOURS}
@@ -99,7 +107,9 @@ def main() -> None:
     print("| step | precision | activations | bytes/edge | " + " | ".join(f"largest on {g}" for g in GPUS_GB) + " |")
     print("|---|---|---|---|" + "---|" * len(GPUS_GB))
     for r in rows:
-        largest = " | ".join(f"{r[g]['edges'] / 1e6:.0f}M edges, {r[g]['particles'] / 1e6:.2f}M particles" for g in GPUS_GB)
+        largest = " | ".join(
+            f"{r[g]['edges'] / 1e6:.0f}M edges, {r[g]['particles'] / 1e6:.2f}M particles" for g in GPUS_GB
+        )
         print(f"| {r['phase']} | {r['precision']} | {r['activations']} | {r['bytes_per_edge']:,.0f} | {largest} |")
 
 

@@ -78,11 +78,19 @@ def write_dataset(path: Path, particles: int = 64, frames: int = 20) -> None:
         position = (lattice + steps).astype(np.float32)
         return Trajectory(position, np.full(len(lattice), 6, np.int64), None, None, key)
 
-    splits = {split: [trajectory(f"{split}_{i}") for i in range(count)]
-              for split, count in (("train", 2), ("valid", 1), ("test", 1))}
+    splits = {
+        split: [trajectory(f"{split}_{i}") for i in range(count)]
+        for split, count in (("train", 2), ("valid", 1), ("test", 1))
+    }
     registry = load_registry()
-    metadata = DatasetMetadata(bounds=[(0.0, 1.0), (0.0, 1.0)], sequence_length=frames, default_connectivity_radius=0.03,
-                               dim=2, dt=0.005, **compute_statistics(splits["train"], registry.kinematic_types()))
+    metadata = DatasetMetadata(
+        bounds=[(0.0, 1.0), (0.0, 1.0)],
+        sequence_length=frames,
+        default_connectivity_radius=0.03,
+        dim=2,
+        dt=0.005,
+        **compute_statistics(splits["train"], registry.kinematic_types()),
+    )
     registry.get("dataset", "safe").write(path, metadata, splits)
 
 
@@ -97,8 +105,14 @@ def recipe_for(data: Path, run: Path, edge_block: str | None):
         "name": "reading-cost",
         "dataset": {"name": "safe", "path": str(data)},
         "model": {"processor": processor},
-        "training": {"steps": 2, "batch_size": 1, "threads": 1, "log_every": 1000, "validate_every": 1000,
-                     "checkpoint_every": 1000},
+        "training": {
+            "steps": 2,
+            "batch_size": 1,
+            "threads": 1,
+            "log_every": 1000,
+            "validate_every": 1000,
+            "checkpoint_every": 1000,
+        },
     }
     return validate_recipe(raw, load_registry())
 
@@ -139,15 +153,25 @@ def summary(trace: LineTrace, roots: list[Path]) -> dict:
     for name, lines in sorted(trace.lines.items()):
         path = Path(name)
         root = next(r for r in roots if path.is_relative_to(r))
-        files[f"{root.name}/{path.relative_to(root)}"] = {"lines": len(path.read_text().splitlines()), "ran": len(lines)}
-    return {"files": len(files), "lines": sum(f["lines"] for f in files.values()),
-            "lines_ran": sum(f["ran"] for f in files.values()), "per_file": files}
+        files[f"{root.name}/{path.relative_to(root)}"] = {
+            "lines": len(path.read_text().splitlines()),
+            "ran": len(lines),
+        }
+    return {
+        "files": len(files),
+        "lines": sum(f["lines"] for f in files.values()),
+        "lines_ran": sum(f["ran"] for f in files.values()),
+        "per_file": files,
+    }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--edge-block", choices=["fused", "plain"],
-                        help="the interaction step's form (trees before it existed take no choice)")
+    parser.add_argument(
+        "--edge-block",
+        choices=["fused", "plain"],
+        help="the interaction step's form (trees before it existed take no choice)",
+    )
     parser.add_argument("--json", action="store_true", help="also print the figures as one JSON line")
     args = parser.parse_args()
     result = measure(args.edge_block)
@@ -159,7 +183,11 @@ def main() -> None:
         for name, counts in figures["per_file"].items():
             print(f"  {name:60s} {counts['lines']:5d} lines, {counts['ran']:4d} ran")
     if args.json:
-        print(json.dumps({step: {k: v for k, v in figures.items() if k != "per_file"} for step, figures in result.items()}))
+        print(
+            json.dumps(
+                {step: {k: v for k, v in figures.items() if k != "per_file"} for step, figures in result.items()}
+            )
+        )
 
 
 if __name__ == "__main__":

@@ -118,11 +118,21 @@ class PeerProcess:
     """
 
     def __init__(self, particles: int, dim: int, threads: int, allocator: str):
-        command = [sys.executable, __file__, "--serve-peer", "--particles", str(particles), "--dim", str(dim),
-                   "--threads", str(threads)]
+        command = [
+            sys.executable,
+            __file__,
+            "--serve-peer",
+            "--particles",
+            str(particles),
+            "--dim",
+            str(dim),
+            "--threads",
+            str(threads),
+        ]
         environment = dict(os.environ, GNS_KEEP_FREED_MEMORY="1" if allocator == "ours" else "0")
-        self.process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-                                        env=environment)
+        self.process = subprocess.Popen(
+            command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=environment
+        )
         self.ask("ready")
 
     def ask(self, command: str) -> str:
@@ -161,9 +171,7 @@ def serve_peer(particles: int, dim: int) -> None:
         print("ok" if reply is None else reply, flush=True)
 
 
-def measure(
-    particles: int, dim: int, repeat: int, warmup: int, peer: str | None, train: bool, precision: str
-) -> dict:
+def measure(particles: int, dim: int, repeat: int, warmup: int, peer: str | None, train: bool, precision: str) -> dict:
     """Every figure of one scene; ``peer`` is None or the peer's allocator ("glibc" or "ours")."""
     tuned = keep_freed_memory()
     load_before = os.getloadavg()[0]
@@ -245,11 +253,22 @@ def run_suite(args) -> list[dict]:
     for particles, dim in SUITE:
         large = particles > LARGE
         command = [
-            sys.executable, __file__, "--particles", str(particles), "--dim", str(dim), "--json",
-            "--threads", str(args.threads), *(["--recompute"] if args.recompute else []),
-            "--precision", args.precision,
-            "--repeat", str(3 if large or args.quick else args.repeat),
-            "--warmup", str(1 if large or args.quick else args.warmup),
+            sys.executable,
+            __file__,
+            "--particles",
+            str(particles),
+            "--dim",
+            str(dim),
+            "--json",
+            "--threads",
+            str(args.threads),
+            *(["--recompute"] if args.recompute else []),
+            "--precision",
+            args.precision,
+            "--repeat",
+            str(3 if large or args.quick else args.repeat),
+            "--warmup",
+            str(1 if large or args.quick else args.warmup),
         ]
         if large and not args.train_large:
             command.append("--no-train")
@@ -294,11 +313,17 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2, help="torch intra-op threads")
     parser.add_argument("--json", action="store_true", help="print one JSON object (the suite: a list of them)")
     parser.add_argument("--peer", action="store_true", help="also time the reference-style peer, interleaved")
-    parser.add_argument("--peer-allocator", choices=("glibc", "ours"), default="glibc",
-                        help="the peer's allocator: glibc's default, as the reference runs (default), or our setting")
+    parser.add_argument(
+        "--peer-allocator",
+        choices=("glibc", "ours"),
+        default="glibc",
+        help="the peer's allocator: glibc's default, as the reference runs (default), or our setting",
+    )
     parser.add_argument("--no-train", action="store_true", help="skip the training step")
     parser.add_argument("--recompute", action="store_true", help="training.recompute_activations: true")
-    parser.add_argument("--precision", choices=PRECISIONS, default="float32", help="our model's product dtype (the peer stays float32)")
+    parser.add_argument(
+        "--precision", choices=PRECISIONS, default="float32", help="our model's product dtype (the peer stays float32)"
+    )
     parser.add_argument("--quick", action="store_true", help="suite: 3 repeats after 1 warm-up")
     parser.add_argument("--no-peer", action="store_true", help="suite: never time the peer")
     parser.add_argument("--train-large", action="store_true", help="suite: time training at 100k particles too")

@@ -43,7 +43,9 @@ COMPONENTS = ("graph_builder", "processor", "integrator")
 
 def swapped_component(swap: dict, reference: dict) -> tuple[str, dict] | None:
     """(kind, spec) of the one component ``swap``'s model changes against ``reference``'s, or None."""
-    changed = [k for k in COMPONENTS if swap["model"].get(k, {}).get("name") != reference["model"].get(k, {}).get("name")]
+    changed = [
+        k for k in COMPONENTS if swap["model"].get(k, {}).get("name") != reference["model"].get(k, {}).get("name")
+    ]
     if len(changed) != 1:
         return None
     return changed[0], swap["model"][changed[0]]
@@ -103,7 +105,11 @@ def measure(raw: dict, registry, held_out: Path, cases: int) -> dict:
         positions = learned_positions(simulator, case, "cpu")
         rollout_seconds.append(time.perf_counter() - started)
         scores = score_prediction(
-            Prediction(positions), case, simulator.scene.history, data.metadata(), granular_types=granular,
+            Prediction(positions),
+            case,
+            simulator.scene.history,
+            data.metadata(),
+            granular_types=granular,
             kinematic_types=simulator.scene.kinematic_types,
             metrics=[m for m in registry.metrics() if m.name in ("sinkhorn_final_pct", "runout_error_pct")],
         )
@@ -112,8 +118,10 @@ def measure(raw: dict, registry, held_out: Path, cases: int) -> dict:
     trainer.close()
     return {
         "one_step_loss": one_step,
-        "sinkhorn_median": statistics.median(sinkhorn), "sinkhorn_worst": max(sinkhorn),
-        "runout_median": statistics.median(runout), "runout_worst": max(runout),
+        "sinkhorn_median": statistics.median(sinkhorn),
+        "sinkhorn_worst": max(sinkhorn),
+        "runout_median": statistics.median(runout),
+        "runout_worst": max(runout),
         "train_s_per_step": train_seconds / recipe.training.steps,
         "rollout_s": statistics.median(rollout_seconds),
     }
@@ -128,7 +136,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--cases", type=int, default=10)
     parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--swaps", nargs="+", metavar="RECIPE", help="only these recipes of recipes/swaps/ (file stems); the base always runs")
+    parser.add_argument(
+        "--swaps",
+        nargs="+",
+        metavar="RECIPE",
+        help="only these recipes of recipes/swaps/ (file stems); the base always runs",
+    )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -173,8 +186,10 @@ def main(argv: list[str] | None = None) -> int:
                 flush=True,
             )
     base_row = results[0]
-    print("\n| kind | swap | one-step loss | Sinkhorn % median / worst | runout % median / worst | "
-          "train step vs base | rollout vs base |")
+    print(
+        "\n| kind | swap | one-step loss | Sinkhorn % median / worst | runout % median / worst | "
+        "train step vs base | rollout vs base |"
+    )
     print("|---|---|---:|---:|---:|---:|---:|")
     for row in results:
         if "skipped" in row:
@@ -185,8 +200,10 @@ def main(argv: list[str] | None = None) -> int:
             f"{row['sinkhorn_worst']:.2f} | {row['runout_median']:.1f} / {row['runout_worst']:.1f} | "
             f"{row['train_s_per_step'] / base_row['train_s_per_step']:.2f}x | {row['rollout_s'] / base_row['rollout_s']:.2f}x |"
         )
-    print(f"\n{args.base.name}, {args.steps} steps, seeds {args.seeds}, {args.cases} held-out cases, "
-          f"{args.threads} thread(s); base: {base_row['train_s_per_step']:.3f} s/step, {base_row['rollout_s']:.2f} s/rollout")
+    print(
+        f"\n{args.base.name}, {args.steps} steps, seeds {args.seeds}, {args.cases} held-out cases, "
+        f"{args.threads} thread(s); base: {base_row['train_s_per_step']:.3f} s/step, {base_row['rollout_s']:.2f} s/rollout"
+    )
     if args.json:
         print(json.dumps({"base": str(args.base), "steps": args.steps, "seeds": args.seeds, "rows": results}))
     return 0

@@ -65,13 +65,21 @@ CALIBRATION_STEPS = 20
 
 
 def _overrides(threads: int, steps: int | None = None) -> dict:
-    training = {"threads": threads, "device": "cpu", "validate_every": 10**9, "checkpoint_every": 10**9, "log_every": 10**9}
+    training = {
+        "threads": threads,
+        "device": "cpu",
+        "validate_every": 10**9,
+        "checkpoint_every": 10**9,
+        "log_every": 10**9,
+    }
     if steps is not None:
         training["steps"] = steps
     return {"training": training}
 
 
-def _trainer(recipe_path: Path, data: Path, threads: int, run_dir: Path, steps: int | None = None, seed: int = 0) -> Trainer:
+def _trainer(
+    recipe_path: Path, data: Path, threads: int, run_dir: Path, steps: int | None = None, seed: int = 0
+) -> Trainer:
     registry = load_registry()
     recipe = load_recipe(recipe_path, registry, {**_overrides(threads, steps), "seed": seed})
     # An empty tracker group tracks nothing: the benchmark prints its figures.
@@ -94,8 +102,14 @@ def _step_budget(recipe_path: Path, data: Path, threads: int, minutes: float, sc
 
 
 def run_recipe(
-    recipe_path: Path, data: Path, threads: int, minutes: float, points: int, trajectories: int,
-    seed: int = 0, held_out: Path | None = None,
+    recipe_path: Path,
+    data: Path,
+    threads: int,
+    minutes: float,
+    points: int,
+    trajectories: int,
+    seed: int = 0,
+    held_out: Path | None = None,
 ) -> dict:
     with tempfile.TemporaryDirectory() as scratch:
         scratch = Path(scratch)
@@ -125,11 +139,18 @@ def run_recipe(
             point = {"minutes": trained / 60, "step": trainer.step}
             point.update({name: scores.get(key) for name, key in METRICS.items()})
             evaluations.append(point)
-            print(f"  {trainer.recipe.name}: {point['minutes']:6.2f} min, step {point['step']:6d}: "
-                  + ", ".join(f"{name} {point[name]:.4g}" for name in METRICS if point[name] is not None), flush=True)
+            print(
+                f"  {trainer.recipe.name}: {point['minutes']:6.2f} min, step {point['step']:6d}: "
+                + ", ".join(f"{name} {point[name]:.4g}" for name in METRICS if point[name] is not None),
+                flush=True,
+            )
         return {
-            "recipe": str(recipe_path), "name": trainer.recipe.name, "seed": seed, "steps": trainer.step,
-            "evaluations": evaluations, "steady": steady(evaluations, minutes),
+            "recipe": str(recipe_path),
+            "name": trainer.recipe.name,
+            "seed": seed,
+            "steps": trainer.step,
+            "evaluations": evaluations,
+            "steady": steady(evaluations, minutes),
         }
 
 
@@ -168,7 +189,12 @@ def _spread(values: list[float]) -> dict | None:
     """mean, median, lowest and highest of ``values`` (None when empty)."""
     if not values:
         return None
-    return {"mean": statistics.fmean(values), "median": statistics.median(values), "low": min(values), "high": max(values)}
+    return {
+        "mean": statistics.fmean(values),
+        "median": statistics.median(values),
+        "low": min(values),
+        "high": max(values),
+    }
 
 
 def spread_per_point(seeded: list[dict]) -> list[dict]:
@@ -189,14 +215,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, required=True, help="torch intra-op threads for both recipes")
     parser.add_argument("--json", action="store_true", help="last line: the figures as one JSON object")
     parser.add_argument("--reference", type=Path, default=REPO / "recipes" / "sand2d.yaml")
-    parser.add_argument("--ours", type=Path, default=REPO / "recipes" / "sand2d_fast_pushforward.yaml",
-                        help="the project's best recipe (default: the fast recipe with push-forward)")
+    parser.add_argument(
+        "--ours",
+        type=Path,
+        default=REPO / "recipes" / "sand2d_fast_pushforward.yaml",
+        help="the project's best recipe (default: the fast recipe with push-forward)",
+    )
     parser.add_argument("--points", type=int, default=5, help="evaluations per run (evenly spaced in wall clock)")
     parser.add_argument("--trajectories", type=int, default=20, help="test trajectories rolled out per evaluation")
     parser.add_argument("--held-out", type=Path, help="dataset whose test split is rolled out (default: --data's)")
-    parser.add_argument("--seeds", type=int, default=3, help="runs per recipe, recipe seeds 0..S-1, alternating recipes")
-    parser.add_argument("--late", type=int, default=3,
-                        help="evaluations at the end whose median gives the steadier ratio (all of them if fewer)")
+    parser.add_argument(
+        "--seeds", type=int, default=3, help="runs per recipe, recipe seeds 0..S-1, alternating recipes"
+    )
+    parser.add_argument(
+        "--late",
+        type=int,
+        default=3,
+        help="evaluations at the end whose median gives the steadier ratio (all of them if fewer)",
+    )
     args = parser.parse_args(argv)
     if args.late < 1:
         parser.error(f"--late must be at least 1, got {args.late}")
@@ -207,31 +243,73 @@ def main(argv: list[str] | None = None) -> int:
     for seed in range(args.seeds):
         for role, path in (("reference", args.reference), ("ours", args.ours)):
             print(f"{role}: {path}, seed {seed}, {args.budget_minutes} min on {args.threads} thread(s)", flush=True)
-            runs[role].append(run_recipe(path, args.data, args.threads, args.budget_minutes, args.points,
-                                         args.trajectories, seed, args.held_out))
+            runs[role].append(
+                run_recipe(
+                    path,
+                    args.data,
+                    args.threads,
+                    args.budget_minutes,
+                    args.points,
+                    args.trajectories,
+                    seed,
+                    args.held_out,
+                )
+            )
     summary = {role: spread_per_point(seeded) for role, seeded in runs.items()}
     for role, points in summary.items():
         print(f"\n{role} ({runs[role][0]['name']}), mean [lowest, highest] over {args.seeds} seed(s):")
         for point in points:
-            print(f"  {point['minutes']:6.2f} min: " + ", ".join(
-                f"{name} {point[name]['mean']:.4g} [{point[name]['low']:.4g}, {point[name]['high']:.4g}]"
-                for name in METRICS if point[name] is not None))
-        print(f"  steady (no runout error above 2x the best so far after a third of the budget): "
-              f"{[run['steady'] for run in runs[role]]}")
-    per_seed = [_ratios({"reference": _late_medians(ref["evaluations"][-args.late:]),
-                         "ours": _late_medians(ours["evaluations"][-args.late:])})
-                for ref, ours in zip(runs["reference"], runs["ours"])]
+            print(
+                f"  {point['minutes']:6.2f} min: "
+                + ", ".join(
+                    f"{name} {point[name]['mean']:.4g} [{point[name]['low']:.4g}, {point[name]['high']:.4g}]"
+                    for name in METRICS
+                    if point[name] is not None
+                )
+            )
+        print(
+            f"  steady (no runout error above 2x the best so far after a third of the budget): "
+            f"{[run['steady'] for run in runs[role]]}"
+        )
+    per_seed = [
+        _ratios(
+            {
+                "reference": _late_medians(ref["evaluations"][-args.late :]),
+                "ours": _late_medians(ours["evaluations"][-args.late :]),
+            }
+        )
+        for ref, ours in zip(runs["reference"], runs["ours"])
+    ]
     late_ratio = {name: _spread([r[name] for r in per_seed if r[name] is not None]) for name in METRICS}
-    print(f"\nreference / ours, median of the last {args.late} evaluations, per seed: "
-          + "; ".join(", ".join(f"{n} {r[n]:.2f}" for n in METRICS if r[n] is not None) for r in per_seed))
-    print("over the seeds: " + ", ".join(
-        f"{name} {v['median']:.2f} [{v['low']:.2f}, {v['high']:.2f}]" for name, v in late_ratio.items() if v is not None))
+    print(
+        f"\nreference / ours, median of the last {args.late} evaluations, per seed: "
+        + "; ".join(", ".join(f"{n} {r[n]:.2f}" for n in METRICS if r[n] is not None) for r in per_seed)
+    )
+    print(
+        "over the seeds: "
+        + ", ".join(
+            f"{name} {v['median']:.2f} [{v['low']:.2f}, {v['high']:.2f}]"
+            for name, v in late_ratio.items()
+            if v is not None
+        )
+    )
     if args.json:
-        print(json.dumps({"budget_minutes": args.budget_minutes, "threads": args.threads, "data": str(args.data),
-                          "held_out": str(args.held_out) if args.held_out else None, "seeds": args.seeds,
-                          "runs": runs, "per_point": summary, "late": args.late,
-                          "ratio_reference_over_ours_late_median_per_seed": per_seed,
-                          "ratio_reference_over_ours_late_median": late_ratio}))
+        print(
+            json.dumps(
+                {
+                    "budget_minutes": args.budget_minutes,
+                    "threads": args.threads,
+                    "data": str(args.data),
+                    "held_out": str(args.held_out) if args.held_out else None,
+                    "seeds": args.seeds,
+                    "runs": runs,
+                    "per_point": summary,
+                    "late": args.late,
+                    "ratio_reference_over_ours_late_median_per_seed": per_seed,
+                    "ratio_reference_over_ours_late_median": late_ratio,
+                }
+            )
+        )
     return 0
 
 

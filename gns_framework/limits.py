@@ -132,7 +132,9 @@ def check_scene(scene, source: str | Path, trajectories: int = 1) -> None:
 def check_sequence_length(where: str, length: float) -> None:
     """Refuse a promised trajectory length beyond MAX_SEQUENCE_LENGTH frames."""
     if length > MAX_SEQUENCE_LENGTH:
-        raise LimitError(f"{where}: sequence_length: {length:.6g} frames, more than the limit of {MAX_SEQUENCE_LENGTH:,}")
+        raise LimitError(
+            f"{where}: sequence_length: {length:.6g} frames, more than the limit of {MAX_SEQUENCE_LENGTH:,}"
+        )
 
 
 def check_record_length(where: str, length: int, remaining: int) -> None:

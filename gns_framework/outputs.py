@@ -51,9 +51,7 @@ def describe_contents(folder: Path, most: int = 5) -> str:
     return f"{len(names)} entr{'y' if len(names) == 1 else 'ies'}{written}: {shown}"
 
 
-def check_folder(
-    folder: str | Path, command: str, overwrite: bool, own: Callable[[Path], bool] | None = None
-) -> bool:
+def check_folder(folder: str | Path, command: str, overwrite: bool, own: Callable[[Path], bool] | None = None) -> bool:
     """Refuse ``folder`` unless it is absent, empty, ``gns command``'s own earlier result, or ``overwrite`` is given.
 
     ``own``: recognises an earlier result written before markers existed. Returns
@@ -72,9 +70,7 @@ def check_folder(
     )
 
 
-def claim_folder(
-    folder: str | Path, command: str, overwrite: bool, own: Callable[[Path], bool] | None = None
-) -> Path:
+def claim_folder(folder: str | Path, command: str, overwrite: bool, own: Callable[[Path], bool] | None = None) -> Path:
     """:func:`check_folder`, then create ``folder`` and mark it as ``gns command``'s; says when it replaces something."""
     folder = Path(folder)
     if check_folder(folder, command, overwrite, own):

@@ -109,4 +109,3 @@ def ensure_inside(path: str | Path, folder: str | Path) -> Path:
             f"{root}); names from data become file names inside that folder only"
         )
     return path
-

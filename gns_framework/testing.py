@@ -114,7 +114,13 @@ def _permuted_graph(graph: Graph, perm: Tensor) -> tuple[Graph, Tensor]:
     position = None if graph.position is None else graph.position[perm]
     batch = None if graph.batch is None else graph.batch[perm]
     permuted = Graph(
-        senders[order], receivers[order], graph.displacement[order], graph.num_nodes, position, batch, graph.num_examples
+        senders[order],
+        receivers[order],
+        graph.displacement[order],
+        graph.num_nodes,
+        position,
+        batch,
+        graph.num_examples,
     )
     return permuted, order
 
@@ -198,7 +204,9 @@ def check_integrator(cls: type[Integrator], params: Mapping | None = None, seed:
         sequence = torch.randn(10, 6, dim, generator=generator, dtype=torch.float64)
         prediction = torch.randn(10, dim, generator=generator, dtype=torch.float64)
         next_position = integrator.next_position(sequence, prediction)
-        _expect(tuple(next_position.shape) == (10, dim), f"{cls.name}: next_position shape {tuple(next_position.shape)}")
+        _expect(
+            tuple(next_position.shape) == (10, dim), f"{cls.name}: next_position shape {tuple(next_position.shape)}"
+        )
         recovered = integrator.target(sequence, next_position)
         _expect(_close(recovered, prediction, 1e-10, 1e-10), f"{cls.name}: target(next_position(p)) != p")
         again = integrator.next_position(sequence, integrator.target(sequence, next_position))
@@ -275,20 +283,26 @@ def check_material(cls: type[Material], constitutive_models: Collection[str] | N
     _expect(inspect.isclass(cls) and issubclass(cls, Material), f"{cls!r} is not a Material subclass")
     _expect(isinstance(getattr(cls, "name", None), str) and cls.name, f"{cls!r}: needs a non-empty string name")
     _expect(
-        isinstance(getattr(cls, "particle_type", None), int) and not isinstance(cls.particle_type, bool)
+        isinstance(getattr(cls, "particle_type", None), int)
+        and not isinstance(cls.particle_type, bool)
         and cls.particle_type in PARTICLE_TYPE_IDS,
         f"{cls.name}: particle_type must be an int in {PARTICLE_TYPE_IDS.start}..{PARTICLE_TYPE_IDS.stop - 1}, "
         f"got {getattr(cls, 'particle_type', None)!r}",
     )
     _expect(isinstance(cls.kinematic, bool), f"{cls.name}: kinematic must be a bool")
     _expect(isinstance(cls.granular, bool), f"{cls.name}: granular must be a bool")
-    _expect(not (cls.kinematic and cls.granular), f"{cls.name}: a kinematic material is not granular (it never moves freely)")
+    _expect(
+        not (cls.kinematic and cls.granular),
+        f"{cls.name}: a kinematic material is not granular (it never moves freely)",
+    )
     _expect(isinstance(cls.properties, tuple), f"{cls.name}: properties must be a tuple of MaterialProperty")
     names = [p.name for p in cls.properties]
     _expect(len(set(names)) == len(names), f"{cls.name}: duplicate property names {names}")
     for prop in cls.properties:
         _expect(isinstance(prop, MaterialProperty), f"{cls.name}: property {prop!r} is not a MaterialProperty")
-        _expect(bool(prop.name) and bool(prop.description), f"{cls.name}: property {prop!r} needs a name and description")
+        _expect(
+            bool(prop.name) and bool(prop.description), f"{cls.name}: property {prop!r} needs a name and description"
+        )
     if constitutive_models is None:
         from .plugins import load_registry
 
@@ -303,12 +317,17 @@ def check_material(cls: type[Material], constitutive_models: Collection[str] | N
     _expect(isinstance(cls.physical_parameters, Mapping), f"{cls.name}: physical_parameters must be a dict")
     for key, value in cls.physical_parameters.items():
         _expect(
-            isinstance(key, str) and isinstance(value, (int, float)) and not isinstance(value, bool)
+            isinstance(key, str)
+            and isinstance(value, (int, float))
+            and not isinstance(value, bool)
             and math.isfinite(value),
             f"{cls.name}: physical_parameters[{key!r}] must be a finite number, got {value!r}",
         )
     density = cls.physical_parameters.get("density")
-    _expect(density is None or density > 0, f"{cls.name}: physical_parameters['density'] must be > 0 kg/m^3, got {density!r}")
+    _expect(
+        density is None or density > 0,
+        f"{cls.name}: physical_parameters['density'] must be > 0 kg/m^3, got {density!r}",
+    )
 
 
 def _random_trajectories(count: int, dim: int, frames: int, types: tuple[int, ...], seed: int) -> list[Trajectory]:
@@ -349,7 +368,11 @@ def check_dataset(
                 for i, (split, count) in enumerate((("train", 2), ("valid", 1)))
             }
             metadata = DatasetMetadata(
-                bounds=[(0.0, 1.0)] * dim, sequence_length=7, default_connectivity_radius=0.1, dim=dim, dt=0.01,
+                bounds=[(0.0, 1.0)] * dim,
+                sequence_length=7,
+                default_connectivity_radius=0.1,
+                dim=dim,
+                dt=0.01,
                 **compute_statistics(splits["train"], kinematic_types=(3,)),
             )
             with tempfile.TemporaryDirectory() as folder:
@@ -357,16 +380,25 @@ def check_dataset(
                 dataset = cls(validated, Path(folder))
                 read = dataset.metadata()
                 for key in ("dim", "sequence_length", "dt"):
-                    _expect(getattr(read, key) == getattr(metadata, key), f"{cls.name}: metadata {key} changed on the round trip")
+                    _expect(
+                        getattr(read, key) == getattr(metadata, key),
+                        f"{cls.name}: metadata {key} changed on the round trip",
+                    )
                 _expect(
                     np.allclose(np.asarray(read.bounds, float), np.asarray(metadata.bounds, float)),
                     f"{cls.name}: metadata bounds changed on the round trip",
                 )
-                _expect(dataset.splits() == ["train", "valid"], f"{cls.name}: splits() is {dataset.splits()}, wrote train, valid")
+                _expect(
+                    dataset.splits() == ["train", "valid"],
+                    f"{cls.name}: splits() is {dataset.splits()}, wrote train, valid",
+                )
                 _expect(not dataset.has_split("test"), f"{cls.name}: has_split('test') but no test split was written")
                 for split, written in splits.items():
                     back = dataset.split(split)
-                    _expect(len(back) == len(written), f"{cls.name}: {split}: {len(back)} trajectories, wrote {len(written)}")
+                    _expect(
+                        len(back) == len(written),
+                        f"{cls.name}: {split}: {len(back)} trajectories, wrote {len(written)}",
+                    )
                     for i, (a, b) in enumerate(zip(back, written)):
                         _expect(
                             np.array_equal(np.asarray(a.position, np.float32), b.position),
@@ -381,7 +413,10 @@ def check_dataset(
         metadata = dataset.metadata()
         for split in dataset.splits():
             for i, trajectory in enumerate(dataset.split(split)):
-                _expect(trajectory.dim == metadata.dim, f"{cls.name}: {split}[{i}] has dim {trajectory.dim}, metadata {metadata.dim}")
+                _expect(
+                    trajectory.dim == metadata.dim,
+                    f"{cls.name}: {split}[{i}] has dim {trajectory.dim}, metadata {metadata.dim}",
+                )
                 _expect(
                     trajectory.num_steps == metadata.sequence_length,
                     f"{cls.name}: {split}[{i}] has {trajectory.num_steps} frames, metadata sequence_length "
@@ -406,7 +441,10 @@ def check_simulator(
     """
     from .ground_truth.scene_checks import scene_problems
 
-    _expect(inspect.isclass(cls) and issubclass(cls, GroundTruthSimulator), f"{cls!r} is not a GroundTruthSimulator subclass")
+    _expect(
+        inspect.isclass(cls) and issubclass(cls, GroundTruthSimulator),
+        f"{cls!r} is not a GroundTruthSimulator subclass",
+    )
     simulator = cls(cls.Params.model_validate(dict(params or {})), dict(materials))
     problems = scene_problems(simulator, scene)
     _expect(not problems, f"{cls.name}: cannot run the scene: {problems}")
@@ -427,6 +465,7 @@ def check_simulator(
     found = set(np.unique(first.particle_type).tolist())
     _expect(found <= used, f"{cls.name}: particle types {sorted(found - used)} belong to no material of the scene")
     _expect(
-        np.array_equal(position, np.asarray(again.position)) and np.array_equal(first.particle_type, again.particle_type),
+        np.array_equal(position, np.asarray(again.position))
+        and np.array_equal(first.particle_type, again.particle_type),
         f"{cls.name}: the same seed gave different trajectories",
     )

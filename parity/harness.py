@@ -60,7 +60,9 @@ def edge_keys(senders: Tensor, receivers: Tensor, num_nodes: int) -> np.ndarray:
 def edge_set_difference(senders: Tensor, receivers: Tensor, reference_index: np.ndarray, num_nodes: int) -> Deviation:
     """Edges in exactly one of the two graphs (``reference_index``: (2, E) [senders; receivers])."""
     ours = set(edge_keys(senders, receivers, num_nodes).tolist())
-    theirs = set(edge_keys(torch.from_numpy(reference_index[0]), torch.from_numpy(reference_index[1]), num_nodes).tolist())
+    theirs = set(
+        edge_keys(torch.from_numpy(reference_index[0]), torch.from_numpy(reference_index[1]), num_nodes).tolist()
+    )
     only = sorted(ours ^ theirs)
     worst = f"e.g. (sender, receiver) = {divmod(only[0], num_nodes)}" if only else f"{len(ours)} edges"
     return Deviation("", float(len(only)), 0.0, worst)
@@ -178,14 +180,20 @@ def _rollout(case: ReferenceCase, imported: ImportedCheckpoint) -> list[Deviatio
     loss_bound = 2 * np.sqrt(loss_reference) * tol.ROLLOUT_ALL_STEPS + tol.ROLLOUT_ALL_STEPS**2
     return [
         Deviation(
-            f"rollout positions, steps 1-{first}", float(per_step[:first].max()), tol.ROLLOUT_FIRST_STEPS,
+            f"rollout positions, steps 1-{first}",
+            float(per_step[:first].max()),
+            tol.ROLLOUT_FIRST_STEPS,
             f"per step {[f'{v:.2g}' for v in per_step[:first].tolist()]}",
         ),
         Deviation(
-            f"rollout positions, all {steps} steps", float(per_step.max()), tol.ROLLOUT_ALL_STEPS,
+            f"rollout positions, all {steps} steps",
+            float(per_step.max()),
+            tol.ROLLOUT_ALL_STEPS,
             f"worst at step {worst_step + 1}",
         ),
-        Deviation("rollout loss_mean per example", float((loss_error / loss_bound).max()), 1.0, f"abs {loss_error.tolist()}"),
+        Deviation(
+            "rollout loss_mean per example", float((loss_error / loss_bound).max()), 1.0, f"abs {loss_error.tolist()}"
+        ),
     ]
 
 
@@ -195,7 +203,9 @@ def _training(case: ReferenceCase, imported: ImportedCheckpoint) -> list[Deviati
     batch = case.batch()
     noise = case.tensor("train/position_noise")
     mask = simulator.predicted_mask(batch.particle_type)
-    found = [Deviation("non-kinematic mask: mismatches", float((mask != case.tensor("train/non_kinematic_mask")).sum()), 0.0)]
+    found = [
+        Deviation("non-kinematic mask: mismatches", float((mask != case.tensor("train/non_kinematic_mask")).sum()), 0.0)
+    ]
     with torch.no_grad():
         graph = simulator.build_graph(batch.position_sequence + noise, batch)
     found.append(
@@ -210,13 +220,19 @@ def _training(case: ReferenceCase, imported: ImportedCheckpoint) -> list[Deviati
     loss.backward()
     reference_loss = float(case.arrays["canon/train/loss"])
     found += [
-        Deviation("training target", max_abs(target.detach(), case.tensor("train/target_normalized_acceleration")), tol.EXACT),
+        Deviation(
+            "training target", max_abs(target.detach(), case.tensor("train/target_normalized_acceleration")), tol.EXACT
+        ),
         Deviation(
             "training prediction",
             max_abs(prediction.detach(), case.tensor("canon/train/pred_normalized_acceleration")),
             tol.NORMALIZED_ACCELERATION,
         ),
-        Deviation("training loss (relative)", abs(float(loss.detach()) - reference_loss) / abs(reference_loss), tol.LOSS_RELATIVE),
+        Deviation(
+            "training loss (relative)",
+            abs(float(loss.detach()) - reference_loss) / abs(reference_loss),
+            tol.LOSS_RELATIVE,
+        ),
     ]
     found += _gradients(case, imported)
     found += _adam_step(case, imported)
@@ -278,7 +294,10 @@ def _adam_step(case: ReferenceCase, imported: ImportedCheckpoint) -> list[Deviat
     parameters = dict(imported.simulator.named_parameters())
     before = {name: p.detach().clone() for name, p in parameters.items()}
     optimizer = torch.optim.Adam(
-        parameters.values(), lr=settings["lr"], betas=tuple(settings["betas"]), eps=settings["eps"],
+        parameters.values(),
+        lr=settings["lr"],
+        betas=tuple(settings["betas"]),
+        eps=settings["eps"],
         weight_decay=settings["weight_decay"],
     )
     optimizer.step()

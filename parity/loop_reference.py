@@ -145,8 +145,13 @@ class ModelSetup:
 
 
 def normalized_acceleration(
-    history: Tensor, particle_type: list[int], properties: Tensor | None, example: list[int],
-    scene: ModelSetup, stats: Statistics, weights: Weights,
+    history: Tensor,
+    particle_type: list[int],
+    properties: Tensor | None,
+    example: list[int],
+    scene: ModelSetup,
+    stats: Statistics,
+    weights: Weights,
 ) -> tuple[Tensor, list[tuple[int, int]]]:
     """Encode, process, decode: (N, d) normalised accelerations, and the graph's (sender, receiver) pairs."""
     position = history[:, -1]
@@ -165,8 +170,15 @@ def next_position(history: Tensor, acceleration: Tensor) -> Tensor:
 
 
 def training_loss(
-    history: Tensor, label: Tensor, noise: Tensor, particle_type: list[int], properties: Tensor | None,
-    example: list[int], scene: ModelSetup, stats: Statistics, weights: Weights,
+    history: Tensor,
+    label: Tensor,
+    noise: Tensor,
+    particle_type: list[int],
+    properties: Tensor | None,
+    example: list[int],
+    scene: ModelSetup,
+    stats: Statistics,
+    weights: Weights,
 ) -> tuple[Tensor, Tensor]:
     """Target (N, d) and loss of one training step on noisy inputs (Sec. 3 of the paper).
 

@@ -66,18 +66,32 @@ def build(spec: dict):
     positions = (start + np.cumsum(steps, axis=1)).astype(np.float32)
     types = np.array(spec["types"])[rng.integers(0, len(spec["types"]), n)]
     metadata = DatasetMetadata(
-        bounds=list(bounds), sequence_length=100, default_connectivity_radius=RADIUS, dim=dim, dt=1.0,
-        vel_mean=rng.normal(0, 1e-3, dim).tolist(), vel_std=(rng.uniform(0.5, 1.5, dim) * VELOCITY_SCALE).tolist(),
-        acc_mean=rng.normal(0, 1e-4, dim).tolist(), acc_std=(rng.uniform(0.5, 1.5, dim) * VELOCITY_SCALE).tolist(),
+        bounds=list(bounds),
+        sequence_length=100,
+        default_connectivity_radius=RADIUS,
+        dim=dim,
+        dt=1.0,
+        vel_mean=rng.normal(0, 1e-3, dim).tolist(),
+        vel_std=(rng.uniform(0.5, 1.5, dim) * VELOCITY_SCALE).tolist(),
+        acc_mean=rng.normal(0, 1e-4, dim).tolist(),
+        acc_std=(rng.uniform(0.5, 1.5, dim) * VELOCITY_SCALE).tolist(),
     )
     scene = ModelSetup(
-        dim=dim, bounds=bounds, connectivity_radius=RADIUS, particle_types=tuple(spec["types"]),
+        dim=dim,
+        bounds=bounds,
+        connectivity_radius=RADIUS,
+        particle_types=tuple(spec["types"]),
         kinematic_types=tuple(t for t in spec["types"] if t == KINEMATIC),
-        property_names=("friction",) if spec["with_property"] else (), history=history,
+        property_names=("friction",) if spec["with_property"] else (),
+        history=history,
     )
     model = ModelSpec(
-        history=history, latent_size=8, mlp_hidden_size=7, mlp_hidden_layers=spec["hidden_layers"],
-        type_embedding_size=3, noise_std=NOISE_STD,
+        history=history,
+        latent_size=8,
+        mlp_hidden_size=7,
+        mlp_hidden_layers=spec["hidden_layers"],
+        type_embedding_size=3,
+        noise_std=NOISE_STD,
         processor=ComponentSpec(name="interaction_network", message_passing_steps=spec["steps"]),
     )
     torch.manual_seed(spec["seed"])
@@ -94,7 +108,8 @@ def build(spec: dict):
         num_examples=len(counts),
         next_position=torch.from_numpy(positions[:, -1].copy()),
         material_property=torch.from_numpy(rng.uniform(0.5, 1.0, (n, 1)).astype(np.float32))
-        if spec["with_property"] else None,
+        if spec["with_property"]
+        else None,
     )
     noise = torch.from_numpy(rng.normal(0, NOISE_STD, (n, history - 1, dim)).cumsum(1).astype(np.float32))
     noise = torch.cat([torch.zeros(n, 1, dim), noise], 1) * simulator.predicted_mask(batch.particle_type)[:, None, None]
@@ -115,7 +130,9 @@ def loop_inputs(simulator: LearnedSimulator, metadata: DatasetMetadata, scene: M
 
     embedding = simulator.features.type_embedding
     weights = ref.Weights(
-        type_embedding=None if embedding is None else {t: f64(embedding.weight[row]) for row, t in enumerate(scene.particle_types)},
+        type_embedding=None
+        if embedding is None
+        else {t: f64(embedding.weight[row]) for row, t in enumerate(scene.particle_types)},
         encoder_node=normed(simulator.encoder.node_mlp),
         encoder_edge=normed(simulator.encoder.edge_mlp),
         steps=[(normed(step.edge_mlp), normed(step.node_mlp)) for step in simulator.processor.steps],
@@ -127,7 +144,9 @@ def loop_inputs(simulator: LearnedSimulator, metadata: DatasetMetadata, scene: M
         acc_mean=torch.tensor(metadata.acc_mean, dtype=torch.float64),
         acc_std=ref.combined_std(metadata.acc_std, NOISE_STD),
     )
-    loop_scene = ref.ModelSetup(list(scene.bounds), scene.connectivity_radius, scene.boundary_clamp_limit, set(scene.kinematic_types))
+    loop_scene = ref.ModelSetup(
+        list(scene.bounds), scene.connectivity_radius, scene.boundary_clamp_limit, set(scene.kinematic_types)
+    )
     return weights, stats, loop_scene
 
 
@@ -156,7 +175,9 @@ def test_forward_pass_matches_the_loop_restatement(spec):
         node_features, _, graph = simulator.encode_inputs(batch.position_sequence, batch)
         acceleration = simulator.normalized_prediction(batch.position_sequence, batch)
         position = simulator.predict_next_position(batch)
-    expected_acceleration, pairs = ref.normalized_acceleration(history, types, properties, example, loop_scene, stats, weights)
+    expected_acceleration, pairs = ref.normalized_acceleration(
+        history, types, properties, example, loop_scene, stats, weights
+    )
     expected_features = torch.stack(
         ref.node_features(history, types, properties, loop_scene.bounds, RADIUS, loop_scene.clamp, stats, weights)
     )
@@ -184,8 +205,15 @@ def test_training_target_and_loss_match_the_loop_restatement(spec):
         prediction, target = simulator(batch, noise)
         loss = masked_acceleration_loss(prediction, target, simulator.predicted_mask(batch.particle_type))
     expected_target, expected_loss = ref.training_loss(
-        batch.position_sequence.double(), batch.next_position.double(), noise.double(), batch.particle_type.tolist(),
-        properties, batch.batch.tolist(), loop_scene, stats, weights,
+        batch.position_sequence.double(),
+        batch.next_position.double(),
+        noise.double(),
+        batch.particle_type.tolist(),
+        properties,
+        batch.batch.tolist(),
+        loop_scene,
+        stats,
+        weights,
     )
 
     assert (target.double() - expected_target).abs().max() < TARGET_TOLERANCE

@@ -23,9 +23,18 @@ def test_stage_matches_reference(reference_case, stage, record_deviations):
 def test_case_uses_the_documented_format(reference_case):
     """The suite relies on these members; a new case must carry them."""
     required = [
-        "input/position_sequence", "input/trajectory", "input/particle_type", "input/nparticles_per_example",
-        "pre/node_features", "pre/edge_index", "canon/out/normalized_acceleration", "canon/rollout/predicted",
-        "train/position_noise", "canon/train/loss", "stats/param_keys", "canon/stats/gradnorm",
+        "input/position_sequence",
+        "input/trajectory",
+        "input/particle_type",
+        "input/nparticles_per_example",
+        "pre/node_features",
+        "pre/edge_index",
+        "canon/out/normalized_acceleration",
+        "canon/rollout/predicted",
+        "train/position_noise",
+        "canon/train/loss",
+        "stats/param_keys",
+        "canon/stats/gradnorm",
     ]
     missing = [key for key in required if key not in reference_case]
     assert not missing, f"{reference_case.path}: missing members {missing}"

@@ -23,8 +23,9 @@ from dataclasses import replace
 from pathlib import Path
 
 
-def merge(sources: list[Path], out: Path, valid_each: int | None, test_each: int | None,
-          radius: float | None = None) -> dict[str, int]:
+def merge(
+    sources: list[Path], out: Path, valid_each: int | None, test_each: int | None, radius: float | None = None
+) -> dict[str, int]:
     """Write the joined dataset to ``out``; returns the trajectory count per split."""
     from gns_framework.assembly.data import open_dataset
     from gns_framework.config.recipe import DatasetSpec

@@ -35,8 +35,12 @@ def main() -> None:
     import matplotlib.pyplot as plt
 
     registry = load_registry()
-    runs = [("sand_ramps_2d", args.seed), ("sand_ramps_2d", args.seed + 1), ("water_ramps_2d", args.seed),
-            ("sand_ramps_3d", args.seed)]
+    runs = [
+        ("sand_ramps_2d", args.seed),
+        ("sand_ramps_2d", args.seed + 1),
+        ("water_ramps_2d", args.seed),
+        ("sand_ramps_3d", args.seed),
+    ]
     times = (0.0, 0.2, 0.4, 0.6)
     fig, axes = plt.subplots(len(runs), len(times), figsize=(2.4 * len(times), 2.4 * len(runs)))
     for row, (name, seed) in zip(axes, runs):
@@ -48,8 +52,9 @@ def main() -> None:
             position = trajectory.position[frame]
             for kind, colour in COLOURS.items():
                 mine = trajectory.particle_type == kind
-                ax.scatter(position[mine, 0], position[mine, 1], s=0.6 if scene.dim == 2 else 0.2, c=colour,
-                           linewidths=0)
+                ax.scatter(
+                    position[mine, 0], position[mine, 1], s=0.6 if scene.dim == 2 else 0.2, c=colour, linewidths=0
+                )
             ax.set_xlim(*bounds[0])
             ax.set_ylim(*bounds[1])
             ax.set_aspect("equal")

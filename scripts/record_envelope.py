@@ -46,12 +46,17 @@ def main(argv: list[str] | None = None) -> int:
     stored = loaded.metadata.to_json_dict()
     for key in ("vel_std", "acc_std"):
         if not np.allclose(measured[key], stored[key], rtol=1e-6):
-            print(f"{args.dataset}: {key} {measured[key]} differs from the model's {stored[key]}: not its training data",
-                  file=sys.stderr)
+            print(
+                f"{args.dataset}: {key} {measured[key]} differs from the model's {stored[key]}: not its training data",
+                file=sys.stderr,
+            )
             return 2
     scene = loaded.simulator.scene
     envelope = measure_envelope(
-        dataset.metadata(), train, scene, {t: registry.material_by_type(t).name for t in scene.particle_types},
+        dataset.metadata(),
+        train,
+        scene,
+        {t: registry.material_by_type(t).name for t in scene.particle_types},
         loaded.recipe.dataset.frame_stride,
     )
     state = load_checkpoint(args.checkpoint, map_location="cpu")

@@ -8,4 +8,6 @@ import sys
 
 def gns(*args: str) -> subprocess.CompletedProcess:
     """``python -m gns_framework.cli ARGS``, its output captured as text (15 minutes at most)."""
-    return subprocess.run([sys.executable, "-m", "gns_framework.cli", *args], capture_output=True, text=True, timeout=900)
+    return subprocess.run(
+        [sys.executable, "-m", "gns_framework.cli", *args], capture_output=True, text=True, timeout=900
+    )

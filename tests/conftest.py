@@ -20,7 +20,9 @@ def pytest_collection_modifyitems(config, items):
 
     if torch.cuda.is_available():
         return
-    reason = pytest.mark.skip(reason=f"needs a CUDA GPU: torch {torch.__version__} sees none (torch.cuda.is_available() is False)")
+    reason = pytest.mark.skip(
+        reason=f"needs a CUDA GPU: torch {torch.__version__} sees none (torch.cuda.is_available() is False)"
+    )
     for item in items:
         if "cuda" in item.keywords:
             item.add_marker(reason)

@@ -29,8 +29,9 @@ LayerNorm, ReLU and column-sum kernels against the magnitudes of their terms), s
 leaves a margin of 6 while an error of 1e-4 relative (840 epsilons) still fails."""
 
 
-def assert_close_to_reference(got: Tensor, reference: Tensor, ulps: float = ULPS, scale: Tensor | float | None = None,
-                              msg: str = "") -> None:
+def assert_close_to_reference(
+    got: Tensor, reference: Tensor, ulps: float = ULPS, scale: Tensor | float | None = None, msg: str = ""
+) -> None:
     """``|got - reference| <= ulps * eps32 * scale`` elementwise, ``scale`` by default ``max |reference|``.
 
     ``reference`` is the float64 computation; ``scale`` may be a tensor that

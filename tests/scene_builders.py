@@ -64,12 +64,15 @@ def mixed(frames: int = 40) -> dict:
                 "size": [0.08, 0.08],
                 "properties": {"friction": {"range": [0.5, 0.9], "per": "particle"}},
             },
-            {"material": "goop", "shape": "ellipsoid", "position": [0.35, 0.2], "size": [0.1, 0.1],
-             "velocity": [{"range": [-0.5, 0.0]}, 0.0]},
+            {
+                "material": "goop",
+                "shape": "ellipsoid",
+                "position": [0.35, 0.2],
+                "size": [0.1, 0.1],
+                "velocity": [{"range": [-0.5, 0.0]}, 0.0],
+            },
         ],
-        "obstacles": [
-            {"material": "rigid", "position": [0.2, 0.02], "size": [0.1, 0.04], "velocity": [0.2, 0.0]}
-        ],
+        "obstacles": [{"material": "rigid", "position": [0.2, 0.02], "size": [0.1, 0.04], "velocity": [0.2, 0.0]}],
     }
 
 

@@ -71,7 +71,9 @@ def soft_sphere_trajectory(
     prop = None
     if with_property:
         prop = np.where(types == 3, 0.0, rng.uniform(0.4, 0.9)).astype(np.float32)[:, None]
-    return Trajectory(np.asarray(frames_out, np.float32), types.astype(np.int64), prop, None, key).validated("synthetic")
+    return Trajectory(np.asarray(frames_out, np.float32), types.astype(np.int64), prop, None, key).validated(
+        "synthetic"
+    )
 
 
 def synthetic_metadata(trajectories: list[Trajectory], dim: int) -> DatasetMetadata:

@@ -37,7 +37,9 @@ def generate(sim_registry, monkeypatch, tmp_path):
     def run(scene: dict, *extra: str) -> int:
         path = tmp_path / "scene.yaml"
         path.write_text(yaml.safe_dump(scene))
-        return main(["generate", str(path), "--trajectories", "3", "--out", str(tmp_path / "data"), "--no-progress", *extra])
+        return main(
+            ["generate", str(path), "--trajectories", "3", "--out", str(tmp_path / "data"), "--no-progress", *extra]
+        )
 
     return run
 
@@ -53,7 +55,9 @@ def no_allocation(monkeypatch):
     monkeypatch.setattr(generate_command, "build_ground_truth_simulator", refuse)
 
 
-def test_a_scene_of_6e10_particles_is_refused_with_the_estimate_before_sampling(generate, no_allocation, tmp_path, capsys):
+def test_a_scene_of_6e10_particles_is_refused_with_the_estimate_before_sampling(
+    generate, no_allocation, tmp_path, capsys
+):
     assert generate(HUGE) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1, err
@@ -68,11 +72,17 @@ def test_sampling_itself_refuses_it_too(no_allocation):
 
 
 def test_a_grid_of_6e10_nodes_is_refused(generate, no_allocation, capsys):
-    scene = dict(HUGE, dim=3, domain={"bounds": [[0.0, 1.0]] * 3, "grid": 4096},
-                 blocks=[{"material": "sand", "position": [0.0, 0.0, 0.0], "size": [0.01, 0.01, 0.01]}])
+    scene = dict(
+        HUGE,
+        dim=3,
+        domain={"bounds": [[0.0, 1.0]] * 3, "grid": 4096},
+        blocks=[{"material": "sand", "position": [0.0, 0.0, 0.0], "size": [0.01, 0.01, 0.01]}],
+    )
     assert generate(scene) == 2
-    assert "domain.grid: a grid of 4096 cells along the longest axis has about 6.88e+10 nodes in 3D, more than the " \
-           "limit of 1.07e+09" in capsys.readouterr().err
+    assert (
+        "domain.grid: a grid of 4096 cells along the longest axis has about 6.88e+10 nodes in 3D, more than the "
+        "limit of 1.07e+09" in capsys.readouterr().err
+    )
 
 
 def test_a_scene_beyond_this_machines_memory_is_refused(generate, no_allocation, monkeypatch, capsys):
@@ -97,11 +107,23 @@ def test_the_estimate_bounds_what_sampling_fills():
 
 
 def test_sequence_length_1e12_is_refused(tmp_path):
-    metadata = {"bounds": [[0, 1], [0, 1]], "sequence_length": 10**12, "default_connectivity_radius": 0.1, "dim": 2,
-                "dt": 0.01, "vel_mean": [0, 0], "vel_std": [1, 1], "acc_mean": [0, 0], "acc_std": [1, 1]}
+    metadata = {
+        "bounds": [[0, 1], [0, 1]],
+        "sequence_length": 10**12,
+        "default_connectivity_radius": 0.1,
+        "dim": 2,
+        "dt": 0.01,
+        "vel_mean": [0, 0],
+        "vel_std": [1, 1],
+        "acc_mean": [0, 0],
+        "acc_std": [1, 1],
+    }
     (tmp_path / "metadata.json").write_text(json.dumps(metadata))
-    with pytest.raises(GnsError, match=r"metadata.json: invalid metadata: .*sequence_length: 1e\+12 frames, more than "
-                                       r"the limit of 1,000,000"):
+    with pytest.raises(
+        GnsError,
+        match=r"metadata.json: invalid metadata: .*sequence_length: 1e\+12 frames, more than "
+        r"the limit of 1,000,000",
+    ):
         load_metadata(tmp_path)
 
 
@@ -113,8 +135,11 @@ def tfrecord_header(length: int) -> bytes:
 def test_a_tfrecord_record_length_of_2_40_is_refused_before_reading(tmp_path):
     path = tmp_path / "train.tfrecord"
     path.write_bytes(tfrecord_header(2**40) + b"\0" * 100)
-    with pytest.raises(DatasetError, match=r"train.tfrecord: record 0: truncated data: the length field says "
-                                           r"1,099,511,627,776 bytes but only 96 bytes follow in the file"):
+    with pytest.raises(
+        DatasetError,
+        match=r"train.tfrecord: record 0: truncated data: the length field says "
+        r"1,099,511,627,776 bytes but only 96 bytes follow in the file",
+    ):
         list(tf.read_records(path))
 
 

@@ -86,7 +86,9 @@ def pickled_member(data: Path) -> None:
 
 def three_dimensional_metadata(data: Path) -> None:
     raw = json.loads((data / "metadata.json").read_text())
-    raw.update(dim=3, bounds=raw["bounds"] + [[0, 1]], vel_mean=[0] * 3, vel_std=[1] * 3, acc_mean=[0] * 3, acc_std=[1] * 3)
+    raw.update(
+        dim=3, bounds=raw["bounds"] + [[0, 1]], vel_mean=[0] * 3, vel_std=[1] * 3, acc_mean=[0] * 3, acc_std=[1] * 3
+    )
     (data / "metadata.json").write_text(json.dumps(raw))
 
 
@@ -109,8 +111,11 @@ DAMAGED_DATA = [
     (flat_position, r"train\.npz: trajectory 'train_000': position: expected shape \(T, N, d\)"),
     (nan_position, r"train\.npz: trajectory 'train_001': position: non-finite value at frame 4, particle 7"),
     (short_particle_type, r"train\.npz: trajectory 'train_000': particle_type: expected shape"),
-    (pickled_member, r"train\.npz: train_000/position: holds a pickled object array, but this layout stores plain "
-                     r"numeric arrays only and never unpickles$"),
+    (
+        pickled_member,
+        r"train\.npz: train_000/position: holds a pickled object array, but this layout stores plain "
+        r"numeric arrays only and never unpickles$",
+    ),
     (three_dimensional_metadata, r"train\.npz: trajectory 'train_000': position: has d = 2 but metadata says dim = 3"),
     (negative_std, r"metadata\.json: invalid metadata: .*vel_std must be finite and >= 0"),
     (truncate("train.npz"), r"train\.npz: not a readable \.npz archive \(truncated or corrupt\?\)"),
@@ -119,7 +124,9 @@ DAMAGED_DATA = [
 
 
 @pytest.mark.parametrize("damage, expected", DAMAGED_DATA, ids=[d.__name__ for d, _ in DAMAGED_DATA])
-def test_damaged_dataset_is_named_and_the_run_is_untouched(damage, expected, dataset_2d, trained, run_dir, tmp_path, capsys):
+def test_damaged_dataset_is_named_and_the_run_is_untouched(
+    damage, expected, dataset_2d, trained, run_dir, tmp_path, capsys
+):
     data = Path(shutil.copytree(dataset_2d, tmp_path / "data"))
     damage(data)
     before, data_before = snapshot(run_dir), snapshot(data)
@@ -133,8 +140,10 @@ def test_damaged_dataset_is_named_and_the_run_is_untouched(damage, expected, dat
 
 MALFORMED_RECIPES = [
     ("name: x\ndataset: {path: d\n", r"recipe\.yaml: 1 problem.*line 3.*invalid YAML"),
-    ("name: x\ndataset: {path: d}\nmodel: {latent_size: 0}\nrollout: {guard: {on_violation: later}}\n",
-     r"recipe\.yaml: 2 problem.*model\.latent_size.*rollout\.guard\.on_violation"),
+    (
+        "name: x\ndataset: {path: d}\nmodel: {latent_size: 0}\nrollout: {guard: {on_violation: later}}\n",
+        r"recipe\.yaml: 2 problem.*model\.latent_size.*rollout\.guard\.on_violation",
+    ),
     ("- just\n- a list\n", r"recipe\.yaml: 1 problem.*expected a mapping"),
 ]
 
@@ -195,8 +204,17 @@ def test_rollout_of_a_checkpoint_on_data_of_another_dimension_is_refused(run_dir
 
     data3d = write_synthetic_dataset(tmp_path / "d3", train=1, valid=0, test=1, dim=3, frames=8)
     out = tmp_path / "rollouts"
-    code = main(["rollout", str(run_dir / "checkpoints" / "checkpoint-000000001.pt"), "--dataset", str(data3d),
-                 "--out", str(out), "--no-progress"])
+    code = main(
+        [
+            "rollout",
+            str(run_dir / "checkpoints" / "checkpoint-000000001.pt"),
+            "--dataset",
+            str(data3d),
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     assert code == 2
     assert "d3/metadata.json: dim: the dataset has dim = 3 but the model simulates dim = 2" in capsys.readouterr().err
     assert not out.exists()

@@ -99,9 +99,13 @@ def test_evaluation_metrics_on_the_gpu_match_the_cpu(dataset_multimaterial, tmp_
     trainer.train(5)
     trajectories = [trainer.data.dataset.split("valid")[0]]
     scene, metadata = trainer.data.scene, trainer.data.metadata
-    on_cpu = mean_rollout_scores(trainer.simulator, trajectories, validation_rollout_scorer(registry, scene, metadata, torch.device("cpu")))
+    on_cpu = mean_rollout_scores(
+        trainer.simulator, trajectories, validation_rollout_scorer(registry, scene, metadata, torch.device("cpu"))
+    )
     gpu_model = copy.deepcopy(trainer.simulator).to("cuda")
-    on_gpu = mean_rollout_scores(gpu_model, trajectories, validation_rollout_scorer(registry, scene, metadata, torch.device("cuda")))
+    on_gpu = mean_rollout_scores(
+        gpu_model, trajectories, validation_rollout_scorer(registry, scene, metadata, torch.device("cuda"))
+    )
     assert on_cpu.keys() == on_gpu.keys()
     for name, value in on_cpu.items():
         assert np.isfinite(on_gpu[name]) and abs(on_gpu[name] - value) <= 1e-3 * abs(value) + 1e-9, name

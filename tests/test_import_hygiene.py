@@ -21,10 +21,7 @@ print(json.dumps(sorted(m.split('.')[0] for m in sys.modules)))
 
 CASES = {
     "import gns_framework": "import gns_framework",
-    "gns --help": (
-        "from gns_framework.cli import main\n"
-        "try:\n    main(['--help'])\nexcept SystemExit:\n    pass"
-    ),
+    "gns --help": ("from gns_framework.cli import main\ntry:\n    main(['--help'])\nexcept SystemExit:\n    pass"),
     "gns plugins": "from gns_framework.cli import main\nmain(['plugins'])",
 }
 
@@ -40,7 +37,11 @@ def test_no_heavy_package_is_imported(case):
 
 def test_gns_help_does_not_import_torch():
     out = subprocess.run(
-        [sys.executable, "-c", PROBE.format(body=CASES["gns --help"])], capture_output=True, text=True, check=True, timeout=120
+        [sys.executable, "-c", PROBE.format(body=CASES["gns --help"])],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=120,
     ).stdout
     assert "torch" not in json.loads(out.strip().splitlines()[-1])
 

@@ -63,8 +63,15 @@ def test_metrics_leave_out_a_kinematic_material_of_any_id(registry):
     predicted = position[history:].copy()
     predicted[:, 2:] += 0.05  # only the prescribed ballast is off: it must not count
     metadata = DatasetMetadata(
-        bounds=[(0.0, 1.0), (0.0, 1.0)], sequence_length=len(position), default_connectivity_radius=0.1, dim=2,
-        dt=0.01, vel_mean=[0.0, 0.0], vel_std=[1.0, 1.0], acc_mean=[0.0, 0.0], acc_std=[1.0, 1.0],
+        bounds=[(0.0, 1.0), (0.0, 1.0)],
+        sequence_length=len(position),
+        default_connectivity_radius=0.1,
+        dim=2,
+        dt=0.01,
+        vel_mean=[0.0, 0.0],
+        vel_std=[1.0, 1.0],
+        acc_mean=[0.0, 0.0],
+        acc_std=[1.0, 1.0],
     )
     rollout = Rollout(Trajectory(position, np.array([SAND, SAND, BALLAST, BALLAST])), predicted, history, metadata)
     summary = score_rollout(rollout, kinematic_types=registry.kinematic_types(), metrics=registry.metrics())

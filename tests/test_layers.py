@@ -35,14 +35,24 @@ def test_normed_mlp_normalises_each_row_over_its_outputs():
     before = block.mlp(x).var(-1, unbiased=False)  # LayerNorm scales it to 1, short by its eps
     assert torch.allclose(out.var(-1, unbiased=False), before / (before + block.norm.eps), atol=1e-5)
     assert list(dict(block.named_parameters())) == [
-        "mlp.linears.0.weight", "mlp.linears.0.bias", "mlp.linears.1.weight", "mlp.linears.1.bias",
-        "norm.weight", "norm.bias",
+        "mlp.linears.0.weight",
+        "mlp.linears.0.bias",
+        "mlp.linears.1.weight",
+        "mlp.linears.1.bias",
+        "norm.weight",
+        "norm.bias",
     ]  # the names checkpoints store
 
 
 @pytest.mark.parametrize(
-    "kind, name", [("encoder", "mlp"), ("processor", "interaction_network"), ("processor", "shared_interaction_network"),
-                   ("processor", "egnn"), ("decoder", "mlp")],
+    "kind, name",
+    [
+        ("encoder", "mlp"),
+        ("processor", "interaction_network"),
+        ("processor", "shared_interaction_network"),
+        ("processor", "egnn"),
+        ("decoder", "mlp"),
+    ],
 )
 def test_every_linear_layer_of_the_builtins_is_in_the_shared_mlp(kind, name, registry):
     """One MLP builder: a built-in that grew its own copy fails here. (graph_attention's GATv2 layers are PyG's.)"""
@@ -51,5 +61,8 @@ def test_every_linear_layer_of_the_builtins_is_in_the_shared_mlp(kind, name, reg
     in_mlps = {id(linear) for module in component.modules() if isinstance(module, MLP) for linear in module.linears}
     linears = [name for name, module in component.named_modules() if isinstance(module, nn.Linear)]
     assert linears, f"{kind} {name} has no Linear layer"
-    assert [name for name, module in component.named_modules()
-            if isinstance(module, nn.Linear) and id(module) not in in_mlps] == []
+    assert [
+        name
+        for name, module in component.named_modules()
+        if isinstance(module, nn.Linear) and id(module) not in in_mlps
+    ] == []

@@ -183,7 +183,10 @@ def checkpoint(dataset_2d, tmp_path_factory):
 def test_rollout_refuses_a_foreign_folder_and_rewrites_its_own(checkpoint, foreign, tmp_path, capsys):
     args = ["rollout", str(checkpoint), "--split", "test", "--no-progress", "--device", "cpu", "--outside-envelope"]
     assert main([*args, "--out", str(foreign)]) == 2
-    assert f"{foreign}: not empty and not an earlier result of gns rollout: it holds 1 entry: notes.txt" in capsys.readouterr().err
+    assert (
+        f"{foreign}: not empty and not an earlier result of gns rollout: it holds 1 entry: notes.txt"
+        in capsys.readouterr().err
+    )
     assert tree(foreign) == {"notes.txt": b"precious"}
     out = tmp_path / "rollouts"
     assert main([*args, "--out", str(out)]) == 0
@@ -196,15 +199,42 @@ def test_rollout_refuses_a_foreign_folder_and_rewrites_its_own(checkpoint, forei
 
 
 def test_evaluate_refuses_a_foreign_folder_before_any_work(checkpoint, foreign, capsys):
-    assert main(["evaluate", "--outside-envelope", str(checkpoint), "--out", str(foreign), "--no-simulator", "--repeats", "1"]) == 2
+    assert (
+        main(
+            [
+                "evaluate",
+                "--outside-envelope",
+                str(checkpoint),
+                "--out",
+                str(foreign),
+                "--no-simulator",
+                "--repeats",
+                "1",
+            ]
+        )
+        == 2
+    )
     assert "not an earlier result of gns evaluate: it holds 1 entry: notes.txt" in capsys.readouterr().err
     assert tree(foreign) == {"notes.txt": b"precious"}
 
 
 def test_evaluate_rewrites_its_own_report(checkpoint, tmp_path, capsys):
     out = tmp_path / "report"
-    args = ["evaluate", "--outside-envelope", str(checkpoint), "--out", str(out), "--no-simulator", "--repeats", "1", "--warmup", "0",
-            "--device", "cpu", "--outside-envelope"]
+    args = [
+        "evaluate",
+        "--outside-envelope",
+        str(checkpoint),
+        "--out",
+        str(out),
+        "--no-simulator",
+        "--repeats",
+        "1",
+        "--warmup",
+        "0",
+        "--device",
+        "cpu",
+        "--outside-envelope",
+    ]
     assert main(args) == 0
     assert main(args) == 0
     assert "writing over the earlier contents" in capsys.readouterr().err

@@ -106,7 +106,9 @@ def test_metadata_linked_to_dev_zero_is_refused_without_reading_it_all(dataset, 
 def write_with_train(path: Path, train: list) -> Path:
     frames = train[0].num_steps if train else 40
     valid = [soft_sphere_trajectory(9, frames=frames, key="valid_0")]
-    metadata = synthetic_metadata([soft_sphere_trajectory(9, key="stats")], 2).model_copy(update={"sequence_length": frames})
+    metadata = synthetic_metadata([soft_sphere_trajectory(9, key="stats")], 2).model_copy(
+        update={"sequence_length": frames}
+    )
     load_registry().get("dataset", "safe").write(path, metadata, {"train": train, "valid": valid})
     return path
 
@@ -116,8 +118,11 @@ def test_zero_or_two_frame_trajectories_are_one_line_naming_the_dataset(tmp_path
     recipe = tmp_path / "two.yaml"
     recipe.write_text(yaml.safe_dump(tiny_recipe_mapping(two)))
     assert train(recipe, tmp_path / "run2") == 2
-    one_line(capsys, f"{two} (split train): sequence_length: its 2 trajectories have at most 2 frames, and training "
-                     "needs more than model.history")
+    one_line(
+        capsys,
+        f"{two} (split train): sequence_length: its 2 trajectories have at most 2 frames, and training "
+        "needs more than model.history",
+    )
     empty = write_with_train(tmp_path / "empty", [])
     recipe = tmp_path / "empty.yaml"
     recipe.write_text(yaml.safe_dump(tiny_recipe_mapping(empty)))
@@ -171,10 +176,13 @@ def test_a_re_signed_checkpoint_without_optimizer_cannot_be_resumed(checkpoint, 
 # ---- devices ----------------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("device, says", [
-    ("banana", "--device 'banana': not a device: expected auto, cpu, cuda or cuda:N"),
-    ("cuda:7", "--device 'cuda:7': "),
-])
+@pytest.mark.parametrize(
+    "device, says",
+    [
+        ("banana", "--device 'banana': not a device: expected auto, cpu, cuda or cuda:N"),
+        ("cuda:7", "--device 'cuda:7': "),
+    ],
+)
 def test_a_device_that_is_not_there_is_one_line(checkpoint, tmp_path, capsys, device, says):
     if device == "cuda:7" and torch.cuda.is_available() and torch.cuda.device_count() > 7:
         pytest.skip("this machine has a cuda:7")
@@ -229,7 +237,9 @@ def test_a_server_still_down_at_the_deadline_leaves_a_command_to_send_later(tmp_
     monkeypatch.setattr(client, "set_terminated", down)
     lines = [{"step": s, "time": 1.0 + s, "train_loss": 1.0 / (s + 1)} for s in range(1, 4)]
     (run_dir / "metrics.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
-    with pytest.warns(UserWarning, match=rf"did not receive .* within 0.5 s; .* send them with `gns track-sync {run_dir}`"):
+    with pytest.warns(
+        UserWarning, match=rf"did not receive .* within 0.5 s; .* send them with `gns track-sync {run_dir}`"
+    ):
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=".*unreachable.*")
             for line in lines:
@@ -240,7 +250,10 @@ def test_a_server_still_down_at_the_deadline_leaves_a_command_to_send_later(tmp_
     monkeypatch.setattr(client, "set_terminated", real_terminated)
     monkeypatch.setattr(mlflow_tracker, "_client", lambda _: client)
     assert main(["track-sync", str(run_dir)]) == 0
-    assert f"sent 3 metric value(s) of {run_dir} to MLflow run {tracker.run_id}; marked FINISHED" in capsys.readouterr().out
+    assert (
+        f"sent 3 metric value(s) of {run_dir} to MLflow run {tracker.run_id}; marked FINISHED"
+        in capsys.readouterr().out
+    )
     run = client.get_run(tracker.run_id)
     assert run.info.status == "FINISHED" and not (run_dir / RunFolder.MLFLOW_UNSENT).exists()
     assert sorted(m.step for m in client.get_metric_history(tracker.run_id, "train_loss")) == [1, 2, 3]

@@ -57,8 +57,14 @@ def test_the_guide_material_is_simulated_by_the_builtin_mpm(gravel_registry):
         "dim": 2,
         "domain": {"bounds": [[0.0, 0.4], [0.0, 0.4]], "grid": 16},
         "time": {"frame_dt": 0.0025, "substeps": 10, "frames": 8},
-        "blocks": [{"material": "gravel", "position": [0.0, 0.0], "size": [0.1, 0.15],
-                    "properties": {"friction": {"range": [0.6, 0.8]}}}],
+        "blocks": [
+            {
+                "material": "gravel",
+                "position": [0.0, 0.0],
+                "size": [0.1, 0.15],
+                "properties": {"friction": {"range": [0.6, 0.8]}},
+            }
+        ],
     }
     scene = SceneSpec.model_validate(raw)
     build_ground_truth_simulator(scene, gravel_registry, "<guide scene>")  # every shared and MPM check passes
@@ -88,8 +94,15 @@ def make_rollout_2d():
     truth = rng.uniform(0.2, 0.8, size=(5, 6, 2))
     predicted = truth + rng.normal(0, 0.01, size=truth.shape)
     metadata = DatasetMetadata(
-        bounds=[(0.0, 1.0)] * 2, sequence_length=11, default_connectivity_radius=0.1, dim=2, dt=0.01,
-        vel_mean=[0.0] * 2, vel_std=[1.0] * 2, acc_mean=[0.0] * 2, acc_std=[1.0] * 2,
+        bounds=[(0.0, 1.0)] * 2,
+        sequence_length=11,
+        default_connectivity_radius=0.1,
+        dim=2,
+        dt=0.01,
+        vel_mean=[0.0] * 2,
+        vel_std=[1.0] * 2,
+        acc_mean=[0.0] * 2,
+        acc_std=[1.0] * 2,
     )
     types_ = np.array([6, 6, 6, 6, 3, 3])
     frames = np.concatenate([truth[:1].repeat(6, 0), truth]).astype(np.float32)

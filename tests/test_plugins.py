@@ -104,7 +104,10 @@ def test_material_type_clash_names_both():
         load_registry(plugins=[("mud", MudPlugin)])
     message = str(info.value)
     assert "builtin-materials" in message and "plugin 'mud'" in message
-    assert f"disable its plugin with the environment variable {DISABLE_ENV}=mud (or {DISABLE_ENV}=builtin-materials)" in message
+    assert (
+        f"disable its plugin with the environment variable {DISABLE_ENV}=mud (or {DISABLE_ENV}=builtin-materials)"
+        in message
+    )
 
 
 @pytest.fixture
@@ -130,7 +133,9 @@ def test_a_broken_plugin_is_skipped_with_one_warning_naming_it(broken_distributi
     assert f"{DISABLE_ENV}=broken" in message and "\n" not in message
     assert "interaction_network" in registry.names("processor")  # the other plugins still load
     assert [b.entry_point for b in registry.broken] == ["broken"]
-    assert registry.broken_of("broken-gns-plugin") == list(registry.broken) and registry.broken_of("gns-framework") == []
+    assert (
+        registry.broken_of("broken-gns-plugin") == list(registry.broken) and registry.broken_of("gns-framework") == []
+    )
 
 
 def test_a_missing_component_names_the_broken_plugin_that_may_provide_it(broken_distribution):
@@ -139,7 +144,7 @@ def test_a_missing_component_names_the_broken_plugin_that_may_provide_it(broken_
         registry = load_registry()
     with pytest.raises(RecipeError) as info:
         registry.resolve("processor", {"name": "broken_processor"}, ("model", "processor"), "recipe.yaml")
-    (location, message), = info.value.problems
+    ((location, message),) = info.value.problems
     assert location == "model.processor.name" and message.startswith("unknown processor 'broken_processor'")
     assert "it may be provided by a plugin that was skipped: plugin entry point 'broken'" in message
     assert "broken-gns-plugin 1.2.3, which failed to load (ImportError: missing dependency xyz)" in message
@@ -238,12 +243,18 @@ def test_a_plugins_metric_can_be_tracked_in_validation_and_chosen_for_best_pt(tm
     raw = tiny_recipe_mapping(tmp_path)
     raw["training"]["best_metric"] = "valid_rollout_spread_pct"
     assert validate_recipe(raw, registry).training.best_metric == "valid_rollout_spread_pct"
-    with pytest.raises(RecipeError, match=r"training.best_metric: unknown validation metric 'valid_rollout_spread_pct'.*"
-                                          r"measured in validation: .*valid_rollout_deposit_error_pct"):
+    with pytest.raises(
+        RecipeError,
+        match=r"training.best_metric: unknown validation metric 'valid_rollout_spread_pct'.*"
+        r"measured in validation: .*valid_rollout_deposit_error_pct",
+    ):
         validate_recipe(raw, load_registry())
     twin = Metric("another_sinkhorn", "%, another", lambda pair: None, validation="sinkhorn_pct")
-    with pytest.raises(PluginError, match="tracked in validation as valid_rollout_sinkhorn_pct: 'sinkhorn_final_pct' "
-                                          "from plugin 'builtin-metrics'.*'another_sinkhorn' from plugin 'twin-tracked'"):
+    with pytest.raises(
+        PluginError,
+        match="tracked in validation as valid_rollout_sinkhorn_pct: 'sinkhorn_final_pct' "
+        "from plugin 'builtin-metrics'.*'another_sinkhorn' from plugin 'twin-tracked'",
+    ):
         load_registry(plugins=[("twin-tracked", _metric_plugin(twin))])
 
 
@@ -286,12 +297,15 @@ def test_resolve_locates_an_unknown_name_and_each_bad_parameter(registry):
 
     with pytest.raises(RecipeError) as unknown:
         registry.resolve("processor", {"name": "interaction_netwrok"}, ("model", "processor"), "recipe.yaml")
-    (location, message), = unknown.value.problems
+    ((location, message),) = unknown.value.problems
     assert unknown.value.source == "recipe.yaml" and location == "model.processor.name"
     assert "did you mean 'interaction_network'" in message and "installed:" in message
     with pytest.raises(RecipeError) as bad:
-        registry.resolve("processor", {"name": "interaction_network", "message_passing_steps": "many", "colour": 1},
-                         ("model", "processor"))
+        registry.resolve(
+            "processor",
+            {"name": "interaction_network", "message_passing_steps": "many", "colour": 1},
+            ("model", "processor"),
+        )
     locations = dict(bad.value.problems)
     assert set(locations) == {"model.processor.message_passing_steps", "model.processor.colour"}
 
@@ -302,8 +316,11 @@ def test_only_the_registry_turns_names_into_validated_params():
 
     package = Path(__file__).resolve().parents[1] / "gns_framework"
     allowed = {package / "plugins.py", package / "testing.py"}
-    elsewhere = [str(path.relative_to(package)) for path in sorted(package.rglob("*.py"))
-                 if path not in allowed and ".Params.model_validate" in path.read_text()]
+    elsewhere = [
+        str(path.relative_to(package))
+        for path in sorted(package.rglob("*.py"))
+        if path not in allowed and ".Params.model_validate" in path.read_text()
+    ]
     assert elsewhere == []
 
 

@@ -31,8 +31,28 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 SAFE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
 
 HOSTILE = [
-    "/abs/path/name", "../../../../x", "..", ".", "", "-rf", "--help", ".hidden", "a\x00b", "a\\..\\b", "C:\\x",
-    "con", "NUL.txt", "x" * 500, "é/ü", "a/b", "trailing.", " ", "\n", "~", "$HOME", "a" * 99 + "/",
+    "/abs/path/name",
+    "../../../../x",
+    "..",
+    ".",
+    "",
+    "-rf",
+    "--help",
+    ".hidden",
+    "a\x00b",
+    "a\\..\\b",
+    "C:\\x",
+    "con",
+    "NUL.txt",
+    "x" * 500,
+    "é/ü",
+    "a/b",
+    "trailing.",
+    " ",
+    "\n",
+    "~",
+    "$HOME",
+    "a" * 99 + "/",
 ]
 
 
@@ -74,9 +94,13 @@ def test_safe_component_of_any_text(text):
     component = safe_component(text)
     assert_one_safe_component(component)
     assert safe_component(component) == component, "idempotent"
-    assert (component == text) == bool(SAFE.match(text) and len(text) <= MAX_COMPONENT and not text.endswith(".")
-                                       and text.split(".")[0].lower() not in {"con", "prn", "aux", "nul"}
-                                       and not re.match(r"(?i)(com|lpt)[1-9]$", text.split(".")[0]))
+    assert (component == text) == bool(
+        SAFE.match(text)
+        and len(text) <= MAX_COMPONENT
+        and not text.endswith(".")
+        and text.split(".")[0].lower() not in {"con", "prn", "aux", "nul"}
+        and not re.match(r"(?i)(com|lpt)[1-9]$", text.split(".")[0])
+    )
 
 
 def test_unique_components_never_repeat_in_one_folder_ignoring_case():
@@ -93,8 +117,14 @@ def test_ensure_inside_refuses_every_way_out_naming_path_and_folder(tmp_path):
     (out / "sub").mkdir(parents=True)
     (tmp_path / "elsewhere").mkdir()
     (out / "link").symlink_to(tmp_path / "elsewhere")
-    for path in (out / ".." / "x.npz", out / "sub" / ".." / ".." / "x", Path("/etc/passwd"), out / "link" / "x.npz",
-                 out, out / "sub" / ".."):
+    for path in (
+        out / ".." / "x.npz",
+        out / "sub" / ".." / ".." / "x",
+        Path("/etc/passwd"),
+        out / "link" / "x.npz",
+        out,
+        out / "sub" / "..",
+    ):
         with pytest.raises(UnsafePathError) as info:
             ensure_inside(path, out)
         assert str(path) in str(info.value) and f"outside its output folder {out}" in str(info.value)
@@ -108,7 +138,9 @@ def test_ensure_inside_refuses_every_way_out_naming_path_and_folder(tmp_path):
 
 
 def test_model_labels_are_safe_components(tmp_path):
-    labels = model_labels(["..", "-x", "a/b", "a/b"], [tmp_path / f"{n}/checkpoints/best.pt" for n in ("..", ".", "c", "c")])
+    labels = model_labels(
+        ["..", "-x", "a/b", "a/b"], [tmp_path / f"{n}/checkpoints/best.pt" for n in ("..", ".", "c", "c")]
+    )
     for label in labels:
         assert_one_safe_component(label)
     assert len(set(labels)) == 4
@@ -121,7 +153,9 @@ def test_model_labels_are_safe_components(tmp_path):
 def tree(folder: Path) -> dict[str, bytes]:
     """Every file under ``folder`` (links not followed) with its content."""
     return {
-        str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file() and not p.is_symlink()
+        str(p.relative_to(folder)): p.read_bytes()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and not p.is_symlink()
     }
 
 
@@ -144,7 +178,9 @@ def hostile_keyed_dataset(folder: Path, source: Path, keys: list[str], registry)
     return folder
 
 
-def test_trajectory_keys_through_evaluate_gif_and_vtk_stay_inside_out(checkpoint, dataset_2d, tmp_path, registry, capsys):
+def test_trajectory_keys_through_evaluate_gif_and_vtk_stay_inside_out(
+    checkpoint, dataset_2d, tmp_path, registry, capsys
+):
     """The reported attack: keys ``/abs/path/name`` and ``../../../../x`` overwrote a user's files."""
     victim = tmp_path / "victim"
     victim.mkdir()
@@ -158,8 +194,24 @@ def test_trajectory_keys_through_evaluate_gif_and_vtk_stay_inside_out(checkpoint
     data = hostile_keyed_dataset(tmp_path / "data", dataset_2d, keys, registry)
     before = {k: v for k, v in tree(tmp_path).items() if not k.startswith(("w/", "data/"))}
 
-    code = main(["evaluate", "--outside-envelope", str(checkpoint), "--dataset", str(data), "--out", str(out), "--no-simulator",
-                 "--repeats", "1", "--warmup", "0", "--gif", "--vtk"])
+    code = main(
+        [
+            "evaluate",
+            "--outside-envelope",
+            str(checkpoint),
+            "--dataset",
+            str(data),
+            "--out",
+            str(out),
+            "--no-simulator",
+            "--repeats",
+            "1",
+            "--warmup",
+            "0",
+            "--gif",
+            "--vtk",
+        ]
+    )
 
     assert code == 0, capsys.readouterr().err
     after = {k: v for k, v in tree(tmp_path).items() if not k.startswith(("w/", "data/"))}
@@ -187,8 +239,15 @@ def test_candidate_labels_and_case_keys_in_the_report_api_stay_inside_rollout_di
         return Prediction(np.repeat(case.position[5:6], len(case.position) - 5, axis=0))
 
     names = ["../../../model", "/tmp/model", "a/b"]
-    report = evaluate([Candidate(n, "learned", still) for n in names], cases, small_metadata(), 5, repeats=1, warmup=0,
-                      rollout_dir=tmp_path / "out" / "rollouts")
+    report = evaluate(
+        [Candidate(n, "learned", still) for n in names],
+        cases,
+        small_metadata(),
+        5,
+        repeats=1,
+        warmup=0,
+        rollout_dir=tmp_path / "out" / "rollouts",
+    )
     written = [p for e in report.entries for p in e.rollout_files]
     assert len(set(written)) == 9 and all(p.parent.parent == tmp_path / "out" / "rollouts" for p in written)
     assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file()) == sorted(
@@ -196,7 +255,9 @@ def test_candidate_labels_and_case_keys_in_the_report_api_stay_inside_rollout_di
     )
 
 
-def test_a_recipe_named_dot_dot_trains_in_its_own_folder_under_runs(dataset_2d, tmp_path, monkeypatch, registry, capsys):
+def test_a_recipe_named_dot_dot_trains_in_its_own_folder_under_runs(
+    dataset_2d, tmp_path, monkeypatch, registry, capsys
+):
     """``name: ".."`` wrote into the working directory and overwrote the user's recipe.yaml."""
     monkeypatch.chdir(tmp_path)
     raw = tiny_recipe_mapping(dataset_2d)
@@ -238,7 +299,9 @@ def test_train_and_compare_with_a_hostile_experiment_name(dataset_2d, tmp_path, 
     (work / "recipe.yaml").write_text(yaml.safe_dump(tiny_recipe_mapping(dataset_2d, work / "run")))
     experiment = "../../x"
 
-    code = main(["train", "recipe.yaml", "--steps", "1", "--no-progress", "--tracking-uri", uri, "--experiment", experiment])
+    code = main(
+        ["train", "recipe.yaml", "--steps", "1", "--no-progress", "--tracking-uri", uri, "--experiment", experiment]
+    )
     assert code == 0, capsys.readouterr().err
     location = mlflow.MlflowClient(uri).get_experiment_by_name(experiment).artifact_location
     assert Path(location.removeprefix("file://")).is_relative_to((work / "store" / "mlartifacts").resolve())
@@ -255,10 +318,14 @@ def test_train_and_compare_with_a_hostile_experiment_name(dataset_2d, tmp_path, 
 def test_a_split_name_is_never_a_path(split, checkpoint, dataset_2d, tmp_path, capsys):
     """``--split`` names a file of the dataset folder to read and the rollout files to write: a plain name only."""
     out = tmp_path / "out"
-    code = main(["rollout", "--outside-envelope", str(checkpoint), "--split", split, "--out", str(out), "--no-progress"])
+    code = main(
+        ["rollout", "--outside-envelope", str(checkpoint), "--split", split, "--out", str(out), "--no-progress"]
+    )
     err = capsys.readouterr().err
     assert code == 2 and f"--split {split!r}: must be a plain name" in err and err.count("\n") == 1, err
-    code = main(["evaluate", "--outside-envelope", str(checkpoint), "--split", split, "--out", str(out), "--no-simulator"])
+    code = main(
+        ["evaluate", "--outside-envelope", str(checkpoint), "--split", split, "--out", str(out), "--no-simulator"]
+    )
     err = capsys.readouterr().err
     assert code == 2 and f"--split {split!r}: must be a plain name" in err, err
     assert not out.exists()
@@ -266,7 +333,23 @@ def test_a_split_name_is_never_a_path(split, checkpoint, dataset_2d, tmp_path, c
 
 def test_rollout_files_of_a_split_stay_inside_out(checkpoint, tmp_path, capsys):
     out = tmp_path / "out"
-    assert main(["rollout", "--outside-envelope", str(checkpoint), "--split", "test", "--out", str(out), "--no-progress", "--steps", "2"]) == 0
+    assert (
+        main(
+            [
+                "rollout",
+                "--outside-envelope",
+                str(checkpoint),
+                "--split",
+                "test",
+                "--out",
+                str(out),
+                "--no-progress",
+                "--steps",
+                "2",
+            ]
+        )
+        == 0
+    )
     assert sorted(p.name for p in out.iterdir() if p.name != ".gns-output.json") == ["test_0000.npz"]
 
 
@@ -287,4 +370,3 @@ def test_a_vtk_series_name_is_one_file_name(tmp_path):
     with pytest.raises(UnsafePathError, match="VTK series name '../x'"):
         write_vtk_series(tmp_path / "vtk", "../x", np.zeros((2, 3, 2)), 0.1, np.zeros(3, int))
     assert not (tmp_path / "x").exists() and not (tmp_path / "x.pvd").exists()
-

@@ -31,15 +31,37 @@ def test_the_envelope_it_records_is_the_card_s(registry):
 def canonical(tmp_path_factory) -> Path:
     """One case of scenes/canonical/slip_side_walls.yaml, which no training or validation scene is."""
     out = tmp_path_factory.mktemp("canonical") / "data"
-    result = gns("generate", str(REPO / "scenes" / "canonical" / "slip_side_walls.yaml"), "--trajectories", "2",
-                 "--valid", "0", "--test", "1", "--out", str(out), "--no-progress")
+    result = gns(
+        "generate",
+        str(REPO / "scenes" / "canonical" / "slip_side_walls.yaml"),
+        "--trajectories",
+        "2",
+        "--valid",
+        "0",
+        "--test",
+        "1",
+        "--out",
+        str(out),
+        "--no-progress",
+    )
     assert result.returncode == 0, result.stderr
     return out
 
 
 def test_it_holds_on_a_canonical_scene(canonical, tmp_path):
-    result = gns("evaluate", str(MODEL), "--dataset", str(canonical), "--out", str(tmp_path), "--repeats", "1",
-                 "--warmup", "0", "--no-simulator")
+    result = gns(
+        "evaluate",
+        str(MODEL),
+        "--dataset",
+        str(canonical),
+        "--out",
+        str(tmp_path),
+        "--repeats",
+        "1",
+        "--warmup",
+        "0",
+        "--no-simulator",
+    )
     assert result.returncode == 0, result.stderr
     with (tmp_path / "report.csv").open() as handle:
         learned = next(row for row in csv.DictReader(handle) if row["reference"] != "True")
@@ -54,8 +76,19 @@ def test_data_outside_the_envelope_is_refused_naming_what(tmp_path):
     assert "grid: 64" in scene
     (tmp_path / "fine.yaml").write_text(scene)
     out = tmp_path / "fine"
-    made = gns("generate", str(tmp_path / "fine.yaml"), "--trajectories", "2", "--valid", "0", "--test", "1",
-               "--out", str(out), "--no-progress")
+    made = gns(
+        "generate",
+        str(tmp_path / "fine.yaml"),
+        "--trajectories",
+        "2",
+        "--valid",
+        "0",
+        "--test",
+        "1",
+        "--out",
+        str(out),
+        "--no-progress",
+    )
     assert made.returncode == 0, made.stderr
     result = gns("rollout", str(MODEL), "--dataset", str(out), "--out", str(tmp_path / "rollouts"))
     assert result.returncode != 0

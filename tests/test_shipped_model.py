@@ -26,8 +26,21 @@ def test_the_shipped_model_is_small_and_loads_on_the_cpu(registry):
 def unseen_collapse(tmp_path_factory) -> Path:
     """One collapse of the demo scene from a seed the model never trained or was evaluated on."""
     out = tmp_path_factory.mktemp("unseen") / "data"
-    result = gns("generate", str(SCENE), "--seed", "99", "--trajectories", "2", "--valid", "0", "--test", "1",
-                 "--out", str(out), "--no-progress")
+    result = gns(
+        "generate",
+        str(SCENE),
+        "--seed",
+        "99",
+        "--trajectories",
+        "2",
+        "--valid",
+        "0",
+        "--test",
+        "1",
+        "--out",
+        str(out),
+        "--no-progress",
+    )
     assert result.returncode == 0, result.stderr
     return out
 
@@ -35,8 +48,19 @@ def unseen_collapse(tmp_path_factory) -> Path:
 @pytest.mark.parametrize("simulator", [False, True])
 def test_gns_evaluate_runs_the_shipped_model_on_new_data(unseen_collapse, tmp_path, simulator):
     extra = ["--grid-scales", "1"] if simulator else ["--no-simulator"]
-    result = gns("evaluate", str(MODEL), "--dataset", str(unseen_collapse), "--out", str(tmp_path), "--repeats", "1",
-                 "--warmup", "0", *extra)
+    result = gns(
+        "evaluate",
+        str(MODEL),
+        "--dataset",
+        str(unseen_collapse),
+        "--out",
+        str(tmp_path),
+        "--repeats",
+        "1",
+        "--warmup",
+        "0",
+        *extra,
+    )
     assert result.returncode == 0, result.stderr
     with (tmp_path / "report.csv").open() as handle:
         rows = {row["name"]: row for row in csv.DictReader(handle)}

@@ -132,8 +132,12 @@ def test_dataset_check_of_a_read_only_layout_needs_a_folder():
 
 
 def _material(**facts):
-    base = {"name": "grit", "particle_type": 12, "constitutive_model": "drucker_prager",
-            "physical_parameters": {"density": 2000.0}}
+    base = {
+        "name": "grit",
+        "particle_type": 12,
+        "constitutive_model": "drucker_prager",
+        "physical_parameters": {"density": 2000.0},
+    }
     return type("Grit", (REGISTRY.get("material", "sand"),), {**base, **facts})
 
 

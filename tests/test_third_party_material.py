@@ -13,8 +13,14 @@ pytest.importorskip("gns_example_clay", reason="install it: pip install -e plugi
 
 def test_trains_on_clay_with_per_particle_cohesion(tmp_path):
     data = write_synthetic_dataset(
-        tmp_path / "data", train=2, valid=1, test=0, frames=20,
-        particle_types=(8,), kinematic_floor=True, with_property=True,
+        tmp_path / "data",
+        train=2,
+        valid=1,
+        test=0,
+        frames=20,
+        particle_types=(8,),
+        kinematic_floor=True,
+        with_property=True,
     )
     recipe = tiny_recipe(data, materials=["clay", "rigid"], material_properties=["cohesion"])
     trainer = tiny_trainer(recipe, tmp_path / "run")

@@ -40,12 +40,14 @@ def training_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str
         return problems  # an unknown name is the schema's to report
     same = integrator.same_position_map_as
     if same is not None:
-        problems.append((
-            "model.integrator.name",
-            f"{integrator.name!r} moves particles with {same!r}'s position map when it sees positions only, so a "
-            f"learned model trains exactly the same with either: use {same!r} (the {integrator.name!r} scheme itself "
-            "is studied under force laws by gns stability)",
-        ))
+        problems.append(
+            (
+                "model.integrator.name",
+                f"{integrator.name!r} moves particles with {same!r}'s position map when it sees positions only, so a "
+                f"learned model trains exactly the same with either: use {same!r} (the {integrator.name!r} scheme itself "
+                "is studied under force laws by gns stability)",
+            )
+        )
     return problems
 
 
@@ -63,9 +65,13 @@ def build_learned_simulator(
         periodic_builders = [e.name for e in registry.entries("graph_builder") if e.cls.supports_periodic]
         raise RecipeError(
             None,
-            [("model.graph_builder.name",
-              f"{builder_cls.name!r} does not connect across the periodic dimensions {list(scene.periodic_dims)}; "
-              f"use one of: {', '.join(periodic_builders) or 'none installed'}")],
+            [
+                (
+                    "model.graph_builder.name",
+                    f"{builder_cls.name!r} does not connect across the periodic dimensions {list(scene.periodic_dims)}; "
+                    f"use one of: {', '.join(periodic_builders) or 'none installed'}",
+                )
+            ],
         )
     integrator = integrator_cls(integrator_params)
     noise_std = training_noise_std(model, metadata)

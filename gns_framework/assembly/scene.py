@@ -45,7 +45,9 @@ def scene_from_data(
 
     property_widths = {0 if t.material_property is None else t.material_property.shape[1] for t in trajectories}
     if len(property_widths) > 1:
-        raise DatasetError(f"{source}: material_property: trajectories disagree on the number of columns {sorted(property_widths)}")
+        raise DatasetError(
+            f"{source}: material_property: trajectories disagree on the number of columns {sorted(property_widths)}"
+        )
     num_properties = property_widths.pop() if property_widths else 0
     property_names: tuple[str, ...] = ()
     if num_properties:
@@ -53,9 +55,13 @@ def scene_from_data(
         if len(declared) != num_properties:
             raise RecipeError(
                 None,
-                [("model.material_properties",
-                  f"the data has {num_properties} material_property column(s) but the names are {declared}; "
-                  "list one name per column")],
+                [
+                    (
+                        "model.material_properties",
+                        f"the data has {num_properties} material_property column(s) but the names are {declared}; "
+                        "list one name per column",
+                    )
+                ],
             )
         property_names = tuple(declared)
 
@@ -99,8 +105,10 @@ def _wall_conditions(trajectories: Sequence[Trajectory], asked: bool | None, wal
     """
     recorded = [t.walls for t in trajectories if t.walls is not None]
     if asked is None:
-        asked = wall_features and len(recorded) == len(trajectories) and any(
-            not np.array_equal(w, recorded[0]) for w in recorded
+        asked = (
+            wall_features
+            and len(recorded) == len(trajectories)
+            and any(not np.array_equal(w, recorded[0]) for w in recorded)
         )
     if not asked:
         return False

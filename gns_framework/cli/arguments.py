@@ -40,7 +40,9 @@ def non_negative_float(text: str) -> float:
 def add_allow_pickle(parser: argparse.ArgumentParser) -> None:
     """``--allow-pickle FOLDER``: the per-command grant to unpickle anything from one dataset folder."""
     parser.add_argument(
-        "--allow-pickle", type=Path, metavar="FOLDER",
+        "--allow-pickle",
+        type=Path,
+        metavar="FOLDER",
         help="let the npz layout unpickle any object from the dataset in FOLDER, which must be the dataset this "
         "command reads; only for data you trust, as unpickling can run code stored in the files. geoelements "
         "files of numpy arrays read without it. Recipes and checkpoints never grant it",

@@ -31,9 +31,14 @@ from ..plugins import Registry, load_registry
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("recipes", nargs="+", type=Path, metavar="RECIPE", help="recipe files or folders (searched recursively)")
-    parser.add_argument("--no-data", action="store_true",
-                        help="check only the recipe and the installed components, not its dataset (data not made yet)")
+    parser.add_argument(
+        "recipes", nargs="+", type=Path, metavar="RECIPE", help="recipe files or folders (searched recursively)"
+    )
+    parser.add_argument(
+        "--no-data",
+        action="store_true",
+        help="check only the recipe and the installed components, not its dataset (data not made yet)",
+    )
 
 
 def missing_module(name: str) -> str | None:
@@ -60,8 +65,13 @@ def component_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, st
         for module in getattr(cls, "optional_modules", ()):
             why = missing_module(module)
             if why is not None:
-                problems.append((f"{location}.name", f"{kind} {spec.name!r} needs the optional module {module!r}, "
-                                                     f"which is not importable ({why}); install it or choose another {kind}"))
+                problems.append(
+                    (
+                        f"{location}.name",
+                        f"{kind} {spec.name!r} needs the optional module {module!r}, "
+                        f"which is not importable ({why}); install it or choose another {kind}",
+                    )
+                )
     return problems
 
 
@@ -87,8 +97,13 @@ def data_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str]]:
         return [(_data_location(str(exc)), str(exc))]
     problems = []
     if recipe.training.pushforward_steps and data.scene.context_size:
-        problems.append(("training.pushforward_steps", "push-forward needs data without a per-frame global context "
-                                                       "(step_context): set it to 0 for this dataset"))
+        problems.append(
+            (
+                "training.pushforward_steps",
+                "push-forward needs data without a per-frame global context "
+                "(step_context): set it to 0 for this dataset",
+            )
+        )
     try:
         WindowIndex(data.train, recipe.model.history, recipe.training.pushforward_steps)
     except ValueError as exc:

@@ -53,7 +53,11 @@ BUILTIN_COMMANDS = (
         "convert a geoelements/gns checkpoint (model-<step>.pt) into a gns-framework checkpoint",
         "gns_framework.cli.import_geoelements",
     ),
-    Command("generate", "simulate a scene spec into a dataset of train/valid/test trajectories", "gns_framework.cli.generate"),
+    Command(
+        "generate",
+        "simulate a scene spec into a dataset of train/valid/test trajectories",
+        "gns_framework.cli.generate",
+    ),
     Command(
         "convert",
         "convert a dataset between layouts (safe, npz, tfrecord, lagrangebench)",

@@ -17,24 +17,35 @@ DEFAULT_PARAMS = ["world_size"]
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "runs", nargs="*", metavar="EXPERIMENT_OR_RUN",
+        "runs",
+        nargs="*",
+        metavar="EXPERIMENT_OR_RUN",
         help="MLflow experiment names (gns train logs to the recipe's name by default) and run ids "
         "(or their first 8+ hex digits, as the table prints them), in any mix",
     )
     parser.add_argument(
-        "--filter", metavar="FILTER",
+        "--filter",
+        metavar="FILTER",
         help="MLflow search filter the runs must match, e.g. \"params.recipe.model.latent_size = '32'\" or "
         "\"tags.team = 'geo'\"; alone, it searches every experiment",
     )
-    parser.add_argument("--metrics", nargs="+", default=DEFAULT_METRICS, metavar="METRIC", help="metric columns and plot panels")
     parser.add_argument(
-        "--params", nargs="+", default=DEFAULT_PARAMS, metavar="PARAM",
+        "--metrics", nargs="+", default=DEFAULT_METRICS, metavar="METRIC", help="metric columns and plot panels"
+    )
+    parser.add_argument(
+        "--params",
+        nargs="+",
+        default=DEFAULT_PARAMS,
+        metavar="PARAM",
         help="param columns besides the recipe fields that differ between the runs: logged names "
         "(world_size, git_commit) or recipe keys (model.latent_size)",
     )
-    parser.add_argument("--sort", metavar="METRIC", help="sort by this metric, smallest first (default: the first metric)")
     parser.add_argument(
-        "--plot", type=Path,
+        "--sort", metavar="METRIC", help="sort by this metric, smallest first (default: the first metric)"
+    )
+    parser.add_argument(
+        "--plot",
+        type=Path,
         help="plot file (default: compare-<experiments>-<metrics>.png in the working directory, names joined by dots)",
     )
     parser.add_argument("--tracking-uri", help="MLflow tracking URI (default: as gns train)")
@@ -43,7 +54,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..errors import GnsError
     from ..training.comparison import (
-        differing_recipe_fields, format_table, logged_metrics, plot_histories, select_runs, sort_runs, unlogged,
+        differing_recipe_fields,
+        format_table,
+        logged_metrics,
+        plot_histories,
+        select_runs,
+        sort_runs,
+        unlogged,
     )
     from ..training.mlflow_tracker import default_tracking_uri
 

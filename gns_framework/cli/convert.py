@@ -20,12 +20,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="dataset folder to write")
     add_allow_pickle(parser)
     parser.add_argument(
-        "--map-types", type=type_map, default={}, metavar="FROM=TO,...",
+        "--map-types",
+        type=type_map,
+        default={},
+        metavar="FROM=TO,...",
         help="renumber particle types, e.g. 0=5,1=3: LagrangeBench's fluid (0) and walls (1) as this framework's "
         "water (5) and rigid (3); types not named keep their id (gns plugins lists the materials' ids)",
     )
     parser.add_argument(
-        "--overwrite", action="store_true",
+        "--overwrite",
+        action="store_true",
         help="replace --out whole even when it holds something other than an earlier gns convert result",
     )
 

@@ -51,10 +51,17 @@ HELD_OUT_SEED = 2
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/demo"), help="demo folder (default runs/demo)")
-    parser.add_argument("--steps", type=positive_int, default=1000, help="training steps of the short model (default 1000)")
-    parser.add_argument("--scene", type=Path, default=REPO / "scenes" / "demo_sand_2d.yaml", help="scene spec to simulate")
     parser.add_argument(
-        "--recipe", type=Path, default=REPO / "recipes" / "sand2d_fast.yaml", help="recipe of the short model trained here"
+        "--steps", type=positive_int, default=1000, help="training steps of the short model (default 1000)"
+    )
+    parser.add_argument(
+        "--scene", type=Path, default=REPO / "scenes" / "demo_sand_2d.yaml", help="scene spec to simulate"
+    )
+    parser.add_argument(
+        "--recipe",
+        type=Path,
+        default=REPO / "recipes" / "sand2d_fast.yaml",
+        help="recipe of the short model trained here",
     )
     parser.add_argument(
         "--model",
@@ -69,7 +76,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=HELD_OUT_SEED,
         help=f"scene seed of the held-out collapses (default {HELD_OUT_SEED}; the shipped model trained on seed 0)",
     )
-    parser.add_argument("--repeats", type=positive_int, default=3, help="timed rollouts per model in the report (default 3)")
+    parser.add_argument(
+        "--repeats", type=positive_int, default=3, help="timed rollouts per model in the report (default 3)"
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     add_outside_envelope(parser)
 
@@ -78,7 +87,9 @@ def _simulate(scene, simulator, folder: Path, counts: dict[str, int], registry, 
     if is_up_to_date(folder, provenance(scene, simulator, counts)):
         print(f"using the cached dataset {folder}")
         return
-    print(f"simulating {sum(counts.values())} trajectories of {scene.name} (seed {scene.seed}) with {simulator.name} into {folder} ...")
+    print(
+        f"simulating {sum(counts.values())} trajectories of {scene.name} (seed {scene.seed}) with {simulator.name} into {folder} ..."
+    )
     generate_dataset(scene, simulator, folder, registry.get("dataset", "safe"), counts, progress)
 
 
@@ -86,7 +97,9 @@ def run(args: argparse.Namespace) -> int:
     registry = load_registry()
     progress = not args.no_progress
     if not args.model.is_file():
-        raise GnsError(f"{args.model}: pretrained model not found (--model; the repository ships models/sand2d_fast.pt)")
+        raise GnsError(
+            f"{args.model}: pretrained model not found (--model; the repository ships models/sand2d_fast.pt)"
+        )
     scene = load_scene(args.scene)
     simulator = build_ground_truth_simulator(scene, registry, args.scene)
     data, held_out = args.out / "data", args.out / "held_out"
@@ -95,7 +108,9 @@ def run(args: argparse.Namespace) -> int:
     # One training trajectory is the least a dataset holds; the held-out collapses are its test split.
     _simulate(unseen, simulator, held_out, {"train": 1, "valid": 0, "test": args.held_out}, registry, progress)
 
-    recipe = load_recipe(args.recipe, registry, {"training": {"steps": args.steps, "validate_every": max(args.steps // 5, 1)}})
+    recipe = load_recipe(
+        args.recipe, registry, {"training": {"steps": args.steps, "validate_every": max(args.steps // 5, 1)}}
+    )
     trainer = Trainer(recipe, registry, run_dir=args.out / "run", dataset_path=data, progress=progress)
     try:
         trainer.resume()
@@ -104,7 +119,9 @@ def run(args: argparse.Namespace) -> int:
         after = trainer.validate()
     finally:
         trainer.close()
-    print(f"short model: validation one-step loss {before['valid_one_step_loss']:.4g} -> {after['valid_one_step_loss']:.4g}")
+    print(
+        f"short model: validation one-step loss {before['valid_one_step_loss']:.4g} -> {after['valid_one_step_loss']:.4g}"
+    )
     best = trainer.run.best_checkpoint
     saved = best if best.is_file() else trainer.save()
     assert saved is not None  # one process: rank 0 writes it

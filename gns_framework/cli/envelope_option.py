@@ -20,7 +20,8 @@ from ..model.envelope import OutsideEnvelope, envelope_message, outside_envelope
 
 def add_outside_envelope(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--outside-envelope", action="store_true",
+        "--outside-envelope",
+        action="store_true",
         help="roll out data outside what the model was trained on (particle spacing, step, materials, property "
         "ranges, domain sizes, walls, speeds, particle counts: its envelope); without it such data is refused. "
         "The warning is recorded in every output",

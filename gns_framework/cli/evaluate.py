@@ -37,7 +37,10 @@ def model_labels(recipe_names: list[str], checkpoints: list[Path]) -> list[str]:
     if len(set(recipe_names)) == len(recipe_names):
         raw = list(recipe_names)
     else:
-        raw = [f"{name}.{RunFolder.of_checkpoint(path.resolve()).root.name}.{path.stem}" for name, path in zip(recipe_names, checkpoints)]
+        raw = [
+            f"{name}.{RunFolder.of_checkpoint(path.resolve()).root.name}.{path.stem}"
+            for name, path in zip(recipe_names, checkpoints)
+        ]
     return unique_components(re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip(".") or "model" for text in raw)
 
 
@@ -48,22 +51,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--split", default="test", help="split to evaluate on (default test)")
     parser.add_argument("--trajectories", type=positive_int, help="use only the first K trajectories")
     parser.add_argument("--out", type=Path, default=Path("runs/evaluation"), help="report folder")
-    parser.add_argument("--grid-scales", type=_scales, default=[0.5, 1.0], help="simulator grid resolutions relative to the data's (default 0.5,1)")
-    parser.add_argument("--substep-scales", type=_scales, default=[1.0], help="simulator substeps relative to the data's (default 1)")
+    parser.add_argument(
+        "--grid-scales",
+        type=_scales,
+        default=[0.5, 1.0],
+        help="simulator grid resolutions relative to the data's (default 0.5,1)",
+    )
+    parser.add_argument(
+        "--substep-scales", type=_scales, default=[1.0], help="simulator substeps relative to the data's (default 1)"
+    )
     parser.add_argument("--no-simulator", action="store_true", help="compare learned models only")
-    parser.add_argument("--repeats", type=positive_int, default=3, help="timed runs per case; the median counts (default 3)")
+    parser.add_argument(
+        "--repeats", type=positive_int, default=3, help="timed runs per case; the median counts (default 3)"
+    )
     parser.add_argument("--warmup", type=int, default=1, help="untimed runs first (default 1)")
     parser.add_argument("--error-metric", default="sinkhorn_final_pct", help="metric plotted against run time")
     parser.add_argument("--device", default="auto", help="device of the learned models")
     parser.add_argument(
-        "--batch", type=positive_int, default=1, metavar="B",
+        "--batch",
+        type=positive_int,
+        default=1,
+        metavar="B",
         help="also roll each model out on B cases at a time as one batch, a second row beside one at a time "
         "(default 1: one at a time only)",
     )
     parser.add_argument("--vtk", action="store_true", help="also write VTK frames of each model's first rollout")
-    parser.add_argument("--gif", action="store_true", help="also write a prediction-vs-truth GIF of each model's first rollout")
     parser.add_argument(
-        "--overwrite", action="store_true", help="write into --out even when it holds something other than a report",
+        "--gif", action="store_true", help="also write a prediction-vs-truth GIF of each model's first rollout"
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into --out even when it holds something other than a report",
     )
     add_outside_envelope(parser)
 
@@ -102,7 +121,12 @@ def run(args: argparse.Namespace) -> int:
             split = seen.split(args.split)
             split = split[: args.trajectories] if args.trajectories else split
         warnings[model.path] = enforce_envelope(
-            model, seen.metadata(), list(split), args.outside_envelope, f"{dataset.path} (split {args.split})", "evaluate"
+            model,
+            seen.metadata(),
+            list(split),
+            args.outside_envelope,
+            f"{dataset.path} (split {args.split})",
+            "evaluate",
         )
 
     names = model_labels([m.recipe.name for m in models], args.checkpoints)
@@ -133,7 +157,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _log_to_training_runs(
-    report, models, names: list[str], report_files: list[Path], animations: dict[str, Path],
+    report,
+    models,
+    names: list[str],
+    report_files: list[Path],
+    animations: dict[str, Path],
     warnings: dict[Path, list[str]],
 ) -> None:
     """Attach the report (and the model's animation) to each model's MLflow run, when it was tracked."""
@@ -150,12 +178,18 @@ def _log_to_training_runs(
             metrics["evaluation_speedup"] = entry.speedup
         # MLflow metric names take no brackets: "mse_full[sand]" becomes "mse_full.sand".
         metrics.update(
-            {f"evaluation_{k}".replace("[", ".").replace("]", ""): v for k, v in entry.metrics.items() if isinstance(v, float)}
+            {
+                f"evaluation_{k}".replace("[", ".").replace("]", ""): v
+                for k, v in entry.metrics.items()
+                if isinstance(v, float)
+            }
         )
         files = report_files + ([animations[name]] if name in animations else [])
         own = warnings[model.path]
         tags = {"outside_envelope": "; ".join(own)} if own else None
-        tracked = log_to_recorded_run(RunFolder.of_checkpoint(model.path).root, metrics, model.step, files, "evaluation", tags)
+        tracked = log_to_recorded_run(
+            RunFolder.of_checkpoint(model.path).root, metrics, model.step, files, "evaluation", tags
+        )
         if tracked:
             print(f"logged the evaluation report of {name} to MLflow run {tracked}")
 

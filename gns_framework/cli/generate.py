@@ -33,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", help="simulator device, e.g. cpu or cuda (overrides simulator.device)")
     parser.add_argument("--force", action="store_true", help="regenerate even if DIR already holds this dataset")
     parser.add_argument(
-        "--overwrite", action="store_true",
+        "--overwrite",
+        action="store_true",
         help="replace DIR whole even when it holds something other than a dataset gns generate wrote",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

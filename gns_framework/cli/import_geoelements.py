@@ -22,21 +22,30 @@ def _type_ids(text: str) -> list[int]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", type=Path, help="geoelements model file (model-<step>.pt)")
     parser.add_argument(
-        "--dataset", type=Path, required=True,
+        "--dataset",
+        type=Path,
+        required=True,
         help="the geoelements dataset folder the model was trained on (metadata.json, train.npz, ...)",
     )
     parser.add_argument("--metadata", type=Path, help="metadata.json to use (default: the dataset's)")
-    parser.add_argument("--train-state", type=Path, help="geoelements train state (train_state-<step>.pt): resume training")
     parser.add_argument(
-        "--particle-types", type=_type_ids,
+        "--train-state", type=Path, help="geoelements train state (train_state-<step>.pt): resume training"
+    )
+    parser.add_argument(
+        "--particle-types",
+        type=_type_ids,
         help="type ids of the scene, e.g. 5 or 3,6 (default: every row of the model's type embedding)",
     )
     parser.add_argument(
-        "--noise-std", type=float, default=NOISE_STD,
+        "--noise-std",
+        type=float,
+        default=NOISE_STD,
         help=f"the --noise_std the model was trained with (default {NOISE_STD}); it enters the normalisation",
     )
     parser.add_argument("--name", help="recipe name of the imported run (default: imported-<model file stem>)")
-    parser.add_argument("--out", type=Path, help="checkpoint to write (default: runs/<name>/checkpoints/checkpoint-<step>.pt)")
+    parser.add_argument(
+        "--out", type=Path, help="checkpoint to write (default: runs/<name>/checkpoints/checkpoint-<step>.pt)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -43,17 +43,22 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or Path("runs/invert") / safe_component(args.config.stem)
     earlier = [name for name in OUTPUTS if (out / name).exists()]
     if earlier:
-        raise GnsError(f"{out}: holds an earlier inversion ({', '.join(earlier)}); choose another --out or move it away")
+        raise GnsError(
+            f"{out}: holds an earlier inversion ({', '.join(earlier)}); choose another --out or move it away"
+        )
     if config.threads:
         torch.set_num_threads(config.threads)
     inversion = prepare(config, unknowns, args.config, load_registry(), args.allow_pickle, args.outside_envelope)
     for line in inversion.warnings:
         print(f"gns invert: warning: {line}", file=sys.stderr)
     tracker = with_mlflow(args, "invert", out, JsonlTracker(out), resume=False, activity="the inversion")
-    tracker.log_params({
-        "config": config.model_dump(mode="json"), "config_file": str(args.config),
-        **({"outside_envelope": "; ".join(inversion.warnings)} if inversion.warnings else {}),
-    })
+    tracker.log_params(
+        {
+            "config": config.model_dump(mode="json"),
+            "config_file": str(args.config),
+            **({"outside_envelope": "; ".join(inversion.warnings)} if inversion.warnings else {}),
+        }
+    )
     bar = tqdm(total=config.optimizer.iterations, desc="invert", unit="it", disable=args.no_progress)
 
     def on_iteration(iterate) -> None:
@@ -74,8 +79,10 @@ def run(args: argparse.Namespace) -> int:
     for path in paths.values():
         tracker.log_artifact(path)
     assert result.best is not None  # solve sets it
-    tracker.log_metrics({"final_loss": result.loss, "best_iteration": result.best.iteration, "seconds": result.seconds},
-                        result.iterations)
+    tracker.log_metrics(
+        {"final_loss": result.loss, "best_iteration": result.best.iteration, "seconds": result.seconds},
+        result.iterations,
+    )
     tracker.close()
     recovered = ", ".join(f"{k} {v}" for k, v in result.unknowns.items())
     chosen = "held-out loss" if result.selected_by == "held_out" else "loss"

@@ -27,9 +27,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="folder for predicted/ and ground_truth/ frames and their .pvd collections",
     )
     parser.add_argument("--gif", type=_gif_path, metavar="FILE", help="animation, prediction beside ground truth")
-    parser.add_argument("--every", type=positive_int, default=1, metavar="K", help="animate every K-th frame (default 1)")
     parser.add_argument(
-        "--overwrite", action="store_true",
+        "--every", type=positive_int, default=1, metavar="K", help="animate every K-th frame (default 1)"
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
         help="replace an existing --gif file, or write into a --vtk folder holding something else",
     )
     parser.add_argument("--fps", type=positive_int, default=20, help="frames per second of the GIF (default 20)")

@@ -44,26 +44,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, help="output folder (default: <run>/rollouts)")
     parser.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
     parser.add_argument(
-        "--on-violation", choices=("stop", "clamp"),
+        "--on-violation",
+        choices=("stop", "clamp"),
         help="on NaN/Inf or particles beyond the margin: stop, or clamp and report (default: rollout.guard.on_violation)",
     )
     parser.add_argument(
-        "--guard-margin", type=non_negative_float, metavar="DISTANCE",
+        "--guard-margin",
+        type=non_negative_float,
+        metavar="DISTANCE",
         help="how far a particle may pass a wall, dataset length units (default: rollout.guard.margin)",
     )
     parser.add_argument(
-        "--precision", choices=PRECISIONS, default="float32",
+        "--precision",
+        choices=PRECISIONS,
+        default="float32",
         help="dtype of the model's matrix products: tf32 uses CUDA tensor cores for float32 (float32 on CPUs); "
         "bfloat16 is faster on AMX CPUs and GPUs (default float32)",
     )
     parser.add_argument(
-        "--batch", type=positive_int, default=1, metavar="B",
+        "--batch",
+        type=positive_int,
+        default=1,
+        metavar="B",
         help="roll out B trajectories of one length at a time as one batch: one graph and one model call per "
         "step for all of them (default 1)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
-        "--overwrite", action="store_true", help="write into --out even when it holds something other than rollouts",
+        "--overwrite",
+        action="store_true",
+        help="write into --out even when it holds something other than rollouts",
     )
     add_outside_envelope(parser)
 
@@ -84,8 +94,12 @@ def run(args: argparse.Namespace) -> int:
     trajectories = dataset.split(split_name)
     count = min(len(trajectories), args.trajectories or spec.trajectories or len(trajectories))
     warnings = enforce_envelope(
-        loaded, dataset.metadata(), [trajectories[i] for i in range(count)], args.outside_envelope,
-        f"{dataset.path} (split {split_name})", "rollout",
+        loaded,
+        dataset.metadata(),
+        [trajectories[i] for i in range(count)],
+        args.outside_envelope,
+        f"{dataset.path} (split {split_name})",
+        "rollout",
     )
     recorded = loaded.metadata.model_copy(update={"outside_envelope": warnings}) if warnings else loaded.metadata
     run = RunFolder.of_checkpoint(args.checkpoint)
@@ -99,7 +113,9 @@ def run(args: argparse.Namespace) -> int:
         args.on_violation or spec.guard.on_violation,
     )
     steps = args.steps or spec.steps
-    for position, (index, result) in enumerate(_rollouts(loaded.simulator, trajectories, count, steps, device, guard, args)):
+    for position, (index, result) in enumerate(
+        _rollouts(loaded.simulator, trajectories, count, steps, device, guard, args)
+    ):
         if position == 0:
             claim_folder(out, "rollout", args.overwrite, own=_only_rollouts)
         file = ensure_inside(out / f"{safe_component(split_name)}_{index:04d}.npz", out)
@@ -111,7 +127,9 @@ def run(args: argparse.Namespace) -> int:
         errors.append(result.position_mse)
     if errors:
         tracked = log_to_recorded_run(
-            run.root, {f"rollout_position_mse_{split_name}": sum(errors) / len(errors)}, loaded.step,
+            run.root,
+            {f"rollout_position_mse_{split_name}": sum(errors) / len(errors)},
+            loaded.step,
             tags={"outside_envelope": "; ".join(warnings)} if warnings else None,
         )
         if tracked:
@@ -123,9 +141,17 @@ def _rollouts(simulator, trajectories, count: int, steps: int | None, device, gu
     """(index, rollout) of the first ``count`` trajectories, in order; ``--batch`` of one length at a time."""
     if args.batch == 1:
         for index in range(count):
-            yield index, rollout(
-                simulator, trajectories[index], steps, device,
-                progress=not args.no_progress, guard=guard, precision=args.precision,
+            yield (
+                index,
+                rollout(
+                    simulator,
+                    trajectories[index],
+                    steps,
+                    device,
+                    progress=not args.no_progress,
+                    guard=guard,
+                    precision=args.precision,
+                ),
             )
         return
     # Consecutive trajectories of one length form a batch, so every scene still runs to its own end.

@@ -24,9 +24,7 @@ def add_tracking_arguments(parser: argparse.ArgumentParser, metrics_file: str, d
         "in the working directory, created on first use)",
     )
     tracking.add_argument("--experiment", help=f"MLflow experiment name (default: {default_experiment})")
-    tracking.add_argument(
-        "--no-tracking", action="store_true", help=f"no MLflow; metrics go to {metrics_file} only"
-    )
+    tracking.add_argument("--no-tracking", action="store_true", help=f"no MLflow; metrics go to {metrics_file} only")
 
 
 def with_mlflow(

@@ -22,7 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recipe", type=Path, help="recipe YAML file")
     parser.add_argument("--steps", type=positive_int, help="total training steps (overrides training.steps)")
     parser.add_argument(
-        "--dataset", type=Path,
+        "--dataset",
+        type=Path,
         help="dataset folder (overrides dataset.path; recorded as the run's dataset.path, so rollouts use it)",
     )
     add_allow_pickle(parser)
@@ -76,8 +77,13 @@ def run(args: argparse.Namespace) -> int:
     with run_folder_lock(run_dir, take=processes.is_chief):
         try:
             trainer = Trainer(
-                recipe, registry, run_dir=run_dir, dataset_path=args.dataset, processes=processes,
-                progress=not args.no_progress, allow_pickle=args.allow_pickle,
+                recipe,
+                registry,
+                run_dir=run_dir,
+                dataset_path=args.dataset,
+                processes=processes,
+                progress=not args.no_progress,
+                allow_pickle=args.allow_pickle,
             )
             try:
                 return _train(trainer, args)
@@ -101,7 +107,11 @@ def _train(trainer: Trainer, args: argparse.Namespace) -> int:
     resumed = None
     if resume is not None:
         resumed = trainer.resume(None if resume == "auto" else resume)
-        say(f"resumed from {resumed} at step {trainer.step}" if resumed else "no checkpoint to resume from; starting at step 0")
+        say(
+            f"resumed from {resumed} at step {trainer.step}"
+            if resumed
+            else "no checkpoint to resume from; starting at step 0"
+        )
     if resumed is None:
         earlier = trainer.start_afresh(restart)
         if earlier is not None:

@@ -83,7 +83,8 @@ class ModelSpec(_Strict):
         "metadata's vel_std); replaces noise_std, so one value fits data of any scale",
     )
     periodic: list[bool] | None = Field(
-        None, description="per dimension, whether the domain wraps around; default: the metadata's periodic_boundary_conditions"
+        None,
+        description="per dimension, whether the domain wraps around; default: the metadata's periodic_boundary_conditions",
     )
     wall_features: bool = Field(True, description="distance-to-wall node features for the non-periodic dimensions")
     wall_conditions: bool | None = Field(
@@ -257,12 +258,14 @@ def _component_problems(raw: dict, registry: Registry) -> list[tuple[str, str]]:
             params = {k: v for k, v in spec.items() if k not in DatasetSpec.model_fields and k != PICKLE_GRANT}
             component = {"name": spec.get("name", "safe"), **params}
             if PICKLE_GRANT in spec:
-                problems.append((
-                    f"dataset.{PICKLE_GRANT}",
-                    "a recipe cannot grant unpickling (the grant would travel with it and its checkpoints to other "
-                    "data): remove the key and, only for data you trust, give the command --allow-pickle FOLDER; "
-                    "geoelements .npz files of numpy arrays read without it",
-                ))
+                problems.append(
+                    (
+                        f"dataset.{PICKLE_GRANT}",
+                        "a recipe cannot grant unpickling (the grant would travel with it and its checkpoints to other "
+                        "data): remove the key and, only for data you trust, give the command --allow-pickle FOLDER; "
+                        "geoelements .npz files of numpy arrays read without it",
+                    )
+                )
         if not isinstance(component.get("name"), str):
             continue
         try:
@@ -276,8 +279,11 @@ def _component_problems(raw: dict, registry: Registry) -> list[tuple[str, str]]:
         tracked = sorted(registry.validation_metrics())
         if best not in tracked:
             problems.append(
-                ("training.best_metric", f"unknown validation metric {best!r}{did_you_mean(best, tracked)}; "
-                 f"measured in validation: {', '.join(tracked)}")
+                (
+                    "training.best_metric",
+                    f"unknown validation metric {best!r}{did_you_mean(best, tracked)}; "
+                    f"measured in validation: {', '.join(tracked)}",
+                )
             )
     materials = model.get("materials")
     if isinstance(materials, list):
@@ -285,8 +291,10 @@ def _component_problems(raw: dict, registry: Registry) -> list[tuple[str, str]]:
         for i, material in enumerate(materials):
             if isinstance(material, str) and material not in known:
                 problems.append(
-                    (f"model.materials[{i}]", f"unknown material {material!r}{did_you_mean(material, known)}; "
-                     f"installed: {', '.join(known)}")
+                    (
+                        f"model.materials[{i}]",
+                        f"unknown material {material!r}{did_you_mean(material, known)}; installed: {', '.join(known)}",
+                    )
                 )
     return problems
 

@@ -26,8 +26,21 @@ from .setup import ModelSetup, ModelSizes
 from .simulator import GroundTruthSimulator
 
 __all__ = [
-    "COMPONENT_KINDS", "PARTICLE_TYPE_IDS", "ComponentParams", "Dataset", "Decoder", "Encoder", "Graph", "GraphBuilder",
-    "GroundTruthSimulator", "Integrator", "Material", "MaterialProperty", "ModelSetup", "ModelSizes", "Params",
+    "COMPONENT_KINDS",
+    "PARTICLE_TYPE_IDS",
+    "ComponentParams",
+    "Dataset",
+    "Decoder",
+    "Encoder",
+    "Graph",
+    "GraphBuilder",
+    "GroundTruthSimulator",
+    "Integrator",
+    "Material",
+    "MaterialProperty",
+    "ModelSetup",
+    "ModelSizes",
+    "Params",
     "Processor",
 ]
 

@@ -49,8 +49,6 @@ class Dataset(ABC):
         return False
 
     @classmethod
-    def write(
-        cls, path: Path, metadata: "DatasetMetadata", splits: Mapping[str, Sequence["Trajectory"]]
-    ) -> None:
+    def write(cls, path: Path, metadata: "DatasetMetadata", splits: Mapping[str, Sequence["Trajectory"]]) -> None:
         """Write ``metadata`` and ``splits`` in this layout (only when ``writable``)."""
         raise NotImplementedError(f"dataset layout {cls.name!r} is read-only")

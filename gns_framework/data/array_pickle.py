@@ -62,9 +62,7 @@ ALLOWED_GLOBALS: dict[tuple[str, str], str] = {
 strings), with the role it has here. None of them is imported or called."""
 
 PLAIN_DTYPES = frozenset(
-    f"{order}{code}"
-    for code in ("i2", "u2", "i4", "u4", "i8", "u8", "f2", "f4", "f8", "c8", "c16")
-    for order in "<>"
+    f"{order}{code}" for code in ("i2", "u2", "i4", "u4", "i8", "u8", "f2", "f4", "f8", "c8", "c16") for order in "<>"
 ) | {"|b1", "|i1", "|u1"}
 """The dtypes (by ``dtype.str``) an array may have: plain numbers of fixed size, either byte order.
 ``f16``/``c32`` (long double) is left out: its layout differs between machines."""
@@ -81,17 +79,49 @@ MAX_NESTING = 64
 MAX_FIELDS = 4096
 """Most fields of a structured dtype."""
 
-OPCODES = frozenset({
-    "PROTO", "FRAME", "STOP",
-    "GLOBAL", "STACK_GLOBAL",
-    "SHORT_BINUNICODE", "BINUNICODE", "BINUNICODE8",
-    "SHORT_BINBYTES", "BINBYTES", "BINBYTES8", "BYTEARRAY8",
-    "MEMOIZE", "BINPUT", "LONG_BINPUT", "BINGET", "LONG_BINGET",
-    "MARK", "EMPTY_TUPLE", "TUPLE", "TUPLE1", "TUPLE2", "TUPLE3",
-    "EMPTY_LIST", "APPEND", "APPENDS", "EMPTY_DICT", "SETITEM", "SETITEMS",
-    "NONE", "NEWTRUE", "NEWFALSE", "BININT", "BININT1", "BININT2", "LONG1", "BINFLOAT",
-    "REDUCE", "BUILD",
-})
+OPCODES = frozenset(
+    {
+        "PROTO",
+        "FRAME",
+        "STOP",
+        "GLOBAL",
+        "STACK_GLOBAL",
+        "SHORT_BINUNICODE",
+        "BINUNICODE",
+        "BINUNICODE8",
+        "SHORT_BINBYTES",
+        "BINBYTES",
+        "BINBYTES8",
+        "BYTEARRAY8",
+        "MEMOIZE",
+        "BINPUT",
+        "LONG_BINPUT",
+        "BINGET",
+        "LONG_BINGET",
+        "MARK",
+        "EMPTY_TUPLE",
+        "TUPLE",
+        "TUPLE1",
+        "TUPLE2",
+        "TUPLE3",
+        "EMPTY_LIST",
+        "APPEND",
+        "APPENDS",
+        "EMPTY_DICT",
+        "SETITEM",
+        "SETITEMS",
+        "NONE",
+        "NEWTRUE",
+        "NEWFALSE",
+        "BININT",
+        "BININT1",
+        "BININT2",
+        "LONG1",
+        "BINFLOAT",
+        "REDUCE",
+        "BUILD",
+    }
+)
 """The opcodes the interpreter runs: those of NumPy's pickles of arrays (and of the plain Python values,
 numbers, strings, bytes, lists, tuples, dicts, an object array may hold). Every other one is refused."""
 
@@ -119,7 +149,10 @@ class RefusedGlobal(ArrayPickleError, pickle.UnpicklingError):
     def __init__(self, file: str, member: str, position: int | None, module: str, name: str):
         self.global_name = f"{module}.{name}"
         super().__init__(
-            file, member, position, f"refused global {self.global_name}",
+            file,
+            member,
+            position,
+            f"refused global {self.global_name}",
             "only numpy.ndarray, numpy.dtype and numpy's multiarray._reconstruct, scalar and numeric._frombuffer",
         )
 
@@ -456,9 +489,16 @@ class _Interpreter:
 
     def structured(self, code: str, found: str, names: Any, fields: Any, elsize: Any, alignment: Any) -> np.dtype:
         ok = (
-            type(names) is tuple and 0 < len(names) <= MAX_FIELDS and all(type(n) is str for n in names)
-            and len(set(names)) == len(names) and type(fields) is dict and set(fields) == set(names)
-            and type(elsize) is int and 0 < elsize <= 2**20 and code == f"V{elsize}" and type(alignment) is int
+            type(names) is tuple
+            and 0 < len(names) <= MAX_FIELDS
+            and all(type(n) is str for n in names)
+            and len(set(names)) == len(names)
+            and type(fields) is dict
+            and set(fields) == set(names)
+            and type(elsize) is int
+            and 0 < elsize <= 2**20
+            and code == f"V{elsize}"
+            and type(alignment) is int
         )
         if not ok:
             wanted = f"a structured dtype: names, fields of them, V<itemsize> (at most {MAX_FIELDS} fields)"
@@ -466,14 +506,19 @@ class _Interpreter:
         formats, offsets = [], []
         for field_name in names:
             entry = fields[field_name]
-            if not (type(entry) is tuple and len(entry) == 2 and isinstance(entry[0], np.dtype) and type(entry[1]) is int):
-                raise _Refused(self.position, f"field {field_name!r}: {_show(entry)}", "(dtype, offset), without a title")
+            if not (
+                type(entry) is tuple and len(entry) == 2 and isinstance(entry[0], np.dtype) and type(entry[1]) is int
+            ):
+                raise _Refused(
+                    self.position, f"field {field_name!r}: {_show(entry)}", "(dtype, offset), without a title"
+                )
             field_dtype, offset = entry
             if field_dtype.hasobject or field_dtype.subdtype is not None:
                 raise _Refused(self.position, f"field {field_name!r} of dtype {field_dtype}", "a numeric field")
             if offset < 0 or offset + field_dtype.itemsize > elsize:
                 raise _Refused(
-                    self.position, f"field {field_name!r} at bytes {offset}..{offset + field_dtype.itemsize}",
+                    self.position,
+                    f"field {field_name!r} at bytes {offset}..{offset + field_dtype.itemsize}",
                     f"within the item's {elsize} bytes",
                 )
             formats.append(field_dtype)
@@ -499,7 +544,8 @@ class _Interpreter:
         if dtype.hasobject:
             if dtype != np.dtype(object) or type(data) is not list or len(data) != count:
                 raise _Refused(
-                    self.position, f"an object array of shape {shape} with {_kind(data)} for data",
+                    self.position,
+                    f"an object array of shape {shape} with {_kind(data)} for data",
                     f"a list of {count} items",
                 )
             return _object_array(data, shape, fortran)
@@ -510,18 +556,22 @@ class _Interpreter:
             raise _Refused(self.position, f"a {dtype} array whose data is {_kind(data)}", "bytes")
         if len(data) != math.prod(shape) * dtype.itemsize:
             raise _Refused(
-                self.position, f"{len(data)} bytes of data for a {dtype} array of shape {shape}",
+                self.position,
+                f"{len(data)} bytes of data for a {dtype} array of shape {shape}",
                 f"{math.prod(shape)} x {dtype.itemsize} = {math.prod(shape) * dtype.itemsize} bytes",
             )
         return np.frombuffer(data, dtype=dtype).reshape(shape, order=order).copy(order="K")
 
     def shape(self, shape: Any) -> tuple[int, ...]:
         if (
-            type(shape) is not tuple or len(shape) > MAX_NDIM
-            or not all(type(d) is int and 0 <= d <= MAX_ELEMENTS for d in shape) or math.prod(shape) > MAX_ELEMENTS
+            type(shape) is not tuple
+            or len(shape) > MAX_NDIM
+            or not all(type(d) is int and 0 <= d <= MAX_ELEMENTS for d in shape)
+            or math.prod(shape) > MAX_ELEMENTS
         ):
             raise _Refused(
-                self.position, f"shape {_show(shape)}",
+                self.position,
+                f"shape {_show(shape)}",
                 f"a tuple of at most {MAX_NDIM} non-negative ints with at most {MAX_ELEMENTS} elements "
                 "(each of them too)",
             )
@@ -580,6 +630,7 @@ def _kind(value: Any) -> str:
 
 def _show(value: Any, limit: int = 160) -> str:
     """A short description of a value from the file, for messages (long bytes and deep nesting cut)."""
+
     def describe(item: Any, depth: int) -> str:
         if isinstance(item, (_Global, _Pending)):
             return _kind(item)

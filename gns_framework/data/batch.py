@@ -74,7 +74,9 @@ def window(trajectory: Trajectory, start: int, history: int, with_target: bool =
         batch=torch.zeros(n, dtype=torch.long),
         num_examples=1,
         next_position=torch.from_numpy(np.ascontiguousarray(positions[history])) if with_target else None,
-        material_property=None if trajectory.material_property is None else torch.from_numpy(trajectory.material_property),
+        material_property=None
+        if trajectory.material_property is None
+        else torch.from_numpy(trajectory.material_property),
         context=None
         if trajectory.step_context is None
         else torch.from_numpy(trajectory.step_context[start + history - 1])[None],

@@ -45,7 +45,8 @@ class DatasetMetadata(BaseModel):
         default=None, gt=0, description="clip limit of wall-distance features (geoelements); 1.0 when absent"
     )
     periodic_boundary_conditions: list[bool] | None = Field(
-        default=None, description="per dimension, whether the domain wraps around (LagrangeBench's key); none when absent"
+        default=None,
+        description="per dimension, whether the domain wraps around (LagrangeBench's key); none when absent",
     )
 
     @model_validator(mode="after")

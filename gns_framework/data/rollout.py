@@ -52,7 +52,9 @@ class Rollout:
         # Every property slices the truth at ``history``: a mismatch would surface far from its cause.
         frames, particles, dim = self.truth.position.shape
         if not 1 <= self.history < frames:
-            raise ValueError(f"{self.source}: history: expected 1 to {frames - 1} (of {frames} frames), got {self.history}")
+            raise ValueError(
+                f"{self.source}: history: expected 1 to {frames - 1} (of {frames} frames), got {self.history}"
+            )
         expected = (frames - self.history, particles, dim)
         if np.shape(self.predicted) != expected:
             raise ValueError(f"{self.source}: predicted: expected shape {expected}, got {np.shape(self.predicted)}")

@@ -72,7 +72,12 @@ class FrameStrideDataset(Dataset):
             )
             frames = -(-stored.sequence_length // self.stride)
             self._metadata = stored.model_copy(
-                update={"dt": stored.dt * self.stride, "sequence_length": frames, "frame_stride": self.stride, **statistics}
+                update={
+                    "dt": stored.dt * self.stride,
+                    "sequence_length": frames,
+                    "frame_stride": self.stride,
+                    **statistics,
+                }
             )
         return self._metadata
 

@@ -103,12 +103,16 @@ class Trajectory:
             if bounds.shape != (d, 2):
                 raise DatasetError(f"{where}: bounds: expected shape ({d}, 2), got {bounds.shape}")
             if not np.isfinite(bounds).all() or not (bounds[:, 0] < bounds[:, 1]).all():
-                raise DatasetError(f"{where}: bounds: expected finite [lower, upper] with lower < upper, got {bounds.tolist()}")
+                raise DatasetError(
+                    f"{where}: bounds: expected finite [lower, upper] with lower < upper, got {bounds.tolist()}"
+                )
         walls = self.walls
         if walls is not None:
             walls = np.asarray(walls, dtype=np.float32)
             if walls.shape != (2 * d, 2):
-                raise DatasetError(f"{where}: walls: expected shape ({2 * d}, 2) (friction, no-slip per face), got {walls.shape}")
+                raise DatasetError(
+                    f"{where}: walls: expected shape ({2 * d}, 2) (friction, no-slip per face), got {walls.shape}"
+                )
             if not np.isfinite(walls).all() or (walls[:, 0] < 0).any() or not np.isin(walls[:, 1], (0, 1)).all():
                 raise DatasetError(
                     f"{where}: walls: expected friction >= 0 and a no-slip flag 0 or 1 per face, got {walls.tolist()}"

@@ -80,8 +80,13 @@ def learned_candidate(model: LoadedModel, name: str, device: torch.device, batch
     settings = f"{model.path.name} (step {model.step})"
     if batch > 1:
         return Candidate(
-            f"{name} [batch {batch}]", "learned", simulate, settings=f"{settings}, {batch} scenes per batch",
-            device=str(device), simulate_batch=simulate_batch, batch=batch,
+            f"{name} [batch {batch}]",
+            "learned",
+            simulate,
+            settings=f"{settings}, {batch} scenes per batch",
+            device=str(device),
+            simulate_batch=simulate_batch,
+            batch=batch,
         )
     return Candidate(name, "learned", simulate, settings=settings, device=str(device))
 
@@ -132,7 +137,9 @@ def simulator_candidates(
 
             def simulate(case: Trajectory, simulator=simulator, variant=variant) -> Prediction:
                 trajectory = strided(simulator.simulate(variant, seed_of[case.key]), stride)
-                return Prediction(trajectory.position[history:], trajectory.particle_type, trajectory.position[history - 1])
+                return Prediction(
+                    trajectory.position[history:], trajectory.particle_type, trajectory.position[history - 1]
+                )
 
             reference = grid == scene.domain.grid and substeps == scene.time.substeps
             candidates.append(

@@ -89,7 +89,9 @@ class ParticleRollout:
     @property
     def moving(self) -> Tensor:
         """(B, N) bool: real, non-kinematic particles, the ones errors are taken over."""
-        kinematic = torch.as_tensor(self.kinematic_types, dtype=self.particle_type.dtype, device=self.particle_type.device)
+        kinematic = torch.as_tensor(
+            self.kinematic_types, dtype=self.particle_type.dtype, device=self.particle_type.device
+        )
         return self.mask & ~torch.isin(self.particle_type, kinematic)
 
     def of_types(self, types: Collection[int]) -> Tensor:
@@ -365,10 +367,13 @@ class RolloutPair:
         """(predicted, true) final horizontal extent of the granular particles, (B,) each, L; None without them."""
         if not self.granular_types:
             return None
-        return cast("tuple[Tensor, Tensor]", tuple(
-            horizontal_extent(r.position[:, -1], r.of_types(self.granular_types), self.runout_axis)
-            for r in (self.predicted, self.target)
-        ))
+        return cast(
+            "tuple[Tensor, Tensor]",
+            tuple(
+                horizontal_extent(r.position[:, -1], r.of_types(self.granular_types), self.runout_axis)
+                for r in (self.predicted, self.target)
+            ),
+        )
 
     @cached_property
     def final_heights(self) -> tuple[Tensor, Tensor] | None:
@@ -377,10 +382,13 @@ class RolloutPair:
             return None
         axis = self.vertical_axis % len(self.bounds)
         floor = float(self.bounds[axis][0])
-        return cast("tuple[Tensor, Tensor]", tuple(
-            torch.where(r.of_types(self.granular_types), r.position[:, -1, :, axis] - floor, -torch.inf).amax(-1)
-            for r in (self.predicted, self.target)
-        ))
+        return cast(
+            "tuple[Tensor, Tensor]",
+            tuple(
+                torch.where(r.of_types(self.granular_types), r.position[:, -1, :, axis] - floor, -torch.inf).amax(-1)
+                for r in (self.predicted, self.target)
+            ),
+        )
 
     @cached_property
     def profile_error(self) -> tuple[Tensor, Tensor] | None:
@@ -390,8 +398,11 @@ class RolloutPair:
         return profile_error(
             *(
                 pile_profile(
-                    rollout.position[:, -1], rollout.of_types(self.granular_types), self.bounds,
-                    self.profile_bins, self.vertical_axis,
+                    rollout.position[:, -1],
+                    rollout.of_types(self.granular_types),
+                    self.bounds,
+                    self.profile_bins,
+                    self.vertical_axis,
                 )
                 for rollout in (self.predicted, self.target)
             )
@@ -448,7 +459,9 @@ def horizon_mse(pair: RolloutPair) -> dict[str, Tensor | None]:
     """``mse_h`` for every horizon of ``pair``: None without correspondence or beyond the rollout."""
     if pair.mse_per_step is None:
         return {f"mse_{h}": None for h in pair.horizons}
-    return {name: value for name, value in mse_at_horizons(pair.mse_per_step, pair.horizons).items() if name != "mse_full"}
+    return {
+        name: value for name, value in mse_at_horizons(pair.mse_per_step, pair.horizons).items() if name != "mse_full"
+    }
 
 
 def per_material_mse(

@@ -187,8 +187,15 @@ def evaluate(
         summaries, timings, curves, written = [], [], [], []
         for case, file_name, prediction, timing in _timed_rollouts(candidate, cases, files, repeats, warmup, clock):
             scores = score_prediction(
-                prediction, case, history, metadata, horizons, granular_types, material_names,
-                kinematic_types=kinematic_types, metrics=metrics,
+                prediction,
+                case,
+                history,
+                metadata,
+                horizons,
+                granular_types,
+                material_names,
+                kinematic_types=kinematic_types,
+                metrics=metrics,
             )
             summaries.append(summarise(scores))
             timings.append(timing)
@@ -205,13 +212,23 @@ def evaluate(
         entries = [_with_speedup(e, reference.seconds) for e in entries]
     gpu = next((c.device for c in candidates if is_cuda(c.device)), None)
     return Report(
-        entries, error_metric, len(cases), repeats, warmup, metadata.dt, hardware_description(gpu),
+        entries,
+        error_metric,
+        len(cases),
+        repeats,
+        warmup,
+        metadata.dt,
+        hardware_description(gpu),
         metric_units(metrics),
     )
 
 
 def _timed_rollouts(
-    candidate: Candidate, cases: Sequence[Trajectory], files: Sequence[str], repeats: int, warmup: int,
+    candidate: Candidate,
+    cases: Sequence[Trajectory],
+    files: Sequence[str],
+    repeats: int,
+    warmup: int,
     clock: Callable[[], float],
 ) -> Iterator[tuple[Trajectory, str, Prediction, Timing]]:
     """Each case with its file name, the candidate's rollout of it and the time that rollout is charged.
@@ -229,11 +246,16 @@ def _timed_rollouts(
     for start in range(0, len(cases), candidate.batch):
         chunk = list(cases[start : start + candidate.batch])
         predictions, timing = time_call(
-            partial(candidate.simulate_batch, chunk), repeats=repeats, warmup=warmup, device=candidate.device,
+            partial(candidate.simulate_batch, chunk),
+            repeats=repeats,
+            warmup=warmup,
+            device=candidate.device,
             clock=clock,
         )
         share = Timing(tuple(seconds / len(chunk) for seconds in timing.seconds), timing.warmup)
-        yield from ((case, file, prediction, share) for case, file, prediction in zip(chunk, files[start:], predictions))
+        yield from (
+            (case, file, prediction, share) for case, file, prediction in zip(chunk, files[start:], predictions)
+        )
 
 
 def score_rollout(
@@ -249,8 +271,15 @@ def score_rollout(
     if rollout.metadata is None:
         raise ValueError(f"{rollout.source}: scoring a rollout needs the dataset's metadata; the rollout has none")
     scores = score_prediction(
-        Prediction(rollout.predicted), rollout.truth, rollout.history, rollout.metadata, horizons, granular_types,
-        material_names, kinematic_types=kinematic_types, metrics=metrics,
+        Prediction(rollout.predicted),
+        rollout.truth,
+        rollout.history,
+        rollout.metadata,
+        horizons,
+        granular_types,
+        material_names,
+        kinematic_types=kinematic_types,
+        metrics=metrics,
     )
     return summarise(scores)
 
@@ -347,7 +376,11 @@ def _mean_over_cases(values: list[float | None]) -> float | None:
 
 
 def _entry(
-    candidate: Candidate, summaries: list[dict[str, float | None]], timings: list[Timing], curves: list, keys: list[str],
+    candidate: Candidate,
+    summaries: list[dict[str, float | None]],
+    timings: list[Timing],
+    curves: list,
+    keys: list[str],
     rollout_files: list[Path | None],
 ) -> Entry:
     names = list(dict.fromkeys(name for summary in summaries for name in summary))
@@ -531,10 +564,14 @@ def plot_error_vs_time(report: Report, path: Path) -> None:
         # Markers and bars only: settings may vary along different axes (resolution, time
         # step), so a line through them would suggest a trade-off curve that was not measured.
         ax.errorbar(
-            xs, ys,
+            xs,
+            ys,
             yerr=[[y - lo for y, lo in zip(ys, lows)], [hi - y for y, hi in zip(ys, highs)]],
             xerr=[[min(s / 2, 0.9 * x) for x, s in zip(xs, spreads)], [s / 2 for s in spreads]],
-            marker=marker, linestyle="none", capsize=2, elinewidth=0.8,
+            marker=marker,
+            linestyle="none",
+            capsize=2,
+            elinewidth=0.8,
             label="ground-truth simulator" if kind == "simulator" else "learned simulator",
         )
         for x, y, name in zip(xs, ys, names):

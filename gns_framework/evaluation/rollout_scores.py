@@ -32,8 +32,13 @@ def validation_rollout_scorer(
     def score(simulator: LearnedSimulator, trajectory: Trajectory) -> dict[str, float]:
         prediction = Prediction(learned_positions(simulator, trajectory, device))
         values = score_prediction(
-            prediction, trajectory, simulator.scene.history, metadata, granular_types=granular,
-            kinematic_types=simulator.scene.kinematic_types, metrics=metrics,
+            prediction,
+            trajectory,
+            simulator.scene.history,
+            metadata,
+            granular_types=granular,
+            kinematic_types=simulator.scene.kinematic_types,
+            metrics=metrics,
         )
         found = {name: values.get(metric.name) for name, metric in tracked.items()}
         return {name: float(value.item()) for name, value in found.items() if value is not None}

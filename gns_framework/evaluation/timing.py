@@ -40,7 +40,11 @@ class Timing:
 
 
 def time_call(
-    fn: Callable[[], T], *, repeats: int = 5, warmup: int = 1, device: torch.device | str | None = None,
+    fn: Callable[[], T],
+    *,
+    repeats: int = 5,
+    warmup: int = 1,
+    device: torch.device | str | None = None,
     clock: Callable[[], float] = time.perf_counter,
 ) -> tuple[T, Timing]:
     """Run ``fn`` ``warmup`` times untimed, then ``repeats`` times timed by ``clock`` (seconds).

@@ -92,12 +92,15 @@ def drawn_record(sample: SceneSample, materials: Mapping[str, type[Material]]) -
     return record
 
 
-def write_drawn(out: Path, scene: SceneSpec, keyed_seeds: Iterable[tuple[str, int]],
-                materials: Mapping[str, type[Material]]) -> Path:
+def write_drawn(
+    out: Path, scene: SceneSpec, keyed_seeds: Iterable[tuple[str, int]], materials: Mapping[str, type[Material]]
+) -> Path:
     """``out/drawn.json`` (atomically) for the trajectories ``(key, seed)`` of ``scene``."""
     trajectories = {key: drawn_record(sample_scene(scene, seed), materials) for key, seed in keyed_seeds}
     path = Path(out) / DRAWN_FILE
-    write_text_atomic(path, json.dumps({"format": FORMAT, "scene": scene.name, "trajectories": trajectories}, indent=1) + "\n")
+    write_text_atomic(
+        path, json.dumps({"format": FORMAT, "scene": scene.name, "trajectories": trajectories}, indent=1) + "\n"
+    )
     return path
 
 
@@ -130,7 +133,8 @@ def read_drawn(folder: str | Path, key: str, materials: Mapping[str, type[Materi
 
 def _blocks(record: Mapping, particle_type: int | None) -> list[dict]:
     return [
-        body for location, body in record.items()
+        body
+        for location, body in record.items()
         if location.startswith("blocks") and (particle_type is None or body.get("particle_type") == particle_type)
     ]
 
@@ -143,6 +147,7 @@ def true_velocity(record: Mapping, particle_type: int) -> list[float] | None:
 
 def true_property(record: Mapping, name: str, particle_type: int | None) -> float | None:
     """The value of property ``name`` shared by the blocks concerned (every block if no type); None otherwise."""
-    values: set[Any] = {body.get(name) if not isinstance(body.get(name), dict) else None
-                        for body in _blocks(record, particle_type)}
+    values: set[Any] = {
+        body.get(name) if not isinstance(body.get(name), dict) else None for body in _blocks(record, particle_type)
+    }
     return float(values.pop()) if len(values) == 1 and None not in values else None

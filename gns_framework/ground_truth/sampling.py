@@ -201,7 +201,11 @@ def fill(shape: str, lower: np.ndarray, size: np.ndarray, spacing: float) -> np.
 
 
 def _particles(
-    body: Block | Obstacle, lower: np.ndarray, size: np.ndarray, angle: float, vertices: np.ndarray | None,
+    body: Block | Obstacle,
+    lower: np.ndarray,
+    size: np.ndarray,
+    angle: float,
+    vertices: np.ndarray | None,
     scene: SceneSpec,
 ) -> np.ndarray:
     """(n, d) particles of a body at t = 0; a static shaped obstacle keeps those inside the domain.
@@ -223,9 +227,7 @@ def _particles(
     return points
 
 
-def _sample_body(
-    location: str, body: Block | Obstacle, scene: SceneSpec, rng: np.random.Generator
-) -> BodySample:
+def _sample_body(location: str, body: Block | Obstacle, scene: SceneSpec, rng: np.random.Generator) -> BodySample:
     d = scene.dim
     lower, spanned = _draw_position(body.position, rng)
     size = _draw_vector(body.size, rng, d)
@@ -306,7 +308,11 @@ def _sample_bodies(scene: SceneSpec, rng: np.random.Generator) -> tuple[list[Bod
     boxes: list = []
     gap = scene.particle_spacing
     for location, body in scene.bodies_with_location():
-        count = int(round(body.count.low)) if body.count.is_fixed else int(rng.integers(int(body.count.low), int(body.count.high + 1)))
+        count = (
+            int(round(body.count.low))
+            if body.count.is_fixed
+            else int(rng.integers(int(body.count.low), int(body.count.high + 1)))
+        )
         for copy in range(count):
             where = location if body.count.is_fixed and body.count.low == 1 else f"{location}[{copy}]"
             for _ in range(PLACEMENT_TRIES if scene.no_overlap else 1):

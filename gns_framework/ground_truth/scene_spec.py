@@ -263,7 +263,9 @@ class WallChoice(Spec):
 
 
 WallDraw = Annotated[
-    Annotated[WallChoice, Tag("@one_of")] | Annotated[WallRange, Tag("@range")] | Annotated[WallCondition, Tag("@condition")],
+    Annotated[WallChoice, Tag("@one_of")]
+    | Annotated[WallRange, Tag("@range")]
+    | Annotated[WallCondition, Tag("@condition")],
     Discriminator(_wall_kind),
 ]
 """A face condition, ``{range: [low, high]}`` of friction, or ``{one_of: [slip, {range: ...}, ...]}``."""
@@ -525,7 +527,12 @@ class SceneSpec(Spec):
                 if is_spanned(value) or value.per == "particle":
                     found.append((where, "an extent is a length in metres: a number, {range: ...} or {one_of: ...}"))
                 elif value.low <= 0 or value.high > hi - lo + 1e-12:
-                    found.append((where, f"must lie in (0, {hi - lo:g}] (the bounds' extent), got [{value.low:g}, {value.high:g}]"))
+                    found.append(
+                        (
+                            where,
+                            f"must lie in (0, {hi - lo:g}] (the bounds' extent), got [{value.low:g}, {value.high:g}]",
+                        )
+                    )
         found += self._count_problems()
         for i, obstacle in enumerate(self.obstacles):
             found += _shape_problems(f"obstacles[{i}]", obstacle, d)
@@ -571,7 +578,12 @@ class SceneSpec(Spec):
         for where, body in self.bodies_with_location():
             low, high = body.count.range
             if low < 0 or low != int(low) or high != int(high) or body.count.per == "particle":
-                found.append((f"{where}.count", f"expected a whole number >= 0 or {{range: [low, high]}} of them, got {[low, high]}"))
+                found.append(
+                    (
+                        f"{where}.count",
+                        f"expected a whole number >= 0 or {{range: [low, high]}} of them, got {[low, high]}",
+                    )
+                )
         if found:
             return found
         if sum(int(block.count.low) for block in self.blocks) < 1:
@@ -620,7 +632,12 @@ def _outside_domain(where: str, body: Block | Obstacle, bounds: list[tuple[float
     for axis, ((lo, hi), pos, size, vel) in enumerate(zip(bounds, body.position, body.size, velocity)):
         if is_spanned(pos):
             if size.high > hi - lo:
-                found.append((f"{where}.size[{axis}]", f"up to {size.high:g} does not fit the domain's {hi - lo:g} on axis {axis}"))
+                found.append(
+                    (
+                        f"{where}.size[{axis}]",
+                        f"up to {size.high:g} does not fit the domain's {hi - lo:g} on axis {axis}",
+                    )
+                )
             continue  # a span keeps the body inside by construction
         sweep = (0.0, 0.0) if isinstance(body, Block) else (vel.low * duration, vel.high * duration)
         low, high = pos.low + min(0.0, sweep[0]), pos.high + size.high + max(0.0, sweep[1])

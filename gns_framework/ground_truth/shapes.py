@@ -51,9 +51,7 @@ def polygon_lattice(vertices: np.ndarray, spacing: float) -> np.ndarray:
     return points[polygon_contains(points, vertices)]
 
 
-def plane_layer(
-    point: np.ndarray, angle: float, bounds: np.ndarray, spacing: float, layers: int
-) -> np.ndarray:
+def plane_layer(point: np.ndarray, angle: float, bounds: np.ndarray, spacing: float, layers: int) -> np.ndarray:
     """(n, d) particles of an inclined plane: ``layers`` rows under its surface, within ``bounds`` (d, 2).
 
     The surface passes through ``point`` and rises at ``angle`` degrees along +x;

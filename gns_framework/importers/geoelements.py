@@ -303,7 +303,8 @@ def _train_state(
         # Cloned, so the imported optimizer never shares (and steps) the source's tensors.
         state[position[name]] = {
             field: (parameter_map.tensor(key, value) if _is_moment(value) else value).clone()
-            if isinstance(value, Tensor) else value
+            if isinstance(value, Tensor)
+            else value
             for field, value in optimizer["state"][index].items()
         }
     group = {**groups[0], "params": list(range(len(ours)))}

@@ -47,7 +47,10 @@ _RULES: tuple[tuple[re.Pattern, str], ...] = (
         re.compile(r"_processor\.gnn_stacks\.(\d+)\.(node|edge)_fn\.0\.NN-(\d+)\.(weight|bias)"),
         r"processor.steps.\1.\2_mlp.mlp.linears.\3.\4",
     ),
-    (re.compile(r"_processor\.gnn_stacks\.(\d+)\.(node|edge)_fn\.1\.(weight|bias)"), r"processor.steps.\1.\2_mlp.norm.\3"),
+    (
+        re.compile(r"_processor\.gnn_stacks\.(\d+)\.(node|edge)_fn\.1\.(weight|bias)"),
+        r"processor.steps.\1.\2_mlp.norm.\3",
+    ),
     (re.compile(r"_decoder\.node_fn\.NN-(\d+)\.(weight|bias)"), r"decoder.mlp.linears.\1.\2"),
 )
 _PROCESSOR_FIRST_WEIGHT = re.compile(r"_processor\.gnn_stacks\.\d+\.(node|edge)_fn\.0\.NN-0\.weight")
@@ -131,7 +134,6 @@ class Architecture:
             edge_in=edge_in,
         )
 
-
     def keys(self) -> list[str]:
         """Every ``state_dict`` key a geoelements model of this architecture has."""
         linears = [f"NN-{k}.{p}" for k in range(self.mlp_hidden_layers + 1) for p in ("weight", "bias")]
@@ -143,7 +145,9 @@ class Architecture:
         keys = [EMBEDDING_KEY]
         keys += block(_PREFIX + "_encoder.node_fn") + block(_PREFIX + "_encoder.edge_fn")
         for m in range(self.message_passing_steps):
-            keys += block(f"{_PREFIX}_processor.gnn_stacks.{m}.node_fn") + block(f"{_PREFIX}_processor.gnn_stacks.{m}.edge_fn")
+            keys += block(f"{_PREFIX}_processor.gnn_stacks.{m}.node_fn") + block(
+                f"{_PREFIX}_processor.gnn_stacks.{m}.edge_fn"
+            )
         return keys + [f"{_PREFIX}_decoder.node_fn.{linear}" for linear in linears]
 
 
@@ -180,7 +184,9 @@ class ParameterMap:
         if key == EMBEDDING_KEY:
             return value[list(self.particle_types)]
         if key == ENCODER_NODE_FIRST_WEIGHT and self.folds_embedding:
-            keep = [c for c in range(value.shape[1]) if not self.embedding_columns.start <= c < self.embedding_columns.stop]
+            keep = [
+                c for c in range(value.shape[1]) if not self.embedding_columns.start <= c < self.embedding_columns.stop
+            ]
             return value[:, keep]
         match = _PROCESSOR_FIRST_WEIGHT.fullmatch(key[len(_PREFIX) :]) if key.startswith(_PREFIX) else None
         if match:

@@ -65,7 +65,9 @@ class ObservedSpec(_Strict):
         compared = set(self.frames) if isinstance(self.frames, list) else set()
         shared = sorted(compared & set(self.held_out))
         if shared:
-            raise ValueError(f"held_out: frames {shared} are also in frames; a held-out frame is not compared by the loss")
+            raise ValueError(
+                f"held_out: frames {shared} are also in frames; a held-out frame is not compared by the loss"
+            )
         return self
 
 
@@ -176,11 +178,15 @@ class InvertConfig(_Strict):
     @model_validator(mode="after")
     def _something_to_recover(self) -> "InvertConfig":
         if not self.unknowns:
-            raise ValueError("unknowns: name at least one unknown (a material property such as friction, or initial_velocity)")
+            raise ValueError(
+                "unknowns: name at least one unknown (a material property such as friction, or initial_velocity)"
+            )
         return self
 
 
-def parse_invert_config(raw: dict, source: str | Path) -> tuple[InvertConfig, dict[str, PropertyUnknown | VelocityUnknown]]:
+def parse_invert_config(
+    raw: dict, source: str | Path
+) -> tuple[InvertConfig, dict[str, PropertyUnknown | VelocityUnknown]]:
     """The validated config and its typed unknowns; RecipeError lists every schema problem."""
     problems: list[tuple[str, str]] = []
     config = None

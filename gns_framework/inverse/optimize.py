@@ -90,9 +90,16 @@ class _Evaluator:
         return value, gradient
 
 
-def adam(loss: LossFunction, u0: np.ndarray, lr: float, iterations: int, on_iteration: Observer,
-         describe: Callable[[np.ndarray], str], dtype: torch.dtype = torch.float32,
-         lr_decay: float | None = None) -> Solution:
+def adam(
+    loss: LossFunction,
+    u0: np.ndarray,
+    lr: float,
+    iterations: int,
+    on_iteration: Observer,
+    describe: Callable[[np.ndarray], str],
+    dtype: torch.dtype = torch.float32,
+    lr_decay: float | None = None,
+) -> Solution:
     """Adam on ``u``, projected back onto [0, 1]^k after every step.
 
     ``lr_decay``: the step size is multiplied by it after each step (exponential
@@ -117,8 +124,14 @@ def adam(loss: LossFunction, u0: np.ndarray, lr: float, iterations: int, on_iter
     return Solution(u.detach().numpy().copy(), iterations, evaluate.count, f"{iterations} Adam steps{decayed}")
 
 
-def lbfgs(loss: LossFunction, u0: np.ndarray, iterations: int, on_iteration: Observer,
-          describe: Callable[[np.ndarray], str], dtype: torch.dtype = torch.float32) -> Solution:
+def lbfgs(
+    loss: LossFunction,
+    u0: np.ndarray,
+    iterations: int,
+    on_iteration: Observer,
+    describe: Callable[[np.ndarray], str],
+    dtype: torch.dtype = torch.float32,
+) -> Solution:
     """SciPy's L-BFGS-B within [0, 1]^k, at most ``iterations`` iterations.
 
     The loss is divided by its value at ``u0`` before SciPy sees it, so SciPy's
@@ -146,9 +159,14 @@ def lbfgs(loss: LossFunction, u0: np.ndarray, iterations: int, on_iteration: Obs
         held_out = evaluate.held_out if np.array_equal(x, last_evaluated) else None
         on_iteration(Iterate(accepted_count, float(intermediate_result.fun) * scale, x, held_out))
         accepted_count += 1
+
     result = minimize(
-        scaled, np.asarray(u0, dtype=np.float64), jac=True, method="L-BFGS-B",
-        bounds=[(0.0, 1.0)] * len(u0), callback=accepted,
+        scaled,
+        np.asarray(u0, dtype=np.float64),
+        jac=True,
+        method="L-BFGS-B",
+        bounds=[(0.0, 1.0)] * len(u0),
+        callback=accepted,
         options={"maxiter": iterations, "maxfun": 4 * iterations},
     )
     return Solution(np.asarray(result.x, dtype=np.float64), int(result.nit), evaluate.count, str(result.message))

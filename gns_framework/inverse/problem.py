@@ -106,21 +106,41 @@ def check_against_model(
         where = f"unknowns.{name}"
         if isinstance(unknown, VelocityUnknown):
             if len(unknown.bounds) != scene.dim:
-                problems.append((f"{where}.bounds", f"needs {scene.dim} [low, high] pairs (one per axis), got {len(unknown.bounds)}"))
+                problems.append(
+                    (
+                        f"{where}.bounds",
+                        f"needs {scene.dim} [low, high] pairs (one per axis), got {len(unknown.bounds)}",
+                    )
+                )
         elif name not in scene.property_names:
             inputs = ", ".join(scene.property_names) if scene.property_names else "none"
-            problems.append((where, f"the model has no input {name!r}: it was trained with the material properties: "
-                                    f"{inputs} (or use {INITIAL_VELOCITY})"))
+            problems.append(
+                (
+                    where,
+                    f"the model has no input {name!r}: it was trained with the material properties: "
+                    f"{inputs} (or use {INITIAL_VELOCITY})",
+                )
+            )
         kind = unknown.particle_type
         if kind is not None:
             if kind not in scene.particle_types:
-                problems.append((f"{where}.particle_type", f"{kind} is not among the model's particle types {list(scene.particle_types)}"))
+                problems.append(
+                    (
+                        f"{where}.particle_type",
+                        f"{kind} is not among the model's particle types {list(scene.particle_types)}",
+                    )
+                )
             elif kind in scene.kinematic_types:
                 problems.append((f"{where}.particle_type", f"{kind} is kinematic: the model does not move it"))
     observed = config.observed
     if observed.trajectory >= len(trajectories):
-        problems.append(("observed.trajectory", f"{observed.trajectory} is out of range: split {observed.split!r} "
-                                                f"of {observed.dataset} holds {len(trajectories)} trajectories (0 .. {len(trajectories) - 1})"))
+        problems.append(
+            (
+                "observed.trajectory",
+                f"{observed.trajectory} is out of range: split {observed.split!r} "
+                f"of {observed.dataset} holds {len(trajectories)} trajectories (0 .. {len(trajectories) - 1})",
+            )
+        )
     else:
         trajectory = trajectories[observed.trajectory]
         frames = trajectory.num_steps
@@ -128,19 +148,36 @@ def check_against_model(
             if isinstance(listed, list):
                 bad = [f for f in listed if not scene.history <= f < frames]
                 if bad or not listed:
-                    problems.append((f"observed.{field}", f"frames {bad or '[]'} are not rolled out: give indices in "
-                                                          f"[{scene.history}, {frames - 1}] (the first {scene.history} are the model's input)"))
+                    problems.append(
+                        (
+                            f"observed.{field}",
+                            f"frames {bad or '[]'} are not rolled out: give indices in "
+                            f"[{scene.history}, {frames - 1}] (the first {scene.history} are the model's input)",
+                        )
+                    )
         if not isinstance(observed.frames, list) and frames <= scene.history:
-            problems.append(("observed.trajectory", f"has {frames} frames; the model needs more than its {scene.history} input frames"))
+            problems.append(
+                (
+                    "observed.trajectory",
+                    f"has {frames} frames; the model needs more than its {scene.history} input frames",
+                )
+            )
         for name, unknown in unknowns.items():
             kind = unknown.particle_type
             if kind is not None and kind in scene.particle_types and not (trajectory.particle_type == kind).any():
-                problems.append((f"unknowns.{name}.particle_type", f"no particle of type {kind} in trajectory {trajectory.key!r}"))
+                problems.append(
+                    (f"unknowns.{name}.particle_type", f"no particle of type {kind} in trajectory {trajectory.key!r}")
+                )
         if scene.property_names and trajectory.material_property is None:
             missing = [p for p in scene.property_names if p not in unknowns]
             if missing:
-                problems.append(("observed.dataset", f"trajectory {trajectory.key!r} has no material_property, and the "
-                                                     f"model needs {missing} besides the unknowns"))
+                problems.append(
+                    (
+                        "observed.dataset",
+                        f"trajectory {trajectory.key!r} has no material_property, and the "
+                        f"model needs {missing} besides the unknowns",
+                    )
+                )
     if problems:
         raise RecipeError(source, problems)
 
@@ -239,7 +276,9 @@ class InverseProblem:
                 chosen = (self.state.particle_type == unknown.particle_type)[:, None, None]
                 sequence = torch.where(chosen, rebuilt, sequence)
             else:
-                assert material_property is not None  # a property unknown: the model has properties (zeros if unrecorded)
+                assert (
+                    material_property is not None
+                )  # a property unknown: the model has properties (zeros if unrecorded)
                 chosen = self._particles(unknown)[:, None]
                 column = torch.zeros(len(scene.property_names), dtype=torch.bool, device=u.device)
                 column[scene.property_names.index(name)] = True
@@ -288,8 +327,12 @@ class InverseProblem:
         if self.loss_name == "sinkhorn":
             weight = self.moving[None]
             distance = sinkhorn_distance(
-                final[None], observed_final[None], weight, weight,
-                blur=SINKHORN_BLUR_FRACTION * self.domain, diameter=self.domain,
+                final[None],
+                observed_final[None],
+                weight,
+                weight,
+                blur=SINKHORN_BLUR_FRACTION * self.domain,
+                diameter=self.domain,
             )
             return 100 * distance[0] / self.domain
         start = state.position_sequence[:, 0]
@@ -298,7 +341,9 @@ class InverseProblem:
             ParticleRollout.of(final[None], state.particle_type, start=start, kinematic_types=kinematic), self.granular
         )
         observed_runout = runout_distance(
-            ParticleRollout.of(observed_final[None], state.particle_type, start=self.first_frame, kinematic_types=kinematic),
+            ParticleRollout.of(
+                observed_final[None], state.particle_type, start=self.first_frame, kinematic_types=kinematic
+            ),
             self.granular,
         )
         return 100 * (predicted_runout - observed_runout).abs()[0] / observed_runout.abs()[0]

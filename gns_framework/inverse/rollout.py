@@ -22,8 +22,13 @@ from ..model.learned_simulator import LearnedSimulator
 from ..model.history import advance_window
 
 
-def _advance(simulator: LearnedSimulator, state: ParticleBatch, sequence: Tensor, material_property: Tensor | None,
-             prescribed: Tensor) -> tuple[Tensor, Tensor]:
+def _advance(
+    simulator: LearnedSimulator,
+    state: ParticleBatch,
+    sequence: Tensor,
+    material_property: Tensor | None,
+    prescribed: Tensor,
+) -> tuple[Tensor, Tensor]:
     """Roll ``len(prescribed)`` steps on from ``sequence``.
 
     Shapes: sequence (N, C, d), prescribed (K, N, d) -> final sequence (N, C, d), predicted (K, N, d).

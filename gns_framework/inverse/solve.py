@@ -83,8 +83,15 @@ def prepare(
     if shared:
         from ..errors import RecipeError
 
-        raise RecipeError(source, [("observed.held_out", f"frames {shared} are also compared by the loss "
-                                                         f"(frames: {observed.frames}); hold out others")])
+        raise RecipeError(
+            source,
+            [
+                (
+                    "observed.held_out",
+                    f"frames {shared} are also compared by the loss (frames: {observed.frames}); hold out others",
+                )
+            ],
+        )
     scene = model.simulator.scene
     warnings = _envelope_warnings(model, dataset.metadata(), trajectory, unknowns, outside_envelope, observed.dataset)
     problem = InverseProblem(
@@ -128,7 +135,8 @@ def true_values(dataset: str | Path, trajectory: Trajectory, unknowns: dict, sim
             if value is None and trajectory.material_property is not None and name in names:
                 kind = unknown.particle_type
                 chosen = (
-                    trajectory.particle_type == kind if kind is not None
+                    trajectory.particle_type == kind
+                    if kind is not None
                     else simulator.predicted_mask(torch.from_numpy(np.asarray(trajectory.particle_type))).numpy()
                 )
                 column = np.asarray(trajectory.material_property)[chosen, names.index(name)]
@@ -160,8 +168,10 @@ def _envelope_warnings(model, metadata, trajectory, unknowns, allowed: bool, sou
     for name in sorted(searched):
         low, high = unknowns[name].bounds
         trained = envelope.properties.get(name)
-        if trained is None or low < trained[0] - PROPERTY_SLACK * (trained[1] - trained[0]) - 1e-12 or (
-            high > trained[1] + PROPERTY_SLACK * (trained[1] - trained[0]) + 1e-12
+        if (
+            trained is None
+            or low < trained[0] - PROPERTY_SLACK * (trained[1] - trained[0]) - 1e-12
+            or (high > trained[1] + PROPERTY_SLACK * (trained[1] - trained[0]) + 1e-12)
         ):
             described = "not a model input" if trained is None else f"{trained[0]:.4g} .. {trained[1]:.4g}"
             problems.append(f"unknowns.{name}.bounds [{low:.4g}, {high:.4g}] (trained: {described})")
@@ -210,7 +220,9 @@ class InversionResult:
             found = np.atleast_1d(np.asarray((unknowns or self.unknowns)[name], dtype=np.float64))
             true = np.atleast_1d(np.asarray(true, dtype=np.float64))
             scale = float(np.linalg.norm(true))
-            errors[name] = 100 * float(np.linalg.norm(found - true)) / scale if scale > 0 else float(np.linalg.norm(found - true))
+            errors[name] = (
+                100 * float(np.linalg.norm(found - true)) / scale if scale > 0 else float(np.linalg.norm(found - true))
+            )
         return errors
 
     def as_json(self, inversion: Inversion) -> dict:
@@ -218,9 +230,13 @@ class InversionResult:
         truth = inversion.truth
         last = None
         if self.last is not None:
-            last = {"iteration": self.last.iteration, "unknowns": self.last_unknowns, "loss": self.last.loss,
-                    **({"held_out_loss": self.last.held_out} if self.last.held_out is not None else {}),
-                    **({"error_pct": self.errors(truth, self.last_unknowns)} if truth else {})}
+            last = {
+                "iteration": self.last.iteration,
+                "unknowns": self.last_unknowns,
+                "loss": self.last.loss,
+                **({"held_out_loss": self.last.held_out} if self.last.held_out is not None else {}),
+                **({"error_pct": self.errors(truth, self.last_unknowns)} if truth else {}),
+            }
         return {
             "unknowns": self.unknowns,
             "initial": self.initial,
@@ -229,7 +245,11 @@ class InversionResult:
             "loss_unit": LOSS_UNITS[inversion.config.loss],
             "best_iteration": None if self.best is None else self.best.iteration,
             "selected_by": self.selected_by,
-            **({"held_out_loss": self.best.held_out} if self.best is not None and self.best.held_out is not None else {}),
+            **(
+                {"held_out_loss": self.best.held_out}
+                if self.best is not None and self.best.held_out is not None
+                else {}
+            ),
             **({"truth": truth, "error_pct": self.errors(truth)} if truth else {}),
             "last": last,
             "iterations": self.iterations,
@@ -265,8 +285,9 @@ def solve(inversion: Inversion, on_iteration=lambda iterate: None) -> InversionR
     started = time.perf_counter()
     with activations_recomputed(problem.checkpoint_every > 0):
         if spec.name == "adam":
-            solution: Solution = adam(problem.losses, problem.start, spec.lr, spec.iterations, observe, describe,
-                                      problem.dtype, spec.lr_decay)
+            solution: Solution = adam(
+                problem.losses, problem.start, spec.lr, spec.iterations, observe, describe, problem.dtype, spec.lr_decay
+            )
         else:
             solution = lbfgs(problem.losses, problem.start, spec.iterations, observe, describe, problem.dtype)
         evaluations = solution.evaluations
@@ -356,9 +377,13 @@ def plot_convergence(history: list[Iterate], inversion: Inversion, path: Path, b
     figure, axes = plt.subplots(1 + len(names), 1, figsize=(6, 2.2 * (1 + len(names))), sharex=True)
     axes[0].semilogy(iterations, [max(it.loss, 1e-30) for it in history], marker=".", label="loss")
     if any(it.held_out is not None for it in history):
-        axes[0].semilogy([it.iteration for it in history if it.held_out is not None],
-                         [max(it.held_out, 1e-30) for it in history if it.held_out is not None],
-                         marker=".", color="tab:green", label="held-out frames")
+        axes[0].semilogy(
+            [it.iteration for it in history if it.held_out is not None],
+            [max(it.held_out, 1e-30) for it in history if it.held_out is not None],
+            marker=".",
+            color="tab:green",
+            label="held-out frames",
+        )
     axes[0].set_ylabel(f"loss ({inversion.config.loss})")
     truth = inversion.truth or {}
     true_columns = []
@@ -374,8 +399,15 @@ def plot_convergence(history: list[Iterate], inversion: Inversion, path: Path, b
         axis.set_ylabel(name)
     if best is not None:
         index = iterations.index(best.iteration)
-        axes[0].plot([best.iteration], [max(best.score, 1e-30)], marker="*",
-                     markersize=14, color="tab:red", linestyle="none", label=f"returned: iteration {best.iteration}")
+        axes[0].plot(
+            [best.iteration],
+            [max(best.score, 1e-30)],
+            marker="*",
+            markersize=14,
+            color="tab:red",
+            linestyle="none",
+            label=f"returned: iteration {best.iteration}",
+        )
         for axis, column in zip(axes[1:], values.T):
             axis.plot([best.iteration], [column[index]], marker="*", markersize=14, color="tab:red", linestyle="none")
         for axis in axes:

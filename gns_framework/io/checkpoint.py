@@ -148,12 +148,16 @@ def _check_fields(path: Path, state: dict[str, Any]) -> None:
         raise CheckpointError(f"{path}: step: expected a whole number >= 0, got {_short(step)}")
     for key in ("recipe", "scene", "metadata", "plugins", "model"):
         if not isinstance(state[key], dict):
-            raise CheckpointError(f"{path}: {key}: expected a mapping, got {type(state[key]).__name__} {_short(state[key])}")
+            raise CheckpointError(
+                f"{path}: {key}: expected a mapping, got {type(state[key]).__name__} {_short(state[key])}"
+            )
     if not isinstance(state["recipe"].get("model", {}), dict):
         raise CheckpointError(f"{path}: recipe.model: expected a mapping, got {_short(state['recipe']['model'])}")
     for key in ("optimizer", "scheduler", "rng", "best", "envelope"):
         if key in state and not isinstance(state[key], dict):
-            raise CheckpointError(f"{path}: {key}: expected a mapping, got {type(state[key]).__name__} {_short(state[key])}")
+            raise CheckpointError(
+                f"{path}: {key}: expected a mapping, got {type(state[key]).__name__} {_short(state[key])}"
+            )
     if "history" in state and not isinstance(state["history"], str):
         raise CheckpointError(f"{path}: history: expected a string, got {_short(state['history'])}")
 
@@ -168,8 +172,10 @@ def _contents(directory: Path) -> str:
     if names := _held(directory):
         return f"it holds {', '.join(names)}: name one of them"
     if names := _held(RunFolder(directory).checkpoints):
-        return (f"a run folder, whose checkpoints/ holds {', '.join(names)}: name one of them, or resume the newest "
-                f"with --out {directory} --resume")
+        return (
+            f"a run folder, whose checkpoints/ holds {', '.join(names)}: name one of them, or resume the newest "
+            f"with --out {directory} --resume"
+        )
     return "it holds no checkpoints (*.pt)"
 
 

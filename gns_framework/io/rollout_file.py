@@ -44,9 +44,7 @@ REQUIRED_FIELDS = ("initial_positions", "predicted_rollout", "ground_truth_rollo
 OPTIONAL_FIELDS = ("material_property", "bounds", "walls")
 
 
-def _validated_fields(
-    src: str, fields: dict[str, np.ndarray | None], metadata: DatasetMetadata
-) -> dict[str, Any]:
+def _validated_fields(src: str, fields: dict[str, np.ndarray | None], metadata: DatasetMetadata) -> dict[str, Any]:
     """Check a rollout file's arrays (every field but ``metadata_json``); return them with canonical dtypes.
 
     Each is an array; only those of ``OPTIONAL_FIELDS`` may be None.
@@ -103,7 +101,9 @@ def _validated_fields(
             value = value.astype(np.float32)
         domain[name] = value
     if domain["bounds"] is not None and not (domain["bounds"][:, 0] < domain["bounds"][:, 1]).all():
-        raise DatasetError(located(src, "bounds", f"expected [lower, upper] with lower < upper, got {domain['bounds'].tolist()}"))
+        raise DatasetError(
+            located(src, "bounds", f"expected [lower, upper] with lower < upper, got {domain['bounds'].tolist()}")
+        )
     return {
         **domain,
         "initial_positions": initial.astype(np.float32, copy=False),
@@ -215,6 +215,9 @@ def write_rollout(
             f"{path}: predicted_rollout: non-finite positions from step {step} on "
             f"(particles {particles[:5].tolist()}{', ...' if len(particles) > 5 else ''}, {len(particles)} in all); "
             "not written (pass allow_non_finite=True to keep a diverged rollout)",
-            trajectory=rollout.key, step=step, particles=particles.tolist(), cause="non-finite positions",
+            trajectory=rollout.key,
+            step=step,
+            particles=particles.tolist(),
+            cause="non-finite positions",
         )
     return save_rollout(path, replace(rollout, metadata=metadata))

@@ -95,7 +95,9 @@ def write_vtk_series(
 
 
 def write_rollout_vtk(
-    rollout: Rollout, directory: str | Path, property_names: Sequence[str] | None = None,
+    rollout: Rollout,
+    directory: str | Path,
+    property_names: Sequence[str] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> dict[str, Path]:
     """Write the predicted and the true trajectory of a rollout with its metadata (input frames included).

@@ -95,7 +95,9 @@ def rollout_batch(
     previous = torch.from_numpy(np.concatenate([t.position[history - 1] for t in trajectories]))
     sequence = state.position_sequence
     violations: list[list[GuardViolation]] = [[] for _ in trajectories]
-    label = ", ".join(t.key for t in trajectories[:3]) + (f", ... ({len(trajectories)} in all)" if len(trajectories) > 3 else "")
+    label = ", ".join(t.key for t in trajectories[:3]) + (
+        f", ... ({len(trajectories)} in all)" if len(trajectories) > 3 else ""
+    )
     for step in range(steps):
         current = replace(state, position_sequence=sequence)
         next_position, continued = rollout_step(simulator, guard, current, kinematic, kinematic_truth[step], precision)

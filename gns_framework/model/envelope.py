@@ -141,7 +141,9 @@ class Envelope:
             walls=walls,
             max_speed=max(self.max_speed, earlier.max_speed),
             particle_count=span(self.particle_count, earlier.particle_count),
-            frames=span(self.frames, earlier.frames) if self.frames and earlier.frames else list(self.frames or earlier.frames),
+            frames=span(self.frames, earlier.frames)
+            if self.frames and earlier.frames
+            else list(self.frames or earlier.frames),
         )
 
     def rows(self) -> list[tuple[str, str]]:
@@ -150,8 +152,16 @@ class Envelope:
         rows = [
             ("dimension", f"{self.dim}D"),
             ("particle spacing", f"{self.particle_spacing:.4g} m (+-{SPACING_TOLERANCE:.0%})"),
-            ("learned step", f"{self.step_dt:.4g} s ({self.frame_stride} stored frame(s) of {self.step_dt / self.frame_stride:.4g} s)"),
-            ("materials", ", ".join(f"{name} (type {t})" for t, name in sorted(self.materials.items(), key=lambda kv: int(kv[0])))),
+            (
+                "learned step",
+                f"{self.step_dt:.4g} s ({self.frame_stride} stored frame(s) of {self.step_dt / self.frame_stride:.4g} s)",
+            ),
+            (
+                "materials",
+                ", ".join(
+                    f"{name} (type {t})" for t, name in sorted(self.materials.items(), key=lambda kv: int(kv[0]))
+                ),
+            ),
         ]
         rows += [(f"property {name}", f"{lo:.4g} .. {hi:.4g}") for name, (lo, hi) in self.properties.items()]
         rows += [(f"domain {axes[a]} extent", f"{lo:.4g} .. {hi:.4g} m") for a, (lo, hi) in enumerate(self.extent)]
@@ -302,17 +312,29 @@ def outside_envelope(
         key = trajectory.key
         spacing = particle_spacing(trajectory.position[0])
         if abs(spacing / envelope.particle_spacing - 1) > SPACING_TOLERANCE:
-            findings.add("particle spacing", f"{spacing:.4g} m", f"{envelope.particle_spacing:.4g} m +-{SPACING_TOLERANCE:.0%}", key)
+            findings.add(
+                "particle spacing",
+                f"{spacing:.4g} m",
+                f"{envelope.particle_spacing:.4g} m +-{SPACING_TOLERANCE:.0%}",
+                key,
+            )
         unknown = sorted(set(np.unique(trajectory.particle_type).tolist()) - trained_types)
         if unknown:
             findings.add("particle types", f"{unknown}", f"{envelope.particle_types}", key)
         low, high = envelope.particle_count
         if not COUNT_SLACK[0] * low <= trajectory.num_particles <= COUNT_SLACK[1] * high:
-            findings.add("particle count", f"{trajectory.num_particles}", f"{low} .. {high}, accepted {COUNT_SLACK[0]:g}x .. {COUNT_SLACK[1]:g}x", key)
+            findings.add(
+                "particle count",
+                f"{trajectory.num_particles}",
+                f"{low} .. {high}, accepted {COUNT_SLACK[0]:g}x .. {COUNT_SLACK[1]:g}x",
+                key,
+            )
         moving = ~np.isin(trajectory.particle_type, kinematic)
         speed = _speed(trajectory.position[:history], moving, metadata.dt)
         if speed > SPEED_SLACK * envelope.max_speed:
-            findings.add("input speed", f"{speed:.3g} m/s", f"up to {envelope.max_speed:.3g} m/s, accepted {SPEED_SLACK:g}x", key)
+            findings.add(
+                "input speed", f"{speed:.3g} m/s", f"up to {envelope.max_speed:.3g} m/s, accepted {SPEED_SLACK:g}x", key
+            )
         extent = _extent(trajectory, metadata)
         for axis, (value, (lo, hi)) in enumerate(zip(extent, envelope.extent)):
             if not _within(value, lo, hi, 2 * envelope.particle_spacing):
@@ -337,7 +359,9 @@ def outside_envelope(
                 elif friction == 0:
                     ok, value = seen["slip"], "slip"
                 else:
-                    ok = seen["friction"] is not None and _within(friction, *cast("tuple[float, float]", seen["friction"]), WALL_SLACK)
+                    ok = seen["friction"] is not None and _within(
+                        friction, *cast("tuple[float, float]", seen["friction"]), WALL_SLACK
+                    )
                     value = f"friction {friction:.3g}"
                 if not ok:
                     findings.add(f"wall {face}", value, _wall_kinds(seen), key)

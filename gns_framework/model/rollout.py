@@ -67,7 +67,9 @@ def rollout(
     available = trajectory.num_steps - history
     steps = available if steps is None else min(steps, available)
     if steps < 1:
-        raise ValueError(f"trajectory {trajectory.key!r} has {trajectory.num_steps} frames; rollout needs more than {history}")
+        raise ValueError(
+            f"trajectory {trajectory.key!r} has {trajectory.num_steps} frames; rollout needs more than {history}"
+        )
     state = window(trajectory, 0, history, with_target=False).to(device)
     truth = torch.from_numpy(trajectory.position[history : history + steps])
     moving = simulator.predicted_mask(state.particle_type)
@@ -185,4 +187,6 @@ def _check_simulates(simulator: LearnedSimulator, trajectory: Trajectory) -> Non
         raise DatasetError(f"{where}: position: has d = {trajectory.dim} but the model simulates dim = {scene.dim}")
     unknown = sorted(set(np.unique(trajectory.particle_type).tolist()) - set(scene.particle_types))
     if unknown:
-        raise DatasetError(f"{where}: particle_type: ids {unknown} are not among the model's {list(scene.particle_types)}")
+        raise DatasetError(
+            f"{where}: particle_type: ids {unknown} are not among the model's {list(scene.particle_types)}"
+        )

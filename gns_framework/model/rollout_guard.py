@@ -81,7 +81,9 @@ class RolloutGuard:
         guard._walled = PerDevice(guard._make_walled)
         return guard
 
-    def check(self, step: int, position: Tensor, previous: Tensor, trajectory: str = "") -> tuple[Tensor, list[GuardViolation]]:
+    def check(
+        self, step: int, position: Tensor, previous: Tensor, trajectory: str = ""
+    ) -> tuple[Tensor, list[GuardViolation]]:
         """Check the predicted frame ``position`` (N, d); ``previous`` (N, d) is the frame before it.
 
         Returns the frame to continue from (``position`` itself when nothing was wrong)
@@ -96,20 +98,28 @@ class RolloutGuard:
         frame = step + self.history
         violations = []
         if non_finite.any():
-            violations.append(GuardViolation(step, frame, _indices(non_finite), "have non-finite positions (NaN or Inf)"))
+            violations.append(
+                GuardViolation(step, frame, _indices(non_finite), "have non-finite positions (NaN or Inf)")
+            )
         if escaped.any():
             farthest = int(torch.argmax(torch.where(escaped, excess, torch.zeros_like(excess))))
-            cause = (f"left the domain by more than the margin {self.margin:g} "
-                     f"(farthest: particle {farthest}, {float(excess[farthest]):.4g} beyond a wall)")
+            cause = (
+                f"left the domain by more than the margin {self.margin:g} "
+                f"(farthest: particle {farthest}, {float(excess[farthest]):.4g} beyond a wall)"
+            )
             violations.append(GuardViolation(step, frame, _indices(escaped), cause))
         if self.on_violation == "stop":
             first = violations[0]
             where = f"rollout of trajectory {trajectory!r}" if trajectory else "rollout"
             raise RolloutDiverged(
-                f"{where} stopped at " + "; ".join(v.describe() for v in violations)
+                f"{where} stopped at "
+                + "; ".join(v.describe() for v in violations)
                 + ". Nothing was written for this trajectory; set rollout.guard.on_violation: clamp to continue "
                 "with the particles put back",
-                trajectory=trajectory, step=step, particles=first.particles.tolist(), cause=first.cause,
+                trajectory=trajectory,
+                step=step,
+                particles=first.particles.tolist(),
+                cause=first.cause,
             )
         return self._clamped(position, previous, non_finite, escaped), violations
 

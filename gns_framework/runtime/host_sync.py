@@ -100,8 +100,10 @@ class SyncCounter(torch.utils._python_dispatch.TorchDispatchMode):
             isinstance(i, Tensor) and i.dtype == torch.bool for i in (args[1] if len(args) > 1 else ())
         ):
             syncs, name = True, "aten.index (boolean mask)"
-        if name == "aten.repeat_interleave" and kwargs.get("output_size") is None and not (
-            len(args) > 3 and args[3] is not None
+        if (
+            name == "aten.repeat_interleave"
+            and kwargs.get("output_size") is None
+            and not (len(args) > 3 and args[3] is not None)
         ):
             syncs, name = True, "aten.repeat_interleave (no output_size)"
         if syncs:

@@ -35,15 +35,30 @@ TYPES = (3, 5, 6)
 
 
 def extreme_scene(dim: int) -> ModelSetup:
-    return ModelSetup(dim=dim, bounds=((0.0, 1.0),) * dim, connectivity_radius=RADIUS, particle_types=TYPES,
-                 kinematic_types=(3,), history=HISTORY)
+    return ModelSetup(
+        dim=dim,
+        bounds=((0.0, 1.0),) * dim,
+        connectivity_radius=RADIUS,
+        particle_types=TYPES,
+        kinematic_types=(3,),
+        history=HISTORY,
+    )
 
 
 def extreme_metadata(dim: int, zero_std: bool = False) -> DatasetMetadata:
     """Statistics like the public datasets' (std ~1e-3), or all-zero std (a dataset of particles at rest)."""
     std = [0.0] * dim if zero_std else [1e-3] * dim
-    return DatasetMetadata(bounds=[(0.0, 1.0)] * dim, sequence_length=10, default_connectivity_radius=RADIUS, dim=dim,
-                           dt=0.01, vel_mean=[0.0] * dim, vel_std=std, acc_mean=[0.0] * dim, acc_std=std)
+    return DatasetMetadata(
+        bounds=[(0.0, 1.0)] * dim,
+        sequence_length=10,
+        default_connectivity_radius=RADIUS,
+        dim=dim,
+        dt=0.01,
+        vel_mean=[0.0] * dim,
+        vel_std=std,
+        acc_mean=[0.0] * dim,
+        acc_std=std,
+    )
 
 
 def tiny_simulator(
@@ -51,9 +66,14 @@ def tiny_simulator(
 ) -> LearnedSimulator:
     """A small model (latent 16, 2 message-passing steps) on the extreme scene; ``zero_std`` also drops the noise."""
     torch.manual_seed(seed)
-    model = ModelSpec(latent_size=16, mlp_hidden_size=16, mlp_hidden_layers=1, type_embedding_size=4,
-                      noise_std=0.0 if zero_std else REFERENCE_NOISE_STD,
-                      processor={"name": processor, "message_passing_steps": 2})
+    model = ModelSpec(
+        latent_size=16,
+        mlp_hidden_size=16,
+        mlp_hidden_layers=1,
+        type_embedding_size=4,
+        noise_std=0.0 if zero_std else REFERENCE_NOISE_STD,
+        processor={"name": processor, "message_passing_steps": 2},
+    )
     return build_learned_simulator(extreme_scene(dim), extreme_metadata(dim, zero_std), model, registry)
 
 
@@ -64,8 +84,13 @@ def _batch(last: Tensor, velocity: Tensor, particle_type: Tensor | None = None) 
     n = last.shape[0]
     if particle_type is None:
         particle_type = torch.tensor(TYPES[1:], dtype=torch.long).repeat(n)[:n]
-    return ParticleBatch(position_sequence=sequence, particle_type=particle_type,
-                         batch=torch.zeros(n, dtype=torch.long), num_examples=1, next_position=last + velocity)
+    return ParticleBatch(
+        position_sequence=sequence,
+        particle_type=particle_type,
+        batch=torch.zeros(n, dtype=torch.long),
+        num_examples=1,
+        next_position=last + velocity,
+    )
 
 
 def _uniform(n: int, dim: int, generator: torch.Generator, low: float = 0.1, high: float = 0.9) -> Tensor:
@@ -155,8 +180,12 @@ class ExtremeOutcome:
 
     @property
     def failures(self) -> list[str]:
-        checks = {"forward": self.forward, "parameter gradient": self.parameter_gradient,
-                  "position gradient": self.position_gradient, "second order": self.second_order}
+        checks = {
+            "forward": self.forward,
+            "parameter gradient": self.parameter_gradient,
+            "position gradient": self.position_gradient,
+            "second order": self.second_order,
+        }
         return [name for name, ok in checks.items() if not ok]
 
 
@@ -164,7 +193,9 @@ def _all_finite(tensors) -> bool:
     return all(bool(torch.isfinite(t).all()) for t in tensors if t is not None)
 
 
-def check_finite(simulator: LearnedSimulator, batch: ParticleBatch, dtype: torch.dtype = torch.float32) -> ExtremeOutcome:
+def check_finite(
+    simulator: LearnedSimulator, batch: ParticleBatch, dtype: torch.dtype = torch.float32
+) -> ExtremeOutcome:
     """Run forward, backward and second-order passes on ``batch``; ``bfloat16`` runs under CPU autocast."""
     simulator.zero_grad(set_to_none=True)
     sequence = batch.position_sequence.clone().requires_grad_(True)
@@ -173,11 +204,14 @@ def check_finite(simulator: LearnedSimulator, batch: ParticleBatch, dtype: torch
     with autocast:
         prediction, target = simulator(batch, torch.zeros_like(sequence))
         graph = simulator.build_graph(sequence.detach(), batch)
-        loss = masked_acceleration_loss(prediction.float(), target.float(), simulator.predicted_mask(batch.particle_type))
+        loss = masked_acceleration_loss(
+            prediction.float(), target.float(), simulator.predicted_mask(batch.particle_type)
+        )
     forward = _all_finite([prediction, target, loss])
     parameters = [p for p in simulator.parameters() if p.requires_grad]
-    position_grad, *parameter_grads = torch.autograd.grad(loss, [sequence, *parameters], create_graph=True,
-                                                          allow_unused=True)
+    position_grad, *parameter_grads = torch.autograd.grad(
+        loss, [sequence, *parameters], create_graph=True, allow_unused=True
+    )
     penalty = (position_grad**2).sum()
     second = torch.autograd.grad(penalty, sequence, allow_unused=True)[0] if penalty.requires_grad else None
     neighbours = torch.bincount(graph.receivers, minlength=graph.num_nodes)

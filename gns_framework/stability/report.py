@@ -78,16 +78,20 @@ def chain_limits(registry: Registry) -> Iterator[Row]:
             found = stability_limit(advance, CHAIN, 1e-4 * ceiling, ceiling, LIMIT_STEPS, LIMIT_GROWTH)
             failing = found.dt < expected
             outcome = "below the one-mode bound" if failing else "unstable for every dt"
-            figures = (f"no limit; {LIMIT_GROWTH:.0e}x energy in {LIMIT_STEPS} steps at dt = {found.dt:.4g} "
-                       f"(omega_max dt = {found.dt * CHAIN.highest_frequency:.3g}; one-mode bound {expected:.4g})")
+            figures = (
+                f"no limit; {LIMIT_GROWTH:.0e}x energy in {LIMIT_STEPS} steps at dt = {found.dt:.4g} "
+                f"(omega_max dt = {found.dt * CHAIN.highest_frequency:.3g}; one-mode bound {expected:.4g})"
+            )
         else:
             theory = integrator.stability_bound / CHAIN.highest_frequency
             found = stability_limit(advance, CHAIN, 1e-3 * theory, 2 * theory, LIMIT_STEPS, LIMIT_GROWTH)
             error = found.dt / theory - 1
             failing = not abs(error) < 1e-4
             outcome = "limit differs from theory" if failing else "limit as theory"
-            figures = (f"dt_max = {found.dt:.6g} (theory {integrator.stability_bound:g}/omega_max = {theory:.6g}, "
-                       f"{error:+.1e})")
+            figures = (
+                f"dt_max = {found.dt:.6g} (theory {integrator.stability_bound:g}/omega_max = {theory:.6g}, "
+                f"{error:+.1e})"
+            )
         yield Row("spring chain N=32 k=1e6: dt limit", name, outcome, figures, failing)
 
 
@@ -118,8 +122,9 @@ def near_collision(registry: Registry) -> Iterator[Row]:
         fine = collide(advance, COLLISION, 0.1 / omega)
         coarse = collide(advance, COLLISION, 30 / omega)
         outcome = "tunnels at 30/omega" if coarse.passed_through else "no tunnelling at 30/omega"
-        figures = (f"1% energy error at dt = {limit * omega:.3g}/omega_contact; "
-                   f"|dE/E0| = {fine.energy_error:.2g} at 0.1/omega")
+        figures = (
+            f"1% energy error at dt = {limit * omega:.3g}/omega_contact; |dE/E0| = {fine.energy_error:.2g} at 0.1/omega"
+        )
         # Resolving the contact (dt = 0.1/omega), a symplectic scheme must hold the energy within 1%.
         failing = integrator.symplectic and not fine.energy_error < COLLISION_ENERGY_ERROR
         if failing:
@@ -127,17 +132,28 @@ def near_collision(registry: Registry) -> Iterator[Row]:
         yield Row("near-collision r^-12, r_min = sigma/2", name, outcome, figures, failing)
     for entry in registry.entries("integrator"):
         if not hasattr(entry.cls, "advance"):
-            yield Row("near-collision r^-12, r_min = sigma/2", entry.name, "n/a",
-                      f"no physical form: it needs a {entry.cls.predicts} law, not a force law")
+            yield Row(
+                "near-collision r^-12, r_min = sigma/2",
+                entry.name,
+                "n/a",
+                f"no physical form: it needs a {entry.cls.predicts} law, not a force law",
+            )
 
 
 def _extreme_row(simulator, case: str, dim: int, dtype: torch.dtype, label: str) -> Row:
     outcome = check_finite(simulator, CASES[case](dim, torch.Generator().manual_seed(0)), dtype)
     result = "finite" if outcome.finite else "NaN/Inf in " + ", ".join(outcome.failures)
-    figures = (f"{outcome.num_edges} edges, up to {outcome.max_neighbours} neighbours, "
-               f"max |prediction| {outcome.max_abs_prediction:.3g}")
-    return Row(f"learned simulator, {label}", f"{case}, {dim}D, {str(dtype).removeprefix('torch.')}", result, figures,
-               failing=not outcome.finite)
+    figures = (
+        f"{outcome.num_edges} edges, up to {outcome.max_neighbours} neighbours, "
+        f"max |prediction| {outcome.max_abs_prediction:.3g}"
+    )
+    return Row(
+        f"learned simulator, {label}",
+        f"{case}, {dim}D, {str(dtype).removeprefix('torch.')}",
+        result,
+        figures,
+        failing=not outcome.finite,
+    )
 
 
 def extreme_inputs(registry: Registry) -> Iterator[Row]:
@@ -150,12 +166,19 @@ def extreme_inputs(registry: Registry) -> Iterator[Row]:
             yield _extreme_row(zero_std, "coincident particles", dim, dtype, f"{REFERENCE_PROCESSOR}, zero std")
     for processor in other_processors(registry):
         simulator = tiny_simulator(registry, 2, processor)
-        rows = [_extreme_row(simulator, case, 2, dtype, processor) for case in CASES
-                for dtype in (torch.float32, torch.bfloat16)]
+        rows = [
+            _extreme_row(simulator, case, 2, dtype, processor)
+            for case in CASES
+            for dtype in (torch.float32, torch.bfloat16)
+        ]
         failures = [row.case for row in rows if row.failing]
-        yield Row(f"learned simulator, {processor}", "every case, 2D, float32 and bfloat16",
-                  f"{len(rows) - len(failures)}/{len(rows)} finite", "failed: " + "; ".join(failures) if failures else "",
-                  failing=bool(failures))
+        yield Row(
+            f"learned simulator, {processor}",
+            "every case, 2D, float32 and bfloat16",
+            f"{len(rows) - len(failures)}/{len(rows)} finite",
+            "failed: " + "; ".join(failures) if failures else "",
+            failing=bool(failures),
+        )
 
 
 def _resting_trajectory(dim: int) -> Trajectory:
@@ -179,8 +202,13 @@ def rollout_guard(registry: Registry) -> Iterator[Row]:
             try:
                 result = rollout(simulator, trajectory, steps=5, guard=guard)
             except RolloutDiverged as exc:
-                yield Row("rollout guard (margin 0.1)", f"{cause}, {mode}", f"stopped at step {exc.step}",
-                          f"{len(exc.particles)} particle(s) named: {exc.cause}", failing=mode != "stop")
+                yield Row(
+                    "rollout guard (margin 0.1)",
+                    f"{cause}, {mode}",
+                    f"stopped at step {exc.step}",
+                    f"{len(exc.particles)} particle(s) named: {exc.cause}",
+                    failing=mode != "stop",
+                )
                 continue
             finite = bool(np.isfinite(result.predicted).all())
             first = result.guard_violations[0] if result.guard_violations else None
@@ -194,7 +222,11 @@ def rollout_guard(registry: Registry) -> Iterator[Row]:
 
 
 SECTIONS: tuple[Callable[[Registry], Iterator[Row]], ...] = (
-    chain_limits, chain_drift, near_collision, extreme_inputs, rollout_guard,
+    chain_limits,
+    chain_drift,
+    near_collision,
+    extreme_inputs,
+    rollout_guard,
 )
 
 

@@ -56,7 +56,9 @@ def select_runs(
         raise TrackingError("name at least one experiment or run, or give a filter")
     database = local_database(tracking_uri)
     if database is not None and not database.is_file():
-        raise TrackingError(f"{tracking_uri}: no tracking database (train with gns train first, or pass --tracking-uri)")
+        raise TrackingError(
+            f"{tracking_uri}: no tracking database (train with gns train first, or pass --tracking-uri)"
+        )
     client = _client(tracking_uri)
     experiments = {e.experiment_id: e.name for e in client.search_experiments()}
     by_name = {name: experiment_id for experiment_id, name in experiments.items()}
@@ -154,11 +156,7 @@ def differing_recipe_fields(runs: list[RunSummary]) -> list[str]:
     A field one run has and another lacks differs too (a component with other options).
     """
     keys = sorted({key for run in runs for key in run.params if key.startswith(RECIPE_PREFIX)})
-    return [
-        key[len(RECIPE_PREFIX) :]
-        for key in keys
-        if len({run.params.get(key) for run in runs}) > 1
-    ]
+    return [key[len(RECIPE_PREFIX) :] for key in keys if len({run.params.get(key) for run in runs}) > 1]
 
 
 def sort_runs(runs: list[RunSummary], metric: str) -> list[RunSummary]:

@@ -192,7 +192,12 @@ class Outbox:
     """
 
     def __init__(
-        self, where: str, kept_in: str, send_metrics: Callable[[list], None], retry_seconds: float, close_seconds: float,
+        self,
+        where: str,
+        kept_in: str,
+        send_metrics: Callable[[list], None],
+        retry_seconds: float,
+        close_seconds: float,
         capacity: int = OUTBOX_CAPACITY,
     ):
         self.where, self.kept_in = where, kept_in
@@ -304,8 +309,10 @@ class Outbox:
             self._closing = True
             self._changed.notify()
         if waiting > 1:
-            print(f"tracking: sending {waiting} waiting request(s) to {self.where} (for up to {self.close_seconds:g} s)",
-                  file=sys.stderr)
+            print(
+                f"tracking: sending {waiting} waiting request(s) to {self.where} (for up to {self.close_seconds:g} s)",
+                file=sys.stderr,
+            )
         self._thread.join(timeout=self.close_seconds + 1.0)
         with self._changed:
             left = list(self._waiting)
@@ -343,8 +350,13 @@ class MlflowTracker:
     """
 
     def __init__(
-        self, tracking_uri: str, experiment: str, run_name: str | None = None, run_id: str | None = None,
-        kept_in: str = "the run folder's metrics.jsonl", run_dir: Path | None = None,
+        self,
+        tracking_uri: str,
+        experiment: str,
+        run_name: str | None = None,
+        run_id: str | None = None,
+        kept_in: str = "the run folder's metrics.jsonl",
+        run_dir: Path | None = None,
     ):
         self.run_dir = Path(run_dir) if run_dir is not None else None
         retry_seconds, close_seconds = _seconds(RETRY_SECONDS, 30.0), _seconds(CLOSE_SECONDS, 60.0)
@@ -360,7 +372,11 @@ class MlflowTracker:
         else:
             self.run_id = self.client.create_run(self.experiment_id, run_name=run_name).info.run_id
         self.outbox = Outbox(
-            f"MLflow at {tracking_uri}", kept_in, self._send_metrics, retry_seconds=retry_seconds, close_seconds=close_seconds,
+            f"MLflow at {tracking_uri}",
+            kept_in,
+            self._send_metrics,
+            retry_seconds=retry_seconds,
+            close_seconds=close_seconds,
         )
 
     def log_params(self, params: dict) -> None:
@@ -393,7 +409,9 @@ class MlflowTracker:
         self.client.log_batch(self.run_id, metrics=entries)
 
     def log_artifact(self, path: Path) -> None:
-        self.outbox.put(Request(f"artifact {Path(path).name}", send=lambda: self.client.log_artifact(self.run_id, str(path))))
+        self.outbox.put(
+            Request(f"artifact {Path(path).name}", send=lambda: self.client.log_artifact(self.run_id, str(path)))
+        )
 
     def close(self, failed: bool = False) -> None:
         status = "FAILED" if failed else "FINISHED"
@@ -403,7 +421,9 @@ class MlflowTracker:
         later = f"; send them with `gns track-sync {self.run_dir}` once it is back" if self.run_dir is not None else ""
         left = self.outbox.close(later)
         if left and self.run_dir is not None:
-            write_text_atomic(RunFolder(self.run_dir).mlflow_unsent, json.dumps({"run_id": self.run_id, "status": status}) + "\n")
+            write_text_atomic(
+                RunFolder(self.run_dir).mlflow_unsent, json.dumps({"run_id": self.run_id, "status": status}) + "\n"
+            )
 
 
 def open_mlflow_tracker(run_dir: Path, tracking_uri: str, experiment: str, resume: bool) -> MlflowTracker:

@@ -143,4 +143,3 @@ def describe(holder: dict) -> str:
     if holder.get("command"):
         parts.append(f"running {holder['command']!r}")
     return ", ".join(parts)
-

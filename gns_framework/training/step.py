@@ -137,7 +137,9 @@ class TrainingStep:
         truth = torch.cat([batch.next_position[:, None], batch.ahead], dim=1)
         sequence = batch.position_sequence
         for k in range(steps):
-            rolled = self.simulator.predict_next_position(replace(batch, position_sequence=sequence), prescribed=truth[:, k])
+            rolled = self.simulator.predict_next_position(
+                replace(batch, position_sequence=sequence), prescribed=truth[:, k]
+            )
             sequence = advance_window(sequence, rolled)
         return replace(batch, position_sequence=sequence, next_position=truth[:, steps])
 
@@ -155,5 +157,7 @@ class TrainingStep:
         for position in self.order.positions(step):
             window = self.order.window_at(position)
             shape = torch.empty((self.windows.num_particles(window), history, dim))
-            parts.append(random_walk_noise(shape, self.noise_std, window_noise_generator(self.seed, step, position - first)))
+            parts.append(
+                random_walk_noise(shape, self.noise_std, window_noise_generator(self.seed, step, position - first))
+            )
         return torch.cat(parts)

@@ -96,7 +96,9 @@ class Trainer:
         self.progress = progress
         set_recompute_activations(recipe.training.recompute_activations)
         set_deterministic_sums(recipe.training.deterministic)
-        self.device = distributed.start(self.processes, resolve_device(recipe.training.device, "training.device (or --device)"))
+        self.device = distributed.start(
+            self.processes, resolve_device(recipe.training.device, "training.device (or --device)")
+        )
         if self.device.type == "cpu":
             # CPU tuning only: on a GPU the host merely batches and launches kernels.
             if recipe.training.threads:
@@ -108,8 +110,16 @@ class Trainer:
             raise RecipeError(None, refused)
         self.data = prepare_data(self.recipe, registry, allow_pickle=allow_pickle)
         if recipe.training.pushforward_steps and self.data.scene.context_size:
-            raise RecipeError(None, [("training.pushforward_steps", "push-forward needs data without a per-frame "
-                                      "global context (step_context): set it to 0 for this dataset")])
+            raise RecipeError(
+                None,
+                [
+                    (
+                        "training.pushforward_steps",
+                        "push-forward needs data without a per-frame "
+                        "global context (step_context): set it to 0 for this dataset",
+                    )
+                ],
+            )
         self.windows = self._training_windows()
         self.order = WindowOrder(len(self.windows), recipe.training.batch_size, recipe.seed, self.rank, self.world_size)
         self.envelope = (
@@ -127,7 +137,9 @@ class Trainer:
 
         # Same seed on every rank: identical initial weights (DDP would broadcast rank 0's anyway).
         torch.manual_seed(recipe.seed)
-        self.simulator = build_learned_simulator(self.data.scene, self.data.metadata, recipe.model, registry).to(self.device)
+        self.simulator = build_learned_simulator(self.data.scene, self.data.metadata, recipe.model, registry).to(
+            self.device
+        )
         self.model: torch.nn.Module = self.processes.wrap(self.simulator, self.device)
         self.noise_std = training_noise_std(recipe.model, self.data.metadata)
         self.optimizer, self.scheduler = make_optimizer(
@@ -135,9 +147,19 @@ class Trainer:
         )
         decay = recipe.training.ema_decay
         self.optimisation = TrainingStep(
-            self.simulator, self.model, self.windows, self.order, self.noise_std, self.optimizer, self.scheduler,
-            WeightAverage(self.simulator, decay) if decay else None, self.processes, self.device,
-            seed=recipe.seed, pushforward_steps=recipe.training.pushforward_steps, precision=recipe.training.precision,
+            self.simulator,
+            self.model,
+            self.windows,
+            self.order,
+            self.noise_std,
+            self.optimizer,
+            self.scheduler,
+            WeightAverage(self.simulator, decay) if decay else None,
+            self.processes,
+            self.device,
+            seed=recipe.seed,
+            pushforward_steps=recipe.training.pushforward_steps,
+            precision=recipe.training.precision,
         )
         self.validation = self._validation()
         self.step = 0
@@ -238,13 +260,17 @@ class Trainer:
             torch.set_rng_state(state["rng"]["torch"])
         except (KeyError, TypeError, ValueError, RuntimeError) as exc:
             field = "rng" if "rng" in str(exc) or isinstance(exc, RuntimeError) else "scheduler"
-            raise CheckpointError(f"{source}: {field}: not a state this run can resume ({type(exc).__name__}: {exc})") from None
+            raise CheckpointError(
+                f"{source}: {field}: not a state this run can resume ({type(exc).__name__}: {exc})"
+            ) from None
         if self.ema is not None:
             if "ema" in state:
                 try:
                     self.ema.load_state_dict(state["ema"])
                 except (KeyError, TypeError, RuntimeError) as exc:
-                    raise CheckpointError(f"{source}: ema: not a weight average of this model ({type(exc).__name__}: {exc})") from None
+                    raise CheckpointError(
+                        f"{source}: ema: not a weight average of this model ({type(exc).__name__}: {exc})"
+                    ) from None
             else:
                 # A run that turns the average on when resumed averages from the weights it resumes with.
                 self.optimisation.ema = WeightAverage(self.simulator, self.ema.decay)
@@ -266,13 +292,19 @@ class Trainer:
         # The radius the model uses is the scene's (the recipe's, else the data's default): compared there, so
         # a recipe that spells out the radius its checkpoint took from the data is the same model.
         differing = sorted(
-            k for k in set(saved_model) | set(current) if k != "connectivity_radius" and saved_model.get(k) != current.get(k)
+            k
+            for k in set(saved_model) | set(current)
+            if k != "connectivity_radius" and saved_model.get(k) != current.get(k)
         )
         if differing:
-            details = "; ".join(f"model.{k}: checkpoint {saved_model.get(k)!r}, recipe {current.get(k)!r}" for k in differing)
+            details = "; ".join(
+                f"model.{k}: checkpoint {saved_model.get(k)!r}, recipe {current.get(k)!r}" for k in differing
+            )
             raise CheckpointError(f"{source}: written for a different model: {details}")
         if state["scene"] != scene_to_dict(self.data.scene):
-            raise CheckpointError(f"{source}: scene: written for {state['scene']}, this dataset gives {scene_to_dict(self.data.scene)}")
+            raise CheckpointError(
+                f"{source}: scene: written for {state['scene']}, this dataset gives {scene_to_dict(self.data.scene)}"
+            )
 
     def initialize_from(self, checkpoint: str | Path) -> int:
         """Fine-tuning: start this run at step 0 from a trained model's weights; returns that model's step.
@@ -404,7 +436,13 @@ class Trainer:
         losses: list[float] = []
         if self.tracker is not None:
             self._track_run()
-        bar = tqdm(total=total, initial=self.step, desc="train", unit="step", disable=not self.progress or not self.processes.is_chief)
+        bar = tqdm(
+            total=total,
+            initial=self.step,
+            desc="train",
+            unit="step",
+            disable=not self.progress or not self.processes.is_chief,
+        )
         # Throughput over the optimiser steps alone since the last log (not validation or checkpoints),
         # timed from one device synchronisation to the next, so queued GPU work is counted.
         window_steps, window_particles, window_started = 0, 0, None
@@ -444,7 +482,12 @@ class Trainer:
                 metrics.update(self.validate())
                 if self.keep_if_best(metrics) is not None:
                     metrics["best_step"] = self.step
-            if (validates or (logs and not told)) and not self.progress and self.processes.is_chief and self.step < total:
+            if (
+                (validates or (logs and not told))
+                and not self.progress
+                and self.processes.is_chief
+                and self.step < total
+            ):
                 # Without a progress bar, a background run still says how long it has to go.
                 print(time_to_go(self.step, total, self.step - first_step, time.perf_counter() - started), flush=True)
                 told = True

@@ -127,10 +127,15 @@ class Validation:
             mask = model.predicted_mask(batch.particle_type)
             prediction, target = model(batch, torch.zeros_like(batch.position_sequence))
             losses.append(float(masked_acceleration_loss(prediction, target, mask)))
-            next_position = model.integrator.next_position(batch.position_sequence, model.output_stats.denormalize(prediction))
+            next_position = model.integrator.next_position(
+                batch.position_sequence, model.output_stats.denormalize(prediction)
+            )
             assert batch.next_position is not None  # validation windows have their target
             position_errors.append(float(((next_position - batch.next_position)[mask] ** 2).mean()))
-        metrics = {"valid_one_step_loss": float(np.mean(losses)), "valid_one_step_position_mse": float(np.mean(position_errors))}
+        metrics = {
+            "valid_one_step_loss": float(np.mean(losses)),
+            "valid_one_step_position_mse": float(np.mean(position_errors)),
+        }
         if self.trajectories:
             metrics.update(mean_rollout_scores(model, self.trajectories, self.score_rollout))
         model.train()

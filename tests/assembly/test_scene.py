@@ -16,8 +16,15 @@ from gns_framework.plugins import load_registry
 
 REGISTRY = load_registry()
 METADATA = DatasetMetadata(
-    bounds=[(0.0, 1.0), (0.0, 1.0)], sequence_length=10, default_connectivity_radius=0.1, dim=2, dt=0.01,
-    vel_mean=[0.0, 0.0], vel_std=[1e-3, 1e-3], acc_mean=[0.0, 0.0], acc_std=[1e-4, 1e-4],
+    bounds=[(0.0, 1.0), (0.0, 1.0)],
+    sequence_length=10,
+    default_connectivity_radius=0.1,
+    dim=2,
+    dt=0.01,
+    vel_mean=[0.0, 0.0],
+    vel_std=[1e-3, 1e-3],
+    acc_mean=[0.0, 0.0],
+    acc_std=[1e-4, 1e-4],
 )
 WATER = ModelSetup(dim=2, bounds=((0.0, 1.0), (0.0, 1.0)), connectivity_radius=0.1, particle_types=(5,))
 REFERENCE = ModelSpec()
@@ -67,7 +74,9 @@ def test_each_feature_costs_exactly_its_first_layer_columns():
 
 def test_kinematic_particles_are_not_decoded_nor_integrated():
     scene = SCENES["water + rigid (two types)"]
-    model = ModelSpec(latent_size=16, mlp_hidden_size=16, processor={"name": "interaction_network", "message_passing_steps": 2})
+    model = ModelSpec(
+        latent_size=16, mlp_hidden_size=16, processor={"name": "interaction_network", "message_passing_steps": 2}
+    )
     torch.manual_seed(0)
     simulator = build_learned_simulator(scene, METADATA, model, REGISTRY).eval()
     n = 30

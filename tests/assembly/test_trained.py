@@ -15,7 +15,7 @@ from gns_framework.errors import CheckpointError, PluginWarning, RecipeError
 from gns_framework.io.checkpoint import list_checkpoints, load_checkpoint, save_checkpoint
 from gns_framework.plugins import load_registry
 
-FOO_MODULE = '''
+FOO_MODULE = """
 from gns_framework.contracts import Processor
 from gns_framework.hookspecs import hookimpl
 from gns_framework.layers import NormedMLP
@@ -35,7 +35,7 @@ class Foo(Processor):
 @hookimpl
 def gns_processors():
     return [Foo]
-'''
+"""
 
 
 def install(folder: Path, version: str, module: str, source: str) -> Path:
@@ -81,10 +81,13 @@ def test_a_component_whose_distribution_is_not_installed_says_what_to_pip_instal
 
 def test_another_version_without_the_component_says_which_is_installed(foo_checkpoint, tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(install(tmp_path, "1.1.0", "gns_foo_old", "")))
-    with pytest.raises(CheckpointError, match=re.escape(
-        "needs processor 'foo' from distribution 'gns-foo' 1.2.0; 1.1.0 is installed, which has no processor "
-        "'foo': pip install gns-foo==1.2.0"
-    )):
+    with pytest.raises(
+        CheckpointError,
+        match=re.escape(
+            "needs processor 'foo' from distribution 'gns-foo' 1.2.0; 1.1.0 is installed, which has no processor "
+            "'foo': pip install gns-foo==1.2.0"
+        ),
+    ):
         load_trained(foo_checkpoint, load_registry())
 
 
@@ -110,6 +113,6 @@ def test_a_checkpoint_recorded_before_distributions_were_keeps_the_stored_recipe
     old = save_checkpoint(tmp_path / "old.pt", {k: v for k, v in state.items() if k != "format"})
     with pytest.raises(RecipeError) as info:
         load_trained(old, load_registry())
-    (location, message), = info.value.problems
+    ((location, message),) = info.value.problems
     assert info.value.source == f"{old} (stored recipe)" and location == "model.processor.name"
     assert message.startswith("unknown processor 'foo'")

@@ -19,9 +19,11 @@ def _lines(output: str) -> list[dict[str, str]]:
     parsed = []
     for line in output.splitlines():
         if line.startswith("gpu_check: "):
-            body, _, why = line[len("gpu_check: "):].partition(" skipped: ")
+            body, _, why = line[len("gpu_check: ") :].partition(" skipped: ")
             part, *pairs = body.split()
-            parsed.append({"part": part, **dict(pair.split("=", 1) for pair in pairs), **({"skipped": why} if why else {})})
+            parsed.append(
+                {"part": part, **dict(pair.split("=", 1) for pair in pairs), **({"skipped": why} if why else {})}
+            )
     return parsed
 
 
@@ -30,13 +32,33 @@ def _environment(tmp_path) -> dict[str, str]:
 
 
 def test_the_dry_run_passes_every_cpu_part_and_reports_in_the_documented_format(tmp_path):
-    result = subprocess.run(["bash", str(SCRIPT), "--device", "cpu", "--dry-run"], capture_output=True, text=True,
-                            env=_environment(tmp_path), timeout=600)
+    result = subprocess.run(
+        ["bash", str(SCRIPT), "--device", "cpu", "--dry-run"],
+        capture_output=True,
+        text=True,
+        env=_environment(tmp_path),
+        timeout=600,
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     lines = _lines(result.stdout)
     parts = {line["name"]: line["status"] for line in lines if line["part"] == "part"}
-    expected = {name: "pass" for name in ("install", "imports", "info", "data", "train", "resume", "rollout", "ddp",
-                                          "sums", "chunks", "scale", "mpm")}
+    expected = {
+        name: "pass"
+        for name in (
+            "install",
+            "imports",
+            "info",
+            "data",
+            "train",
+            "resume",
+            "rollout",
+            "ddp",
+            "sums",
+            "chunks",
+            "scale",
+            "mpm",
+        )
+    }
     expected["cuda_tests"] = "skip"
     if importlib.util.find_spec("warp") is None:
         expected["mpm"] = "skip"
@@ -58,7 +80,9 @@ def test_the_dry_run_passes_every_cpu_part_and_reports_in_the_documented_format(
     }
     assert all(s["status"] == "ok" and float(s["step_s"]) > 0 and int(s["edges"]) > 0 for s in steps)
     phases = [line for line in lines if line["part"] == "phases" and line["phase"] == "train"]
-    assert phases and all(float(p[k]) > 0 for p in phases for k in ("graph_s", "forward_s", "backward_s", "optimizer_s"))
+    assert phases and all(
+        float(p[k]) > 0 for p in phases for k in ("graph_s", "forward_s", "backward_s", "optimizer_s")
+    )
     if expected["mpm"] == "pass":
         assert [line["finite"] for line in lines if line["part"] == "mpm"] == ["True"]
     summary = lines[-1]
@@ -76,13 +100,21 @@ def _script_with(parts: str) -> str:
 def test_a_part_streams_its_lines_and_a_killed_part_keeps_what_it_printed(tmp_path):
     """A part killed at its limit: its first line came out before the kill, the part fails, the run goes on."""
     script = tmp_path / "gpu_check.sh"
-    script.write_text(_script_with(
-        """part slow 4 "$PYTHON" -c "import time; print('gpu_check: slow first=1', flush=True); time.sleep(60)"
+    script.write_text(
+        _script_with(
+            """part slow 4 "$PYTHON" -c "import time; print('gpu_check: slow first=1', flush=True); time.sleep(60)"
 part absent 10 "$PYTHON" -c "print('skipped: nothing to measure here'); raise SystemExit(77)"
 part quick 10 "$PYTHON" -c "print('gpu_check: quick value=2')"
-"""))
-    process = subprocess.Popen(["bash", str(script), "--device", "cpu", "--dry-run"], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True, env=_environment(tmp_path))
+"""
+        )
+    )
+    process = subprocess.Popen(
+        ["bash", str(script), "--device", "cpu", "--dry-run"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=_environment(tmp_path),
+    )
     started = time.monotonic()
     first = process.stdout.readline()
     while not first.startswith("gpu_check: slow"):
@@ -103,13 +135,21 @@ part quick 10 "$PYTHON" -c "print('gpu_check: quick value=2')"
 
 def test_the_run_budget_limits_the_parts_and_skips_what_no_longer_fits(tmp_path):
     script = tmp_path / "gpu_check.sh"
-    script.write_text(_script_with(
-        """part first 100 "$PYTHON" -c "import os; print('gpu_check: first limit=' + os.environ['GPU_CHECK_PART_LIMIT_S'])"
+    script.write_text(
+        _script_with(
+            """part first 100 "$PYTHON" -c "import os; print('gpu_check: first limit=' + os.environ['GPU_CHECK_PART_LIMIT_S'])"
 part sleeper 100 "$PYTHON" -c "import time; time.sleep(60)"
 part late 100 "$PYTHON" -c "print('gpu_check: late ran=1')"
-"""))
-    result = subprocess.run(["bash", str(script), "--device", "cpu", "--dry-run", "--budget-s", "20"],
-                            capture_output=True, text=True, env=_environment(tmp_path), timeout=120)
+"""
+        )
+    )
+    result = subprocess.run(
+        ["bash", str(script), "--device", "cpu", "--dry-run", "--budget-s", "20"],
+        capture_output=True,
+        text=True,
+        env=_environment(tmp_path),
+        timeout=120,
+    )
     lines = _lines(result.stdout)
     parts = {line["name"]: line for line in lines if line["part"] == "part"}
     # The budget less what ran (install) less 5 s of margin: below the part's own 100 s.
@@ -123,9 +163,26 @@ def test_the_scale_part_watches_its_deadline_inside_a_size(tmp_path):
     """Given 12 s, many repeats of a size stop early and the part ends within its limit, saying what it left out."""
     environment = dict(_environment(tmp_path), GPU_CHECK_PART_LIMIT_S="12")
     started = time.monotonic()
-    result = subprocess.run([sys.executable, str(REPO / "benchmarks" / "gpu_check.py"), "scale", "--device", "cpu",
-                             "--sizes", "300", "--precisions", "float32", "bfloat16", "--repeat", "1000"],
-                            capture_output=True, text=True, env=environment, timeout=120)
+    result = subprocess.run(
+        [
+            sys.executable,
+            str(REPO / "benchmarks" / "gpu_check.py"),
+            "scale",
+            "--device",
+            "cpu",
+            "--sizes",
+            "300",
+            "--precisions",
+            "float32",
+            "bfloat16",
+            "--repeat",
+            "1000",
+        ],
+        capture_output=True,
+        text=True,
+        env=environment,
+        timeout=120,
+    )
     elapsed = time.monotonic() - started
     assert result.returncode == 0, result.stderr
     steps = [line for line in _lines(result.stdout) if line["part"] == "step"]
@@ -143,7 +200,11 @@ def _gpu_check_module():
 def test_at_a_million_particles_the_configuration_expected_to_fit_runs_first():
     cases = _gpu_check_module()._cases(1_000_000, ["float32", "tf32", "bfloat16"], large=True)
     assert cases[0] == ("bfloat16", "train", "recompute")
-    assert cases[1:4] == [("bfloat16", "rollout", "stored"), ("float32", "rollout", "stored"), ("tf32", "rollout", "stored")]
+    assert cases[1:4] == [
+        ("bfloat16", "rollout", "stored"),
+        ("float32", "rollout", "stored"),
+        ("tf32", "rollout", "stored"),
+    ]
     assert len(set(cases)) == len(cases) == 3 + 3 * 2
     small = _gpu_check_module()._cases(10_000, ["float32", "bfloat16"], large=False)
     assert small[:2] == [("float32", "rollout", "stored"), ("float32", "train", "stored")]
@@ -151,14 +212,19 @@ def test_at_a_million_particles_the_configuration_expected_to_fit_runs_first():
 
 def test_a_failing_part_fails_the_check(tmp_path):
     """A rollout of a checkpoint that is not there: the part fails, and so does the script."""
-    script = SCRIPT.read_text().replace("--steps \"$MORE\" --resume", "--steps 5 --resume")
+    script = SCRIPT.read_text().replace('--steps "$MORE" --resume', "--steps 5 --resume")
     script = script.replace('cd "$(dirname "$0")/.."', f'cd "{REPO}"')
     # Only the parts up to the rollout: the failure is the point, not the figures.
     script = script[: script.index("GPUS=0")] + '\nsummary\n[ "$FAILURES" = 0 ]\n'
     broken = tmp_path / "gpu_check.sh"
     broken.write_text(script)
-    result = subprocess.run(["bash", str(broken), "--device", "cpu", "--dry-run"], capture_output=True, text=True,
-                            env=_environment(tmp_path), timeout=300)
+    result = subprocess.run(
+        ["bash", str(broken), "--device", "cpu", "--dry-run"],
+        capture_output=True,
+        text=True,
+        env=_environment(tmp_path),
+        timeout=300,
+    )
     assert result.returncode != 0
     parts = {line["name"]: line["status"] for line in _lines(result.stdout) if line["part"] == "part"}
     assert parts["rollout"] == "fail" and parts["train"] == "pass"

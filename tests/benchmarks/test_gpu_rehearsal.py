@@ -27,8 +27,13 @@ pytestmark = pytest.mark.skipif(
 def test_the_device_run_passes_its_dry_run_in_a_bare_venv_from_the_prepared_wheels(tmp_path):
     environment = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     environment.update(TMPDIR=str(tmp_path), OMP_NUM_THREADS="1")
-    result = subprocess.run(["bash", str(REPO / "benchmarks" / "gpu_rehearsal.sh")], capture_output=True, text=True,
-                            env=environment, timeout=1800)
+    result = subprocess.run(
+        ["bash", str(REPO / "benchmarks" / "gpu_rehearsal.sh")],
+        capture_output=True,
+        text=True,
+        env=environment,
+        timeout=1800,
+    )
     if result.returncode == 77:
         pytest.skip(result.stdout.strip().splitlines()[-1])
     assert result.returncode == 0, result.stdout[-6000:] + result.stderr[-3000:]

@@ -18,12 +18,25 @@ gpu_wheels = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(gpu_wheels)
 
 PROJECT_REQUIRES = [
-    "torch>=2.11,<2.14", "torch-geometric<2.9,>=2.8", "pluggy>=1.5", "pydantic>=2.7", "numpy>=1.26",
-    "warp-lang==1.19.0", 'pytest>=8; extra == "test"', 'geomloss>=0.3.1; extra == "eval"',
-    'meshio>=5.3; extra == "eval"', 'mlflow>=3; extra == "tracking"',
+    "torch>=2.11,<2.14",
+    "torch-geometric<2.9,>=2.8",
+    "pluggy>=1.5",
+    "pydantic>=2.7",
+    "numpy>=1.26",
+    "warp-lang==1.19.0",
+    'pytest>=8; extra == "test"',
+    'geomloss>=0.3.1; extra == "eval"',
+    'meshio>=5.3; extra == "eval"',
+    'mlflow>=3; extra == "tracking"',
 ]
-DEVICE = {"torch": "2.11.0+cu130", "torch-geometric": "2.8.0.post1", "pluggy": "1.6.0", "numpy": "2.5.2",
-          "typing-extensions": "4.12.2", "scipy": "1.16.0"}
+DEVICE = {
+    "torch": "2.11.0+cu130",
+    "torch-geometric": "2.8.0.post1",
+    "pluggy": "1.6.0",
+    "numpy": "2.5.2",
+    "typing-extensions": "4.12.2",
+    "scipy": "1.16.0",
+}
 """Versions as on the lent GPU machine, but for typing-extensions: older than pydantic-core needs."""
 
 
@@ -31,7 +44,8 @@ def _wheel(folder: Path, filename: str, requires: list[str]) -> Path:
     name, version = filename.split("-")[:2]
     path = folder / filename
     metadata = f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n" + "".join(
-        f"Requires-Dist: {r}\n" for r in requires)
+        f"Requires-Dist: {r}\n" for r in requires
+    )
     with zipfile.ZipFile(path, "w") as archive:
         archive.writestr(f"{name}-{version}.dist-info/METADATA", metadata)
     return path
@@ -40,11 +54,22 @@ def _wheel(folder: Path, filename: str, requires: list[str]) -> Path:
 @pytest.fixture
 def folder(tmp_path) -> Path:
     _wheel(tmp_path, "gns_framework-0.1.0-py3-none-any.whl", PROJECT_REQUIRES)
-    _wheel(tmp_path, "pydantic-2.14.4-py3-none-any.whl",
-           ["annotated-types>=0.6.0", "pydantic-core==2.50.5", "typing-extensions>=4.14.1",
-            "typing-inspection>=0.4.2", 'email-validator>=2.0.0; extra == "email"'])
-    _wheel(tmp_path, "pydantic_core-2.50.5-cp312-cp312-manylinux2014_x86_64.manylinux_2_17_x86_64.whl",
-           ["typing-extensions>=4.14.1"])
+    _wheel(
+        tmp_path,
+        "pydantic-2.14.4-py3-none-any.whl",
+        [
+            "annotated-types>=0.6.0",
+            "pydantic-core==2.50.5",
+            "typing-extensions>=4.14.1",
+            "typing-inspection>=0.4.2",
+            'email-validator>=2.0.0; extra == "email"',
+        ],
+    )
+    _wheel(
+        tmp_path,
+        "pydantic_core-2.50.5-cp312-cp312-manylinux2014_x86_64.manylinux_2_17_x86_64.whl",
+        ["typing-extensions>=4.14.1"],
+    )
     _wheel(tmp_path, "annotated_types-0.8.0-py3-none-any.whl", ['typing-extensions>=4.0.0; python_version < "3.9"'])
     _wheel(tmp_path, "typing_inspection-0.4.5-py3-none-any.whl", ["typing-extensions>=4.12.0"])
     _wheel(tmp_path, "typing_extensions-4.16.0-py3-none-any.whl", [])
@@ -54,27 +79,53 @@ def folder(tmp_path) -> Path:
 
 def _plan(folder, installed: dict[str, str]):
     versions = {gpu_wheels.normalize(k): v for k, v in installed.items()}
-    chosen, optional, problems = gpu_wheels.plan(folder, lambda name: versions.get(gpu_wheels.normalize(name)),
-                                                 gpu_wheels.marker_environment("3.12"))
+    chosen, optional, problems = gpu_wheels.plan(
+        folder, lambda name: versions.get(gpu_wheels.normalize(name)), gpu_wheels.marker_environment("3.12")
+    )
     return sorted(gpu_wheels.wheel_name_version(p)[0] for p in chosen), optional, problems
 
 
 def test_on_the_device_it_installs_the_project_pydantic_and_a_newer_typing_extensions(folder):
     chosen, optional, problems = _plan(folder, DEVICE)
     assert problems == []
-    assert chosen == ["annotated-types", "geomloss", "gns-framework", "pydantic", "pydantic-core",
-                      "typing-extensions", "typing-inspection"]
+    assert chosen == [
+        "annotated-types",
+        "geomloss",
+        "gns-framework",
+        "pydantic",
+        "pydantic-core",
+        "typing-extensions",
+        "typing-inspection",
+    ]
     assert sorted(optional) == ["warp-lang"], "torch-geometric 2.8.0.post1 is there; warp-lang is optional"
 
 
 def test_what_is_installed_in_a_fitting_version_is_not_installed_again(folder):
-    chosen, _, problems = _plan(folder, {**DEVICE, "typing-extensions": "4.16.0", "pydantic": "2.11.0",
-                                         "pydantic-core": "2.33.2", "typing-inspection": "0.4.1",
-                                         "annotated-types": "0.7.0"})
+    chosen, _, problems = _plan(
+        folder,
+        {
+            **DEVICE,
+            "typing-extensions": "4.16.0",
+            "pydantic": "2.11.0",
+            "pydantic-core": "2.33.2",
+            "typing-inspection": "0.4.1",
+            "annotated-types": "0.7.0",
+        },
+    )
     assert problems == [] and chosen == ["geomloss", "gns-framework"]
-    chosen, _, _ = _plan(folder, {**DEVICE, "gns-framework": "0.1.0", "geomloss": "0.3.1", "pydantic": "2.11.0",
-                                  "typing-extensions": "4.16.0", "typing-inspection": "0.4.1",
-                                  "annotated-types": "0.7.0", "pydantic-core": "2.33.2"})
+    chosen, _, _ = _plan(
+        folder,
+        {
+            **DEVICE,
+            "gns-framework": "0.1.0",
+            "geomloss": "0.3.1",
+            "pydantic": "2.11.0",
+            "typing-extensions": "4.16.0",
+            "typing-inspection": "0.4.1",
+            "annotated-types": "0.7.0",
+            "pydantic-core": "2.33.2",
+        },
+    )
     assert chosen == [], "an interpreter with everything (the repository's .venv) installs nothing"
 
 
@@ -99,8 +150,10 @@ def test_an_unprepared_folder_says_to_run_prepare(tmp_path):
 
 def test_only_the_extras_the_check_uses_are_carried(folder):
     metadata = gpu_wheels.wheel_metadata(folder / "gns_framework-0.1.0-py3-none-any.whl")
-    names = {r.name for r in gpu_wheels.requirements_of(metadata, gpu_wheels.marker_environment("3.12"),
-                                                         gpu_wheels.CHECK_EXTRAS)}
+    names = {
+        r.name
+        for r in gpu_wheels.requirements_of(metadata, gpu_wheels.marker_environment("3.12"), gpu_wheels.CHECK_EXTRAS)
+    }
     assert "geomloss" in names and not names & {"meshio", "pytest", "mlflow"}
 
 

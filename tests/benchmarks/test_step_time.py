@@ -15,15 +15,36 @@ from float_tolerances import assert_close_to_reference
 
 SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "step_time.py"
 REQUIRED = (
-    "particles", "edges", "mean_neighbours", "train_step_s", "rollout_step_s",
-    "neighbour_search_s", "peak_rss_mb", "efficiency",
+    "particles",
+    "edges",
+    "mean_neighbours",
+    "train_step_s",
+    "rollout_step_s",
+    "neighbour_search_s",
+    "peak_rss_mb",
+    "efficiency",
 )
 
 
 @pytest.mark.parametrize(("dim", "precision"), [(2, "float32"), (3, "bfloat16")])
 def test_one_scene_prints_one_json_object_with_every_figure(dim, precision):
-    command = [sys.executable, str(SCRIPT), "--particles", "300", "--dim", str(dim), "--repeat", "1", "--warmup", "0",
-               "--threads", "1", "--precision", precision, "--json"]
+    command = [
+        sys.executable,
+        str(SCRIPT),
+        "--particles",
+        "300",
+        "--dim",
+        str(dim),
+        "--repeat",
+        "1",
+        "--warmup",
+        "0",
+        "--threads",
+        "1",
+        "--precision",
+        precision,
+        "--json",
+    ]
     result = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     figures = json.loads(result.stdout.strip().splitlines()[-1])
@@ -36,14 +57,32 @@ def test_one_scene_prints_one_json_object_with_every_figure(dim, precision):
 
 
 def test_the_peer_runs_in_a_child_process_with_the_reference_allocator():
-    command = [sys.executable, str(SCRIPT), "--particles", "300", "--repeat", "1", "--warmup", "0", "--threads", "1",
-               "--peer", "--json"]
+    command = [
+        sys.executable,
+        str(SCRIPT),
+        "--particles",
+        "300",
+        "--repeat",
+        "1",
+        "--warmup",
+        "0",
+        "--threads",
+        "1",
+        "--peer",
+        "--json",
+    ]
     result = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     figures = json.loads(result.stdout.strip().splitlines()[-1])
     assert figures["peer_allocator"] == "glibc" and figures["keep_freed_memory"]
-    for key in ("peer_train_step_s", "peer_rollout_step_s", "peer_peak_rss_inference_mb", "peer_peak_rss_mb",
-                "peer_train_speedup", "peer_rollout_speedup"):
+    for key in (
+        "peer_train_step_s",
+        "peer_rollout_step_s",
+        "peer_peak_rss_inference_mb",
+        "peer_peak_rss_mb",
+        "peer_train_speedup",
+        "peer_rollout_speedup",
+    ):
         assert figures[key] > 0, key
 
 

@@ -21,8 +21,10 @@ def load(path: str) -> dict:
 
 def test_each_swap_recipe_changes_one_component_of_the_reference():
     reference = load("recipes/sand2d.yaml")
-    found = {p.stem: swaps.swapped_component(yaml.safe_load(p.read_text()), reference)
-             for p in sorted((ROOT / "recipes" / "swaps").glob("*.yaml"))}
+    found = {
+        p.stem: swaps.swapped_component(yaml.safe_load(p.read_text()), reference)
+        for p in sorted((ROOT / "recipes" / "swaps").glob("*.yaml"))
+    }
     assert found["egnn"] == ("processor", {"name": "egnn", "message_passing_steps": 10})
     assert found["velocity_euler"][0] == "integrator" and found["knn"][0] == "graph_builder"
     assert found["clay2d"] is None, "clay2d changes the materials, not a component"
@@ -31,8 +33,9 @@ def test_each_swap_recipe_changes_one_component_of_the_reference():
 
 def test_a_variant_is_the_base_with_one_component_and_the_bases_model_size(tmp_path):
     base = load("recipes/sizes/sand2d_fast_3x32.yaml")
-    raw = swaps.variant(base, "processor", {"name": "egnn", "message_passing_steps": 10}, tmp_path / "d", 50, 3,
-                        tmp_path / "run")
+    raw = swaps.variant(
+        base, "processor", {"name": "egnn", "message_passing_steps": 10}, tmp_path / "d", 50, 3, tmp_path / "run"
+    )
     assert raw["model"]["processor"] == {"name": "egnn", "message_passing_steps": 3}
     assert {k: v for k, v in raw["model"].items() if k != "processor"} == {
         k: v for k, v in base["model"].items() if k != "processor"

@@ -26,9 +26,29 @@ def test_both_recipes_train_on_the_same_budget_and_report_ratios(tmp_path):
         paths[name] = tmp_path / f"{name}.yaml"
         paths[name].write_text(yaml.safe_dump(raw))
     held_out = write_synthetic_dataset(tmp_path / "held_out", train=1, valid=0, test=2, particle_types=(6,), frames=24)
-    command = [sys.executable, str(SCRIPT), "--budget-minutes", "0.05", "--data", str(data), "--threads", "1",
-               "--points", "2", "--trajectories", "2", "--held-out", str(held_out), "--seeds", "2",
-               "--reference", str(paths["reference"]), "--ours", str(paths["ours"]), "--json"]
+    command = [
+        sys.executable,
+        str(SCRIPT),
+        "--budget-minutes",
+        "0.05",
+        "--data",
+        str(data),
+        "--threads",
+        "1",
+        "--points",
+        "2",
+        "--trajectories",
+        "2",
+        "--held-out",
+        str(held_out),
+        "--seeds",
+        "2",
+        "--reference",
+        str(paths["reference"]),
+        "--ours",
+        str(paths["ours"]),
+        "--json",
+    ]
     result = subprocess.run(command, capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr
     figures = json.loads(result.stdout.strip().splitlines()[-1])
@@ -57,8 +77,10 @@ def test_both_recipes_train_on_the_same_budget_and_report_ratios(tmp_path):
     per_seed = figures["ratio_reference_over_ours_late_median_per_seed"]
     for seed, ratios in enumerate(per_seed):
         for metric, ratio in ratios.items():
-            medians = {role: sum(e[metric] for e in figures["runs"][role][seed]["evaluations"]) / 2
-                       for role in ("reference", "ours")}
+            medians = {
+                role: sum(e[metric] for e in figures["runs"][role][seed]["evaluations"]) / 2
+                for role in ("reference", "ours")
+            }
             assert abs(ratio - medians["reference"] / medians["ours"]) <= 1e-12 * ratio
     for metric, spread in figures["ratio_reference_over_ours_late_median"].items():
         assert spread["low"] == min(r[metric] for r in per_seed) and spread["high"] == max(r[metric] for r in per_seed)

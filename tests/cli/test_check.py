@@ -57,8 +57,9 @@ def test_materials_that_do_not_cover_the_datas_type_ids_are_refused(tmp_path, da
     assert "ids [5] belong to no material of the model (sand, rigid)" in found["model.materials"]
 
 
-def test_a_graph_builder_whose_optional_module_is_missing_is_refused(tmp_path, dataset_multimaterial, registry,
-                                                                     monkeypatch):
+def test_a_graph_builder_whose_optional_module_is_missing_is_refused(
+    tmp_path, dataset_multimaterial, registry, monkeypatch
+):
     monkeypatch.setitem(sys.modules, "torch_cluster", None)  # not importable, installed or not
     raw = tiny_recipe_mapping(tmp_path / "no_such_data", graph_builder={"name": "radius_torch_cluster"})
     found = problems_of(write(tmp_path / "r.yaml", raw), registry)
@@ -87,7 +88,9 @@ def test_the_shipped_recipes_whose_data_exists_are_ok(path, registry, monkeypatc
     recipe = load_recipe(path, registry)
     if not Path(recipe.dataset.path).is_dir():
         pytest.skip(f"{recipe.dataset.path} is not generated here")
-    if any(getattr(registry.get(kind, getattr(recipe.model, kind).name), "optional_modules", ())
-           for kind in ("graph_builder",)):
+    if any(
+        getattr(registry.get(kind, getattr(recipe.model, kind).name), "optional_modules", ())
+        for kind in ("graph_builder",)
+    ):
         pytest.importorskip("torch_cluster")
     check_recipe(path.relative_to(ROOT), registry)

@@ -44,7 +44,9 @@ def test_plugins_lists_builtins_with_source():
 
 def test_check_reports_each_problem_and_fails(tmp_path):
     bad = tmp_path / "bad.yaml"
-    bad.write_text("name: x\ndataset: {path: d}\nmodel: {latent_size: 0, procesor: {name: interaction_network}}\ntraning: {}\n")
+    bad.write_text(
+        "name: x\ndataset: {path: d}\nmodel: {latent_size: 0, procesor: {name: interaction_network}}\ntraning: {}\n"
+    )
     result = gns("check", "--no-data", str(bad), "recipes")  # the recipes alone: their data may not be made here
     assert result.returncode == 1
     assert "3 problem(s)" in result.stderr
@@ -77,8 +79,16 @@ def test_train_resume_rollout_render(dataset_multimaterial, tmp_path):
     assert refused.returncode == 2 and "outside the envelope of" in refused.stderr
     assert "property friction" in refused.stderr and "--outside-envelope" in refused.stderr
     assert not (tmp_path / "rollouts").exists()
-    rolled = gns("rollout", str(checkpoint), "--steps", "4", "--out", str(tmp_path / "rollouts"), "--no-progress",
-                 "--outside-envelope")
+    rolled = gns(
+        "rollout",
+        str(checkpoint),
+        "--steps",
+        "4",
+        "--out",
+        str(tmp_path / "rollouts"),
+        "--no-progress",
+        "--outside-envelope",
+    )
     assert rolled.returncode == 0, rolled.stderr
     assert "warning: outside the envelope of" in rolled.stderr
     rollout_file = tmp_path / "rollouts" / "test_0000.npz"
@@ -94,8 +104,20 @@ def test_train_resume_rollout_render(dataset_multimaterial, tmp_path):
 
     hook = torch.nn.modules.module.register_module_forward_hook(record)
     try:
-        low = main(["rollout", str(checkpoint), "--steps", "4", "--out", str(tmp_path / "low"), "--no-progress",
-                    "--precision", "bfloat16", "--outside-envelope"])
+        low = main(
+            [
+                "rollout",
+                str(checkpoint),
+                "--steps",
+                "4",
+                "--out",
+                str(tmp_path / "low"),
+                "--no-progress",
+                "--precision",
+                "bfloat16",
+                "--outside-envelope",
+            ]
+        )
     finally:
         hook.remove()
     assert low == 0
@@ -105,14 +127,32 @@ def test_train_resume_rollout_render(dataset_multimaterial, tmp_path):
         assert np.allclose(bf16["predicted_rollout"], full["predicted_rollout"], atol=1e-3)
     # --batch rolls the two training trajectories out together: each file as when rolled out alone.
     for folder, batch in (("alone", "1"), ("batched", "2")):
-        code = main(["rollout", str(checkpoint), "--split", "train", "--steps", "4", "--out", str(tmp_path / folder),
-                     "--no-progress", "--batch", batch, "--outside-envelope"])
+        code = main(
+            [
+                "rollout",
+                str(checkpoint),
+                "--split",
+                "train",
+                "--steps",
+                "4",
+                "--out",
+                str(tmp_path / folder),
+                "--no-progress",
+                "--batch",
+                batch,
+                "--outside-envelope",
+            ]
+        )
         assert code == 0
     for index in range(2):
-        with np.load(tmp_path / "alone" / f"train_{index:04d}.npz") as alone, \
-                np.load(tmp_path / "batched" / f"train_{index:04d}.npz") as batched:
+        with (
+            np.load(tmp_path / "alone" / f"train_{index:04d}.npz") as alone,
+            np.load(tmp_path / "batched" / f"train_{index:04d}.npz") as batched,
+        ):
             expected = alone["predicted_rollout"]
-            np.testing.assert_allclose(batched["predicted_rollout"], expected, rtol=0, atol=1e-5 * np.abs(expected).max())
+            np.testing.assert_allclose(
+                batched["predicted_rollout"], expected, rtol=0, atol=1e-5 * np.abs(expected).max()
+            )
     rendered = gns("render", str(rollout_file), "--gif", str(tmp_path / "r.gif"))
     assert rendered.returncode == 0 and (tmp_path / "r.gif").stat().st_size > 0
 
@@ -130,8 +170,20 @@ def test_demo_runs_end_to_end(tmp_path):
     recipe = tmp_path / "tiny.yaml"
     recipe.write_text(yaml.safe_dump(tiny_recipe_mapping(tmp_path / "unused", tmp_path / "unused-run")))
     demo = tmp_path / "demo"
-    result = gns("demo", "--steps", "2", "--repeats", "1", "--held-out", "1", "--recipe", str(recipe), "--no-progress",
-                 "--out", str(demo))
+    result = gns(
+        "demo",
+        "--steps",
+        "2",
+        "--repeats",
+        "1",
+        "--held-out",
+        "1",
+        "--recipe",
+        str(recipe),
+        "--no-progress",
+        "--out",
+        str(demo),
+    )
     assert result.returncode == 0, result.stderr
     assert "short model: validation one-step loss" in result.stdout
     assert "(seed 2)" in result.stdout, "the held-out collapses come from a seed the shipped model never trained on"
@@ -208,13 +260,20 @@ def test_a_broken_plugin_and_a_mistyped_disable_name_are_one_warning_line_each(t
     (dist / "entry_points.txt").write_text("[gns_framework]\nbroken = broken_gns_module\n")
     (tmp_path / "broken_gns_module.py").write_text("raise ImportError('missing dependency xyz')\n")
     env = {**os.environ, "PYTHONPATH": str(tmp_path), "GNS_DISABLE_PLUGINS": "exmple-clay"}
-    result = subprocess.run([sys.executable, "-m", "gns_framework.cli", "plugins", "--kind", "processor"],
-                            capture_output=True, text=True, env=env, timeout=600)
+    result = subprocess.run(
+        [sys.executable, "-m", "gns_framework.cli", "plugins", "--kind", "processor"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     assert result.returncode == 0 and "interaction_network" in result.stdout
     lines = result.stderr.splitlines()
     assert len(lines) == 2, result.stderr
-    disabled, = [line for line in lines if "GNS_DISABLE_PLUGINS:" in line]
+    (disabled,) = [line for line in lines if "GNS_DISABLE_PLUGINS:" in line]
     assert disabled.startswith("gns: warning: GNS_DISABLE_PLUGINS: 'exmple-clay' (did you mean 'example-clay'?)")
-    broken, = [line for line in lines if "'broken'" in line]
-    assert broken.startswith("gns: warning: plugin entry point 'broken' = 'broken_gns_module' of distribution "
-                             "broken-gns-plugin 1.2.3 failed to load and was skipped: ImportError: missing dependency xyz")
+    (broken,) = [line for line in lines if "'broken'" in line]
+    assert broken.startswith(
+        "gns: warning: plugin entry point 'broken' = 'broken_gns_module' of distribution "
+        "broken-gns-plugin 1.2.3 failed to load and was skipped: ImportError: missing dependency xyz"
+    )

@@ -28,8 +28,15 @@ def write_source(path, registry, with_context: bool):
     for split, seeds in {"train": (0, 1), "valid": (2,), "test": (3,)}.items():
         splits[split] = []
         for seed in seeds:
-            traj = soft_sphere_trajectory(seed, frames=8, block=3, particle_types=(5, 6), kinematic_floor=True,
-                                          with_property=True, key=f"{split}_{seed}")
+            traj = soft_sphere_trajectory(
+                seed,
+                frames=8,
+                block=3,
+                particle_types=(5, 6),
+                kinematic_floor=True,
+                with_property=True,
+                key=f"{split}_{seed}",
+            )
             context = np.linspace(0, 1, traj.num_steps, dtype=np.float32)[:, None] if with_context else None
             splits[split].append(
                 Trajectory(traj.position, traj.particle_type, traj.material_property, context, traj.key)
@@ -66,8 +73,17 @@ def test_round_trip_through_every_layout(layout, source, source_without_context,
     convert(tmp_path / layout, layout, "safe", tmp_path / "back")
     metadata, splits = load(registry, "safe", tmp_path / "back")
     expected_metadata, _ = load(registry, "safe", src)
-    for field in ("bounds", "sequence_length", "default_connectivity_radius", "dim", "dt",
-                  "vel_mean", "vel_std", "acc_mean", "acc_std"):
+    for field in (
+        "bounds",
+        "sequence_length",
+        "default_connectivity_radius",
+        "dim",
+        "dt",
+        "vel_mean",
+        "vel_std",
+        "acc_mean",
+        "acc_std",
+    ):
         assert getattr(metadata, field) == getattr(expected_metadata, field), field
     assert {k: len(v) for k, v in splits.items()} == {"train": 2, "valid": 1, "test": 1}
     for name, trajectories in original.items():
@@ -104,9 +120,18 @@ def test_lagrangebench_solver_dt_and_write_every_give_the_frame_dt(registry, tmp
     with h5py.File(tmp_path / "train.h5", "w") as handle:
         handle["00000/position"] = traj.position.astype(np.float64)
         handle["00000/particle_type"] = np.zeros(traj.num_particles, dtype=np.int32)
-    raw = {"dim": 2, "dt": 0.0005, "write_every": 100, "bounds": [[0, 1], [0, 1]],
-           "default_connectivity_radius": 0.029, "vel_mean": [0, 0], "vel_std": [1, 1],
-           "acc_mean": [0, 0], "acc_std": [1, 1], "periodic_boundary_conditions": [True, True]}
+    raw = {
+        "dim": 2,
+        "dt": 0.0005,
+        "write_every": 100,
+        "bounds": [[0, 1], [0, 1]],
+        "default_connectivity_radius": 0.029,
+        "vel_mean": [0, 0],
+        "vel_std": [1, 1],
+        "acc_mean": [0, 0],
+        "acc_std": [1, 1],
+        "periodic_boundary_conditions": [True, True],
+    }
     (tmp_path / "metadata.json").write_text(json.dumps(raw))
     metadata, splits = load(registry, "lagrangebench", tmp_path)
     assert metadata.dt == pytest.approx(0.05)
@@ -165,8 +190,10 @@ def test_a_record_that_is_not_a_trajectory_is_located(registry, tmp_path):
 
     traj = soft_sphere_trajectory(0, frames=5, block=2)
     registry.get("dataset", "tfrecord").write(tmp_path, synthetic_metadata([traj], 2), {"train": [traj]})
-    example = SequenceExample({"particle_type": Feature("bytes", [np.zeros(3, "<i8").tobytes()])},
-                              {"position": [Feature("bytes", [np.zeros(5, "<f4").tobytes()])] * 5})
+    example = SequenceExample(
+        {"particle_type": Feature("bytes", [np.zeros(3, "<i8").tobytes()])},
+        {"position": [Feature("bytes", [np.zeros(5, "<f4").tobytes()])] * 5},
+    )
     write_records(tmp_path / "train.tfrecord", [example.serialize()])
     with pytest.raises(DatasetError, match=r"trajectory 0: position: expected 3 x 2 = 6 floats per frame, got \[5\]"):
         load(registry, "tfrecord", tmp_path)
@@ -204,8 +231,9 @@ def test_a_material_of_type_9_converts_and_trains(layout, tmp_path):
         soft_sphere_trajectory(seed, frames=10, block=3, particle_types=(9,), kinematic_floor=True, key=str(seed))
         for seed in range(2)
     ]
-    registry.get("dataset", layout).write(tmp_path / "src", synthetic_metadata(trajectories, 2),
-                                          {"train": trajectories[:1], "valid": trajectories[1:]})
+    registry.get("dataset", layout).write(
+        tmp_path / "src", synthetic_metadata(trajectories, 2), {"train": trajectories[:1], "valid": trajectories[1:]}
+    )
     convert(tmp_path / "src", layout, layout, tmp_path / "out")
     raw = tiny_recipe_mapping(tmp_path / "out")
     raw["dataset"]["name"] = layout
@@ -223,19 +251,34 @@ def _lagrangebench_tgv(folder, frames: int = 10, side: int = 6):
     steps = np.arange(frames)[:, None, None]
     # Each particle moves with the vortex's velocity at its start, (sin 2 pi x cos 2 pi y, -cos 2 pi x sin 2 pi y),
     # 2 mm a frame at most, wrapped into [0, 1) as a periodic box keeps it.
-    flow = np.stack([np.sin(2 * np.pi * grid[:, 0]) * np.cos(2 * np.pi * grid[:, 1]),
-                     -np.cos(2 * np.pi * grid[:, 0]) * np.sin(2 * np.pi * grid[:, 1])], -1)
+    flow = np.stack(
+        [
+            np.sin(2 * np.pi * grid[:, 0]) * np.cos(2 * np.pi * grid[:, 1]),
+            -np.cos(2 * np.pi * grid[:, 0]) * np.sin(2 * np.pi * grid[:, 1]),
+        ],
+        -1,
+    )
     position = np.mod(grid[None] + 0.002 * steps * flow[None], 1.0)
     for split in ("train", "valid", "test"):
         with h5py.File(folder / f"{split}.h5", "w") as handle:
             handle["00000/position"] = position.astype(np.float32)
             handle["00000/particle_type"] = np.zeros(side * side, dtype=np.int32)
     velocity = np.diff(position, axis=0)
-    raw = {"case": "TGV", "dim": 2, "dt": 0.0004, "write_every": 25, "bounds": [[0, 1], [0, 1]],
-           "default_connectivity_radius": 1.5 * spacing, "periodic_boundary_conditions": [True, True, True],
-           "sequence_length_train": frames - 1, "sequence_length_test": frames - 1,
-           "vel_mean": [0, 0], "vel_std": np.abs(velocity).reshape(-1, 2).std(0).tolist(),
-           "acc_mean": [0, 0], "acc_std": [1e-4, 1e-4]}
+    raw = {
+        "case": "TGV",
+        "dim": 2,
+        "dt": 0.0004,
+        "write_every": 25,
+        "bounds": [[0, 1], [0, 1]],
+        "default_connectivity_radius": 1.5 * spacing,
+        "periodic_boundary_conditions": [True, True, True],
+        "sequence_length_train": frames - 1,
+        "sequence_length_test": frames - 1,
+        "vel_mean": [0, 0],
+        "vel_std": np.abs(velocity).reshape(-1, 2).std(0).tolist(),
+        "acc_mean": [0, 0],
+        "acc_std": [1e-4, 1e-4],
+    }
     (folder / "metadata.json").write_text(json.dumps(raw))
 
 
@@ -246,8 +289,23 @@ def test_lagrangebench_periodic_data_converts_with_its_types_mapped_and_trains_t
     import yaml
 
     _lagrangebench_tgv(tmp_path / "tgv")
-    assert main(["convert", str(tmp_path / "tgv"), "--from", "lagrangebench", "--to", "safe",
-                 "--out", str(tmp_path / "periodic2d"), "--map-types", "0=5"]) == 0
+    assert (
+        main(
+            [
+                "convert",
+                str(tmp_path / "tgv"),
+                "--from",
+                "lagrangebench",
+                "--to",
+                "safe",
+                "--out",
+                str(tmp_path / "periodic2d"),
+                "--map-types",
+                "0=5",
+            ]
+        )
+        == 0
+    )
     registry = load_registry()
     metadata, splits = load(registry, "safe", tmp_path / "periodic2d")
     assert metadata.periodic_boundary_conditions == [True, True]
@@ -266,7 +324,19 @@ def test_lagrangebench_periodic_data_converts_with_its_types_mapped_and_trains_t
 @pytest.mark.parametrize("text", ["0", "0=x", "0=5,0=6", "-1=5"])
 def test_a_bad_type_map_is_refused_with_the_expected_form(text, tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_code:
-        main(["convert", str(tmp_path), "--from", "lagrangebench", "--to", "safe", "--out", str(tmp_path / "o"),
-              "--map-types", text])
+        main(
+            [
+                "convert",
+                str(tmp_path),
+                "--from",
+                "lagrangebench",
+                "--to",
+                "safe",
+                "--out",
+                str(tmp_path / "o"),
+                "--map-types",
+                text,
+            ]
+        )
     assert exit_code.value.code == 2
     assert "--map-types" in capsys.readouterr().err

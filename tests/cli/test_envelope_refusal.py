@@ -19,8 +19,9 @@ MODEL = REPO / "models" / "sand2d_fast.pt"
 
 
 def gns(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "gns_framework.cli", *args], capture_output=True, text=True,
-                          timeout=900, cwd=cwd)
+    return subprocess.run(
+        [sys.executable, "-m", "gns_framework.cli", *args], capture_output=True, text=True, timeout=900, cwd=cwd
+    )
 
 
 @pytest.fixture(scope="module")
@@ -37,8 +38,19 @@ def fine_and_slow_scene(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def fine_and_slow(fine_and_slow_scene, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("fine") / "data"
-    made = gns("generate", str(fine_and_slow_scene), "--trajectories", "3", "--valid", "1", "--test", "1",
-               "--out", str(out), "--no-progress")
+    made = gns(
+        "generate",
+        str(fine_and_slow_scene),
+        "--trajectories",
+        "3",
+        "--valid",
+        "1",
+        "--test",
+        "1",
+        "--out",
+        str(out),
+        "--no-progress",
+    )
     assert made.returncode == 0, made.stderr
     return out
 
@@ -51,15 +63,37 @@ def test_rollout_names_the_spacing_and_the_step_and_writes_nothing(fine_and_slow
     assert any(line.startswith("  - learned step 0.016 s (trained: 0.01 s)") for line in lines), result.stderr
     assert any(line.startswith("  - particle spacing 0.005") and "(trained: 0.008707 m" in line for line in lines)
     assert "Traceback" not in result.stderr and not (tmp_path / "r").exists()
-    allowed = gns("rollout", str(MODEL), "--dataset", str(fine_and_slow), "--out", str(tmp_path / "r"),
-                  "--no-progress", "--outside-envelope", "--on-violation", "clamp")
+    allowed = gns(
+        "rollout",
+        str(MODEL),
+        "--dataset",
+        str(fine_and_slow),
+        "--out",
+        str(tmp_path / "r"),
+        "--no-progress",
+        "--outside-envelope",
+        "--on-violation",
+        "clamp",
+    )
     assert allowed.returncode == 0, allowed.stderr
     assert "warning: outside the envelope of" in allowed.stderr
 
 
 def test_demo_refuses_a_scene_outside_the_pretrained_model(fine_and_slow_scene, tmp_path):
-    result = gns("demo", "--scene", str(fine_and_slow_scene), "--steps", "2", "--held-out", "1", "--repeats", "1",
-                 "--out", str(tmp_path / "demo"), "--no-progress")
+    result = gns(
+        "demo",
+        "--scene",
+        str(fine_and_slow_scene),
+        "--steps",
+        "2",
+        "--held-out",
+        "1",
+        "--repeats",
+        "1",
+        "--out",
+        str(tmp_path / "demo"),
+        "--no-progress",
+    )
     assert result.returncode == 2, result.stderr
     assert "gns demo: error:" in result.stderr and "learned step 0.016 s" in result.stderr
     assert not (tmp_path / "demo" / "report").exists()

@@ -71,8 +71,22 @@ def test_evaluate_writes_table_plots_vtk_and_gif(tmp_path: Path):
     other.mkdir(parents=True)
     (other / checkpoint.name).write_bytes(checkpoint.read_bytes())
     both = tmp_path / "both"
-    result = gns("evaluate", str(checkpoint), str(other / checkpoint.name), "--out", str(both), "--no-simulator",
-                 "--repeats", "1", "--warmup", "0", "--trajectories", "1", "--gif", "--outside-envelope")
+    result = gns(
+        "evaluate",
+        str(checkpoint),
+        str(other / checkpoint.name),
+        "--out",
+        str(both),
+        "--no-simulator",
+        "--repeats",
+        "1",
+        "--warmup",
+        "0",
+        "--trajectories",
+        "1",
+        "--gif",
+        "--outside-envelope",
+    )
     assert result.returncode == 0, result.stderr
     assert result.stderr.count("warning: outside the envelope of") == 2, "each model judged on its own envelope"
     labels = ["tiny.run.checkpoint-000000002", "tiny.other.checkpoint-000000002"]
@@ -85,12 +99,17 @@ def test_model_labels_are_safe_file_names_and_unique():
     from gns_framework.cli.evaluate import model_labels
 
     assert model_labels(["sand2d"], [Path("runs/a/checkpoints/best.pt")]) == ["sand2d"]
-    same = [Path("runs/a b/checkpoints/best.pt"), Path("runs/c/checkpoints/best.pt"), Path("runs/c/checkpoints/best.pt")]
+    same = [
+        Path("runs/a b/checkpoints/best.pt"),
+        Path("runs/c/checkpoints/best.pt"),
+        Path("runs/c/checkpoints/best.pt"),
+    ]
     assert model_labels(["sand2d"] * 3, same) == ["sand2d.a_b.best", "sand2d.c.best", "sand2d.c.best-2"]
     assert model_labels(["x/../y"], [Path("m.pt")]) == ["x_.._y"]
     # Models of different recipes keep their recipes' names, wherever their files are.
     assert model_labels(["sand2d-fast", "sand2d-fast-grid"], [Path("models/a.pt"), Path("models/b.pt")]) == [
-        "sand2d-fast", "sand2d-fast-grid",
+        "sand2d-fast",
+        "sand2d-fast-grid",
     ]
 
 

@@ -43,15 +43,25 @@ def run_plugins(capsys, *args: str) -> str:
 
 def test_the_table_lists_components_metrics_and_commands(capsys):
     rows = {tuple(line.split()[:2]) for line in run_plugins(capsys).splitlines() if line.strip()}
-    assert {("processor", "interaction_network"), ("material", "clay"), ("metric", "mse_full"),
-            ("metric", "runout_error"), ("command", "train"), ("command", "plugins")} <= rows
+    assert {
+        ("processor", "interaction_network"),
+        ("material", "clay"),
+        ("metric", "mse_full"),
+        ("metric", "runout_error"),
+        ("command", "train"),
+        ("command", "plugins"),
+    } <= rows
 
 
 def test_the_particle_types_taken_and_free_are_listed(capsys, with_ballast):
     out = run_plugins(capsys)
     taken = out.split("PARTICLE TYPE")[1].splitlines()[1:-1]
     assert [line.split()[:3] for line in taken] == [
-        ["3", "rigid", "yes"], ["4", "ballast", "yes"], ["5", "water", "no"], ["6", "sand", "no"], ["7", "goop", "no"],
+        ["3", "rigid", "yes"],
+        ["4", "ballast", "yes"],
+        ["5", "water", "no"],
+        ["6", "sand", "no"],
+        ["7", "goop", "no"],
         ["8", "clay", "no"],
     ]
     assert out.rstrip().splitlines()[-1] == "free particle types: 0-2, 9-1023 (a new material takes one)"
@@ -74,7 +84,10 @@ def test_json_rows_carry_each_kinds_own_fields(capsys):
     assert by_kind["material"]["clay"]["particle_type"] == 8 and by_kind["material"]["rigid"]["kinematic"] is True
     assert by_kind["metric"]["mse_full"]["unit"].startswith("L^2")
     assert by_kind["metric"]["mse_full"]["distribution"].startswith("gns-framework ")
-    assert by_kind["metric"]["mse_full"]["validation"] == "valid_rollout_mse" and by_kind["metric"]["mse_final"]["validation"] is None
+    assert (
+        by_kind["metric"]["mse_full"]["validation"] == "valid_rollout_mse"
+        and by_kind["metric"]["mse_final"]["validation"] is None
+    )
     train = by_kind["command"]["train"]
     assert train["module"] == "gns_framework.cli.train" and train["source"].endswith("train.py")
     assert all(row["source"].endswith(".py") and row["plugin"] for row in rows)

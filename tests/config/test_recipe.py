@@ -67,7 +67,11 @@ training:
 
 
 def test_unknown_component_lists_installed_choices(registry):
-    raw = {"name": "x", "dataset": {"path": "d"}, "model": {"processor": {"name": "gnn"}, "integrator": {"name": "euler_semi"}}}
+    raw = {
+        "name": "x",
+        "dataset": {"path": "d"},
+        "model": {"processor": {"name": "gnn"}, "integrator": {"name": "euler_semi"}},
+    }
     with pytest.raises(RecipeError) as info:
         validate_recipe(raw, registry, "r.yaml")
     problems = dict(info.value.problems)
@@ -76,8 +80,11 @@ def test_unknown_component_lists_installed_choices(registry):
 
 
 def test_component_params_are_validated_with_their_location(registry):
-    raw = {"name": "x", "dataset": {"path": "d", "verify_checksum": True, "name": "tfrecord"},
-           "model": {"processor": {"name": "interaction_network", "message_passing_steps": 0}}}
+    raw = {
+        "name": "x",
+        "dataset": {"path": "d", "verify_checksum": True, "name": "tfrecord"},
+        "model": {"processor": {"name": "interaction_network", "message_passing_steps": 0}},
+    }
     with pytest.raises(RecipeError) as info:
         validate_recipe(raw, registry)
     problems = dict(info.value.problems)

@@ -65,8 +65,15 @@ def safe_copy_of(source: Path, registry) -> dict[str, list]:
 @pytest.fixture(scope="module")
 def trajectories():
     return [
-        soft_sphere_trajectory(seed, frames=8, block=3, particle_types=(6,), kinematic_floor=True, with_property=True,
-                               key=f"simulation_trajectory_{seed}")
+        soft_sphere_trajectory(
+            seed,
+            frames=8,
+            block=3,
+            particle_types=(6,),
+            kinematic_floor=True,
+            with_property=True,
+            key=f"simulation_trajectory_{seed}",
+        )
         for seed in range(2)
     ]
 
@@ -127,8 +134,11 @@ def test_damaged_pickle_is_named_by_file_and_member(trajectories, tmp_path, regi
     whole = numpy1_npy(object_array(trajectories[0].position, trajectories[0].particle_type))
     with zipfile.ZipFile(tmp_path / "train.npz", "w") as archive:
         archive.writestr("simulation_trajectory_0.npy", whole[: len(whole) // 2])
-    with pytest.raises(DatasetError, match=r"train\.npz: simulation_trajectory_0: not a numpy object array of arrays "
-                                           r"\(truncated or corrupt\?\): "):
+    with pytest.raises(
+        DatasetError,
+        match=r"train\.npz: simulation_trajectory_0: not a numpy object array of arrays "
+        r"\(truncated or corrupt\?\): ",
+    ):
         cls(cls.Params(), tmp_path).split("train")[0]
 
 
@@ -181,8 +191,14 @@ def _evaluate_of_other_data(hostile, trusted, tmp_path, state):
     return ["evaluate", str(checkpoint), "--dataset", str(hostile), "--no-simulator", "--out", str(tmp_path / "report")]
 
 
-COMMANDS = [_convert, _train, _rollout_of_its_own_data, _rollout_of_other_data, _evaluate_of_its_own_data,
-            _evaluate_of_other_data]
+COMMANDS = [
+    _convert,
+    _train,
+    _rollout_of_its_own_data,
+    _rollout_of_other_data,
+    _evaluate_of_its_own_data,
+    _evaluate_of_other_data,
+]
 
 
 @pytest.mark.parametrize("command", COMMANDS, ids=[c.__name__.lstrip("_") for c in COMMANDS])
@@ -276,8 +292,12 @@ READABLE = {
     "float64 2-D, int64 1-D, float32 3-D": lambda: object_array(
         np.eye(3), np.arange(-2, 3, dtype=np.int64), np.ones((2, 1, 3), np.float32)
     ),
-    "Fortran order, a strided view": lambda: object_array(np.asfortranarray(np.arange(6.0).reshape(2, 3)), np.arange(9)[::3]),
-    "big-endian, empty, 0-d": lambda: object_array(np.arange(3, dtype=">f8"), np.zeros((0, 2), np.float32), np.array(2.5)),
+    "Fortran order, a strided view": lambda: object_array(
+        np.asfortranarray(np.arange(6.0).reshape(2, 3)), np.arange(9)[::3]
+    ),
+    "big-endian, empty, 0-d": lambda: object_array(
+        np.arange(3, dtype=">f8"), np.zeros((0, 2), np.float32), np.array(2.5)
+    ),
     "bool, uint8, complex64, float16": lambda: object_array(
         np.array([True, False]), np.array([255], np.uint8), np.array([1j], np.complex64), np.array([0.5], np.float16)
     ),
@@ -316,7 +336,8 @@ def test_numpy_pickles_of_protocols_2_to_5_are_read_exactly(case, protocol):
         st.tuples(
             st.sampled_from(sorted(PLAIN_DTYPES)), st.lists(st.integers(0, 4), min_size=1, max_size=3), st.booleans()
         ),
-        min_size=1, max_size=3,
+        min_size=1,
+        max_size=3,
     ),
     seed=st.integers(0, 2**32 - 1),
 )
@@ -355,7 +376,11 @@ def _int(value: int) -> bytes:
 
 
 def _bytes(data: bytes) -> bytes:
-    return P.SHORT_BINBYTES + bytes([len(data)]) + data if len(data) < 256 else P.BINBYTES + struct.pack("<I", len(data)) + data
+    return (
+        P.SHORT_BINBYTES + bytes([len(data)]) + data
+        if len(data) < 256
+        else P.BINBYTES + struct.pack("<I", len(data)) + data
+    )
 
 
 def _tuple(*items: bytes) -> bytes:
@@ -418,11 +443,13 @@ def reader(tmp_path_factory):
 
 FORGED = {
     "the object dtype with flags 0 (the attack)": (
-        FORGED_OBJECT_DTYPE, " of the pickle: numpy.dtype('O8') with state (3, '|', None, None, None, -1, -1, 0); "
+        FORGED_OBJECT_DTYPE,
+        " of the pickle: numpy.dtype('O8') with state (3, '|', None, None, None, -1, -1, 0); "
         "expected numpy.dtype('O8', False, True) with state (3, '|', None, None, None, -1, -1, 63)",
     ),
     "the attack inside a trajectory tuple": (
-        _pickle(_tuple_of(FORGED_OBJECT_DTYPE[2:-1], TYPES)), "numpy.dtype('O8') with state (3, '|', None, None, None, -1, -1, 0)",
+        _pickle(_tuple_of(FORGED_OBJECT_DTYPE[2:-1], TYPES)),
+        "numpy.dtype('O8') with state (3, '|', None, None, None, -1, -1, 0)",
     ),
     "float64 with the object flags": (
         _pickle(_array((2,), _dtype("f8", "<", 63), _bytes(bytes(16)))),
@@ -431,7 +458,10 @@ FORGED = {
     ),
     "a unicode dtype": (_pickle(_array((1,), _dtype("U2", "<", 8, 8, 4), _bytes(bytes(8)))), "dtype '<U2'"),
     "long double": (_pickle(_array((1,), _dtype("f16", "<", 0), _bytes(bytes(16)))), "dtype '<f16'"),
-    "a multi-byte dtype without byte order": (_pickle(_array((1,), _dtype("f8", "|", 0), _bytes(bytes(8)))), "dtype '|f8'"),
+    "a multi-byte dtype without byte order": (
+        _pickle(_array((1,), _dtype("f8", "|", 0), _bytes(bytes(8)))),
+        "dtype '|f8'",
+    ),
     "too few bytes": (
         _pickle(_array((3,), _dtype("f8", "<", 0), _bytes(bytes(16)))),
         "16 bytes of data for a float64 array of shape (3,); expected 3 x 8 = 24 bytes",
@@ -448,29 +478,42 @@ FORGED = {
         "with at most 1099511627776 elements",
     ),
     "a 33-dimensional shape": (
-        _pickle(_array((1,) * 33, _dtype("f8", "<", 0), _bytes(bytes(8)))), "a tuple of at most 32 non-negative ints"
+        _pickle(_array((1,) * 33, _dtype("f8", "<", 0), _bytes(bytes(8)))),
+        "a tuple of at most 32 non-negative ints",
     ),
     "an order flag that is not a bool": (
-        _pickle(_array((1,), _dtype("f8", "<", 0), _bytes(bytes(8)), fortran=_int(7))), "order flag 7"
+        _pickle(_array((1,), _dtype("f8", "<", 0), _bytes(bytes(8)), fortran=_int(7))),
+        "order flag 7",
     ),
     "an object array with bytes for data": (
-        _pickle(_array((2,), OBJECT_DTYPE, _bytes(bytes(16)))), "an object array of shape (2,) with a bytes for data"
+        _pickle(_array((2,), OBJECT_DTYPE, _bytes(bytes(16)))),
+        "an object array of shape (2,) with a bytes for data",
     ),
     "an object array of the wrong length": (
-        _pickle(_array((3,), OBJECT_DTYPE, P.EMPTY_LIST + P.MARK + FLOATS + P.APPENDS)), "a list of 3 items"
+        _pickle(_array((3,), OBJECT_DTYPE, P.EMPTY_LIST + P.MARK + FLOATS + P.APPENDS)),
+        "a list of 3 items",
     ),
     "os.system by GLOBAL": (_pickle(b"cos\nsystem\n" + _u("true") + P.TUPLE1 + P.REDUCE), "refused global os.system"),
     "numpy.frombuffer": (_pickle(_global("numpy", "frombuffer")), "refused global numpy.frombuffer"),
     "a numpy.dtype REDUCE with other arguments": (
-        _pickle(_global("numpy", "dtype") + _u("f8") + P.TUPLE1 + P.REDUCE), "numpy.dtype('f8',); expected (code, False, True)"
+        _pickle(_global("numpy", "dtype") + _u("f8") + P.TUPLE1 + P.REDUCE),
+        "numpy.dtype('f8',); expected (code, False, True)",
     ),
     "_reconstruct of another class": (
-        _pickle(_global("numpy._core.multiarray", "_reconstruct") + _global("numpy", "dtype") + _int(0) + P.TUPLE1
-                + _bytes(b"b") + P.TUPLE3 + P.REDUCE),
+        _pickle(
+            _global("numpy._core.multiarray", "_reconstruct")
+            + _global("numpy", "dtype")
+            + _int(0)
+            + P.TUPLE1
+            + _bytes(b"b")
+            + P.TUPLE3
+            + P.REDUCE
+        ),
         "expected (numpy.ndarray, (0,), b'b')",
     ),
     "REDUCE of numpy.ndarray itself": (
-        _pickle(_global("numpy", "ndarray") + _tuple(_int(1)) + P.REDUCE), "REDUCE calling numpy.ndarray"
+        _pickle(_global("numpy", "ndarray") + _tuple(_int(1)) + P.REDUCE),
+        "REDUCE calling numpy.ndarray",
     ),
     "NEWOBJ": (_pickle(_global("numpy", "ndarray") + P.EMPTY_TUPLE + P.NEWOBJ), "opcode NEWOBJ"),
     "an out-of-band buffer": (_pickle(P.NEXT_BUFFER), "opcode NEXT_BUFFER"),
@@ -478,13 +521,23 @@ FORGED = {
     "protocol 1": (P.PROTO + b"\x01" + P.NONE + P.STOP, "pickle protocol 1; expected 2 to 5"),
     "a second BUILD of an array": (_pickle(FLOATS + _tuple(_int(1)) + P.BUILD), "a second BUILD of the array"),
     "a dtype used before its state": (
-        _pickle(_array((1,), _global("numpy", "dtype") + _u("f8") + P.NEWFALSE + P.NEWTRUE + P.TUPLE3 + P.REDUCE,
-                       _bytes(bytes(8)))),
+        _pickle(
+            _array(
+                (1,),
+                _global("numpy", "dtype") + _u("f8") + P.NEWFALSE + P.NEWTRUE + P.TUPLE3 + P.REDUCE,
+                _bytes(bytes(8)),
+            )
+        ),
         "is used before its state is set",
     ),
     "a list holding itself": (
-        _pickle(_array((1,), OBJECT_DTYPE, P.EMPTY_LIST + P.BINPUT + b"\x07" + P.EMPTY_LIST + P.BINGET + b"\x07" + P.APPEND
-                       + P.TUPLE1)).replace(P.TUPLE1 + P.BUILD, P.BUILD),
+        _pickle(
+            _array(
+                (1,),
+                OBJECT_DTYPE,
+                P.EMPTY_LIST + P.BINPUT + b"\x07" + P.EMPTY_LIST + P.BINGET + b"\x07" + P.APPEND + P.TUPLE1,
+            )
+        ).replace(P.TUPLE1 + P.BUILD, P.BUILD),
         "",
     ),
     "lists nested 100 deep": (
@@ -492,27 +545,67 @@ FORGED = {
         "containers nested deeper than 64",
     ),
     "a dict key that is an array": (
-        _pickle(P.EMPTY_DICT + FLOATS + _int(1) + P.SETITEM), "a dict key of the array made at byte",
+        _pickle(P.EMPTY_DICT + FLOATS + _int(1) + P.SETITEM),
+        "a dict key of the array made at byte",
     ),
     "BINGET of an index never stored": (_pickle(P.BINGET + b"\x09"), "BINGET 9, which was never stored"),
     "a structured dtype with an object field": (
-        _pickle(_array((1,), _global("numpy", "dtype") + _u("V8") + P.NEWFALSE + P.NEWTRUE + P.TUPLE3 + P.REDUCE
-                       + _tuple(_int(3), _u("|"), P.NONE, _u("p") + P.TUPLE1,
-                                P.EMPTY_DICT + _u("p") + OBJECT_DTYPE + _int(0) + P.TUPLE2 + P.SETITEM,
-                                _int(8), _int(1), _int(63)) + P.BUILD,
-                       _bytes(bytes(8)))),
+        _pickle(
+            _array(
+                (1,),
+                _global("numpy", "dtype")
+                + _u("V8")
+                + P.NEWFALSE
+                + P.NEWTRUE
+                + P.TUPLE3
+                + P.REDUCE
+                + _tuple(
+                    _int(3),
+                    _u("|"),
+                    P.NONE,
+                    _u("p") + P.TUPLE1,
+                    P.EMPTY_DICT + _u("p") + OBJECT_DTYPE + _int(0) + P.TUPLE2 + P.SETITEM,
+                    _int(8),
+                    _int(1),
+                    _int(63),
+                )
+                + P.BUILD,
+                _bytes(bytes(8)),
+            )
+        ),
         "field 'p' of dtype object; expected a numeric field",
     ),
     "a structured dtype with a field past its end": (
-        _pickle(_array((1,), _global("numpy", "dtype") + _u("V8") + P.NEWFALSE + P.NEWTRUE + P.TUPLE3 + P.REDUCE
-                       + _tuple(_int(3), _u("|"), P.NONE, _u("p") + P.TUPLE1,
-                                P.EMPTY_DICT + _u("p") + _dtype("f8", "<", 0) + _int(4) + P.TUPLE2 + P.SETITEM,
-                                _int(8), _int(1), _int(16)) + P.BUILD,
-                       _bytes(bytes(8)))),
+        _pickle(
+            _array(
+                (1,),
+                _global("numpy", "dtype")
+                + _u("V8")
+                + P.NEWFALSE
+                + P.NEWTRUE
+                + P.TUPLE3
+                + P.REDUCE
+                + _tuple(
+                    _int(3),
+                    _u("|"),
+                    P.NONE,
+                    _u("p") + P.TUPLE1,
+                    P.EMPTY_DICT + _u("p") + _dtype("f8", "<", 0) + _int(4) + P.TUPLE2 + P.SETITEM,
+                    _int(8),
+                    _int(1),
+                    _int(16),
+                )
+                + P.BUILD,
+                _bytes(bytes(8)),
+            )
+        ),
         "field 'p' at bytes 4..12; expected within the item's 8 bytes",
     ),
     "a float array where the header promises an object array": (_pickle(FLOATS), "the pickle holds dtype float64"),
-    "a truncated pickle": (_pickle(_tuple_of(FLOATS, TYPES))[:-40], "not a numpy object array of arrays (truncated or corrupt?)"),
+    "a truncated pickle": (
+        _pickle(_tuple_of(FLOATS, TYPES))[:-40],
+        "not a numpy object array of arrays (truncated or corrupt?)",
+    ),
     "values left on the stack": (_pickle(_tuple_of(FLOATS, TYPES) + P.NONE), "STOP with 2 values and 0 marks left"),
 }
 
@@ -522,7 +615,9 @@ def test_forged_pickles_are_refused_with_a_located_error_and_no_crash(case, read
     """Read in a process of its own: a refusal names file, member, byte and found vs expected; nothing dies."""
     body, expected = FORGED[case]
     answer = reader.read(npy_header() + body)
-    assert re.match(r"refused fuzz\.npz: m: (refused|not a numpy object array of arrays \(truncated or corrupt\?\)): ", answer), answer
+    assert re.match(
+        r"refused fuzz\.npz: m: (refused|not a numpy object array of arrays \(truncated or corrupt\?\)): ", answer
+    ), answer
     assert expected in answer, answer
 
 
@@ -557,8 +652,14 @@ def test_the_forged_npz_is_refused_by_convert_and_train_in_one_line(command, dat
         (tmp_path / "recipe.yaml").write_text(yaml.safe_dump(recipe))
         argv = ["train", str(tmp_path / "recipe.yaml"), "--no-progress", "--no-tracking"]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    done = subprocess.run([sys.executable, "-m", "gns_framework.cli", *argv], capture_output=True, text=True,
-                          timeout=300, env=env, cwd=tmp_path)
+    done = subprocess.run(
+        [sys.executable, "-m", "gns_framework.cli", *argv],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+        cwd=tmp_path,
+    )
     assert done.returncode == 2, (done.returncode, done.stderr)
     line = f"gns {command}: error: {hostile}/train.npz: {MEMBER}: refused: byte "
     assert line in done.stderr and "numpy.dtype('O8') with state (3, '|', None, None, None, -1, -1, 0)" in done.stderr

@@ -36,7 +36,11 @@ def _seed_items() -> dict[str, np.ndarray]:
     }
 
 
-SEEDS = {f"{name}, protocol {protocol}": npy_bytes(item, protocol) for name, item in _seed_items().items() for protocol in (2, 3, 4, 5)}
+SEEDS = {
+    f"{name}, protocol {protocol}": npy_bytes(item, protocol)
+    for name, item in _seed_items().items()
+    for protocol in (2, 3, 4, 5)
+}
 SEED_NAMES = sorted(SEEDS)
 
 
@@ -100,7 +104,11 @@ mutation = st.one_of(
     st.tuples(st.just("drop opcode"), st.floats(0, 1, exclude_max=True), st.just(0)),
     st.tuples(st.just("repeat opcode"), st.floats(0, 1, exclude_max=True), st.integers(1, 3)),
     st.tuples(st.just("swap opcodes"), st.floats(0, 1, exclude_max=True), st.floats(0, 1, exclude_max=True)),
-    st.tuples(st.just("splice opcode"), st.floats(0, 1, exclude_max=True), st.tuples(st.sampled_from(SEED_NAMES), st.floats(0, 1, exclude_max=True))),
+    st.tuples(
+        st.just("splice opcode"),
+        st.floats(0, 1, exclude_max=True),
+        st.tuples(st.sampled_from(SEED_NAMES), st.floats(0, 1, exclude_max=True)),
+    ),
 )
 
 

@@ -15,7 +15,9 @@ def test_the_rename_is_followed_by_an_fsync_of_the_directory(tmp_path, monkeypat
 
     def recording_fsync(fd):
         mode = os.fstat(fd).st_mode
-        events.append(("fsync directory", os.readlink(f"/proc/self/fd/{fd}")) if stat.S_ISDIR(mode) else ("fsync file",))
+        events.append(
+            ("fsync directory", os.readlink(f"/proc/self/fd/{fd}")) if stat.S_ISDIR(mode) else ("fsync file",)
+        )
         fsync(fd)
 
     def recording_replace(source, target):

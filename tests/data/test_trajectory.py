@@ -65,12 +65,23 @@ def test_a_rollout_file_keeps_the_trajectory_domain_and_walls(tmp_path):
 
     truth = _trajectory().validated("d")
     metadata = DatasetMetadata(
-        bounds=[(0.0, 2.0), (0.0, 1.0)], sequence_length=8, default_connectivity_radius=0.02, dim=2, dt=0.01,
-        vel_mean=[0, 0], vel_std=[1, 1], acc_mean=[0, 0], acc_std=[1, 1],
+        bounds=[(0.0, 2.0), (0.0, 1.0)],
+        sequence_length=8,
+        default_connectivity_radius=0.02,
+        dim=2,
+        dt=0.01,
+        vel_mean=[0, 0],
+        vel_std=[1, 1],
+        acc_mean=[0, 0],
+        acc_std=[1, 1],
     )
     rollout = Rollout(truth, truth.position[6:], 6, metadata)
     loaded = load_rollout(save_rollout(tmp_path / "r.npz", rollout))
     np.testing.assert_array_equal(loaded.truth.bounds, truth.bounds)
     np.testing.assert_array_equal(loaded.truth.walls, truth.walls)
-    bare = load_rollout(save_rollout(tmp_path / "bare.npz", Rollout(_trajectory(bounds=None, walls=None), truth.position[6:], 6, metadata)))
+    bare = load_rollout(
+        save_rollout(
+            tmp_path / "bare.npz", Rollout(_trajectory(bounds=None, walls=None), truth.position[6:], 6, metadata)
+        )
+    )
     assert bare.truth.bounds is None and bare.truth.walls is None

@@ -208,8 +208,11 @@ def test_final_extent_and_pile_height_errors_of_a_constructed_pile():
     metrics = measure(predicted, truth, dt=0.01, bounds=UNIT_BOX, granular_types={SAND})
     assert metrics["extent_error_pct"].item() == pytest.approx(10.0)
     assert metrics["height_error_pct"].item() == pytest.approx(0.0)
-    lower = rollout_of(torch.cat([predicted.position[:, :6] * torch.tensor([1.0, 0.8]), predicted.position[:, 6:]], 1),
-                       predicted.particle_type, start=predicted.start)
+    lower = rollout_of(
+        torch.cat([predicted.position[:, :6] * torch.tensor([1.0, 0.8]), predicted.position[:, 6:]], 1),
+        predicted.particle_type,
+        start=predicted.start,
+    )
     metrics = measure(lower, truth, dt=0.01, bounds=[(0.0, 1.0), (-0.1, 1.0)], granular_types={SAND})
     # heights above the floor at -0.1: 0.08 + 0.1 predicted, 0.1 + 0.1 true
     assert metrics["height_error_pct"].item() == pytest.approx(100 * 0.02 / 0.2)

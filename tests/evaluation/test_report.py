@@ -226,7 +226,9 @@ def test_score_rollout_file(make_rollout):
 
 
 def test_a_plugin_metric_is_measured_beside_the_builtins(make_rollout):
-    moved = Metric("moving_particles", "1, particles the errors are taken over", lambda pair: pair.target.moving.sum(-1).double())
+    moved = Metric(
+        "moving_particles", "1, particles the errors are taken over", lambda pair: pair.target.moving.sum(-1).double()
+    )
 
     class MetricPlugin:
         @staticmethod

@@ -19,7 +19,9 @@ from gns_framework.evaluation.rollout_scores import validation_rollout_scorer
 @pytest.fixture(scope="module")
 def sand(tmp_path_factory):
     """Soft spheres typed as sand (6): runout, extent and height are measured on them."""
-    return write_synthetic_dataset(tmp_path_factory.mktemp("sand") / "data", train=2, valid=1, test=0, particle_types=(6,))
+    return write_synthetic_dataset(
+        tmp_path_factory.mktemp("sand") / "data", train=2, valid=1, test=0, particle_types=(6,)
+    )
 
 
 @pytest.fixture
@@ -37,8 +39,12 @@ def test_each_tracked_metric_is_the_evaluation_value_of_the_rollout(trained, reg
     tracked = registry.validation_metrics()
     assert set(scores) == set(tracked), "sand has every built-in validation metric"
     evaluated = score_prediction(
-        Prediction(learned_positions(trained.simulator, trajectory, cpu)), trajectory, scene.history, metadata,
-        granular_types=granular_particle_types(scene, registry), kinematic_types=scene.kinematic_types,
+        Prediction(learned_positions(trained.simulator, trajectory, cpu)),
+        trajectory,
+        scene.history,
+        metadata,
+        granular_types=granular_particle_types(scene, registry),
+        kinematic_types=scene.kinematic_types,
     )
     for name, metric in tracked.items():
         assert scores[name] == pytest.approx(float(evaluated[metric.name].item()), rel=1e-12), name

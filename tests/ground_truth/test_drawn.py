@@ -17,10 +17,18 @@ from gns_framework.ground_truth.scene_spec import parse_scene
 
 def drawing_scene() -> dict:
     raw = mixed(frames=4)
-    raw["domain"].update(extent=[{"range": [0.45, 0.5]}, 0.5],
-                         walls={"x_max": {"one_of": [0.1, "no_slip"]}, "y_min": {"range": [0.2, 0.6]}})
-    raw["blocks"].append({"material": "sand", "position": [0.1, 0.3], "size": [0.05, 0.05],
-                          "properties": {"friction": {"range": [0.5, 0.9]}}})  # drawn once per trajectory
+    raw["domain"].update(
+        extent=[{"range": [0.45, 0.5]}, 0.5],
+        walls={"x_max": {"one_of": [0.1, "no_slip"]}, "y_min": {"range": [0.2, 0.6]}},
+    )
+    raw["blocks"].append(
+        {
+            "material": "sand",
+            "position": [0.1, 0.3],
+            "size": [0.05, 0.05],
+            "properties": {"friction": {"range": [0.5, 0.9]}},
+        }
+    )  # drawn once per trajectory
     raw["obstacles"][0]["friction"] = {"range": [0.1, 0.3]}
     raw["obstacles"][0]["size"] = [{"range": [0.08, 0.12]}, 0.04]
     return raw
@@ -31,8 +39,9 @@ def generated(tmp_path_factory, sim_registry):
     scene = parse_scene(drawing_scene())
     simulator = build_ground_truth_simulator(scene, sim_registry)
     out = tmp_path_factory.mktemp("drawn")
-    generate_dataset(scene, simulator, out, sim_registry.get("dataset", "safe"),
-                     {"train": 2, "valid": 1, "test": 1}, progress=False)
+    generate_dataset(
+        scene, simulator, out, sim_registry.get("dataset", "safe"), {"train": 2, "valid": 1, "test": 1}, progress=False
+    )
     return scene, out
 
 
@@ -50,7 +59,9 @@ def test_every_trajectory_records_what_it_drew(generated, sim_registry, material
         faces = record["domain"]["walls"]
         np.testing.assert_allclose(
             [[faces[f]["friction"], float(faces[f]["no_slip"])] for f in ("x_min", "x_max", "y_min", "y_max")],
-            sample.walls, atol=1e-6)
+            sample.walls,
+            atol=1e-6,
+        )
         water, sand, goop, sand2 = sample.blocks
         assert record["blocks[0]"]["size"] == pytest.approx(water.size.tolist())
         assert record["blocks[1]"]["position"] == pytest.approx(sand.lower.tolist())
@@ -66,7 +77,8 @@ def test_every_trajectory_records_what_it_drew(generated, sim_registry, material
         assert true_property(record, "friction", materials["sand"].particle_type) is None
         alone = {k: v for k, v in record.items() if k != "blocks[1]"}
         assert true_property(alone, "friction", materials["sand"].particle_type) == pytest.approx(
-            float(sand2.values["friction"][0]))
+            float(sand2.values["friction"][0])
+        )
     # Frictions, velocities and the domain really vary between trajectories: they were drawn.
     assert len({drawn[k]["blocks[3]"]["friction"] for k in keys}) == 4
     assert len({drawn[k]["obstacles[0]"]["friction"] for k in keys}) == 4

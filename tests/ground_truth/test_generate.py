@@ -29,8 +29,9 @@ def generated(tmp_path_factory, sim_registry):
     scene = parse_scene(mixed(frames=12))
     simulator = build_ground_truth_simulator(scene, sim_registry)
     out = tmp_path_factory.mktemp("generated")
-    metadata = generate_dataset(scene, simulator, out, sim_registry.get("dataset", "safe"),
-                                {"train": 2, "valid": 1, "test": 1}, progress=False)
+    metadata = generate_dataset(
+        scene, simulator, out, sim_registry.get("dataset", "safe"), {"train": 2, "valid": 1, "test": 1}, progress=False
+    )
     return scene, simulator, out, metadata
 
 
@@ -57,8 +58,14 @@ def test_dataset_has_splits_and_metadata_from_its_train_split(generated, sim_reg
 def test_generation_is_reproducible_and_splits_differ(generated, sim_registry, tmp_path):
     scene, simulator, out, _ = generated
     again = tmp_path / "again"
-    generate_dataset(scene, simulator, again, sim_registry.get("dataset", "safe"),
-                     {"train": 2, "valid": 1, "test": 1}, progress=False)
+    generate_dataset(
+        scene,
+        simulator,
+        again,
+        sim_registry.get("dataset", "safe"),
+        {"train": 2, "valid": 1, "test": 1},
+        progress=False,
+    )
     for split in ("train", "valid", "test"):
         for a, b in zip(load_split(sim_registry, out, split), load_split(sim_registry, again, split)):
             assert a.position.tobytes() == b.position.tobytes()
@@ -71,8 +78,14 @@ def test_generation_is_reproducible_and_splits_differ(generated, sim_registry, t
 
 def test_scene_without_properties_writes_none(sim_registry, tmp_path):
     scene = parse_scene(column_collapse(0.05, 0.05, 0.6, frames=4))
-    metadata = generate_dataset(scene, build_ground_truth_simulator(scene, sim_registry), tmp_path,
-                                sim_registry.get("dataset", "safe"), {"train": 1}, progress=False)
+    metadata = generate_dataset(
+        scene,
+        build_ground_truth_simulator(scene, sim_registry),
+        tmp_path,
+        sim_registry.get("dataset", "safe"),
+        {"train": 1},
+        progress=False,
+    )
     assert load_split(sim_registry, tmp_path, "train")[0].material_property is None
     assert "material_properties" not in metadata.model_extra
 

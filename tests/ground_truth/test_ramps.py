@@ -45,8 +45,24 @@ def test_generated_ramps_dataset_trains(sim_registry, monkeypatch, tmp_path):
     scene_file = tmp_path / "ramps.yaml"
     scene_file.write_text(yaml.safe_dump(scene.model_dump(mode="json", exclude_none=True)))
     data = tmp_path / "data"
-    assert main(["generate", str(scene_file), "--trajectories", "3", "--valid", "1", "--test", "0",
-                 "--out", str(data), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "generate",
+                str(scene_file),
+                "--trajectories",
+                "3",
+                "--valid",
+                "1",
+                "--test",
+                "0",
+                "--out",
+                str(data),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     recipe = tmp_path / "recipe.yaml"
     recipe.write_text(yaml.safe_dump(tiny_recipe_mapping(data, run_dir=tmp_path / "run")))
     assert main(["train", str(recipe), "--steps", "3", "--no-progress"]) == 0

@@ -46,8 +46,10 @@ def test_same_seed_same_draw_and_another_seed_another():
     for x, y in zip(a.bodies, b.bodies):
         assert x.position.tobytes() == y.position.tobytes()
         assert x.values.keys() == y.values.keys()
-    assert any(x.position.shape != z.position.shape or not np.array_equal(x.position, z.position)
-               for x, z in zip(a.bodies, c.bodies))
+    assert any(
+        x.position.shape != z.position.shape or not np.array_equal(x.position, z.position)
+        for x, z in zip(a.bodies, c.bodies)
+    )
 
 
 def test_per_particle_properties_vary_and_per_trajectory_ones_do_not():

@@ -16,8 +16,15 @@ SCENES = sorted((Path(__file__).resolve().parents[2] / "scenes").rglob("*.yaml")
 
 
 def test_example_scenes_exist():
-    expected = {"sand_collapse_2d", "water_dam_break_2d", "sand_collapse_3d", "multi_material_2d",
-                "sand_ramps_2d", "water_ramps_2d", "sand_ramps_3d"}
+    expected = {
+        "sand_collapse_2d",
+        "water_dam_break_2d",
+        "sand_collapse_3d",
+        "multi_material_2d",
+        "sand_ramps_2d",
+        "water_ramps_2d",
+        "sand_ramps_3d",
+    }
     assert {p.stem for p in SCENES} >= expected
 
 
@@ -131,8 +138,14 @@ def test_shaped_obstacles_are_checked_for_what_their_shape_needs():
     raw["obstacles"] = [
         {"material": "rigid", "shape": "plane", "position": [0.1, 0.1], "size": [0.1, 0.1], "angle": 95},
         {"material": "rigid", "shape": "polygon", "position": [0.1, 0.1], "vertices": [[0, 0], [0.1, 0]]},
-        {"material": "rigid", "shape": "box", "position": [0.1, 0.1], "size": [0.1, 0.1], "angle": 10,
-         "velocity": [0.1, 0.0]},
+        {
+            "material": "rigid",
+            "shape": "box",
+            "position": [0.1, 0.1],
+            "size": [0.1, 0.1],
+            "angle": 10,
+            "velocity": [0.1, 0.0],
+        },
         {"material": "rigid", "shape": "ellipsoid", "position": [0.1, 0.1]},
         {"material": "rigid", "shape": "box", "position": [0.1, 0.1], "size": [0.1, 0.1], "vertices": [[0, 0]]},
     ]
@@ -153,9 +166,12 @@ def test_polygons_are_2d_and_rotated_blocks_must_stay_in_the_domain():
     assert parse_scene(raw)
     raw["blocks"][1]["position"] = [0.2, 0.01]  # turned 90 degrees it reaches below the floor
     assert "outside the domain" in problems(raw)["blocks[1].position[1]"]
-    raw = {**column_collapse_3d(), "obstacles": [
-        {"material": "rigid", "shape": "polygon", "position": [0.1, 0.1, 0.1], "vertices": [[0, 0], [1, 0], [0, 1]]}
-    ]}
+    raw = {
+        **column_collapse_3d(),
+        "obstacles": [
+            {"material": "rigid", "shape": "polygon", "position": [0.1, 0.1, 0.1], "vertices": [[0, 0], [1, 0], [0, 1]]}
+        ],
+    }
     assert "polygons are 2D" in problems(raw)["obstacles[0].shape"]
 
 

@@ -22,8 +22,15 @@ from gns_framework.plugins import load_registry
 
 REGISTRY = load_registry()
 METADATA = {
-    "bounds": [[0.0, 1.0], [0.0, 1.0]], "sequence_length": 50, "default_connectivity_radius": 0.3, "dim": 2,
-    "dt": 0.0025, "vel_mean": [0.0, -1e-3], "vel_std": [2e-3, 2e-3], "acc_mean": [0.0, 0.0], "acc_std": [3e-4, 3e-4],
+    "bounds": [[0.0, 1.0], [0.0, 1.0]],
+    "sequence_length": 50,
+    "default_connectivity_radius": 0.3,
+    "dim": 2,
+    "dt": 0.0025,
+    "vel_mean": [0.0, -1e-3],
+    "vel_std": [2e-3, 2e-3],
+    "acc_mean": [0.0, 0.0],
+    "acc_std": [3e-4, 3e-4],
 }
 
 
@@ -92,7 +99,9 @@ def test_chosen_types_keep_their_embedding_rows():
     state = geoelements_state_dict()
     imported = import_geoelements_checkpoint(state, METADATA, particle_types=[6, 3], registry=REGISTRY)
     assert imported.scene.particle_types == (3, 6)
-    assert torch.equal(imported.simulator.features.type_embedding.weight, state["_particle_type_embedding.weight"][[3, 6]])
+    assert torch.equal(
+        imported.simulator.features.type_embedding.weight, state["_particle_type_embedding.weight"][[3, 6]]
+    )
 
 
 def test_train_state_becomes_an_adam_state_that_continues_identically():
@@ -108,7 +117,11 @@ def test_train_state_becomes_an_adam_state_that_continues_identically():
         optimizer.step()
     saved = {"optimizer_state": optimizer.state_dict(), "global_train_state": {"step": 2}, "loss": 0.5}
     imported = import_geoelements_checkpoint(
-        {k: p.detach() for k, p in zip(keys, theirs)}, METADATA, train_state=saved, particle_types=[3, 5], registry=REGISTRY
+        {k: p.detach() for k, p in zip(keys, theirs)},
+        METADATA,
+        train_state=saved,
+        particle_types=[3, 5],
+        registry=REGISTRY,
     )
     assert (imported.step, imported.loss) == (2, 0.5)
     ours = dict(imported.simulator.named_parameters())
@@ -130,10 +143,15 @@ def test_train_state_becomes_an_adam_state_that_continues_identically():
 @pytest.mark.parametrize(
     "change, message",
     [
-        (lambda s: s.update({"_encode_process_decode._kan.weight": torch.zeros(1)}), "_encode_process_decode._kan.weight: unknown key"),
+        (
+            lambda s: s.update({"_encode_process_decode._kan.weight": torch.zeros(1)}),
+            "_encode_process_decode._kan.weight: unknown key",
+        ),
         (lambda s: s.pop("_encode_process_decode._decoder.node_fn.NN-1.bias"), "_decoder.node_fn.NN-1.bias: missing"),
         (
-            lambda s: s.update({"_encode_process_decode._processor.gnn_stacks.1.edge_fn.0.NN-0.weight": torch.zeros(5, 17)}),
+            lambda s: s.update(
+                {"_encode_process_decode._processor.gnn_stacks.1.edge_fn.0.NN-0.weight": torch.zeros(5, 17)}
+            ),
             "gnn_stacks.1.edge_fn.0.NN-0.weight: shape (5, 17)",
         ),
         (lambda s: s.update({"_particle_type_embedding.weight": torch.zeros(9, 4, 1)}), "expected a 2-D tensor"),
@@ -174,16 +192,29 @@ def test_command_writes_a_checkpoint_that_loads_and_resumes(tmp_path, capsys):
     for p in parameters:
         p.grad = torch.ones_like(p)
     optimizer.step()
-    torch.save({"optimizer_state": optimizer.state_dict(), "global_train_state": {"step": 7}, "loss": 1.0}, tmp_path / "train_state-7.pt")
+    torch.save(
+        {"optimizer_state": optimizer.state_dict(), "global_train_state": {"step": 7}, "loss": 1.0},
+        tmp_path / "train_state-7.pt",
+    )
     dataset = tmp_path / "sand"
     dataset.mkdir()
     (dataset / "metadata.json").write_text(json.dumps({"train": METADATA, "rollout": METADATA}))
     out = tmp_path / "imported.pt"
 
-    code = main([
-        "import-geoelements", str(tmp_path / "model-7.pt"), "--dataset", str(dataset), "--train-state",
-        str(tmp_path / "train_state-7.pt"), "--particle-types", "3,6", "--out", str(out),
-    ])
+    code = main(
+        [
+            "import-geoelements",
+            str(tmp_path / "model-7.pt"),
+            "--dataset",
+            str(dataset),
+            "--train-state",
+            str(tmp_path / "train_state-7.pt"),
+            "--particle-types",
+            "3,6",
+            "--out",
+            str(out),
+        ]
+    )
 
     assert code == 0 and "particle types [3, 6]" in capsys.readouterr().out
     loaded = load_trained(out, REGISTRY)
@@ -192,7 +223,11 @@ def test_command_writes_a_checkpoint_that_loads_and_resumes(tmp_path, capsys):
     with torch.no_grad():
         assert torch.equal(loaded.simulator.predict_next_position(batch), direct.predict_next_position(batch))
     stored = load_checkpoint(out)
-    assert stored["step"] == 7 and stored["recipe"]["dataset"] == {"name": "npz", "path": str(dataset), "frame_stride": 1}
+    assert stored["step"] == 7 and stored["recipe"]["dataset"] == {
+        "name": "npz",
+        "path": str(dataset),
+        "frame_stride": 1,
+    }
     resumed = torch.optim.Adam(loaded.simulator.parameters())
     resumed.load_state_dict(stored["optimizer"])
     assert stored["scheduler"]["last_epoch"] == 7
@@ -200,14 +235,34 @@ def test_command_writes_a_checkpoint_that_loads_and_resumes(tmp_path, capsys):
 
 def test_imported_model_rolls_out_on_geoelements_data_without_opt_in(tmp_path, capsys):
     """geoelements' .npz files hold pickles of numpy arrays only: read with no --allow-pickle."""
-    trajectory = soft_sphere_trajectory(0, frames=9, block=3, particle_types=(6,), kinematic_floor=True,
-                                        with_property=True, key="simulation_trajectory_0")
+    trajectory = soft_sphere_trajectory(
+        0,
+        frames=9,
+        block=3,
+        particle_types=(6,),
+        kinematic_floor=True,
+        with_property=True,
+        key="simulation_trajectory_0",
+    )
     dataset = tmp_path / "sand"
     REGISTRY.get("dataset", "npz").write(dataset, synthetic_metadata([trajectory], 2), {"test": [trajectory]})
     torch.save(geoelements_state_dict(properties=1), tmp_path / "model-7.pt")
     out = tmp_path / "run" / "checkpoints" / "imported.pt"
-    assert main(["import-geoelements", str(tmp_path / "model-7.pt"), "--dataset", str(dataset),
-                 "--particle-types", "3,6", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "import-geoelements",
+                str(tmp_path / "model-7.pt"),
+                "--dataset",
+                str(dataset),
+                "--particle-types",
+                "3,6",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
 
     assert main(["rollout", "--outside-envelope", str(out), "--no-progress"]) == 0, capsys.readouterr().err
     assert "test_0000.npz: 3 steps" in capsys.readouterr().out

@@ -24,8 +24,12 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def raw_config(**changes) -> dict:
-    raw = {"model": "m.pt", "observed": {"dataset": "d", "frames": [8, 10]},
-           "unknowns": {"friction": {"bounds": [0.4, 1.0]}}, "optimizer": {"name": "adam", "lr": 0.05}}
+    raw = {
+        "model": "m.pt",
+        "observed": {"dataset": "d", "frames": [8, 10]},
+        "unknowns": {"friction": {"bounds": [0.4, 1.0]}},
+        "optimizer": {"name": "adam", "lr": 0.05},
+    }
     for key, value in changes.items():
         raw[key] = {**raw[key], **value}
     return raw
@@ -35,7 +39,11 @@ def test_lr_decay_and_held_out_frames_are_validated_with_their_location():
     config, _ = parse_invert_config(raw_config(optimizer={"lr_decay": 0.9}, observed={"held_out": [12]}), "x")
     assert config.optimizer.lr_decay == 0.9 and config.observed.held_out == [12]
     cases = [
-        (raw_config(optimizer={"name": "lbfgs", "lr_decay": 0.9}), "optimizer", "lr_decay: only adam takes a step size"),
+        (
+            raw_config(optimizer={"name": "lbfgs", "lr_decay": 0.9}),
+            "optimizer",
+            "lr_decay: only adam takes a step size",
+        ),
         (raw_config(optimizer={"lr_decay": 0}), "optimizer.lr_decay", "greater than 0"),
         (raw_config(optimizer={"lr_decay": 1.5}), "optimizer.lr_decay", "less than or equal to 1"),
         (raw_config(observed={"held_out": [10, 12]}), "observed", "frames [10] are also in frames"),
@@ -117,7 +125,9 @@ def test_gns_invert_returns_its_best_iterate(tmp_path, tiny_model, dataset_multi
         "observed": {"dataset": "../observed", "split": "test", "trajectory": 0, "frames": [8, 10, 12]},
         "unknowns": {"friction": {"bounds": [0.4, 1.0], "initial": 0.95}},
         "optimizer": {"name": "adam", "lr": 0.3, "iterations": 6, "lr_decay": 0.8},
-        "loss": "positions", "checkpoint_every": 3, "threads": 1,
+        "loss": "positions",
+        "checkpoint_every": 3,
+        "threads": 1,
     }
     if held_out:
         raw["observed"]["held_out"] = [14, 16]
@@ -125,8 +135,24 @@ def test_gns_invert_returns_its_best_iterate(tmp_path, tiny_model, dataset_multi
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     done = subprocess.run(
-        [sys.executable, "-m", "gns_framework.cli", "invert", str(configs / "inv.yaml"), "--out", "out", "--no-progress",
-         "--no-tracking", "--no-gif", "--outside-envelope"], capture_output=True, text=True, cwd=elsewhere, timeout=600)
+        [
+            sys.executable,
+            "-m",
+            "gns_framework.cli",
+            "invert",
+            str(configs / "inv.yaml"),
+            "--out",
+            "out",
+            "--no-progress",
+            "--no-tracking",
+            "--no-gif",
+            "--outside-envelope",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=elsewhere,
+        timeout=600,
+    )
     assert done.returncode == 0, done.stderr
     record = json.loads((elsewhere / "out" / "result.json").read_text())
     rows = [json.loads(line) for line in (elsewhere / "out" / "metrics.jsonl").read_text().splitlines()]
@@ -135,7 +161,9 @@ def test_gns_invert_returns_its_best_iterate(tmp_path, tiny_model, dataset_multi
     score = "held_out_loss" if held_out else "loss"
     best = min(rows, key=lambda row: row[score])
     assert record["best_iteration"] == best["step"] and record["selected_by"] == ("held_out" if held_out else "loss")
-    assert record["loss"] == pytest.approx(best["loss"]) and record["unknowns"]["friction"] == pytest.approx(best["friction"])
+    assert record["loss"] == pytest.approx(best["loss"]) and record["unknowns"]["friction"] == pytest.approx(
+        best["friction"]
+    )
     assert record["last"]["iteration"] == rows[-1]["step"]
     assert all(record.get("held_out_loss", record["loss"]) <= row[score] for row in rows)
     # The synthetic data holds its friction in its property column: the truth, and the error of both answers.

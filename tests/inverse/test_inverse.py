@@ -54,8 +54,14 @@ def observed():
 def problem_of(simulator, observed, loss: str, checkpoint_every: int = 0, frames=(9, 11), unknowns=UNKNOWNS):
     trajectory, metadata = observed
     return InverseProblem(
-        simulator, trajectory, metadata, unknowns, loss, list(frames),
-        checkpoint_every=checkpoint_every, dtype=torch.float64,
+        simulator,
+        trajectory,
+        metadata,
+        unknowns,
+        loss,
+        list(frames),
+        checkpoint_every=checkpoint_every,
+        dtype=torch.float64,
     )
 
 
@@ -115,8 +121,11 @@ def test_checkpointing_gives_the_same_loss_and_gradient(shipped_float64, observe
 
 def test_the_observed_value_of_an_unknown_is_never_read(shipped_float64, observed):
     trajectory, metadata = observed
-    altered = replace(trajectory, material_property=np.full_like(trajectory.material_property, 0.1),
-                      position=trajectory.position.copy())
+    altered = replace(
+        trajectory,
+        material_property=np.full_like(trajectory.material_property, 0.1),
+        position=trajectory.position.copy(),
+    )
     altered.position[1:6] += 0.01  # the C - 1 input frames after the first: rebuilt from the unknown velocity
     u = torch.tensor(problem_of(shipped_float64, observed, "positions").start)
     with torch.no_grad():
@@ -149,20 +158,29 @@ def config_mapping(model: Path, dataset: Path, **changes) -> dict:
 
 def test_schema_problems_are_reported_at_once_with_their_location():
     raw = config_mapping(Path("m.pt"), Path("d"), optimizer={"name": "sgd", "iterations": 0}, loss="runnout")
-    raw["unknowns"] = {"friction": {"bounds": [0.4, 1.0], "initial": 1.2},
-                       "initial_velocity": {"particle_type": 6, "bounds": [[1, -1], [0, 1]]}}
+    raw["unknowns"] = {
+        "friction": {"bounds": [0.4, 1.0], "initial": 1.2},
+        "initial_velocity": {"particle_type": 6, "bounds": [[1, -1], [0, 1]]},
+    }
     with pytest.raises(RecipeError) as caught:
         parse_invert_config(raw, "inv.yaml")
     locations = {loc for loc, _ in caught.value.problems}
-    assert {"optimizer.name", "optimizer.iterations", "loss", "unknowns.friction", "unknowns.initial_velocity"} <= locations
+    assert {
+        "optimizer.name",
+        "optimizer.iterations",
+        "loss",
+        "unknowns.friction",
+        "unknowns.initial_velocity",
+    } <= locations
     text = str(caught.value)
     assert "initial 1.2 lies outside its bounds [0.4, 1.0]" in text
     assert "axis 0: bounds must be [low, high] with low <= high" in text
 
 
 def gns(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "gns_framework.cli", *args], capture_output=True, text=True,
-                          cwd=cwd, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "gns_framework.cli", *args], capture_output=True, text=True, cwd=cwd, timeout=600
+    )
 
 
 def write_config(path: Path, raw: dict) -> Path:
@@ -172,14 +190,17 @@ def write_config(path: Path, raw: dict) -> Path:
 
 @pytest.mark.parametrize("optimizer", ["adam", "lbfgs"])
 def test_gns_invert_writes_its_results(tmp_path, tiny_model, dataset_multimaterial, optimizer):
-    config = write_config(tmp_path / "inv.yaml", config_mapping(
-        tiny_model, dataset_multimaterial, optimizer={"name": optimizer, "lr": 0.05, "iterations": 2}))
+    config = write_config(
+        tmp_path / "inv.yaml",
+        config_mapping(tiny_model, dataset_multimaterial, optimizer={"name": optimizer, "lr": 0.05, "iterations": 2}),
+    )
     # The search bounds [0.4, 1] reach beyond the frictions the tiny model was trained on.
     refused = gns("invert", str(config), "--out", "out", "--no-progress", "--no-tracking", cwd=tmp_path)
     assert refused.returncode == 2 and "unknowns.friction.bounds [0.4, 1] (trained: " in refused.stderr
     assert not (tmp_path / "out").exists()
-    result = gns("invert", str(config), "--out", "out", "--no-progress", "--no-tracking", "--outside-envelope",
-                 cwd=tmp_path)
+    result = gns(
+        "invert", str(config), "--out", "out", "--no-progress", "--no-tracking", "--outside-envelope", cwd=tmp_path
+    )
     assert result.returncode == 0, result.stderr
     out = tmp_path / "out"
     record = json.loads((out / "result.json").read_text())
@@ -193,16 +214,27 @@ def test_gns_invert_writes_its_results(tmp_path, tiny_model, dataset_multimateri
     assert [line["step"] for line in lines if "friction" in line][:2] == [1, 2]
     # Nothing written is replaced: a second inversion into the same folder is refused.
     before = (out / "result.json").read_bytes()
-    again = gns("invert", str(config), "--out", "out", "--no-progress", "--no-tracking", "--outside-envelope",
-                cwd=tmp_path)
+    again = gns(
+        "invert", str(config), "--out", "out", "--no-progress", "--no-tracking", "--outside-envelope", cwd=tmp_path
+    )
     assert again.returncode == 2 and "holds an earlier inversion" in again.stderr
     assert (out / "result.json").read_bytes() == before
 
 
 def test_gns_invert_logs_to_mlflow(tmp_path, tiny_model, dataset_multimaterial, mlflow_store_of_the_session):
     config = write_config(tmp_path / "inv.yaml", config_mapping(tiny_model, dataset_multimaterial))
-    result = gns("invert", str(config), "--out", "out", "--no-progress", "--no-gif", "--experiment", "inverse-test",
-                 "--outside-envelope", cwd=tmp_path)
+    result = gns(
+        "invert",
+        str(config),
+        "--out",
+        "out",
+        "--no-progress",
+        "--no-gif",
+        "--experiment",
+        "inverse-test",
+        "--outside-envelope",
+        cwd=tmp_path,
+    )
     assert result.returncode == 0, result.stderr
     from mlflow.tracking import MlflowClient
 
@@ -243,7 +275,9 @@ def test_equal_bounds_fix_a_known_velocity_axis(shipped_float64, observed):
     assert gradient[0] != 0 and gradient[1] == 0
     assert problem.parameters.values(torch.tensor([0.25, 0.9], dtype=torch.float64)).tolist() == [0.25, -0.2]
     with pytest.raises(RecipeError, match=r"unknowns.friction: .*low < high"):
-        parse_invert_config({"model": "m", "observed": {"dataset": "d"}, "unknowns": {"friction": {"bounds": [0.5, 0.5]}}}, "x")
+        parse_invert_config(
+            {"model": "m", "observed": {"dataset": "d"}, "unknowns": {"friction": {"bounds": [0.5, 0.5]}}}, "x"
+        )
 
 
 def test_a_ballistic_start_is_rebuilt_exactly(shipped_float64, observed):
@@ -253,15 +287,26 @@ def test_a_ballistic_start_is_rebuilt_exactly(shipped_float64, observed):
     times = np.arange(trajectory.num_steps)[:, None, None] * dt
     flight = trajectory.position[0][None] + times * launch + 0.5 * times**2 * gravity
     flying = replace(trajectory, position=flight.astype(np.float64))
-    unknowns = {"initial_velocity": VelocityUnknown(particle_type=SAND, bounds=[(0.0, 1.0), (0.0, 1.0)],
-                                                    gravity=gravity.tolist())}
+    unknowns = {
+        "initial_velocity": VelocityUnknown(
+            particle_type=SAND, bounds=[(0.0, 1.0), (0.0, 1.0)], gravity=gravity.tolist()
+        )
+    }
     problem = problem_of(shipped_float64, (flying, metadata), "positions", unknowns=unknowns)
     u = torch.tensor(problem.parameters.scaled(launch))
     rebuilt = problem.model_inputs(u).position_sequence.transpose(0, 1).numpy()
     np.testing.assert_allclose(rebuilt, flight[:6], rtol=0, atol=1e-12)
     with pytest.raises(RecipeError, match=r"gravity has 3 entries but bounds has 2"):
-        parse_invert_config({"model": "m", "observed": {"dataset": "d"}, "unknowns": {"initial_velocity": {
-            "particle_type": 6, "bounds": [[0, 1], [0, 1]], "gravity": [0, 0, -9.81]}}}, "x")
+        parse_invert_config(
+            {
+                "model": "m",
+                "observed": {"dataset": "d"},
+                "unknowns": {
+                    "initial_velocity": {"particle_type": 6, "bounds": [[0, 1], [0, 1]], "gravity": [0, 0, -9.81]}
+                },
+            },
+            "x",
+        )
 
 
 @pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[2] / "inversions").glob("*.yaml")))

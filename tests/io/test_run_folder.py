@@ -14,9 +14,16 @@ def test_every_path_of_a_run_folder(tmp_path):
     assert run.checkpoint(1500) == tmp_path / "run" / "checkpoints" / "checkpoint-000001500.pt"
     assert run.best_checkpoint.relative_to(run.root) == Path("checkpoints/best.pt")
     assert run.best_record.relative_to(run.root) == Path("checkpoints/best.json")
-    assert [p.relative_to(run.root).as_posix() for p in (run.recipe, run.params, run.metrics, run.mlflow_run,
-                                                          run.mlflow_unsent, run.lock, run.rollouts)] == [
-        "recipe.yaml", "params.json", "metrics.jsonl", "mlflow_run.json", "mlflow_unsent.json", ".gns-train.lock",
+    assert [
+        p.relative_to(run.root).as_posix()
+        for p in (run.recipe, run.params, run.metrics, run.mlflow_run, run.mlflow_unsent, run.lock, run.rollouts)
+    ] == [
+        "recipe.yaml",
+        "params.json",
+        "metrics.jsonl",
+        "mlflow_run.json",
+        "mlflow_unsent.json",
+        ".gns-train.lock",
         "rollouts",
     ]
     assert RunFolder.of_checkpoint(run.checkpoint(3)) == run
@@ -31,7 +38,9 @@ def test_checkpoint_names_sort_by_step_and_are_found_again(tmp_path):
     (run.checkpoints / "best.pt").write_bytes(b"")
     assert sorted(checkpoint_name(s) for s in (10, 9, 1000)) == [checkpoint_name(s) for s in (9, 10, 1000)]
     assert [step for step, _ in list_checkpoints(run.checkpoints)] == [9, 10, 1000]
-    assert CHECKPOINT_NAME.match("best.pt") is None and CHECKPOINT_NAME.match(checkpoint_name(7)).group(1) == "000000007"
+    assert (
+        CHECKPOINT_NAME.match("best.pt") is None and CHECKPOINT_NAME.match(checkpoint_name(7)).group(1) == "000000007"
+    )
 
 
 def test_earlier_histories_are_numbered_from_the_first_free_one(tmp_path):

@@ -19,26 +19,47 @@ DT = 0.01
 def _metadata(dt: float = DT, dim: int = 2) -> DatasetMetadata:
     zeros = [0.0] * dim
     return DatasetMetadata(
-        bounds=[(0.0, 2.0), (0.0, 1.0), (0.0, 1.0)][:dim], sequence_length=8, default_connectivity_radius=0.025,
-        dim=dim, dt=dt, vel_mean=zeros, vel_std=[1.0] * dim, acc_mean=zeros, acc_std=[1.0] * dim,
+        bounds=[(0.0, 2.0), (0.0, 1.0), (0.0, 1.0)][:dim],
+        sequence_length=8,
+        default_connectivity_radius=0.025,
+        dim=dim,
+        dt=dt,
+        vel_mean=zeros,
+        vel_std=[1.0] * dim,
+        acc_mean=zeros,
+        acc_std=[1.0] * dim,
     )
 
 
-def _column(width: float, height: float, *, spacing: float = SPACING, friction: float = 0.7, speed: float = 0.5,
-            extent=(1.0, 0.6), walls=((0.4, 0), (0.0, 0), (0.5, 0), (0.0, 0)), key: str = "c") -> Trajectory:
+def _column(
+    width: float,
+    height: float,
+    *,
+    spacing: float = SPACING,
+    friction: float = 0.7,
+    speed: float = 0.5,
+    extent=(1.0, 0.6),
+    walls=((0.4, 0), (0.0, 0), (0.5, 0), (0.0, 0)),
+    key: str = "c",
+) -> Trajectory:
     """A lattice column falling at ``speed`` m/s (per DT) for 8 frames, in its own box."""
     xs, ys = np.meshgrid(np.arange(0, width, spacing), np.arange(0, height, spacing), indexing="ij")
     start = np.stack([xs.ravel(), ys.ravel()], axis=1) + spacing / 2
     frames = np.stack([start - [0.0, speed * DT * t] for t in range(8)]).astype(np.float32)
     n = start.shape[0]
     return Trajectory(
-        frames, np.full(n, 6), np.full((n, 1), friction, np.float32), key=key,
-        bounds=np.array([[0.0, extent[0]], [0.0, extent[1]]], np.float32), walls=np.array(walls, np.float32),
+        frames,
+        np.full(n, 6),
+        np.full((n, 1), friction, np.float32),
+        key=key,
+        bounds=np.array([[0.0, extent[0]], [0.0, extent[1]]], np.float32),
+        walls=np.array(walls, np.float32),
     ).validated("test")
 
 
-SCENE = ModelSetup(dim=2, bounds=((0.0, 2.0), (0.0, 1.0)), connectivity_radius=0.025, particle_types=(6,),
-              property_names=("friction",))
+SCENE = ModelSetup(
+    dim=2, bounds=((0.0, 2.0), (0.0, 1.0)), connectivity_radius=0.025, particle_types=(6,), property_names=("friction",)
+)
 TRAINED = [
     _column(0.1, 0.2, friction=0.5, extent=(0.8, 0.5), key="a"),
     _column(0.3, 0.4, friction=0.9, extent=(2.0, 1.0), walls=((0.3, 0), (0.6, 0), (0.3, 0), (0.0, 0)), key="b"),
@@ -73,15 +94,41 @@ def test_data_inside_the_envelope_passes_even_in_a_box_never_seen():
         (_column(0.1, 0.2, friction=1.2, key="k"), _metadata(), "property friction", "1.2", "0.5 .. 0.9"),
         (_column(0.1, 0.2, extent=(2.5, 0.6), key="k"), _metadata(), "domain x extent", "2.5 m", "0.8 .. 2 m"),
         (_column(0.1, 0.2, extent=(1.0, 0.3), key="k"), _metadata(), "domain y extent", "0.3 m", "0.5 .. 1 m"),
-        (_column(0.1, 0.2, walls=((0.0, 0), (0, 0), (0.5, 0), (0, 0)), key="k"), _metadata(), "wall x_min", "slip", "friction 0.3 .. 0.4"),
-        (_column(0.1, 0.2, walls=((0.3, 0), (0.9, 0), (0.5, 0), (0, 0)), key="k"), _metadata(), "wall x_max", "friction 0.9", "slip or friction 0.6 .. 0.6"),
-        (_column(0.1, 0.2, walls=((0.3, 0), (0, 1), (0.5, 0), (0, 0)), key="k"), _metadata(), "wall x_max", "no-slip", "slip or friction"),
+        (
+            _column(0.1, 0.2, walls=((0.0, 0), (0, 0), (0.5, 0), (0, 0)), key="k"),
+            _metadata(),
+            "wall x_min",
+            "slip",
+            "friction 0.3 .. 0.4",
+        ),
+        (
+            _column(0.1, 0.2, walls=((0.3, 0), (0.9, 0), (0.5, 0), (0, 0)), key="k"),
+            _metadata(),
+            "wall x_max",
+            "friction 0.9",
+            "slip or friction 0.6 .. 0.6",
+        ),
+        (
+            _column(0.1, 0.2, walls=((0.3, 0), (0, 1), (0.5, 0), (0, 0)), key="k"),
+            _metadata(),
+            "wall x_max",
+            "no-slip",
+            "slip or friction",
+        ),
         (_column(0.1, 0.2, speed=2.0, key="k"), _metadata(), "input speed", "2 m/s", "up to 0.5 m/s"),
         (_column(0.6, 0.4, key="k"), _metadata(), "particle count", "2400", "200 .. 1200"),
-        (replace(_column(0.1, 0.2, key="k"), particle_type=np.full(200, 7)), _metadata(), "particle types", "[7]", "[6]"),
+        (
+            replace(_column(0.1, 0.2, key="k"), particle_type=np.full(200, 7)),
+            _metadata(),
+            "particle types",
+            "[7]",
+            "[6]",
+        ),
     ],
 )
-def test_each_quantity_outside_is_named_with_its_value_and_the_trained_range(trajectory, metadata, quantity, value, trained):
+def test_each_quantity_outside_is_named_with_its_value_and_the_trained_range(
+    trajectory, metadata, quantity, value, trained
+):
     problems = outside_envelope(ENVELOPE, metadata, [trajectory], history=6)
     assert len(problems) == 1, problems
     assert problems[0].startswith(f"{quantity} {value}")
@@ -105,11 +152,21 @@ def test_only_the_inputs_are_judged_and_many_trajectories_are_counted_once_per_q
 
 def _envelope(**changes) -> Envelope:
     base = Envelope(
-        dim=2, particle_spacing=0.0104, step_dt=0.01, frame_stride=2, particle_types=[6],
-        materials={"6": "sand"}, properties={"friction": [0.5, 0.7]}, extent=[[0.75, 1.5], [0.5, 0.8]],
-        walls={"x_min": {"friction": [0.3, 0.4], "slip": False, "no_slip": False},
-               "y_min": {"friction": None, "slip": True, "no_slip": False}},
-        max_speed=2.0, particle_count=[500, 3000], frames=[120, 120],
+        dim=2,
+        particle_spacing=0.0104,
+        step_dt=0.01,
+        frame_stride=2,
+        particle_types=[6],
+        materials={"6": "sand"},
+        properties={"friction": [0.5, 0.7]},
+        extent=[[0.75, 1.5], [0.5, 0.8]],
+        walls={
+            "x_min": {"friction": [0.3, 0.4], "slip": False, "no_slip": False},
+            "y_min": {"friction": None, "slip": True, "no_slip": False},
+        },
+        max_speed=2.0,
+        particle_count=[500, 3000],
+        frames=[120, 120],
     )
     return replace(base, **changes)
 
@@ -117,19 +174,28 @@ def _envelope(**changes) -> Envelope:
 def test_a_fine_tuned_models_envelope_joins_both_datasets():
     earlier = _envelope()
     later = _envelope(
-        particle_spacing=0.0105, particle_types=[3, 6], materials={"3": "rigid", "6": "sand"},
-        properties={"friction": [0.6, 0.9]}, extent=[[1.0, 2.0], [0.4, 0.6]],
-        walls={"x_min": {"friction": [0.35, 0.6], "slip": True, "no_slip": False},
-               "y_min": {"friction": [0.3, 0.5], "slip": False, "no_slip": False}},
-        max_speed=1.5, particle_count=[800, 4000], frames=[100, 120],
+        particle_spacing=0.0105,
+        particle_types=[3, 6],
+        materials={"3": "rigid", "6": "sand"},
+        properties={"friction": [0.6, 0.9]},
+        extent=[[1.0, 2.0], [0.4, 0.6]],
+        walls={
+            "x_min": {"friction": [0.35, 0.6], "slip": True, "no_slip": False},
+            "y_min": {"friction": [0.3, 0.5], "slip": False, "no_slip": False},
+        },
+        max_speed=1.5,
+        particle_count=[800, 4000],
+        frames=[100, 120],
     )
     joined = later.union(earlier)
     assert joined.particle_spacing == 0.0105, "the spacing is the new data's"
     assert joined.particle_types == [3, 6] and joined.materials == {"3": "rigid", "6": "sand"}
     assert joined.properties == {"friction": [0.5, 0.9]}
     assert joined.extent == [[0.75, 2.0], [0.4, 0.8]]
-    assert joined.walls == {"x_min": {"friction": [0.3, 0.6], "slip": True, "no_slip": False},
-                            "y_min": {"friction": [0.3, 0.5], "slip": True, "no_slip": False}}
+    assert joined.walls == {
+        "x_min": {"friction": [0.3, 0.6], "slip": True, "no_slip": False},
+        "y_min": {"friction": [0.3, 0.5], "slip": True, "no_slip": False},
+    }
     assert joined.max_speed == 2.0 and joined.particle_count == [500, 4000] and joined.frames == [100, 120]
 
 

@@ -22,7 +22,9 @@ BOX = PeriodicBox(small_scene(2, periodic=(True, False)))
 
 
 @settings(max_examples=50, deadline=None)
-@given(arrays("float64", (4, 6, 2), elements=st.floats(-0.2, 0.2)), arrays("float64", (4, 2), elements=st.floats(-3, 3)))
+@given(
+    arrays("float64", (4, 6, 2), elements=st.floats(-0.2, 0.2)), arrays("float64", (4, 2), elements=st.floats(-3, 3))
+)
 def test_unwrapping_a_wrapped_history_recovers_its_steps(steps, start):
     continuous = torch.from_numpy(start)[:, None] + torch.cumsum(torch.from_numpy(steps), 1)
     unwrapped = BOX.unwrap_history(BOX.wrap(continuous))
@@ -48,12 +50,16 @@ def wrapped(traj):
 
 
 def test_periodic_scene_trains_and_rolls_out_inside_the_box(tmp_path):
-    splits = {s: [drifting_trajectory(i, f"{s}_{i}") for i in range(n)] for s, n in (("train", 2), ("valid", 1), ("test", 1))}
+    splits = {
+        s: [drifting_trajectory(i, f"{s}_{i}") for i in range(n)] for s, n in (("train", 2), ("valid", 1), ("test", 1))
+    }
     statistics = compute_statistics(splits["train"], load_registry().kinematic_types())
     metadata = synthetic_metadata(splits["train"], 2).model_copy(update=statistics)
     metadata = metadata.model_copy(update={"periodic_boundary_conditions": [True, False]})
     registry = load_registry()
-    registry.get("dataset", "safe").write(tmp_path / "data", metadata, {s: [wrapped(t) for t in ts] for s, ts in splits.items()})
+    registry.get("dataset", "safe").write(
+        tmp_path / "data", metadata, {s: [wrapped(t) for t in ts] for s, ts in splits.items()}
+    )
     assert any(np.abs(np.diff(wrapped(t).position[..., 0], axis=0)).max() > 0.5 for t in splits["train"])
 
     trainer = tiny_trainer(tiny_recipe(tmp_path / "data", graph_builder={"name": "periodic_radius"}), tmp_path / "run")

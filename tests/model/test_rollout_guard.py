@@ -30,8 +30,11 @@ BOX = ModelSetup(dim=2, bounds=((0.0, 1.0), (0.0, 2.0)), connectivity_radius=0.1
 
 def resting(particles: int = 9) -> Trajectory:
     grid = np.stack(np.meshgrid(np.linspace(0.3, 0.7, 3), np.linspace(0.3, 0.7, 3), indexing="ij"), -1).reshape(-1, 2)
-    return Trajectory(np.repeat(grid[None, :particles].astype(np.float32), 12, axis=0),
-                      np.full(particles, 5, dtype=np.int64), key="resting")
+    return Trajectory(
+        np.repeat(grid[None, :particles].astype(np.float32), 12, axis=0),
+        np.full(particles, 5, dtype=np.int64),
+        key="resting",
+    )
 
 
 def test_non_finite_positions_stop_naming_step_particles_and_cause():
@@ -48,7 +51,7 @@ def test_non_finite_positions_stop_naming_step_particles_and_cause():
 
 def test_escape_beyond_the_margin_stops_and_names_the_farthest_particle():
     position = torch.full((12, 2), 0.5)
-    position[1, 1] = 2.25                 # 0.25 above the upper wall: inside the margin
+    position[1, 1] = 2.25  # 0.25 above the upper wall: inside the margin
     position[[3, 5, 7, 8, 9, 10, 11], 0] = torch.tensor([-0.4, 1.4, 1.31, 1.32, 1.33, 1.34, 5.0])
     with pytest.raises(RolloutDiverged) as info:
         RolloutGuard(BOX, margin=0.3).check(0, position, position)
@@ -68,8 +71,9 @@ def test_clamp_continues_from_the_previous_position_and_the_walls():
 
 
 def test_periodic_dimensions_have_no_walls_to_leave():
-    periodic = ModelSetup(dim=2, bounds=((0.0, 1.0), (0.0, 1.0)), connectivity_radius=0.1, particle_types=(5,),
-                     periodic=(True, False))
+    periodic = ModelSetup(
+        dim=2, bounds=((0.0, 1.0), (0.0, 1.0)), connectivity_radius=0.1, particle_types=(5,), periodic=(True, False)
+    )
     position = torch.tensor([[7.0, 0.5]])
     assert RolloutGuard(periodic, margin=0.0).check(0, position, position)[1] == []
     with pytest.raises(RolloutDiverged):
@@ -109,7 +113,9 @@ def test_write_rollout_refuses_nan_and_leaves_the_old_file(tmp_path):
     bad_prediction = good.predicted.copy()
     bad_prediction[1, 4] = np.nan
     bad = replace(good, predicted=bad_prediction)
-    with pytest.raises(RolloutDiverged, match=r"r\.npz: predicted_rollout: non-finite positions from step 1 on \(particles \[4\]"):
+    with pytest.raises(
+        RolloutDiverged, match=r"r\.npz: predicted_rollout: non-finite positions from step 1 on \(particles \[4\]"
+    ):
         write_rollout(path, bad, metadata)
     assert path.read_bytes() == before
     write_rollout(path, bad, metadata, allow_non_finite=True)
@@ -139,7 +145,9 @@ def test_gns_rollout_stops_with_a_clear_error_and_writes_nothing(nan_checkpoint,
     out = tmp_path / "rollouts"
     out.mkdir()
     (out / "test_0000.npz").write_bytes(b"an earlier rollout")
-    code = main(["rollout", "--outside-envelope", str(nan_checkpoint), "--out", str(out), "--steps", "3", "--no-progress"])
+    code = main(
+        ["rollout", "--outside-envelope", str(nan_checkpoint), "--out", str(out), "--steps", "3", "--no-progress"]
+    )
     err = capsys.readouterr().err
     assert code == 2
     assert "gns rollout: error: rollout of trajectory 'test_000' stopped at step 0 (frame 6)" in err
@@ -149,8 +157,20 @@ def test_gns_rollout_stops_with_a_clear_error_and_writes_nothing(nan_checkpoint,
 
 
 def test_gns_rollout_with_clamp_writes_the_clamped_rollout_and_says_so(nan_checkpoint, tmp_path, capsys):
-    code = main(["rollout", "--outside-envelope", str(nan_checkpoint), "--out", str(tmp_path), "--steps", "3", "--no-progress",
-                 "--on-violation", "clamp"])
+    code = main(
+        [
+            "rollout",
+            "--outside-envelope",
+            str(nan_checkpoint),
+            "--out",
+            str(tmp_path),
+            "--steps",
+            "3",
+            "--no-progress",
+            "--on-violation",
+            "clamp",
+        ]
+    )
     captured = capsys.readouterr()
     assert code == 0
     assert "clamped at 3 check(s)" in captured.out
@@ -164,7 +184,9 @@ def test_rollout_refuses_trajectories_the_model_was_not_built_for():
     with pytest.raises(DatasetError, match=r"trajectory 'resting': particle_type: ids \[9\] are not among"):
         rollout(simulator, replace(flat, particle_type=np.full(9, 9)), steps=2)
     deep = replace(flat, position=np.zeros((12, 9, 3), np.float32))
-    with pytest.raises(DatasetError, match=r"trajectory 'resting': position: has d = 3 but the model simulates dim = 2"):
+    with pytest.raises(
+        DatasetError, match=r"trajectory 'resting': position: has d = 3 but the model simulates dim = 2"
+    ):
         rollout(simulator, deep, steps=2)
 
 

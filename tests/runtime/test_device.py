@@ -37,9 +37,18 @@ def test_the_models_device_is_a_torch_device():
     assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
 
 
-@pytest.mark.parametrize("device, cuda", [("cpu", False), (torch.device("cpu"), False), (None, False),
-                                          ("cuda", True), ("cuda:1", True), (torch.device("cuda", 0), True),
-                                          ("meta", False)])
+@pytest.mark.parametrize(
+    "device, cuda",
+    [
+        ("cpu", False),
+        (torch.device("cpu"), False),
+        (None, False),
+        ("cuda", True),
+        ("cuda:1", True),
+        (torch.device("cuda", 0), True),
+        ("meta", False),
+    ],
+)
 def test_one_predicate_says_whether_a_device_is_cuda(device, cuda):
     assert is_cuda(device) is cuda
 

@@ -43,9 +43,11 @@ def as_on_a_gpu(monkeypatch):
 @contextlib.contextmanager
 def no_host_reads(monkeypatch, documented: list):
     """Inside: any read of a tensor's value raises HostRead, except through host_sync.read_back (recorded)."""
+
     def forbidden(name):
         def read(self, *args, **kwargs):
             raise HostRead(f"Tensor.{name} in the hot path")
+
         return read
 
     def counted(tensor):
@@ -59,6 +61,7 @@ def no_host_reads(monkeypatch, documented: list):
         for module in (host_sync, trainer_module):
             patch.setattr(module, "read_back", counted)
         from gns_builtins._kernels import cell_list
+
         patch.setattr(cell_list, "read_back", counted)
         yield
 
@@ -104,7 +107,9 @@ def test_a_training_step_reads_back_only_the_edge_count(as_on_a_gpu, dataset_mul
 
 
 @pytest.mark.parametrize("on_violation", ["stop", "clamp"])
-def test_a_rollout_step_reads_back_only_the_edge_count(as_on_a_gpu, on_violation, dataset_multimaterial, tmp_path, registry):
+def test_a_rollout_step_reads_back_only_the_edge_count(
+    as_on_a_gpu, on_violation, dataset_multimaterial, tmp_path, registry
+):
     trainer = tiny_trainer(tiny_recipe(dataset_multimaterial, registry), tmp_path, registry)
     trajectory = trainer.data.dataset.split("test")[0]
     guard = RolloutGuard(trainer.data.scene, margin=0.5, on_violation=on_violation)
@@ -197,6 +202,8 @@ def test_the_sync_counter_sees_waits_inside_torch():
         torch.repeat_interleave(x, x, output_size=15)
         x[torch.tensor([0, 1])]
     assert counter.counts == {
-        "aten.index (boolean mask)": 1, "aten._unique2": 1, "aten._local_scalar_dense": 1,
+        "aten.index (boolean mask)": 1,
+        "aten._unique2": 1,
+        "aten._local_scalar_dense": 1,
         "aten.repeat_interleave (no output_size)": 1,
     }

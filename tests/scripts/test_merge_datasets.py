@@ -36,8 +36,9 @@ def test_two_datasets_join_with_their_sources_named_and_statistics_recomputed(tm
     assert [t.key.split("_")[0] for t in train] == ["part0"] * 2 + ["part1"] * 3
     np.testing.assert_array_equal(train[2].position, trajectories(second, "train")[0].position)
     metadata = load_metadata(out)
-    expected = compute_statistics(trajectories(first, "train") + trajectories(second, "train"),
-                                  load_registry().kinematic_types())
+    expected = compute_statistics(
+        trajectories(first, "train") + trajectories(second, "train"), load_registry().kinematic_types()
+    )
     np.testing.assert_allclose(metadata.vel_std, expected["vel_std"], rtol=1e-6)
     assert metadata.vel_std != load_metadata(first).vel_std, "the statistics are the joined data's, not the first's"
     sources = json.loads((out / "metadata.json").read_text())["merged_from"]

@@ -108,4 +108,6 @@ def test_too_large_a_step_jumps_through_the_repulsive_wall(name):
 def test_chain_frequency_matches_the_linearised_dynamics():
     chain = SpringChain(8, 250.0)
     laplacian = torch.stack([chain.acceleration(torch.eye(8, dtype=torch.float64)[i][:, None])[:, 0] for i in range(8)])
-    assert math.sqrt(float(torch.linalg.eigvalsh(-laplacian).max())) == pytest.approx(chain.highest_frequency, rel=1e-12)
+    assert math.sqrt(float(torch.linalg.eigvalsh(-laplacian).max())) == pytest.approx(
+        chain.highest_frequency, rel=1e-12
+    )

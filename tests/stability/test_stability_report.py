@@ -65,8 +65,17 @@ def test_every_section_of_the_full_report_passes_and_gns_stability_exits_0(capsy
     assert not any("FAIL" in line for line in lines)
     assert "0 failing case(s)" in lines[-1]
     outcomes = " ".join(body)
-    for expected in ("limit as theory", "unstable for every dt", "bounded, no drift", "energy grows", "diverged",
-                     "tunnels at 30/omega", "stopped at step 0", "clamped 5x, output finite", "14/14 finite"):
+    for expected in (
+        "limit as theory",
+        "unstable for every dt",
+        "bounded, no drift",
+        "energy grows",
+        "diverged",
+        "tunnels at 30/omega",
+        "stopped at step 0",
+        "clamped 5x, output finite",
+        "14/14 finite",
+    ):
         assert expected in outcomes  # explicit Euler's growth is expected, not a failure
 
 
@@ -79,7 +88,9 @@ def test_a_symplectic_integrator_that_gains_energy_fails_every_integrator_sectio
     assert not any(row.failing for row in rows if row.case != "velocity_verlet")
 
     monkeypatch.setattr("gns_framework.cli.stability.load_registry", lambda: registry)
-    monkeypatch.setattr("gns_framework.cli.stability.run_report", functools.partial(report.run_report, sections=(chain_drift,)))
+    monkeypatch.setattr(
+        "gns_framework.cli.stability.run_report", functools.partial(report.run_report, sections=(chain_drift,))
+    )
     assert main(["stability"]) == 1
     out = capsys.readouterr().out
     assert "2 failing case(s)" in out

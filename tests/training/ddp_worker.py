@@ -16,13 +16,18 @@ from gns_framework.training.distributed import Processes, processes_from_environ
 from gns_framework.training.trainer import Trainer
 
 
-def train_rank(rank: int, world_size: int, port: int, recipe: dict, run_dir: str, snapshots: list[int], out: str) -> None:
+def train_rank(
+    rank: int, world_size: int, port: int, recipe: dict, run_dir: str, snapshots: list[int], out: str
+) -> None:
     """Train to each step of ``snapshots`` in turn, saving this rank's parameters and losses at each."""
     os.environ.update({"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port), "GLOO_SOCKET_IFNAME": "lo"})
     torch.set_num_threads(1)
     registry = load_registry()
     trainer = Trainer(
-        validate_recipe(recipe, registry), registry, run_dir=run_dir, processes=Processes(rank, world_size, rank),
+        validate_recipe(recipe, registry),
+        registry,
+        run_dir=run_dir,
+        processes=Processes(rank, world_size, rank),
         progress=False,
     )
     try:

@@ -44,7 +44,9 @@ def test_training_2n_steps_equals_n_then_resumed_n(uneven_dataset, tmp_path):
     resumed_losses = resumed.train(2 * n)
     resumed.close()
 
-    torch.testing.assert_close(torch.tensor(first_losses + resumed_losses), torch.tensor(straight_losses), rtol=1e-6, atol=0)
+    torch.testing.assert_close(
+        torch.tensor(first_losses + resumed_losses), torch.tensor(straight_losses), rtol=1e-6, atol=0
+    )
     for name, value in straight.simulator.state_dict().items():
         torch.testing.assert_close(resumed.simulator.state_dict()[name], value, rtol=1e-6, atol=1e-9, msg=name)
     straight_adam = straight.optimizer.state_dict()["state"]
@@ -121,7 +123,9 @@ def test_a_checkpoint_written_before_the_digest_loads_and_its_crcs_are_checked(t
     torch.save(state, older)  # as save_checkpoint wrote them before: no digest record
     assert load_checkpoint(older)["step"] == 4 and load_checkpoint(older)["format"] == FORMAT
     flip_tensor_byte(older)
-    with pytest.raises(CheckpointError, match=f"{older}: damaged checkpoint.*: record data/[0-9]+ does not match its CRC-32"):
+    with pytest.raises(
+        CheckpointError, match=f"{older}: damaged checkpoint.*: record data/[0-9]+ does not match its CRC-32"
+    ):
         load_checkpoint(older)
 
 
@@ -186,7 +190,10 @@ def test_starting_at_step_0_in_a_folder_holding_checkpoints_is_refused(two_check
     before = snapshot(run_dir / "checkpoints")
     assert train_cli(recipe, run_dir) == 2
     err = capsys.readouterr().err
-    assert f"{run_dir / 'checkpoints'}: holds checkpoints of an earlier run ({checkpoint_name(2)}, {checkpoint_name(4)})" in err
+    assert (
+        f"{run_dir / 'checkpoints'}: holds checkpoints of an earlier run ({checkpoint_name(2)}, {checkpoint_name(4)})"
+        in err
+    )
     assert "--resume" in err and "--restart" in err
     assert snapshot(run_dir / "checkpoints") == before
 
@@ -203,7 +210,10 @@ def test_resuming_before_newer_checkpoints_is_refused_and_a_branch_goes_to_its_o
     assert snapshot(run_dir / "checkpoints") == before
 
     branch = run_dir.parent / "branch"
-    assert train_cli(dict(recipe, training=dict(recipe["training"], keep_checkpoints=1)), branch, "--resume", str(older)) == 0
+    assert (
+        train_cli(dict(recipe, training=dict(recipe["training"], keep_checkpoints=1)), branch, "--resume", str(older))
+        == 0
+    )
     assert [step for step, _ in list_checkpoints(branch / "checkpoints")] == [4]
     assert snapshot(run_dir / "checkpoints") == before
 
@@ -215,7 +225,10 @@ def test_resuming_into_a_folder_holding_another_runs_checkpoints_is_refused(two_
     before = snapshot(other / "checkpoints")
     elsewhere = run_dir / "checkpoints" / checkpoint_name(2)
     assert train_cli(recipe, other, "--resume", str(elsewhere)) == 2
-    assert f"{elsewhere}: resuming from outside {other / 'checkpoints'}, which holds checkpoints" in capsys.readouterr().err
+    assert (
+        f"{elsewhere}: resuming from outside {other / 'checkpoints'}, which holds checkpoints"
+        in capsys.readouterr().err
+    )
     assert snapshot(other / "checkpoints") == before
 
 
@@ -239,7 +252,9 @@ def test_resume_from_a_named_damaged_checkpoint_is_refused_naming_it(two_checkpo
     newest = run_dir / "checkpoints" / checkpoint_name(4)
     newest.write_bytes(newest.read_bytes()[:1000])
     recipe_file = write_recipe(tmp_path / "recipe.yaml", recipe)
-    code = main(["train", str(recipe_file), "--out", str(run_dir), "--resume", str(newest), "--no-tracking", "--no-progress"])
+    code = main(
+        ["train", str(recipe_file), "--out", str(run_dir), "--resume", str(newest), "--no-tracking", "--no-progress"]
+    )
     assert code == 2
     assert f"{newest}: unreadable checkpoint" in capsys.readouterr().err
 
@@ -258,12 +273,19 @@ def test_partial_checkpoint_writes_are_cleared_by_the_next_save(two_checkpoints)
 
 def test_kill_9_loses_at_most_one_checkpoint_interval_and_resume_completes(uneven_dataset, tmp_path):
     every = 4
-    recipe_file = write_recipe(tmp_path / "recipe.yaml", tiny_recipe(uneven_dataset, steps=100_000, checkpoint_every=every))
+    recipe_file = write_recipe(
+        tmp_path / "recipe.yaml", tiny_recipe(uneven_dataset, steps=100_000, checkpoint_every=every)
+    )
     run_dir, env = tmp_path / "run", subprocess_env()
     command = gns_command("train", str(recipe_file), "--out", str(run_dir), "--no-tracking", "--no-progress")
     job = subprocess.Popen(command, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
-        wait_until(lambda: [s for s, _ in list_checkpoints(run_dir / "checkpoints") if s >= 2 * every], 120, "a checkpoint", job)
+        wait_until(
+            lambda: [s for s, _ in list_checkpoints(run_dir / "checkpoints") if s >= 2 * every],
+            120,
+            "a checkpoint",
+            job,
+        )
     finally:
         job.send_signal(signal.SIGKILL)
         job.communicate(timeout=60)
@@ -273,7 +295,12 @@ def test_kill_9_loses_at_most_one_checkpoint_interval_and_resume_completes(uneve
 
     finish = newest + every
     resumed = subprocess.run(
-        [*command, "--resume", "--steps", str(finish)], env=env, cwd=tmp_path, capture_output=True, text=True, timeout=180
+        [*command, "--resume", "--steps", str(finish)],
+        env=env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=180,
     )
     assert resumed.returncode == 0, resumed.stderr
     assert f"{checkpoint_name(newest)} at step {newest}" in resumed.stdout

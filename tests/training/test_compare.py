@@ -55,7 +55,15 @@ def test_two_experiments_side_by_side_with_the_recipe_fields_that_differ(two_rec
     uri, run_ids, _ = two_recipes
     plot = tmp_path / "both.png"
     code, lines, err = compare(
-        capsys, uri, "recipe-a", "recipe-b", "--metrics", "train_loss", "valid_one_step_position_mse", "--plot", str(plot),
+        capsys,
+        uri,
+        "recipe-a",
+        "recipe-b",
+        "--metrics",
+        "train_loss",
+        "valid_one_step_position_mse",
+        "--plot",
+        str(plot),
     )
     assert code == 0, err
     header, rows = table_rows(lines)
@@ -85,7 +93,9 @@ def test_runs_picked_by_id_prefix_and_by_filters(two_recipes, tmp_path, capsys):
     assert set(table_rows(lines)[1]) == {"recipe-b"}
 
     mlflow.tracking.MlflowClient(uri).set_tag(run_ids["recipe-a"], "team", "geo")
-    code, lines, err = compare(capsys, uri, "recipe-a", "recipe-b", "--filter", "tags.team = 'geo'", "--plot", str(plot))
+    code, lines, err = compare(
+        capsys, uri, "recipe-a", "recipe-b", "--filter", "tags.team = 'geo'", "--plot", str(plot)
+    )
     assert code == 0, err
     assert set(table_rows(lines)[1]) == {"recipe-a"}
 
@@ -93,7 +103,9 @@ def test_runs_picked_by_id_prefix_and_by_filters(two_recipes, tmp_path, capsys):
 def test_unknown_metrics_are_named_with_the_logged_ones(two_recipes, tmp_path, capsys):
     uri, _, _ = two_recipes
     plot = tmp_path / "one.png"
-    code, lines, err = compare(capsys, uri, "recipe-a", "recipe-b", "--metrics", "train_los", "train_loss", "--plot", str(plot))
+    code, lines, err = compare(
+        capsys, uri, "recipe-a", "recipe-b", "--metrics", "train_los", "train_loss", "--plot", str(plot)
+    )
     assert code == 0, err
     assert "no run logged metric 'train_los'; logged metrics: " in err
     assert "train_loss" in err.split("logged metrics: ")[1] and "steps_per_s" in err.split("logged metrics: ")[1]

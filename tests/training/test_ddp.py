@@ -22,7 +22,9 @@ def test_ranks_hold_identical_parameters_equal_to_one_process_on_the_global_batc
 
     # One process, batch = both ranks' windows: the uneven particle counts make a
     # per-rank mean loss differ from the global one, so this checks the weighting too.
-    single = dict(ddp_recipe, training=dict(ddp_recipe["training"], batch_size=2 * ddp_recipe["training"]["batch_size"]))
+    single = dict(
+        ddp_recipe, training=dict(ddp_recipe["training"], batch_size=2 * ddp_recipe["training"]["batch_size"])
+    )
     registry = load_registry()
     trainer = Trainer(validate_recipe(single, registry), registry, run_dir=tmp_path / "single", progress=False)
     losses = trainer.train(steps)
@@ -30,7 +32,9 @@ def test_ranks_hold_identical_parameters_equal_to_one_process_on_the_global_batc
     assert sorted(trainer.order.indices(0)) == sorted(rank0["windows"] + rank1["windows"])
     torch.testing.assert_close(torch.tensor(losses), torch.tensor(rank0["losses"]), rtol=1e-5, atol=1e-7)
     for name, value in trainer.simulator.state_dict().items():
-        torch.testing.assert_close(value, rank0["params"][name], rtol=1e-5, atol=1e-7, msg=f"{name}: DDP != one process")
+        torch.testing.assert_close(
+            value, rank0["params"][name], rtol=1e-5, atol=1e-7, msg=f"{name}: DDP != one process"
+        )
 
 
 def test_ranks_stay_identical_over_a_longer_run(ddp_snapshots):
@@ -44,7 +48,12 @@ def test_window_order_gives_each_rank_a_distinct_shard_of_every_epoch():
     ranks = [WindowOrder(num_windows, batch, seed=5, rank=r, world_size=2) for r in (0, 1)]
     steps_per_epoch = num_windows // (batch * 2)
     for epoch in range(3):
-        seen = [w for step in range(epoch * steps_per_epoch, (epoch + 1) * steps_per_epoch) for o in ranks for w in o.indices(step)]
+        seen = [
+            w
+            for step in range(epoch * steps_per_epoch, (epoch + 1) * steps_per_epoch)
+            for o in ranks
+            for w in o.indices(step)
+        ]
         assert sorted(seen) == list(range(num_windows)), f"epoch {epoch} is not one pass over the windows"
     first, second = (ranks[0].indices(s) for s in (0, steps_per_epoch))
     assert first != second, "epochs are not reshuffled"

@@ -39,18 +39,26 @@ def cases():
     processors = sorted(PROCESSORS)
     for i in range(count):
         yield pytest.param(
-            processors[i % len(processors)], integrators[i % len(integrators)], builders[i % len(builders)],
+            processors[i % len(processors)],
+            integrators[i % len(integrators)],
+            builders[i % len(builders)],
             id=f"{processors[i % len(processors)]}-{integrators[i % len(integrators)]}-{builders[i % len(builders)]}",
         )
-    torch_cluster = pytest.mark.skipif(not importlib.util.find_spec("torch_cluster"), reason="torch-cluster is not installed")
+    torch_cluster = pytest.mark.skipif(
+        not importlib.util.find_spec("torch_cluster"), reason="torch-cluster is not installed"
+    )
     yield pytest.param(
-        "interaction_network", "semi_implicit_euler", "radius_torch_cluster", marks=torch_cluster,
+        "interaction_network",
+        "semi_implicit_euler",
+        "radius_torch_cluster",
+        marks=torch_cluster,
         id="interaction_network-semi_implicit_euler-radius_torch_cluster",
     )
 
 
 def test_the_cases_cover_every_built_in_component():
     covered = [param.values for param in cases()]
+
     def built_in(kind: str) -> set[str]:  # installed plugins, such as the example processor, add others
         return {e.name for e in REGISTRY.entries(kind) if e.distribution == "gns-framework"}
 
@@ -63,7 +71,9 @@ def test_the_cases_cover_every_built_in_component():
 def test_trains_under_torchrun_with_every_gradient_present_and_equal_on_both_ranks(
     processor, integrator, builder, uneven_dataset, tmp_path
 ):
-    recipe = tiny_recipe(uneven_dataset, name="ddp-components", steps=STEPS, checkpoint_every=STEPS, validate_every=1000)
+    recipe = tiny_recipe(
+        uneven_dataset, name="ddp-components", steps=STEPS, checkpoint_every=STEPS, validate_every=1000
+    )
     recipe["model"].update(
         processor={"name": processor, **PROCESSORS[processor]},
         integrator={"name": integrator},
@@ -74,9 +84,23 @@ def test_trains_under_torchrun_with_every_gradient_present_and_equal_on_both_ran
     recipe_file = tmp_path / "recipe.json"
     recipe_file.write_text(json.dumps(recipe))
     command = [
-        sys.executable, "-m", "torch.distributed.run", "--nnodes", "1", "--nproc-per-node", "2",
-        "--master-addr", "127.0.0.1", "--master-port", str(free_loopback_port()), "--local-addr", "127.0.0.1",
-        str(WORKER), str(recipe_file), str(tmp_path), str(STEPS),
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--nnodes",
+        "1",
+        "--nproc-per-node",
+        "2",
+        "--master-addr",
+        "127.0.0.1",
+        "--master-port",
+        str(free_loopback_port()),
+        "--local-addr",
+        "127.0.0.1",
+        str(WORKER),
+        str(recipe_file),
+        str(tmp_path),
+        str(STEPS),
     ]
     result = subprocess.run(command, env=subprocess_env(), cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr

@@ -46,9 +46,24 @@ def late_rank0_launcher(folder: Path) -> Path:
 
 def torchrun_command(port: int, launcher: Path, *args: str) -> list[str]:
     return [
-        sys.executable, "-m", "torch.distributed.run", "--nnodes", "1", "--nproc-per-node", "2", "--max-restarts", "1",
-        "--master-addr", "127.0.0.1", "--master-port", str(port), "--local-addr", "127.0.0.1", "--no-python",
-        str(launcher), *args,
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--nnodes",
+        "1",
+        "--nproc-per-node",
+        "2",
+        "--max-restarts",
+        "1",
+        "--master-addr",
+        "127.0.0.1",
+        "--master-port",
+        str(port),
+        "--local-addr",
+        "127.0.0.1",
+        "--no-python",
+        str(launcher),
+        *args,
     ]
 
 
@@ -57,12 +72,20 @@ def test_killed_rank_restarts_from_last_checkpoint_and_ends_as_uninterrupted(ddp
     recipe_file = write_recipe(tmp_path / "recipe.yaml", ddp_recipe)
     run_dir = tmp_path / "run"
     command = torchrun_command(
-        free_loopback_port(), late_rank0_launcher(tmp_path), "train", str(recipe_file), "--out", str(run_dir),
-        "--no-tracking", "--no-progress",
+        free_loopback_port(),
+        late_rank0_launcher(tmp_path),
+        "train",
+        str(recipe_file),
+        "--out",
+        str(run_dir),
+        "--no-tracking",
+        "--no-progress",
     )
     log = tmp_path / "torchrun.log"
     with open(log, "w") as output:
-        job = subprocess.Popen(command, env=subprocess_env(), cwd=tmp_path, stdout=output, stderr=subprocess.STDOUT, start_new_session=True)
+        job = subprocess.Popen(
+            command, env=subprocess_env(), cwd=tmp_path, stdout=output, stderr=subprocess.STDOUT, start_new_session=True
+        )
     try:
         wait_until(lambda: list_checkpoints(run_dir / "checkpoints"), 120, "the first checkpoint", job)
         rank1 = [pid for pid in child_processes(job.pid) if process_environment(pid).get("RANK") == "1"]

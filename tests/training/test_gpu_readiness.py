@@ -47,7 +47,9 @@ def test_the_process_group_is_given_the_rank_gpu(monkeypatch):
     device = distributed.start(Processes(rank=1, world_size=2, local_rank=1), torch.device("cuda"))
     assert device == torch.device("cuda", 0) == seen["device_id"] == seen["current"]
     assert seen["backend"] == "nccl"
-    assert seen["timeout"] == distributed.process_group_timeout() == timedelta(seconds=distributed.PROCESS_GROUP_TIMEOUT_S)
+    assert (
+        seen["timeout"] == distributed.process_group_timeout() == timedelta(seconds=distributed.PROCESS_GROUP_TIMEOUT_S)
+    )
     seen.clear()
     distributed.start(Processes(rank=1, world_size=2, local_rank=1), torch.device("cpu"))
     assert seen["device_id"] is None and seen["backend"] == "gloo"

@@ -29,11 +29,21 @@ from gns_framework.training.tracking import read_metrics
 
 mlflow = pytest.importorskip("mlflow")
 
-EXPECTED_METRICS = {"train_loss", "valid_one_step_loss", "valid_one_step_position_mse", "steps_per_s", "particles_per_s", "lr"}
+EXPECTED_METRICS = {
+    "train_loss",
+    "valid_one_step_loss",
+    "valid_one_step_position_mse",
+    "steps_per_s",
+    "particles_per_s",
+    "lr",
+}
 
 
 def train(recipe_file, run_dir, *extra: str) -> None:
-    assert main(["train", str(recipe_file), "--out", str(run_dir), "--experiment", "tiny-exp", "--no-progress", *extra]) == 0
+    assert (
+        main(["train", str(recipe_file), "--out", str(run_dir), "--experiment", "tiny-exp", "--no-progress", *extra])
+        == 0
+    )
 
 
 def check_tracked_run(client, run_id: str, steps: int) -> None:
@@ -73,15 +83,43 @@ def test_training_tracks_to_a_sqlite_store_created_on_first_use_and_compare_read
     assert client.get_experiment_by_name("tiny-exp").tags["mlflow.experimentKind"] == "custom_model_development"
 
     checkpoint = tmp_path / "run-a" / "checkpoints" / checkpoint_name(6)
-    assert main(["rollout", "--outside-envelope", str(checkpoint), "--trajectories", "1", "--steps", "3", "--no-progress"]) == 0
+    assert (
+        main(["rollout", "--outside-envelope", str(checkpoint), "--trajectories", "1", "--steps", "3", "--no-progress"])
+        == 0
+    )
     assert [(m.step, m.value > 0) for m in client.get_metric_history(run_a, "rollout_position_mse_test")] == [(6, True)]
     assert client.get_run(run_a).info.status == "FINISHED"
 
     capsys.readouterr()
     plot = tmp_path / "compare.png"
-    assert main(["compare", "tiny-exp", "--metrics", "train_loss", "steps_per_s", "--params", "training.steps", "world_size", "--plot", str(plot)]) == 0
+    assert (
+        main(
+            [
+                "compare",
+                "tiny-exp",
+                "--metrics",
+                "train_loss",
+                "steps_per_s",
+                "--params",
+                "training.steps",
+                "world_size",
+                "--plot",
+                str(plot),
+            ]
+        )
+        == 0
+    )
     table = capsys.readouterr().out.splitlines()
-    assert table[0].split() == ["run", "experiment", "id", "status", "training.steps", "world_size", "train_loss", "steps_per_s"]
+    assert table[0].split() == [
+        "run",
+        "experiment",
+        "id",
+        "status",
+        "training.steps",
+        "world_size",
+        "train_loss",
+        "steps_per_s",
+    ]
     rows = {line.split()[2]: line.split() for line in table[1:3]}
     assert rows[run_a[:8]][4] == "4" and rows[run_b[:8]][4] == "2"
     assert plot.read_bytes().startswith(b"\x89PNG")
@@ -131,7 +169,9 @@ def test_import_and_help_never_import_mlflow():
         "        cli.main(argv)\n"
         "print(sorted(m for m in sys.modules if m.split('.')[0] == 'mlflow'))\n"
     )
-    result = subprocess.run([sys.executable, "-c", code], env=subprocess_env(), capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [sys.executable, "-c", code], env=subprocess_env(), capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "[]"
 
@@ -156,7 +196,13 @@ def test_outbox_never_blocks_keeps_order_gives_up_refused_requests_and_names_wha
 
     from gns_framework.training.mlflow_tracker import Outbox, Request
 
-    sent, server_up, release, sending, failed_try = [], threading.Event(), threading.Event(), threading.Event(), threading.Event()
+    sent, server_up, release, sending, failed_try = (
+        [],
+        threading.Event(),
+        threading.Event(),
+        threading.Event(),
+        threading.Event(),
+    )
 
     senders = set()
 
@@ -210,19 +256,40 @@ def test_rollout_and_evaluation_metrics_for_an_unreachable_server_are_a_warning(
 
     monkeypatch.setenv("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
     nobody = f"http://127.0.0.1:{free_loopback_port()}"
-    (tmp_path / RunFolder.MLFLOW_RUN).write_text(json.dumps({"tracking_uri": nobody, "experiment": "x", "run_id": "abc"}))
-    with pytest.warns(UserWarning, match=f"MLflow at {nobody} unreachable .*rollout_position_mse_test 0.5 not logged to its run abc"):
+    (tmp_path / RunFolder.MLFLOW_RUN).write_text(
+        json.dumps({"tracking_uri": nobody, "experiment": "x", "run_id": "abc"})
+    )
+    with pytest.warns(
+        UserWarning, match=f"MLflow at {nobody} unreachable .*rollout_position_mse_test 0.5 not logged to its run abc"
+    ):
         assert log_to_recorded_run(tmp_path, {"rollout_position_mse_test": 0.5}, step=3) is None
 
 
 def start_server(folder, port: int) -> subprocess.Popen:
     """An ``mlflow server`` on 127.0.0.1:``port`` whose store and artifacts live in ``folder`` (kept across restarts)."""
     command = [
-        sys.executable, "-m", "mlflow", "server", "--host", "127.0.0.1", "--port", str(port), "--workers", "1",
-        "--backend-store-uri", f"sqlite:///{folder / 'server.db'}", "--artifacts-destination", str(folder / "artifacts"),
+        sys.executable,
+        "-m",
+        "mlflow",
+        "server",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+        "--workers",
+        "1",
+        "--backend-store-uri",
+        f"sqlite:///{folder / 'server.db'}",
+        "--artifacts-destination",
+        str(folder / "artifacts"),
     ]
     server = subprocess.Popen(
-        command, env=subprocess_env(), cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        command,
+        env=subprocess_env(),
+        cwd=folder,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
         start_new_session=True,
     )
     wait_for_health(f"http://127.0.0.1:{port}", server, timeout=120)
@@ -284,11 +351,14 @@ def test_an_mlflow_server_that_stops_during_training_never_holds_it_up_and_gets_
             if server_down.is_set() and threading.current_thread() is threading.main_thread():
                 training_thread_requests.append(name)
             return method(self, *args, **kwargs)
+
         return request
 
     # Every request the tracker makes goes through the client: none may come from the training thread in an outage.
     for name in ("log_batch", "log_artifact", "get_run", "set_terminated", "update_run", "create_run"):
-        monkeypatch.setattr(mlflow.tracking.MlflowClient, name, recorded(name, getattr(mlflow.tracking.MlflowClient, name)))
+        monkeypatch.setattr(
+            mlflow.tracking.MlflowClient, name, recorded(name, getattr(mlflow.tracking.MlflowClient, name))
+        )
     train_step = Trainer.train_step
 
     def train_step_with_outages(trainer):
@@ -324,7 +394,9 @@ def test_an_mlflow_server_that_stops_during_training_never_holds_it_up_and_gets_
         recwarn.clear()
         train(recipe_file, run_dir, "--tracking-uri", url, "--resume", "--steps", "16")
         unsent = [str(w.message) for w in recwarn if "did not receive" in str(w.message)]
-        assert len(unsent) == 1 and "steps 13 to 16" in unsent[0] and str(run_dir / "metrics.jsonl") in unsent[0], unsent
+        assert len(unsent) == 1 and "steps 13 to 16" in unsent[0] and str(run_dir / "metrics.jsonl") in unsent[0], (
+            unsent
+        )
         assert [line["step"] for line in read_metrics(run_dir)][-4:] == [13, 14, 15, 16]
     finally:
         stop_server(servers[-1])
@@ -340,17 +412,41 @@ def test_under_torchrun_a_killed_mlflow_server_stops_neither_rank(uneven_dataset
     recipe = tiny_recipe(uneven_dataset, steps=200, log_every=1, validate_every=1000, checkpoint_every=1000)
     recipe_file = write_recipe(tmp_path / "recipe.yaml", recipe)
     env = subprocess_env() | {
-        "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2", "MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR": "2", "GNS_TRACKING_CLOSE_SECONDS": "20",
+        "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2",
+        "MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR": "2",
+        "GNS_TRACKING_CLOSE_SECONDS": "20",
     }
     command = [
-        sys.executable, "-m", "torch.distributed.run", "--nnodes", "1", "--nproc-per-node", "2",
-        "--master-addr", "127.0.0.1", "--master-port", str(free_loopback_port()), "--local-addr", "127.0.0.1",
-        "-m", "gns_framework.cli", "train", str(recipe_file), "--out", str(run_dir), "--tracking-uri", url,
-        "--experiment", "tiny-exp", "--no-progress",
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--nnodes",
+        "1",
+        "--nproc-per-node",
+        "2",
+        "--master-addr",
+        "127.0.0.1",
+        "--master-port",
+        str(free_loopback_port()),
+        "--local-addr",
+        "127.0.0.1",
+        "-m",
+        "gns_framework.cli",
+        "train",
+        str(recipe_file),
+        "--out",
+        str(run_dir),
+        "--tracking-uri",
+        url,
+        "--experiment",
+        "tiny-exp",
+        "--no-progress",
     ]
     log = tmp_path / "torchrun.log"
     with open(log, "w") as output:
-        job = subprocess.Popen(command, env=env, cwd=tmp_path, stdout=output, stderr=subprocess.STDOUT, start_new_session=True)
+        job = subprocess.Popen(
+            command, env=env, cwd=tmp_path, stdout=output, stderr=subprocess.STDOUT, start_new_session=True
+        )
     try:
         wait_until(lambda: last_logged_step(run_dir) >= 10, 120, "step 10", job)
         os.killpg(server.pid, signal.SIGKILL)

@@ -32,8 +32,9 @@ time.sleep(120)
 def holder(tmp_path):
     """A process holding the lock of ``tmp_path / 'run'``."""
     run_dir = tmp_path / "run"
-    process = subprocess.Popen([sys.executable, "-c", HOLD, str(run_dir)], stdout=subprocess.PIPE, text=True,
-                               env=subprocess_env())
+    process = subprocess.Popen(
+        [sys.executable, "-c", HOLD, str(run_dir)], stdout=subprocess.PIPE, text=True, env=subprocess_env()
+    )
     try:
         assert process.stdout.readline().strip() == "held"
         yield run_dir, process
@@ -125,7 +126,15 @@ def test_following_the_branch_advice_leaves_the_folder_untouched(uneven_dataset,
     older = run_dir / "checkpoints" / checkpoint_name(2)
     assert train_cli(recipe, run_dir, "--resume", str(older)) == 2
     assert f"--out DIR --resume {older}" in capsys.readouterr().err
-    assert train_cli(dict(recipe, training=dict(recipe["training"], keep_checkpoints=1)), tmp_path / "DIR", "--resume", str(older)) == 0
+    assert (
+        train_cli(
+            dict(recipe, training=dict(recipe["training"], keep_checkpoints=1)),
+            tmp_path / "DIR",
+            "--resume",
+            str(older),
+        )
+        == 0
+    )
     assert snapshot(run_dir / "checkpoints") == before
 
 
@@ -137,6 +146,9 @@ def test_retention_never_deletes_a_damaged_checkpoint(uneven_dataset, tmp_path):
     flip_tensor_byte(damaged)
     data = damaged.read_bytes()
     with pytest.warns(UserWarning, match="retention kept a damaged checkpoint as checkpoint-000000002.pt.damaged"):
-        assert train_cli(dict(recipe, training=dict(recipe["training"], steps=8, keep_checkpoints=1)), run_dir, "--resume") == 0
+        assert (
+            train_cli(dict(recipe, training=dict(recipe["training"], steps=8, keep_checkpoints=1)), run_dir, "--resume")
+            == 0
+        )
     assert (run_dir / "checkpoints" / (damaged.name + ".damaged")).read_bytes() == data
     assert [s for s, _ in list_checkpoints(run_dir / "checkpoints")] == [8]

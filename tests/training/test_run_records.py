@@ -19,16 +19,44 @@ def test_train_records_the_dataset_option_and_rollout_uses_it(dataset_multimater
     recipe = tmp_path / "tiny.yaml"
     raw = tiny_recipe_mapping(tmp_path / "the recipe's data, never made", tmp_path / "run")
     recipe.write_text(yaml.safe_dump(raw))
-    assert main(["train", str(recipe), "--dataset", str(dataset_multimaterial), "--steps", "2",
-                 "--no-progress", "--no-tracking"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                str(recipe),
+                "--dataset",
+                str(dataset_multimaterial),
+                "--steps",
+                "2",
+                "--no-progress",
+                "--no-tracking",
+            ]
+        )
+        == 0
+    )
     run = tmp_path / "run"
     checkpoint = list_checkpoints(run / "checkpoints")[-1][1]
     assert yaml.safe_load((run / "recipe.yaml").read_text())["dataset"]["path"] == str(dataset_multimaterial)
     assert json.loads((run / "params.json").read_text())["recipe"]["dataset"]["path"] == str(dataset_multimaterial)
     assert load_checkpoint(checkpoint)["recipe"]["dataset"]["path"] == str(dataset_multimaterial)
     # Without --dataset, the rollout runs on the data the model was trained on.
-    assert main(["rollout", "--outside-envelope", str(checkpoint), "--steps", "2", "--trajectories", "1", "--no-progress",
-                 "--out", str(tmp_path / "rollouts")]) == 0
+    assert (
+        main(
+            [
+                "rollout",
+                "--outside-envelope",
+                str(checkpoint),
+                "--steps",
+                "2",
+                "--trajectories",
+                "1",
+                "--no-progress",
+                "--out",
+                str(tmp_path / "rollouts"),
+            ]
+        )
+        == 0
+    )
     assert (tmp_path / "rollouts" / "test_0000.npz").is_file()
 
 
@@ -39,7 +67,11 @@ def test_plugin_record_names_the_materials(dataset_multimaterial, tmp_path, regi
     sand = registry.entry("material", "sand")
     for record in (json.loads((tmp_path / "params.json").read_text())["plugins"], trainer.state()["plugins"]):
         assert {k for k in record if k.startswith("material/")} == {"material/rigid", "material/water", "material/sand"}
-        assert record["material/sand"] == {"distribution": "gns-framework", "version": sand.version, "plugin": sand.plugin}
+        assert record["material/sand"] == {
+            "distribution": "gns-framework",
+            "version": sand.version,
+            "plugin": sand.plugin,
+        }
 
 
 @pytest.mark.parametrize("valid", [None, 0])

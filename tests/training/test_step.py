@@ -23,7 +23,9 @@ class Recording(torch.nn.Module):
         return self.simulator(batch, noise)
 
 
-def test_the_trained_step_sees_the_models_own_rollout_and_the_true_frame_after_it(dataset_2d, registry, tmp_path, monkeypatch):
+def test_the_trained_step_sees_the_models_own_rollout_and_the_true_frame_after_it(
+    dataset_2d, registry, tmp_path, monkeypatch
+):
     recipe = tiny_recipe(dataset_2d, registry)
     recipe = recipe.model_copy(update={"training": recipe.training.model_copy(update={"pushforward_steps": 2})})
     trainer = tiny_trainer(recipe, tmp_path, registry)
@@ -35,8 +37,9 @@ def test_the_trained_step_sees_the_models_own_rollout_and_the_true_frame_after_i
     with torch.no_grad():
         first = trainer.simulator.predict_next_position(windows, prescribed=windows.next_position)
         rolled = torch.cat([windows.position_sequence[:, 1:], first[:, None]], dim=1)
-        second = trainer.simulator.predict_next_position(replace(windows, position_sequence=rolled),
-                                                         prescribed=windows.ahead[:, 0])
+        second = trainer.simulator.predict_next_position(
+            replace(windows, position_sequence=rolled), prescribed=windows.ahead[:, 0]
+        )
     trainer.train_step()
     seen = recording.batch
     torch.testing.assert_close(seen.position_sequence[:, :-2], windows.position_sequence[:, 2:], rtol=0, atol=0)

@@ -55,7 +55,14 @@ def test_graph_attention_loads_weights_written_when_its_last_step_had_an_edge_ml
     processor = cls(params, sizes)
     assert processor.steps[-1].edge_mlp is None and processor.steps[0].edge_mlp is not None
     written = cls(params, sizes).state_dict()
-    written.update({f"steps.1.edge_mlp.{k}": v for k, v in NormedMLP(3 * sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers, sizes.latent).state_dict().items()})
+    written.update(
+        {
+            f"steps.1.edge_mlp.{k}": v
+            for k, v in NormedMLP(3 * sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers, sizes.latent)
+            .state_dict()
+            .items()
+        }
+    )
     processor.load_state_dict(written)
     for name, value in processor.state_dict().items():
         assert torch.equal(value, written[name]), name

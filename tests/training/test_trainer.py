@@ -24,7 +24,9 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def test_shipped_recipe_lowers_validation_loss(dataset_2d, tmp_path, registry):
-    recipe = load_recipe(REPO / "recipes" / "water2d.yaml", registry, {"training": {"steps": 300, "validate_every": 300}})
+    recipe = load_recipe(
+        REPO / "recipes" / "water2d.yaml", registry, {"training": {"steps": 300, "validate_every": 300}}
+    )
     trainer = Trainer(recipe, registry, run_dir=tmp_path, dataset_path=dataset_2d, progress=False)
     before = trainer.validate()["valid_one_step_loss"]
     trainer.train()
@@ -49,7 +51,9 @@ def test_resumed_run_continues_identically(dataset_multimaterial, tmp_path, regi
     first, _ = _train(tiny_recipe_mapping(dataset_multimaterial, tmp_path / "b"), registry, 3)
     second, resumed = _train(tiny_recipe_mapping(dataset_multimaterial, tmp_path / "b"), registry, 6, resume=True)
     assert first + second == straight
-    for (name, a), (_, b) in zip(straight_trainer.simulator.state_dict().items(), resumed.simulator.state_dict().items()):
+    for (name, a), (_, b) in zip(
+        straight_trainer.simulator.state_dict().items(), resumed.simulator.state_dict().items()
+    ):
         assert torch.equal(a, b), name
 
 
@@ -69,7 +73,9 @@ def test_an_optimizer_state_of_another_parameter_layout_is_a_clear_error(dataset
     group = state["optimizer"]["param_groups"][0]
     group["params"] = group["params"] + [max(group["params"]) + 1]
     save_checkpoint(path, state)
-    trainer = Trainer(validate_recipe(tiny_recipe_mapping(dataset_multimaterial, tmp_path), registry), registry, progress=False)
+    trainer = Trainer(
+        validate_recipe(tiny_recipe_mapping(dataset_multimaterial, tmp_path), registry), registry, progress=False
+    )
     with pytest.raises(CheckpointError, match=f"{path}: its model or optimizer state does not fit"):
         trainer.resume()
 

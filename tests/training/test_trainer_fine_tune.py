@@ -27,7 +27,7 @@ def trained(uneven_dataset, tmp_path_factory):
     trainer.start_afresh()
     trainer.train(4)
     trainer.close()
-    (_, path), = list_checkpoints(run / "checkpoints")[-1:]
+    ((_, path),) = list_checkpoints(run / "checkpoints")[-1:]
     return path
 
 
@@ -55,10 +55,15 @@ def test_a_checkpoint_of_another_model_is_refused_naming_the_difference(uneven_d
         other.initialize_from(trained)
 
 
-def test_gns_train_init_from_trains_and_records_the_source_in_every_checkpoint(uneven_dataset, trained, tmp_path, capsys):
+def test_gns_train_init_from_trains_and_records_the_source_in_every_checkpoint(
+    uneven_dataset, trained, tmp_path, capsys
+):
     recipe = write_recipe(tmp_path / "tuned.yaml", tiny_recipe(uneven_dataset, steps=4, checkpoint_every=2))
     run = tmp_path / "run"
-    assert main(["train", str(recipe), "--out", str(run), "--no-tracking", "--no-progress", "--init-from", str(trained)]) == 0
+    assert (
+        main(["train", str(recipe), "--out", str(run), "--no-tracking", "--no-progress", "--init-from", str(trained)])
+        == 0
+    )
     assert f"fine-tuning from {trained} (trained 4 steps)" in capsys.readouterr().out
     written = list_checkpoints(run / "checkpoints")
     assert [step for step, _ in written] == [2, 4]

@@ -26,7 +26,9 @@ from gns_framework.training.trainer import Trainer
 @pytest.fixture(scope="module")
 def sand_dataset(tmp_path_factory):
     """Soft spheres typed as sand (6), so validation rollouts also measure runout."""
-    return write_synthetic_dataset(tmp_path_factory.mktemp("sand") / "data", train=3, valid=2, test=1, particle_types=(6,))
+    return write_synthetic_dataset(
+        tmp_path_factory.mktemp("sand") / "data", train=3, valid=2, test=1, particle_types=(6,)
+    )
 
 
 def _problems(raw, registry) -> str:

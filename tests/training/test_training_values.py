@@ -67,7 +67,12 @@ def test_random_walk_noise_keeps_dtype_and_draws_from_the_generator():
 
 EXPONENTIAL = OptimizerSpec(schedule="exponential", lr_init=1e-3, lr_min=1e-5, lr_decay=0.1, lr_decay_steps=100)
 EXPONENTIAL_WARM = OptimizerSpec(
-    schedule="exponential", lr_init=1e-3, lr_min=1e-5, lr_decay=0.1, lr_decay_steps=100, warmup_steps=10,
+    schedule="exponential",
+    lr_init=1e-3,
+    lr_min=1e-5,
+    lr_decay=0.1,
+    lr_decay_steps=100,
+    warmup_steps=10,
 )
 COSINE = OptimizerSpec(schedule="cosine", lr_init=1e-3, lr_min=1e-5, warmup_steps=10)
 

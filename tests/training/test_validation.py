@@ -30,7 +30,8 @@ def test_windows_are_spread_evenly_and_batched():
 
 
 @pytest.mark.parametrize(
-    ("valid", "reason"), [(None, "no valid split"), ([], "an empty valid split"), ("short", "no valid trajectory longer")]
+    ("valid", "reason"),
+    [(None, "no valid split"), ([], "an empty valid split"), ("short", "no valid trajectory longer")],
 )
 def test_no_usable_valid_split_warns_naming_the_dataset_and_why(valid, reason):
     if valid == "short":

@@ -36,8 +36,14 @@ def write_uneven_dataset(path: Path) -> Path:
 def tiny_recipe(dataset: Path, name: str = "tiny", **training) -> dict:
     """A recipe small enough to train in a test: latent 16, 2 message-passing steps, CPU."""
     settings = {
-        "steps": 8, "batch_size": 2, "log_every": 2, "validate_every": 4, "checkpoint_every": 4,
-        "validation_windows": 2, "keep_checkpoints": 3, "device": "cpu",
+        "steps": 8,
+        "batch_size": 2,
+        "log_every": 2,
+        "validate_every": 4,
+        "checkpoint_every": 4,
+        "validation_windows": 2,
+        "keep_checkpoints": 3,
+        "device": "cpu",
         "optimizer": {"lr_init": 1e-3, "lr_min": 1e-5, "lr_decay_steps": 1000},
     }
     settings.update(training)
@@ -46,7 +52,10 @@ def tiny_recipe(dataset: Path, name: str = "tiny", **training) -> dict:
         "seed": 3,
         "dataset": {"path": str(dataset)},
         "model": {
-            "latent_size": 16, "mlp_hidden_size": 16, "mlp_hidden_layers": 1, "type_embedding_size": 4,
+            "latent_size": 16,
+            "mlp_hidden_size": 16,
+            "mlp_hidden_layers": 1,
+            "type_embedding_size": 4,
             "processor": {"name": "interaction_network", "message_passing_steps": 2},
         },
         "training": settings,

@@ -242,8 +242,15 @@ class _EdgeBlock(torch.autograd.Function):
             else:
                 inputs, a, mean, rstd = ctx.stored[index]
             grad_a = _layer_norm_backward(
-                grad_aggregate, receivers[lo:hi], None if grad_out is None else grad_out[lo:hi], a, mean, rstd,
-                (norm_weight, norm_bias), grad_e[lo:hi], (grad_norm_weight, grad_norm_bias),
+                grad_aggregate,
+                receivers[lo:hi],
+                None if grad_out is None else grad_out[lo:hi],
+                a,
+                mean,
+                rstd,
+                (norm_weight, norm_bias),
+                grad_e[lo:hi],
+                (grad_norm_weight, grad_norm_bias),
                 grad_biases[-1] if grad_biases else None,
             )
             grad_a = hidden_backward(
@@ -262,7 +269,19 @@ class _EdgeBlock(torch.autograd.Function):
             else:
                 add_product(grad_e[lo:hi], grad_a, product_weights[0])
         grad_table = grad_table.to(table.dtype)
-        return (grad_e, grad_table, None, None, None, None, None, grad_norm_weight, grad_norm_bias, *grad_weights, *grad_biases)
+        return (
+            grad_e,
+            grad_table,
+            None,
+            None,
+            None,
+            None,
+            None,
+            grad_norm_weight,
+            grad_norm_bias,
+            *grad_weights,
+            *grad_biases,
+        )
 
 
 def edge_block(

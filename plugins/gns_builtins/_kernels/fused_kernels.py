@@ -139,8 +139,19 @@ def layer_norm_residual(
     rows, width = a.shape
     mean, rstd = (a.new_empty(rows, 1), a.new_empty(rows, 1)) if stats else (None, None)
     _kernels().layer_norm_residual(
-        rows, width, a.data_ptr(), _address(bias), gamma.data_ptr(), beta.data_ptr(), eps, residual.data_ptr(),
-        out.data_ptr(), aggregate.data_ptr(), receivers.data_ptr(), _address(mean), _address(rstd),
+        rows,
+        width,
+        a.data_ptr(),
+        _address(bias),
+        gamma.data_ptr(),
+        beta.data_ptr(),
+        eps,
+        residual.data_ptr(),
+        out.data_ptr(),
+        aggregate.data_ptr(),
+        receivers.data_ptr(),
+        _address(mean),
+        _address(rstd),
     )
     return mean, rstd
 
@@ -169,9 +180,20 @@ def layer_norm_backward(
     rows, width = a.shape
     grad_a = torch.empty_like(a)
     _kernels().layer_norm_backward(
-        rows, width, _address(grad_aggregate), receivers.data_ptr(), _address(grad_out), a.data_ptr(),
-        mean.data_ptr(), rstd.data_ptr(), gamma.data_ptr(), grad_a.data_ptr(), grad_residual.data_ptr(),
-        grad_gamma.data_ptr(), grad_beta.data_ptr(), _address(grad_bias),
+        rows,
+        width,
+        _address(grad_aggregate),
+        receivers.data_ptr(),
+        _address(grad_out),
+        a.data_ptr(),
+        mean.data_ptr(),
+        rstd.data_ptr(),
+        gamma.data_ptr(),
+        grad_a.data_ptr(),
+        grad_residual.data_ptr(),
+        grad_gamma.data_ptr(),
+        grad_beta.data_ptr(),
+        _address(grad_bias),
     )
     return grad_a
 

@@ -176,7 +176,9 @@ def lagrangebench_metadata(path: Path, metadata: DatasetMetadata, splits: Mappin
             document[f"num_trajs_{split}"] = len(trajectories)
     everything = [t for trajectories in splits.values() for t in trajectories]
     if everything:
-        document["num_particles_max"] = max(document.get("num_particles_max", 0), *(t.num_particles for t in everything))
+        document["num_particles_max"] = max(
+            document.get("num_particles_max", 0), *(t.num_particles for t in everything)
+        )
         if "dx" not in document and everything[0].num_particles > 1:
             document["dx"] = particle_spacing(everything[0].position[0])
     return document

@@ -58,9 +58,13 @@ class SafeDataset(NpzSplitsDataset):
             fields = groups[key]
             get = lambda f: read_member(archive, file, f"{key}/{f}") if f in fields else None  # noqa: E731
             return Trajectory(  # position and particle_type: present (checked above)
-                read_member(archive, file, f"{key}/position"), read_member(archive, file, f"{key}/particle_type"),
-                get("material_property"), get("step_context"), key,
-                get("bounds"), get("walls"),
+                read_member(archive, file, f"{key}/position"),
+                read_member(archive, file, f"{key}/particle_type"),
+                get("material_property"),
+                get("step_context"),
+                key,
+                get("bounds"),
+                get("walls"),
             )
 
         # File order is the order the trajectories were written in (``gns generate``: seed order), which

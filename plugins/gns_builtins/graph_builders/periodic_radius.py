@@ -40,15 +40,21 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
         self.box = PeriodicBox(scene)
         self._shifts = PerDevice(self._make_shifts)
         short = [
-            (k, float(length)) for k, length in zip(self.box.dims, self.box.length)
+            (k, float(length))
+            for k, length in zip(self.box.dims, self.box.length)
             if not length > 2 * scene.connectivity_radius
         ]
         if short:
-            raise RecipeError(None, [(
-                "model.connectivity_radius",
-                f"the periodic box lengths {short} (dimension, length) must exceed 2R = "
-                f"{2 * scene.connectivity_radius} for minimum-image neighbours",
-            )])
+            raise RecipeError(
+                None,
+                [
+                    (
+                        "model.connectivity_radius",
+                        f"the periodic box lengths {short} (dimension, length) must exceed 2R = "
+                        f"{2 * scene.connectivity_radius} for minimum-image neighbours",
+                    )
+                ],
+            )
 
     def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:
         n = position.shape[0]
@@ -80,7 +86,9 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
         positions, owners = [], []
         for shift in self._shifts(position):
             moved = position.index_add(1, dims, (shift * length).expand(position.shape[0], -1))
-            inside = (moved.index_select(1, dims) > lower - radius) & (moved.index_select(1, dims) < lower + length + radius)
+            inside = (moved.index_select(1, dims) > lower - radius) & (
+                moved.index_select(1, dims) < lower + length + radius
+            )
             near = inside.all(1)
             positions.append(moved[near])
             owners.append(index[near])

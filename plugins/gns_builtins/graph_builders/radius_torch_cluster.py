@@ -34,7 +34,9 @@ class TorchClusterRadiusGraphBuilder(GraphBuilder):
     """Modules this component needs that the project does not install by default (``gns check`` looks for them)."""
 
     class Params(ComponentParams):
-        initial_max_neighbors: int = Field(64, ge=1, description="first neighbour cap; doubled until no particle reaches it")
+        initial_max_neighbors: int = Field(
+            64, ge=1, description="first neighbour cap; doubled until no particle reaches it"
+        )
 
     params: Params  # the validated Params above (the base class assigns it)
 

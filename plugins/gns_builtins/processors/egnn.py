@@ -66,7 +66,9 @@ class EquivariantProcessor(Processor):
         super().__init__(params, sizes)
         self.connectivity_radius = sizes.connectivity_radius
         self.steps = nn.ModuleList(
-            EquivariantStep(sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers, i < params.message_passing_steps - 1)
+            EquivariantStep(
+                sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers, i < params.message_passing_steps - 1
+            )
             for i in range(params.message_passing_steps)
         )
 

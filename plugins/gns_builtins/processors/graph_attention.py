@@ -70,7 +70,10 @@ class GraphAttentionProcessor(Processor):
             raise ValueError(f"graph_attention: heads ({params.heads}) must divide latent_size ({sizes.latent})")
         self.steps = nn.ModuleList(
             AttentionStep(
-                sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers, params.heads,
+                sizes.latent,
+                sizes.mlp_hidden,
+                sizes.mlp_hidden_layers,
+                params.heads,
                 updates_edges=i < params.message_passing_steps - 1,
             )
             for i in range(params.message_passing_steps)

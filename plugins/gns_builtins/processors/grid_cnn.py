@@ -132,7 +132,9 @@ class GridProcessor(Processor):
         message_passing_steps: int = Field(2, ge=1, description="M, rounds of particles -> grid -> CNN -> particles")
         cell_size: float = Field(1.0, gt=0, description="grid spacing, in connectivity radii R")
         conv_layers: int = Field(4, ge=2, description="3^d convolutions per round")
-        channels: int | None = Field(None, ge=1, description="channels of the hidden convolutions (default: the latent size)")
+        channels: int | None = Field(
+            None, ge=1, description="channels of the hidden convolutions (default: the latent size)"
+        )
 
     def __init__(self, params: Params, sizes: ModelSizes):
         super().__init__(params, sizes)
@@ -148,7 +150,9 @@ class GridProcessor(Processor):
 
     def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:
         if graph.position is None:
-            raise ValueError("grid_cnn needs the particles' positions (Graph.position); the learned simulator gives them")
+            raise ValueError(
+                "grid_cnn needs the particles' positions (Graph.position); the learned simulator gives them"
+            )
         local = edge_latent.new_zeros(node_latent.shape).index_add(0, graph.receivers, edge_latent)
         node_latent = node_latent + self.edge_mlp(torch.cat([node_latent, local.to(node_latent.dtype)], dim=-1))
         grid = ParticleGrid(graph.position, graph.batch, graph.num_examples, self.spacing)

@@ -81,7 +81,9 @@ class InteractionNetwork(Processor):
 
     class Params(ComponentParams):
         message_passing_steps: int = Field(10, ge=1, description="M, number of unshared steps")
-        edge_block: EdgeBlock = Field("fused", description="fused (chunked, fast) or plain (the paper's lines); equal results")
+        edge_block: EdgeBlock = Field(
+            "fused", description="fused (chunked, fast) or plain (the paper's lines); equal results"
+        )
 
     def __init__(self, params: Params, sizes: ModelSizes):
         super().__init__(params, sizes)

@@ -21,7 +21,9 @@ class SharedInteractionNetwork(Processor):
 
     class Params(ComponentParams):
         message_passing_steps: int = Field(10, ge=1, description="M, times the one step is applied")
-        edge_block: EdgeBlock = Field("fused", description="fused (chunked, fast) or plain (the paper's lines); equal results")
+        edge_block: EdgeBlock = Field(
+            "fused", description="fused (chunked, fast) or plain (the paper's lines); equal results"
+        )
 
     params: Params  # the validated Params above (the base class assigns it)
 

@@ -156,6 +156,4 @@ class MlsMpm(GroundTruthSimulator):
 def _kinematic_positions(obstacles: list[BodySample], scene: SceneSpec) -> np.ndarray:
     """(T, N_kinematic, d) obstacle particles moving at their constant velocities."""
     times = np.arange(scene.time.frames) * scene.time.frame_dt
-    return np.concatenate(
-        [o.position[None] + times[:, None, None] * o.velocity[None, None] for o in obstacles], axis=1
-    )
+    return np.concatenate([o.position[None] + times[:, None, None] * o.velocity[None, None] for o in obstacles], axis=1)

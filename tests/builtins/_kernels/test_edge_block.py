@@ -35,7 +35,9 @@ def small_chunks(monkeypatch):
 @pytest.mark.parametrize("use_edge_output", [True, False])
 @pytest.mark.parametrize("recompute", [False, True])
 @pytest.mark.parametrize("ordered_sums", [False, True], ids=["index_add", "ordered_sums"])
-def test_values_and_gradients_match_autograd(small_chunks, hidden_layers, use_edge_output, recompute, ordered_sums, monkeypatch):
+def test_values_and_gradients_match_autograd(
+    small_chunks, hidden_layers, use_edge_output, recompute, ordered_sums, monkeypatch
+):
     """``ordered_sums`` is the GPUs' path (segment_sum.py), run here on the CPU."""
     monkeypatch.setattr(edge_block_module, "recompute_activations", lambda: recompute)
     monkeypatch.setattr(edge_block_module, "needs_ordered_sums", lambda device: ordered_sums)
@@ -147,7 +149,9 @@ def test_bfloat16_autocast_is_no_less_accurate_than_autocast_on_the_concatenated
 
 
 @pytest.mark.parametrize("recompute", [False, True])
-def test_under_bfloat16_autocast_the_edge_latents_are_kept_in_bfloat16_with_the_same_gradients(small_chunks, recompute, monkeypatch):
+def test_under_bfloat16_autocast_the_edge_latents_are_kept_in_bfloat16_with_the_same_gradients(
+    small_chunks, recompute, monkeypatch
+):
     """The backward reads e only as a bfloat16 product operand: keeping e in bfloat16 halves it and changes no bit."""
     monkeypatch.setattr(edge_block_module, "recompute_activations", lambda: recompute)
     torch.manual_seed(1)

@@ -108,8 +108,12 @@ def test_layer_norm_residual_in_place_and_deterministic(two_threads):
 
 @requires_kernels
 @settings(max_examples=40, deadline=None)
-@given(shape=shapes, seed=st.integers(0, 2**16), inputs=st.sampled_from(["both", "aggregate", "out"]),
-       with_bias=st.booleans())
+@given(
+    shape=shapes,
+    seed=st.integers(0, 2**16),
+    inputs=st.sampled_from(["both", "aggregate", "out"]),
+    with_bias=st.booleans(),
+)
 def test_layer_norm_backward_matches_torch_in_float64(shape, seed, inputs, with_bias):
     rows, width, threads = shape
     with num_threads(threads):
@@ -139,12 +143,22 @@ def test_layer_norm_backward_matches_torch_in_float64(shape, seed, inputs, with_
         grad_residual = torch.full((rows, width), 7.0)
         sums = [torch.ones(width) for _ in range(3)]
         got = fused_kernels.layer_norm_backward(
-            grad_aggregate, receivers, grad_out, a, mean, rstd, gamma, grad_residual, sums[0], sums[1],
+            grad_aggregate,
+            receivers,
+            grad_out,
+            a,
+            mean,
+            rstd,
+            gamma,
+            grad_residual,
+            sums[0],
+            sums[1],
             sums[2] if with_bias else None,
         )
         assert_close_to_reference(got, expected, scale=row_scale, msg="grad_a")
-        assert_close_to_reference(sums[0], 1 + expected_gamma, scale=1 + (grad_update * xhat).abs().sum(0),
-                                  msg="grad_gamma")
+        assert_close_to_reference(
+            sums[0], 1 + expected_gamma, scale=1 + (grad_update * xhat).abs().sum(0), msg="grad_gamma"
+        )
         assert_close_to_reference(sums[1], 1 + expected_beta, scale=1 + grad_update.abs().sum(0), msg="grad_beta")
         if with_bias:
             assert_close_to_reference(sums[2], 1 + expected.sum(0), scale=1 + row_scale.sum(), msg="grad_bias")
@@ -228,8 +242,9 @@ def _run_edge_block(mlp, x, e, senders, receivers, weight_out, weight_agg, use_e
 @pytest.mark.parametrize("hidden_layers", [0, 2])
 @pytest.mark.parametrize("use_edge_output", [True, False])
 @pytest.mark.parametrize("recompute", [False, True])
-def test_float32_edge_block_with_and_without_kernels(receivers_sorted, hidden_layers, use_edge_output, recompute,
-                                                     monkeypatch, two_threads):
+def test_float32_edge_block_with_and_without_kernels(
+    receivers_sorted, hidden_layers, use_edge_output, recompute, monkeypatch, two_threads
+):
     """Values and every gradient agree between the fused and the torch path, chunk boundaries inside receiver runs."""
     monkeypatch.setattr(chunked, "ROWS_PER_THREAD", 9)
     monkeypatch.setattr(edge_block_module, "recompute_activations", lambda: recompute)

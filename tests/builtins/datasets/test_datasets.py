@@ -64,7 +64,14 @@ def test_dimension_disagreeing_with_metadata(trajectories, tmp_path, registry):
     metadata = synthetic_metadata(trajectories, 2)
     cls.write(tmp_path, metadata, {"train": trajectories})
     raw = json.loads((tmp_path / "metadata.json").read_text())
-    raw.update(dim=3, bounds=raw["bounds"] + [[0, 1]], vel_mean=[0, 0, 0], vel_std=[1, 1, 1], acc_mean=[0, 0, 0], acc_std=[1, 1, 1])
+    raw.update(
+        dim=3,
+        bounds=raw["bounds"] + [[0, 1]],
+        vel_mean=[0, 0, 0],
+        vel_std=[1, 1, 1],
+        acc_mean=[0, 0, 0],
+        acc_std=[1, 1, 1],
+    )
     (tmp_path / "metadata.json").write_text(json.dumps(raw))
     with pytest.raises(DatasetError, match="trajectory 'a': position: has d = 2 but metadata says dim = 3"):
         cls(cls.Params(), tmp_path).split("train")[0]

@@ -66,7 +66,9 @@ def test_the_committed_tfrecord_files_are_the_generators_bytes(tmp_path):
     assert generate.crc32c(b"123456789") == 0xE3069283  # the CRC-32C check value
     generate.write_deepmind(tmp_path)
     for split in ("train", "test"):
-        assert (tmp_path / f"{split}.tfrecord").read_bytes() == (FIXTURES / "deepmind" / f"{split}.tfrecord").read_bytes()
+        assert (tmp_path / f"{split}.tfrecord").read_bytes() == (
+            FIXTURES / "deepmind" / f"{split}.tfrecord"
+        ).read_bytes()
 
 
 def test_lagrangebench_is_read_as_lagrangebench_defines_it(registry):
@@ -80,7 +82,9 @@ def test_lagrangebench_is_read_as_lagrangebench_defines_it(registry):
     # Three entries in 2D, as LagrangeBench writes them: the first two are the axes.
     assert metadata.periodic_boundary_conditions == [True, True]
     assert {name: [t.num_steps for t in trajectories] for name, trajectories in splits.items()} == {
-        "train": [5, 5], "valid": [4], "test": [4],  # valid: no sequence_length_valid, taken from the file
+        "train": [5, 5],
+        "valid": [4],
+        "test": [4],  # valid: no sequence_length_valid, taken from the file
     }
     assert [t.key for t in splits["train"]] == ["00000", "00001"]
     np.testing.assert_array_equal(splits["train"][1].particle_type, [0, 0, 0])
@@ -93,8 +97,11 @@ def test_lagrangebench_length_disagreeing_with_its_metadata_is_located(registry,
     shutil.copytree(FIXTURES / "lagrangebench", tmp_path / "lb")
     file = tmp_path / "lb" / "metadata.json"
     file.write_text(json.dumps({**json.loads(file.read_text()), "sequence_length_test": 4}))
-    with pytest.raises(DatasetError, match=r"test\.h5: trajectory '00000': position: has 4 frames but metadata\.json's "
-                                           r"sequence_length_test = 4 .* promises 5"):
+    with pytest.raises(
+        DatasetError,
+        match=r"test\.h5: trajectory '00000': position: has 4 frames but metadata\.json's "
+        r"sequence_length_test = 4 .* promises 5",
+    ):
         read(registry, "lagrangebench", tmp_path / "lb")
 
 
@@ -144,10 +151,25 @@ def test_converting_lagrangebench_keeps_its_metadata(through, tmp_path):
 
 def test_deepmind_layout_refuses_splits_of_other_lengths(tmp_path, capsys):
     out = tmp_path / "tf"
-    assert main(["convert", str(FIXTURES / "lagrangebench"), "--from", "lagrangebench", "--to", "tfrecord",
-                 "--out", str(out)]) == 2
-    assert ("valid.tfrecord: trajectory '00000': position: has 4 frames, but DeepMind's layout holds one "
-            "sequence_length for every split and it is 5 frames") in capsys.readouterr().err
+    assert (
+        main(
+            [
+                "convert",
+                str(FIXTURES / "lagrangebench"),
+                "--from",
+                "lagrangebench",
+                "--to",
+                "tfrecord",
+                "--out",
+                str(out),
+            ]
+        )
+        == 2
+    )
+    assert (
+        "valid.tfrecord: trajectory '00000': position: has 4 frames, but DeepMind's layout holds one "
+        "sequence_length for every split and it is 5 frames"
+    ) in capsys.readouterr().err
     assert not out.exists() or not any(out.iterdir())
 
 

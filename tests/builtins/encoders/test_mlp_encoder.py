@@ -12,15 +12,18 @@ def test_recomputed_edge_encoder_keeps_only_its_input_and_gives_the_same_gradien
     from gns_builtins.encoders.mlp import MLPEncoder
 
     torch.manual_seed(0)
-    sizes = ModelSizes(node_in=5, edge_in=3, latent=16, mlp_hidden=16, mlp_hidden_layers=2, output=2, dim=2,
-                       connectivity_radius=0.1)
+    sizes = ModelSizes(
+        node_in=5, edge_in=3, latent=16, mlp_hidden=16, mlp_hidden_layers=2, output=2, dim=2, connectivity_radius=0.1
+    )
     encoder = MLPEncoder(MLPEncoder.Params(), sizes)
     nodes, edges = torch.randn(7, 5), torch.randn(40, 3, requires_grad=True)
 
     def run(recompute: bool):
         monkeypatch.setattr(encoder_module, "recompute_activations", lambda: recompute)
         saved = []
-        with torch.autograd.graph.saved_tensors_hooks(lambda t: saved.append(t.numel() * t.element_size()) or t, lambda t: t):
+        with torch.autograd.graph.saved_tensors_hooks(
+            lambda t: saved.append(t.numel() * t.element_size()) or t, lambda t: t
+        ):
             _, edge_latent = encoder(nodes, edges)
         gradients = torch.autograd.grad(edge_latent.square().sum(), [edges, *encoder.edge_mlp.parameters()])
         return sum(saved), gradients

@@ -92,9 +92,7 @@ def test_explicit_euler_grows_the_oscillator_energy_geometrically():
     assert energies[-1] == pytest.approx((1 + omega_dt**2) ** 100, rel=1e-9)
 
 
-@pytest.mark.parametrize(
-    "name, order", [("velocity_verlet", 2), ("semi_implicit_euler", 1), ("explicit_euler", 1)]
-)
+@pytest.mark.parametrize("name, order", [("velocity_verlet", 2), ("semi_implicit_euler", 1), ("explicit_euler", 1)])
 def test_order_of_accuracy_of_the_physical_form(name, order):
     def position_error(dt):
         advance = REGISTRY.get("integrator", name).advance
@@ -114,17 +112,28 @@ def test_the_duplicates_are_declared():
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.sampled_from(SHARING) if SHARING else st.nothing(), arrays("float64", (5, 3, 2), elements=finite),
-       arrays("float64", (5, 2), elements=finite))
+@given(
+    st.sampled_from(SHARING) if SHARING else st.nothing(),
+    arrays("float64", (5, 3, 2), elements=finite),
+    arrays("float64", (5, 2), elements=finite),
+)
 def test_an_integrator_that_says_it_shares_a_position_map_does(name, history, prediction):
     # The fact on the component is what training refuses it by: it must be true.
     mine, theirs = make(name), make(REGISTRY.get("integrator", name).same_position_map_as)
     history, prediction = torch.from_numpy(history), torch.from_numpy(prediction)
-    torch.testing.assert_close(mine.next_position(history, prediction), theirs.next_position(history, prediction),
-                               rtol=0, atol=1e-12 * (1 + float(history.abs().max() + prediction.abs().max())))
+    torch.testing.assert_close(
+        mine.next_position(history, prediction),
+        theirs.next_position(history, prediction),
+        rtol=0,
+        atol=1e-12 * (1 + float(history.abs().max() + prediction.abs().max())),
+    )
     following = theirs.next_position(history, prediction)
-    torch.testing.assert_close(mine.target(history, following), theirs.target(history, following),
-                               rtol=0, atol=1e-11 * (1 + float(history.abs().max() + prediction.abs().max())))
+    torch.testing.assert_close(
+        mine.target(history, following),
+        theirs.target(history, following),
+        rtol=0,
+        atol=1e-11 * (1 + float(history.abs().max() + prediction.abs().max())),
+    )
 
 
 def test_every_other_acceleration_integrator_has_a_position_map_of_its_own():

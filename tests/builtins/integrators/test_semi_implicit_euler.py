@@ -21,4 +21,6 @@ def test_semi_implicit_euler_inverse_round_trip(history, data):
     integrator = SemiImplicitEuler(SemiImplicitEuler.Params())
     next_position = integrator.next_position(sequence, acceleration)
     torch.testing.assert_close(integrator.target(sequence, next_position), acceleration, rtol=0, atol=1e-9)
-    torch.testing.assert_close(integrator.next_position(sequence, integrator.target(sequence, next_position)), next_position)
+    torch.testing.assert_close(
+        integrator.next_position(sequence, integrator.target(sequence, next_position)), next_position
+    )

@@ -25,7 +25,9 @@ def test_tent_weights_sum_to_one_and_reproduce_linear_fields(dim):
     torch.testing.assert_close(grid.weights.sum(-1), torch.ones(50, dtype=torch.float64))
     assert (grid.weights >= 0).all()
     # A field linear in space, sampled at the cell corners, is read back exactly at every particle.
-    corners = torch.stack(torch.meshgrid(*[torch.arange(s, dtype=torch.float64) for s in grid.shape], indexing="ij"), -1)
+    corners = torch.stack(
+        torch.meshgrid(*[torch.arange(s, dtype=torch.float64) for s in grid.shape], indexing="ij"), -1
+    )
     origin = (torch.floor(position.min(0).values / 0.1) - 1) * 0.1
     field = ((origin + 0.1 * corners) * torch.arange(1, dim + 1, dtype=torch.float64)).sum(-1)
     read = grid.to_particles(field[None, None])
@@ -64,7 +66,11 @@ def test_the_processor_is_invariant_to_a_translation_by_whole_cells_and_needs_po
     half, _ = processor(latent, edges, _graph(position + processor.spacing / 2))
     assert not torch.allclose(half, out), "a shift by half a cell moves the particles across their cells"
     with pytest.raises(ValueError, match="Graph.position"):
-        processor(latent, edges, Graph(position.new_zeros(0, dtype=torch.long), position.new_zeros(0, dtype=torch.long), edges[:, :2], 30))
+        processor(
+            latent,
+            edges,
+            Graph(position.new_zeros(0, dtype=torch.long), position.new_zeros(0, dtype=torch.long), edges[:, :2], 30),
+        )
 
 
 def test_an_example_comes_out_of_a_batch_as_it_comes_out_alone():

@@ -17,7 +17,9 @@ from gns_framework.contracts import Graph, ModelSizes
 
 
 def _sizes(latent=16):
-    return ModelSizes(node_in=latent, edge_in=latent, latent=latent, mlp_hidden=16, mlp_hidden_layers=2, output=2, dim=2)
+    return ModelSizes(
+        node_in=latent, edge_in=latent, latent=latent, mlp_hidden=16, mlp_hidden_layers=2, output=2, dim=2
+    )
 
 
 @settings(max_examples=25, deadline=None)
@@ -40,8 +42,12 @@ def test_interaction_network_is_permutation_equivariant(n, seed):
     # Either edge order rounds its sums differently in float32: both meet the float64 processor on the original order.
     reference = copy.deepcopy(processor).double()
     rx, re = reference(x.double(), e.double(), Graph(senders, receivers, graph.displacement.double(), n))
-    for got, expected, name in ((out_x, rx, "x"), (out_e, re, "e"), (px, rx[perm], "permuted x"),
-                                (pe, re[edge_perm], "permuted e")):
+    for got, expected, name in (
+        (out_x, rx, "x"),
+        (out_e, re, "e"),
+        (px, rx[perm], "permuted x"),
+        (pe, re[edge_perm], "permuted e"),
+    ):
         assert_close_to_reference(got, expected, msg=name)
 
 
@@ -49,7 +55,9 @@ def _processors(steps=3, latent=16, seed=0):
     """The same weights as a fused and as a plain processor."""
     torch.manual_seed(seed)
     fused = InteractionNetwork(InteractionNetwork.Params(message_passing_steps=steps), _sizes(latent))
-    plain = InteractionNetwork(InteractionNetwork.Params(message_passing_steps=steps, edge_block="plain"), _sizes(latent))
+    plain = InteractionNetwork(
+        InteractionNetwork.Params(message_passing_steps=steps, edge_block="plain"), _sizes(latent)
+    )
     plain.load_state_dict(fused.state_dict())
     return fused, plain
 
@@ -69,6 +77,7 @@ def _values_and_gradients(processor, graph, x, e):
     """The processor's outputs and the gradients of a fixed readout at inputs and weights."""
     x, e = x.clone().requires_grad_(), e.clone().requires_grad_()
     out_x, out_e = processor(x, e, graph)
+
     # Unequal positive weights per entry, so an error in any entry's gradient shows and sums over
     # entries do not cancel to nothing; both outputs weigh alike.
     def weights(out):

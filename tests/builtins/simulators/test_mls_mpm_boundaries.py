@@ -131,8 +131,9 @@ def test_each_face_applies_its_own_condition(dim, normal_speed, sim_registry):
             normal, tangent = expected_wall_velocity(walls.get(face, 2.0), normal_speed, tangential)
             atol = 1e-6
             np.testing.assert_allclose(-nodes @ outward, normal, atol=atol, err_msg=face)
-            np.testing.assert_allclose(nodes[:, others], np.broadcast_to(tangent[others], (len(nodes), dim - 1)),
-                                       atol=atol, err_msg=face)
+            np.testing.assert_allclose(
+                nodes[:, others], np.broadcast_to(tangent[others], (len(nodes), dim - 1)), atol=atol, err_msg=face
+            )
 
 
 SHAPED_OBSTACLES = {
@@ -174,7 +175,8 @@ def inside_margin(obstacle: dict, points: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize(
-    "dim, obstacle", [(dim, o) for dim, shapes in SHAPED_OBSTACLES.items() for o in shapes],
+    "dim, obstacle",
+    [(dim, o) for dim, shapes in SHAPED_OBSTACLES.items() for o in shapes],
     ids=lambda v: v if isinstance(v, int) else f"{v['shape']}{v.get('angle', 0):+g}",
 )
 def test_shaped_obstacle_acts_on_exactly_the_nodes_inside_it(dim, obstacle, sim_registry):

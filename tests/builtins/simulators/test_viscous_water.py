@@ -24,12 +24,21 @@ def channel(viscosity: float, substeps: int = 15) -> dict:
     return {
         "name": "poiseuille",
         "dim": 2,
-        "domain": {"bounds": [[0.0, 0.6], [0.0, H]], "grid": 60,
-                   "walls": {"y_min": "no_slip", "y_max": "no_slip", "x_min": "slip", "x_max": "slip"}},
+        "domain": {
+            "bounds": [[0.0, 0.6], [0.0, H]],
+            "grid": 60,
+            "walls": {"y_min": "no_slip", "y_max": "no_slip", "x_min": "slip", "x_max": "slip"},
+        },
         "time": {"frame_dt": 0.01, "substeps": substeps, "frames": 51},
         "gravity": [G, 0.0],
-        "blocks": [{"material": "water", "position": [0.1, 0.0], "size": [0.4, H],
-                    "parameters": {"viscosity": viscosity, "bulk_modulus": 2e4}}],
+        "blocks": [
+            {
+                "material": "water",
+                "position": [0.1, 0.0],
+                "size": [0.4, H],
+                "parameters": {"viscosity": viscosity, "bulk_modulus": 2e4},
+            }
+        ],
     }
 
 

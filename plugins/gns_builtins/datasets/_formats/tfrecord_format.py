@@ -226,8 +226,7 @@ class SequenceExample:
 
     def serialize(self) -> bytes:
         context = b"".join(
-            _field(1, _field(1, key.encode()) + _field(2, feature.serialize()))
-            for key, feature in self.context.items()
+            _field(1, _field(1, key.encode()) + _field(2, feature.serialize())) for key, feature in self.context.items()
         )
         lists = b"".join(
             _field(1, _field(1, key.encode()) + _field(2, b"".join(_field(1, f.serialize()) for f in features)))

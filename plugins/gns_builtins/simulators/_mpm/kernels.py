@@ -14,7 +14,6 @@ bits run after run on the same device. Its record buffers hold the 3^d adds
 of every particle thread into each grid array (``deterministic_max_records``).
 """
 
-
 from dataclasses import dataclass
 from functools import cache
 from typing import Any

@@ -136,9 +136,7 @@ class MpmSolver:
         self.F = array(np.broadcast_to(np.eye(d, dtype=np.float32), (n, d, d)), self.k.mat)
         self.J = array(np.ones(n, dtype=np.float32), float)
         self.model = array(particles["model"], int)
-        self.params = [
-            array(particles[name], float) for name in ("mass", "volume", "mu", "lam", "param_a", "param_b")
-        ]
+        self.params = [array(particles[name], float) for name in ("mass", "volume", "mu", "lam", "param_a", "param_b")]
         self.obstacles = [array(values, dtype) for values, dtype in obstacle_arrays(obstacles, d, self.k.vec)]
         self.grid_momentum = wp.zeros(num_nodes, dtype=self.k.vec, device=self.device)
         self.grid_mass = wp.zeros(num_nodes, dtype=float, device=self.device)
@@ -154,14 +152,60 @@ class MpmSolver:
             return wp.launch(kernel, dim=dim, inputs=inputs, device=self.device, record_cmd=True)
 
         self.launches = [
-            record(k.p2g, self.num_particles, [self.x, self.v, self.C, self.F, self.J, self.model, *self.params,
-                                               self.origin, self.inv_dx, self.dt, self.res,
-                                               self.grid_momentum, self.grid_mass]),
-            record(k.grid_update, self.num_nodes, [self.grid_momentum, self.grid_mass, self.origin, self.dx, self.res,
-                                                   self.dt, 0.0, self.gravity, self.wall_lower, self.wall_upper,
-                                                   *self.walls, *self.obstacles, self.grid_velocity]),
-            record(k.g2p, self.num_particles, [self.grid_velocity, self.origin, self.inv_dx, self.res, self.dt,
-                                               self.lower, self.upper, self.x, self.v, self.C]),
+            record(
+                k.p2g,
+                self.num_particles,
+                [
+                    self.x,
+                    self.v,
+                    self.C,
+                    self.F,
+                    self.J,
+                    self.model,
+                    *self.params,
+                    self.origin,
+                    self.inv_dx,
+                    self.dt,
+                    self.res,
+                    self.grid_momentum,
+                    self.grid_mass,
+                ],
+            ),
+            record(
+                k.grid_update,
+                self.num_nodes,
+                [
+                    self.grid_momentum,
+                    self.grid_mass,
+                    self.origin,
+                    self.dx,
+                    self.res,
+                    self.dt,
+                    0.0,
+                    self.gravity,
+                    self.wall_lower,
+                    self.wall_upper,
+                    *self.walls,
+                    *self.obstacles,
+                    self.grid_velocity,
+                ],
+            ),
+            record(
+                k.g2p,
+                self.num_particles,
+                [
+                    self.grid_velocity,
+                    self.origin,
+                    self.inv_dx,
+                    self.res,
+                    self.dt,
+                    self.lower,
+                    self.upper,
+                    self.x,
+                    self.v,
+                    self.C,
+                ],
+            ),
         ]
         self.p2g_graph = None
         if wp.get_device(self.device).is_cuda:
