@@ -29,7 +29,7 @@ def merge(
     """Write the joined dataset to ``out``; returns the trajectory count per split."""
     from gns_framework.assembly.data import open_dataset
     from gns_framework.config.recipe import DatasetSpec
-    from gns_framework.data.metadata import DatasetMetadata, compute_statistics, load_metadata
+    from gns_framework.data.metadata import DatasetMetadata, compute_statistics
     from gns_framework.errors import DatasetError
     from gns_framework.plugins import load_registry
 
@@ -37,7 +37,8 @@ def merge(
         raise DatasetError(f"{out}: exists; merge into a new folder (nothing is overwritten)")
     registry = load_registry()
     layout = registry.get("dataset", "safe")
-    metadatas = [load_metadata(source) for source in sources]
+    datasets = [open_dataset(DatasetSpec(name="safe", path=str(source)), registry) for source in sources]
+    metadatas = [dataset.metadata() for dataset in datasets]
     first = metadatas[0]
     for source, metadata in zip(sources[1:], metadatas[1:]):
         for field in ("dim", "bounds", "dt"):
@@ -51,14 +52,12 @@ def merge(
             raise DatasetError(f"{source}/metadata.json: material_properties differ from {sources[0]}'s")
     limits = {"valid": valid_each, "test": test_each}
     splits: dict[str, list] = {"train": [], "valid": [], "test": []}
-    for index, source in enumerate(sources):
-        dataset = open_dataset(DatasetSpec(name="safe", path=str(source)), registry)
+    for index, dataset in enumerate(datasets):
         for split in splits:
             if not dataset.has_split(split):
                 continue
-            trajectories = list(dataset.split(split))
-            if limits.get(split) is not None:
-                trajectories = trajectories[: limits[split]]
+            # A split reads a trajectory on first access: only those taken are read.
+            trajectories = list(dataset.split(split)[: limits.get(split)])
             # Keys stay unique and say where each trajectory came from.
             splits[split] += [replace(t, key=f"part{index}_{t.key}") for t in trajectories]
     statistics = compute_statistics(splits["train"], registry.kinematic_types())

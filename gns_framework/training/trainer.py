@@ -323,10 +323,7 @@ class Trainer:
         error = None
         if self.processes.is_chief:
             try:
-                state = load_checkpoint(path)
-                for key in ("recipe", "scene", "model"):
-                    if key not in state:
-                        raise CheckpointError(f"{path}: {key}: missing, so no model can be fine-tuned from it")
+                state = load_checkpoint(path)  # refuses a file without recipe, scene, model or step
                 self._check_same_model(state, str(path))
             except GnsError as exc:
                 error = exc
@@ -349,7 +346,7 @@ class Trainer:
                 self.envelope = self.envelope.union(Envelope.from_dict(state["envelope"]))
             except (TypeError, ValueError) as exc:
                 raise CheckpointError(f"{path}: envelope: cannot be joined with this data's ({exc})") from None
-        self.initialized_from = {"checkpoint": str(path), "step": int(state.get("step", 0))}
+        self.initialized_from = {"checkpoint": str(path), "step": int(state["step"])}
         return self.initialized_from["step"]
 
     def resume(self, checkpoint: str | Path | None = None) -> Path | None:
