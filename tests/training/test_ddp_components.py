@@ -17,7 +17,7 @@ import pytest
 import torch
 from tiny import TINY_GRAPH_BUILDERS as GRAPH_BUILDERS
 from tiny import TINY_PROCESSORS as PROCESSORS
-from training_support import free_loopback_port, subprocess_env, tiny_recipe
+from training_support import free_loopback_port, subprocess_env, tiny_recipe, trainable_integrators
 
 from gns_framework.plugins import load_registry
 
@@ -28,9 +28,7 @@ STEPS = 3
 
 
 # Integrators that share another's position map are refused for training (tests/assembly/test_learned.py).
-TRAINABLE_INTEGRATORS = [
-    n for n in REGISTRY.names("integrator") if not REGISTRY.get("integrator", n).same_position_map_as
-]
+TRAINABLE_INTEGRATORS = trainable_integrators(REGISTRY)
 
 
 def cases():

@@ -13,11 +13,12 @@ from gns_framework.plugins import load_registry
 from synthetic import write_synthetic_dataset
 from tiny import TINY_GRAPH_BUILDERS as GRAPH_BUILDERS
 from tiny import TINY_PROCESSORS as PROCESSORS
+from training_support import trainable_integrators
 from tiny import tiny_recipe, tiny_trainer
 
 REGISTRY = load_registry()
 # Integrators that share another's position map are refused for training (tests/assembly/test_learned.py).
-INTEGRATORS = [n for n in REGISTRY.names("integrator") if not REGISTRY.get("integrator", n).same_position_map_as]
+INTEGRATORS = trainable_integrators(REGISTRY)
 
 
 @pytest.fixture(scope="module")

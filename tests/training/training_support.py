@@ -128,3 +128,8 @@ def process_environment(pid: int) -> dict[str, str]:
     except OSError:
         return {}
     return dict(item.split("=", 1) for item in raw.decode(errors="replace").split("\0") if "=" in item)
+
+
+def trainable_integrators(registry) -> list[str]:
+    """Installed integrators training accepts: not those sharing another's position map (assembly.learned)."""
+    return [n for n in registry.names("integrator") if not registry.get("integrator", n).same_position_map_as]
