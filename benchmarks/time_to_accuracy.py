@@ -52,7 +52,7 @@ from gns_framework.config.recipe import load_recipe
 from gns_framework.plugins import load_registry
 from gns_framework.training.tracking import TrackerGroup
 from gns_framework.training.trainer import Trainer
-from gns_framework.training.validation import mean_rollout_scores
+from gns_framework.training.validation import rollout_score_summary
 
 REPO = Path(__file__).resolve().parents[1]
 METRICS = {
@@ -134,7 +134,7 @@ def run_recipe(
             # What the recipe would ship: the weight average when it keeps one.
             shipped = trainer.ema.module if trainer.ema is not None else trainer.simulator
             shipped.eval()
-            scores = mean_rollout_scores(shipped, cases, trainer.validation.score_rollout)
+            scores = rollout_score_summary(shipped, cases, trainer.validation.score_rollout)
             trainer.simulator.train()
             point = {"minutes": trained / 60, "step": trainer.step}
             point.update({name: scores.get(key) for name, key in METRICS.items()})

@@ -29,7 +29,8 @@ class Metric:
             sees finite stand-in positions, and is inf wherever the rollout diverged.
         validation: also measured while training, on the validation rollouts, as
             ``valid_rollout_<validation>`` (mean over the rollouts where it can be
-            taken), which ``training.best_metric`` may then choose; None: evaluation only.
+            taken) and ``valid_rollout_<validation>_worst`` (the largest), either of which
+            ``training.best_metric`` may then choose; None: evaluation only.
             A single metric only, not a family.
     """
 
@@ -43,6 +44,16 @@ class Metric:
     def tracked_as(self) -> str | None:
         """``valid_rollout_<validation>``, its name in training's metrics and ``training.best_metric``; None if untracked."""
         return None if self.validation is None else f"valid_rollout_{self.validation}"
+
+    @property
+    def tracked_worst_as(self) -> str | None:
+        """``valid_rollout_<validation>_worst``: the largest over the validation rollouts; None if untracked."""
+        return None if self.tracked_as is None else worst_of(self.tracked_as)
+
+
+def worst_of(tracked: str) -> str:
+    """The name under which the largest of a tracked error over the validation rollouts is recorded."""
+    return f"{tracked}_worst"
 
 
 @dataclass(frozen=True)

@@ -292,6 +292,10 @@ class Registry:
         """``valid_rollout_<validation>`` -> metric, for each installed metric measured while training."""
         return {m.tracked_as: m for m in self.metrics() if m.tracked_as is not None}
 
+    def best_metric_choices(self) -> list[str]:
+        """What ``training.best_metric`` may name: each tracked error's mean and worst over the validation rollouts."""
+        return sorted(name for m in self.validation_metrics().values() for name in (m.tracked_as, m.tracked_worst_as))
+
     def metric_entries(self) -> list[MetricEntry]:
         """Every installed metric with its provider, in the order the plugins were registered."""
         return list(self._metrics.values())

@@ -20,7 +20,7 @@ from gns_framework.evaluation.rollout_scores import validation_rollout_scorer
 from gns_framework.ground_truth.scene_spec import parse_scene
 from gns_framework.model.rollout import rollout
 from gns_framework.training.trainer import Trainer
-from gns_framework.training.validation import mean_rollout_scores
+from gns_framework.training.validation import rollout_score_summary
 
 pytestmark = pytest.mark.cuda
 
@@ -99,11 +99,11 @@ def test_evaluation_metrics_on_the_gpu_match_the_cpu(dataset_multimaterial, tmp_
     trainer.train(5)
     trajectories = [trainer.data.dataset.split("valid")[0]]
     scene, metadata = trainer.data.scene, trainer.data.metadata
-    on_cpu = mean_rollout_scores(
+    on_cpu = rollout_score_summary(
         trainer.simulator, trajectories, validation_rollout_scorer(registry, scene, metadata, torch.device("cpu"))
     )
     gpu_model = copy.deepcopy(trainer.simulator).to("cuda")
-    on_gpu = mean_rollout_scores(
+    on_gpu = rollout_score_summary(
         gpu_model, trajectories, validation_rollout_scorer(registry, scene, metadata, torch.device("cuda"))
     )
     assert on_cpu.keys() == on_gpu.keys()

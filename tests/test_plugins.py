@@ -243,6 +243,9 @@ def test_a_plugins_metric_can_be_tracked_in_validation_and_chosen_for_best_pt(tm
     raw = tiny_recipe_mapping(tmp_path)
     raw["training"]["best_metric"] = "valid_rollout_spread_pct"
     assert validate_recipe(raw, registry).training.best_metric == "valid_rollout_spread_pct"
+    raw["training"]["best_metric"] = "valid_rollout_spread_pct_worst"
+    assert validate_recipe(raw, registry).training.best_metric == "valid_rollout_spread_pct_worst"
+    raw["training"]["best_metric"] = "valid_rollout_spread_pct"
     with pytest.raises(
         RecipeError,
         match=r"training.best_metric: unknown validation metric 'valid_rollout_spread_pct'.*"

@@ -178,9 +178,10 @@ class TrainingSpec(_Strict):
     )
     best_metric: str = Field(
         "valid_rollout_mse",
-        description="rollout metric (lower is better, mean over the validation rollouts) that picks best.pt: "
-        "valid_rollout_<name> of an installed metric measured in validation (`gns plugins --kind metric` lists them); "
-        "valid_rollout_deposit_error_pct is the mean of each rollout's final extent and height errors",
+        description="rollout metric (lower is better) that picks best.pt: valid_rollout_<name>, the mean over the "
+        "validation rollouts of an installed metric measured in validation (`gns plugins --kind metric` lists them), "
+        "or valid_rollout_<name>_worst, its largest; valid_rollout_deposit_error_pct is the mean of each rollout's "
+        "final extent and height errors",
     )
 
 
@@ -276,7 +277,7 @@ def _component_problems(raw: dict, registry: Registry) -> list[tuple[str, str]]:
     training: dict = raw_training if isinstance(raw_training, dict) else {}
     best = training.get("best_metric")
     if isinstance(best, str):
-        tracked = sorted(registry.validation_metrics())
+        tracked = registry.best_metric_choices()
         if best not in tracked:
             problems.append(
                 (

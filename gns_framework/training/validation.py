@@ -34,6 +34,7 @@ from ..io.checkpoint import save_checkpoint
 from ..io.run_folder import RunFolder
 from ..model.learned_simulator import LearnedSimulator
 from ..model.loss import masked_acceleration_loss
+from ..plugin_types import worst_of
 
 RolloutScorer = Callable[[LearnedSimulator, Trajectory], Mapping[str, float]]
 """``(simulator, trajectory) -> {tracked name: error}`` of one full rollout (inf where it diverged)."""
@@ -65,19 +66,23 @@ def validation_windows(
     return [index.batch(picks[i : i + batch_size]) for i in range(0, len(picks), batch_size)]
 
 
-def mean_rollout_scores(
+def rollout_score_summary(
     simulator: LearnedSimulator, trajectories: Sequence[Trajectory], score: RolloutScorer
 ) -> dict[str, float]:
-    """Each tracked error averaged over the rollouts of ``trajectories`` that have it.
+    """Each tracked error's mean, and its worst (:func:`~gns_framework.plugin_types.worst_of`), over the rollouts.
 
-    A metric that cannot be taken on some scene (a runout without granular
-    particles) is left out of that scene's mean, not counted as zero.
+    The worst is there because a mean over a dozen scenes can stay flat while one
+    kind of scene (a long runout in a large box) goes badly wrong. A metric that
+    cannot be taken on some scene (a runout without granular particles) is left
+    out of that scene's mean and worst, not counted as zero.
     """
     totals: dict[str, list[float]] = {}
     for trajectory in trajectories:
         for name, value in score(simulator, trajectory).items():
             totals.setdefault(name, []).append(float(value))
-    return {name: float(np.mean(values)) for name, values in totals.items()}
+    summary = {name: float(np.mean(values)) for name, values in totals.items()}
+    summary.update({worst_of(name): float(np.max(values)) for name, values in totals.items()})
+    return summary
 
 
 class Validation:
@@ -113,7 +118,7 @@ class Validation:
 
     @torch.no_grad()
     def measure(self, model: LearnedSimulator) -> dict[str, float]:
-        """One-step loss and next-position MSE on the fixed windows, then the rollouts' mean errors.
+        """One-step loss and next-position MSE on the fixed windows, then the rollouts' mean and worst errors.
 
         Empty when there is nothing to validate on (also on every rank but 0, which
         does not validate). ``model`` is left in training mode.
@@ -137,7 +142,7 @@ class Validation:
             "valid_one_step_position_mse": float(np.mean(position_errors)),
         }
         if self.trajectories:
-            metrics.update(mean_rollout_scores(model, self.trajectories, self.score_rollout))
+            metrics.update(rollout_score_summary(model, self.trajectories, self.score_rollout))
         model.train()
         return metrics
 

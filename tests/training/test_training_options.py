@@ -192,6 +192,8 @@ def test_validation_rolls_out_and_keeps_the_best_checkpoint(sand_dataset, tmp_pa
         # measured on every rollout, the mean of the two averages.
         parts = (m["valid_rollout_extent_error_pct"], m["valid_rollout_height_error_pct"])
         assert m["valid_rollout_deposit_error_pct"] == pytest.approx(sum(parts) / 2, rel=1e-9)
+        # The worst rollout is recorded beside the mean, and is never below it.
+        assert m["valid_rollout_deposit_error_pct_worst"] >= m["valid_rollout_deposit_error_pct"]
     best = json.loads((tmp_path / "checkpoints" / "best.json").read_text())
     scores = {m["step"]: m["valid_rollout_mse"] for m in validations}
     assert best["metric"] == "valid_rollout_mse" and best["step"] == min(scores, key=scores.get)

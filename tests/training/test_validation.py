@@ -13,7 +13,7 @@ from tiny import tiny_recipe, tiny_trainer
 
 from gns_framework.io.checkpoint import load_checkpoint
 from gns_framework.io.run_folder import RunFolder
-from gns_framework.training.validation import Validation, mean_rollout_scores, validation_windows
+from gns_framework.training.validation import Validation, rollout_score_summary, validation_windows
 
 HISTORY = 3
 
@@ -42,9 +42,17 @@ def test_no_usable_valid_split_warns_naming_the_dataset_and_why(valid, reason):
 
 def test_rollout_scores_are_averaged_over_the_rollouts_that_have_them():
     scores = iter([{"a": 1.0, "b": 10.0}, {"a": 3.0}, {"a": math.inf, "b": 20.0}])
-    means = mean_rollout_scores(None, _trajectories(3), lambda simulator, trajectory: next(scores))
-    assert means["a"] == math.inf, "a diverged rollout makes the mean inf: it can never be the best"
-    assert means["b"] == pytest.approx(15.0), "a scene without the metric is left out, not counted as 0"
+    summary = rollout_score_summary(None, _trajectories(3), lambda simulator, trajectory: next(scores))
+    assert summary["a"] == math.inf, "a diverged rollout makes the mean inf: it can never be the best"
+    assert summary["b"] == pytest.approx(15.0), "a scene without the metric is left out, not counted as 0"
+    assert summary["a_worst"] == math.inf and summary["b_worst"] == 20.0
+
+
+def test_the_worst_rollout_is_recorded_beside_the_mean():
+    # One scene far off, the others close: the mean hides what the worst shows.
+    scores = iter([{"a": 2.0}, {"a": 3.0}, {"a": 40.0}, {"a": 1.0}])
+    summary = rollout_score_summary(None, _trajectories(4), lambda simulator, trajectory: next(scores))
+    assert summary == {"a": pytest.approx(11.5), "a_worst": 40.0}
 
 
 def _state(step: int, best: dict) -> dict:
