@@ -29,7 +29,7 @@ from pydantic import BaseModel, ValidationError
 from . import hookspecs
 from .config.problems import problems_from
 from .errors import PluginError, PluginWarning, RecipeError, did_you_mean
-from .plugin_types import Metric
+from .plugin_types import Metric, worst_of
 from .specs import ComponentSpec
 
 ENTRY_POINT_GROUP = "gns_framework"
@@ -294,7 +294,7 @@ class Registry:
 
     def best_metric_choices(self) -> list[str]:
         """What ``training.best_metric`` may name: each tracked error's mean and worst over the validation rollouts."""
-        return sorted(name for m in self.validation_metrics().values() for name in (m.tracked_as, m.tracked_worst_as))
+        return sorted(name for tracked in self.validation_metrics() for name in (tracked, worst_of(tracked)))
 
     def metric_entries(self) -> list[MetricEntry]:
         """Every installed metric with its provider, in the order the plugins were registered."""
