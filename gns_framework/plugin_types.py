@@ -45,11 +45,6 @@ class Metric:
         """``valid_rollout_<validation>``, its name in training's metrics and ``training.best_metric``; None if untracked."""
         return None if self.validation is None else f"valid_rollout_{self.validation}"
 
-    @property
-    def tracked_worst_as(self) -> str | None:
-        """``valid_rollout_<validation>_worst``: the largest over the validation rollouts; None if untracked."""
-        return None if self.tracked_as is None else worst_of(self.tracked_as)
-
 
 def worst_of(tracked: str) -> str:
     """The name under which the largest of a tracked error over the validation rollouts is recorded."""

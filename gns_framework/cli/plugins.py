@@ -14,6 +14,7 @@ import json
 
 from ..contracts import COMPONENT_KINDS
 from ..plugins import ComponentEntry, MetricEntry, Registry, load_registry
+from ..plugin_types import worst_of
 from .commands import CommandEntry, command_entries
 
 KINDS = [*COMPONENT_KINDS, "metric", "command"]
@@ -39,7 +40,10 @@ def run(args: argparse.Namespace) -> int:
     print(_table(rows, COLUMNS))
     if "metric" in kinds:
         tracked = ", ".join(f"{name} ({m.name})" for name, m in registry.validation_metrics().items())
-        print(f"\nmeasured in training's validation rollouts (training.best_metric chooses one): {tracked}")
+        print(
+            f"\nmeasured in training's validation rollouts (training.best_metric chooses one, as the mean "
+            f"or as {worst_of('<name>')}, the worst rollout): {tracked}"
+        )
     if "material" in kinds:
         print()
         print(_particle_types(registry))

@@ -73,6 +73,7 @@ def test_one_kind_lists_only_its_rows(capsys):
     kinds = {line.split()[0] for line in table.splitlines()[1:]}
     assert kinds == {"metric"} and "free particle types" not in out
     assert "training.best_metric" in tracked and "valid_rollout_deposit_error_pct (deposit_error_pct)" in tracked
+    assert "<name>_worst, the worst rollout" in tracked
     assert "free particle types: 0-2, 4, 9-1023" in run_plugins(capsys, "--kind", "material")
 
 
