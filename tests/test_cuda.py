@@ -41,7 +41,7 @@ def test_training_runs_on_the_gpu_and_resumes_exactly(dataset_multimaterial, tmp
     first = _trainer(dataset_multimaterial, tmp_path / "b", registry, "cuda", checkpoint_every=3)
     head = first.train(3)
     resumed = _trainer(dataset_multimaterial, tmp_path / "b", registry, "cuda")
-    resumed.resume()
+    resumed.checkpoints.resume()
     tail = resumed.train(6)
     # Ordered sums in the edge block and CPU-drawn noise: the GPU repeats itself bit for bit.
     assert head + tail == losses

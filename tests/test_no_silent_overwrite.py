@@ -175,7 +175,7 @@ def test_render_refuses_an_existing_gif_and_a_foreign_vtk_folder(make_rollout, t
 def checkpoint(dataset_2d, tmp_path_factory):
     trainer = tiny_trainer(tiny_recipe(dataset_2d), tmp_path_factory.mktemp("run") / "run")
     trainer.train(2)
-    path = trainer.save()
+    path = trainer.checkpoints.save()
     trainer.close()
     return path
 

@@ -138,7 +138,7 @@ def checkpoint(tmp_path_factory):
     data = write_synthetic_dataset(tmp_path_factory.mktemp("d") / "data", train=2, valid=1, test=1)
     trainer = tiny_trainer(tiny_recipe(data), tmp_path_factory.mktemp("run") / "run")
     trainer.train(1)
-    path = trainer.save()
+    path = trainer.checkpoints.save()
     trainer.close()
     return path
 

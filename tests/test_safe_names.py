@@ -163,7 +163,7 @@ def tree(folder: Path) -> dict[str, bytes]:
 def checkpoint(dataset_2d, tmp_path_factory) -> Path:
     trainer = tiny_trainer(tiny_recipe(dataset_2d), tmp_path_factory.mktemp("model") / "run")
     trainer.train(1)
-    path = trainer.save()
+    path = trainer.checkpoints.save()
     trainer.close()
     return path
 

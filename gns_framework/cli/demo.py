@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     )
     trainer = Trainer(recipe, registry, run_dir=args.out / "run", dataset_path=data, progress=progress)
     try:
-        trainer.resume()
+        trainer.checkpoints.resume()
         before = trainer.validate()
         trainer.train()
         after = trainer.validate()
@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
         f"short model: validation one-step loss {before['valid_one_step_loss']:.4g} -> {after['valid_one_step_loss']:.4g}"
     )
     best = trainer.run.best_checkpoint
-    saved = best if best.is_file() else trainer.save()
+    saved = best if best.is_file() else trainer.checkpoints.save()
     assert saved is not None  # one process: rank 0 writes it
     short = load_trained(saved, registry)
     pretrained = load_trained(args.model, registry)

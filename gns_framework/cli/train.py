@@ -106,18 +106,18 @@ def _train(trainer: Trainer, args: argparse.Namespace) -> int:
             resume, restart = "auto", False
     resumed = None
     if resume is not None:
-        resumed = trainer.resume(None if resume == "auto" else resume)
+        resumed = trainer.checkpoints.resume(None if resume == "auto" else resume)
         say(
             f"resumed from {resumed} at step {trainer.step}"
             if resumed
             else "no checkpoint to resume from; starting at step 0"
         )
     if resumed is None:
-        earlier = trainer.start_afresh(restart)
+        earlier = trainer.checkpoints.start_afresh(restart)
         if earlier is not None:
             say(f"starting afresh at step 0; the earlier run's checkpoints are kept in {earlier}")
         if args.init_from is not None:
-            step = trainer.initialize_from(args.init_from)
+            step = trainer.checkpoints.initialize_from(args.init_from)
             say(f"fine-tuning from {args.init_from} (trained {step} steps)")
     # MLflow only once the data and any checkpoint have loaded, so a run that cannot start leaves no trace there;
     # a run from step 0 is a new history, so a new MLflow run.

@@ -151,7 +151,7 @@ def trained_state(dataset_2d, tmp_path_factory):
     trainer = tiny_trainer(tiny_recipe(dataset_2d), tmp_path_factory.mktemp("granting") / "run")
     trainer.train(1)
     trainer.close()
-    return trainer.state()
+    return trainer.checkpoints.state()
 
 
 def granting_checkpoint(state: dict, path: Path, dataset: Path) -> Path:

@@ -13,4 +13,4 @@ def tiny_model(tmp_path_factory, dataset_multimaterial, registry) -> Path:
     run = tmp_path_factory.mktemp("invert_run")
     trainer = tiny_trainer(tiny_recipe(dataset_multimaterial, registry), run, registry)
     trainer.train()
-    return trainer.save()
+    return trainer.checkpoints.save()

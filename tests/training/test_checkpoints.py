@@ -39,7 +39,7 @@ def test_training_2n_steps_equals_n_then_resumed_n(uneven_dataset, tmp_path):
     first_losses = first.train(n)
     first.close()
     resumed = make_trainer(recipe, tmp_path / "stopped")
-    assert resumed.resume() == tmp_path / "stopped" / "checkpoints" / checkpoint_name(n)
+    assert resumed.checkpoints.resume() == tmp_path / "stopped" / "checkpoints" / checkpoint_name(n)
     assert resumed.step == n
     resumed_losses = resumed.train(2 * n)
     resumed.close()
@@ -139,7 +139,7 @@ def test_damaged_checkpoint_error_names_the_file_and_resume_falls_back(two_check
         load_checkpoint(newest)
     trainer = make_trainer(recipe, run_dir)
     with pytest.warns(UserWarning, match=f"skipping damaged checkpoint: {newest}"):
-        resumed_from = trainer.resume()
+        resumed_from = trainer.checkpoints.resume()
     trainer.close()
     assert resumed_from == run_dir / "checkpoints" / checkpoint_name(2) and trainer.step == 2
 
@@ -151,7 +151,7 @@ def test_resume_past_a_damaged_checkpoint_keeps_it_aside_and_never_writes_over_i
     damaged = newest.read_bytes()
     trainer = make_trainer(recipe, run_dir)
     with pytest.warns(UserWarning, match=f"damaged checkpoint {newest} kept as {newest.name}.damaged"):
-        assert trainer.resume() == run_dir / "checkpoints" / checkpoint_name(2)
+        assert trainer.checkpoints.resume() == run_dir / "checkpoints" / checkpoint_name(2)
     trainer.train(4)
     trainer.close()
     assert (run_dir / "checkpoints" / f"{newest.name}.damaged").read_bytes() == damaged
@@ -264,7 +264,7 @@ def test_partial_checkpoint_writes_are_cleared_by_the_next_save(two_checkpoints)
     partial = run_dir / "checkpoints" / ".checkpoint-000000006.pt.abc123.tmp.pt"
     partial.write_bytes(b"half a checkpoint")
     trainer = make_trainer(recipe, run_dir)
-    trainer.resume()
+    trainer.checkpoints.resume()
     trainer.train(6)
     trainer.close()
     assert not partial.exists()

@@ -34,7 +34,7 @@ def test_resume_ignores_the_cuda_generators_of_a_checkpoint_written_with_more_gp
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     monkeypatch.setattr(torch.cuda, "set_rng_state_all", fewer_gpus)
     resumed = tiny_trainer(recipe, tmp_path, registry)
-    assert resumed.resume() == path and resumed.step == 3
+    assert resumed.checkpoints.resume() == path and resumed.step == 3
 
 
 def test_the_process_group_is_given_the_rank_gpu(monkeypatch):

@@ -65,7 +65,10 @@ def test_plugin_record_names_the_materials(dataset_multimaterial, tmp_path, regi
     trainer.train(1)
     trainer.close()
     sand = registry.entry("material", "sand")
-    for record in (json.loads((tmp_path / "params.json").read_text())["plugins"], trainer.state()["plugins"]):
+    for record in (
+        json.loads((tmp_path / "params.json").read_text())["plugins"],
+        trainer.checkpoints.state()["plugins"],
+    ):
         assert {k for k in record if k.startswith("material/")} == {"material/rigid", "material/water", "material/sand"}
         assert record["material/sand"] == {
             "distribution": "gns-framework",

@@ -40,7 +40,7 @@ def _train(recipe_raw, registry, steps, resume=False):
     recipe = validate_recipe(recipe_raw, registry)
     trainer = Trainer(recipe, registry, progress=False)
     if resume:
-        trainer.resume()
+        trainer.checkpoints.resume()
     losses = trainer.train(steps)
     trainer.close()
     return losses, trainer
@@ -62,7 +62,7 @@ def test_checkpoint_of_another_model_is_refused(dataset_multimaterial, tmp_path,
     other = tiny_recipe_mapping(dataset_multimaterial, tmp_path, latent_size=32)
     trainer = Trainer(validate_recipe(other, registry), registry, progress=False)
     with pytest.raises(CheckpointError, match="different model: model.latent_size: checkpoint 16, recipe 32"):
-        trainer.resume()
+        trainer.checkpoints.resume()
 
 
 def test_an_optimizer_state_of_another_parameter_layout_is_a_clear_error(dataset_multimaterial, tmp_path, registry):
@@ -77,7 +77,7 @@ def test_an_optimizer_state_of_another_parameter_layout_is_a_clear_error(dataset
         validate_recipe(tiny_recipe_mapping(dataset_multimaterial, tmp_path), registry), registry, progress=False
     )
     with pytest.raises(CheckpointError, match=f"{path}: its model or optimizer state does not fit"):
-        trainer.resume()
+        trainer.checkpoints.resume()
 
 
 class _MeanFieldProcessor(Processor):

@@ -24,7 +24,7 @@ def trained(uneven_dataset, tmp_path_factory):
     """A 4-step run with a weight average, and its checkpoint."""
     run = tmp_path_factory.mktemp("trained")
     trainer = make_trainer(tiny_recipe(uneven_dataset, steps=4, checkpoint_every=4, ema_decay=0.5), run)
-    trainer.start_afresh()
+    trainer.checkpoints.start_afresh()
     trainer.train(4)
     trainer.close()
     ((_, path),) = list_checkpoints(run / "checkpoints")[-1:]
@@ -34,8 +34,8 @@ def trained(uneven_dataset, tmp_path_factory):
 def test_fine_tuning_starts_from_the_weight_average_at_step_0_with_a_fresh_optimiser(uneven_dataset, trained, tmp_path):
     source = load_checkpoint(trained)
     tuned = make_trainer(tiny_recipe(uneven_dataset, steps=8, ema_decay=0.5), tmp_path / "tuned")
-    tuned.start_afresh()
-    assert tuned.initialize_from(trained) == 4
+    tuned.checkpoints.start_afresh()
+    assert tuned.checkpoints.initialize_from(trained) == 4
     assert tuned.step == 0
     state = tuned.simulator.state_dict()
     for key, value in source["ema"]["model"].items():
@@ -43,7 +43,7 @@ def test_fine_tuning_starts_from_the_weight_average_at_step_0_with_a_fresh_optim
     # The weight average differs from the last weights, so taking the average is a choice that shows.
     assert any(not torch.equal(source["ema"]["model"][k], source["model"][k]) for k in source["model"])
     assert tuned.optimizer.state_dict()["state"] == {}
-    assert tuned.state()["initialized_from"] == {"checkpoint": str(trained), "step": 4}
+    assert tuned.checkpoints.state()["initialized_from"] == {"checkpoint": str(trained), "step": 4}
     assert tuned.ema is not None and torch.equal(tuned.ema.module.state_dict()[key], state[key])
 
 
@@ -52,7 +52,7 @@ def test_a_checkpoint_of_another_model_is_refused_naming_the_difference(uneven_d
     recipe["model"]["latent_size"] = 8
     other = make_trainer(recipe, tmp_path / "other")
     with pytest.raises(CheckpointError, match="model.latent_size: checkpoint 16, recipe 8"):
-        other.initialize_from(trained)
+        other.checkpoints.initialize_from(trained)
 
 
 def test_gns_train_init_from_trains_and_records_the_source_in_every_checkpoint(
@@ -84,11 +84,11 @@ def test_a_radius_spelled_out_is_the_same_model_and_another_radius_is_refused(un
     radius = load_checkpoint(trained)["scene"]["connectivity_radius"]
     same = tiny_recipe(uneven_dataset)
     same["model"]["connectivity_radius"] = radius
-    make_trainer(same, tmp_path / "same").initialize_from(trained)
+    make_trainer(same, tmp_path / "same").checkpoints.initialize_from(trained)
     other = tiny_recipe(uneven_dataset)
     other["model"]["connectivity_radius"] = 2 * radius
     with pytest.raises(CheckpointError, match="scene: written for"):
-        make_trainer(other, tmp_path / "other").initialize_from(trained)
+        make_trainer(other, tmp_path / "other").checkpoints.initialize_from(trained)
 
 
 def test_the_fine_tuned_envelope_holds_the_source_models_data_too(uneven_dataset, trained, tmp_path):
@@ -97,7 +97,7 @@ def test_the_fine_tuned_envelope_holds_the_source_models_data_too(uneven_dataset
     state["envelope"]["particle_count"] = [1, 10**6]
     source = save_checkpoint(tmp_path / "source.pt", state)
     tuned = make_trainer(tiny_recipe(uneven_dataset), tmp_path / "tuned")
-    own = list(tuned.envelope.particle_count)
+    own = list(tuned.checkpoints.envelope.particle_count)
     assert own != [1, 10**6]
-    tuned.initialize_from(source)
-    assert tuned.state()["envelope"]["particle_count"] == [1, 10**6]
+    tuned.checkpoints.initialize_from(source)
+    assert tuned.checkpoints.state()["envelope"]["particle_count"] == [1, 10**6]

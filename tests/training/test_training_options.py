@@ -219,7 +219,7 @@ def test_resume_restores_the_best_score(sand_dataset, tmp_path, registry):
     trainer.close()
     best = json.loads((tmp_path / "checkpoints" / "best.json").read_text())
     resumed = _rollout_validated(sand_dataset, tmp_path, registry)
-    resumed.resume()
+    resumed.checkpoints.resume()
     assert resumed.best == best
     resumed.close()
 
