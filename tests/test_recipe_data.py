@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from load_script import load_script
 from gns_framework.cli import build_parser
 from gns_framework.ground_truth.scene_spec import load_scene
 from gns_framework.plugins import load_registry
@@ -57,12 +58,7 @@ def merged_parts(recipe: Path, words: list[str], raw: dict) -> list[list[str]]:
 
 
 def merge_parser():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("merge_datasets", ROOT / "scripts" / "merge_datasets.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.parser()
+    return load_script("scripts/merge_datasets.py").parser()
 
 
 @pytest.mark.parametrize("recipe", RECIPES, ids=[str(p.relative_to(ROOT)) for p in RECIPES])

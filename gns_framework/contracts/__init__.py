@@ -19,6 +19,7 @@ from .encoder import Encoder
 from .graph import Graph
 from .graph_builder import GraphBuilder
 from .integrator import Integrator
+from .learned_part import LearnedPart
 from .material import PARTICLE_TYPE_IDS, Material, MaterialProperty
 from .params import ComponentParams, Params
 from .processor import Processor
@@ -36,6 +37,7 @@ __all__ = [
     "GraphBuilder",
     "GroundTruthSimulator",
     "Integrator",
+    "LearnedPart",
     "Material",
     "MaterialProperty",
     "ModelSetup",

@@ -3,23 +3,13 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import ClassVar
+from torch import Tensor
 
-from torch import Tensor, nn
-
-from .params import ComponentParams, Params
-from .setup import ModelSizes
+from .learned_part import LearnedPart
 
 
-class Decoder(nn.Module, ABC):
+class Decoder(LearnedPart, ABC):
     """Maps node latents to the normalised quantity the integrator consumes."""
-
-    name: ClassVar[str]
-    Params: ClassVar[type[Params]] = Params
-
-    def __init__(self, params: ComponentParams, sizes: ModelSizes):
-        super().__init__()
-        self.params = params
 
     @abstractmethod
     def forward(self, node_latent: Tensor) -> Tensor:

@@ -3,24 +3,14 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import ClassVar
-
-from torch import Tensor, nn
+from torch import Tensor
 
 from .graph import Graph
-from .params import ComponentParams, Params
-from .setup import ModelSizes
+from .learned_part import LearnedPart
 
 
-class Processor(nn.Module, ABC):
+class Processor(LearnedPart, ABC):
     """Message passing on the latent graph."""
-
-    name: ClassVar[str]
-    Params: ClassVar[type[Params]] = Params
-
-    def __init__(self, params: ComponentParams, sizes: ModelSizes):
-        super().__init__()
-        self.params = params
 
     @abstractmethod
     def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from load_script import load_script
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = REPO / "benchmarks" / "gpu_check.sh"
@@ -191,10 +192,7 @@ def test_the_scale_part_watches_its_deadline_inside_a_size(tmp_path):
 
 
 def _gpu_check_module():
-    spec = importlib.util.spec_from_file_location("gpu_check", REPO / "benchmarks" / "gpu_check.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("benchmarks/gpu_check.py")
 
 
 def test_at_a_million_particles_the_configuration_expected_to_fit_runs_first():

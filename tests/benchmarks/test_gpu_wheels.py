@@ -6,16 +6,14 @@ installed versions: no network, no pip.
 
 from __future__ import annotations
 
-import importlib.util
 import zipfile
 from pathlib import Path
 
 import pytest
+from load_script import load_script
 
 REPO = Path(__file__).resolve().parents[2]
-spec = importlib.util.spec_from_file_location("gpu_wheels", REPO / "benchmarks" / "gpu_wheels.py")
-gpu_wheels = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(gpu_wheels)
+gpu_wheels = load_script("benchmarks/gpu_wheels.py")
 
 PROJECT_REQUIRES = [
     "torch>=2.11,<2.14",

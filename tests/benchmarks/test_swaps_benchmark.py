@@ -2,17 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import yaml
+from load_script import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
-spec = importlib.util.spec_from_file_location("swaps_benchmark", ROOT / "benchmarks" / "swaps.py")
-swaps = importlib.util.module_from_spec(spec)
-sys.modules["swaps_benchmark"] = swaps
-spec.loader.exec_module(swaps)
+swaps = load_script("benchmarks/swaps.py")
 
 
 def load(path: str) -> dict:

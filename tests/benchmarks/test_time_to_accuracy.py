@@ -10,6 +10,7 @@ from pathlib import Path
 import yaml
 
 from tiny import tiny_recipe_mapping
+from load_script import load_script
 
 SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "time_to_accuracy.py"
 
@@ -88,11 +89,7 @@ def test_both_recipes_train_on_the_same_budget_and_report_ratios(tmp_path):
 
 
 def test_steadiness_is_judged_after_the_first_third_of_the_budget():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("tta", SCRIPT)
-    tta = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tta)
+    tta = load_script(SCRIPT)
 
     def points(*pairs):
         return [{"minutes": m, "runout_error_pct": v} for m, v in pairs]

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -10,6 +9,7 @@ import numpy as np
 import pytest
 from synthetic import write_synthetic_dataset
 
+from load_script import load_script
 from gns_framework.assembly.data import open_dataset
 from gns_framework.config.recipe import DatasetSpec
 from gns_framework.data.metadata import compute_statistics, load_metadata
@@ -17,9 +17,7 @@ from gns_framework.errors import DatasetError
 from gns_framework.plugins import load_registry
 
 ROOT = Path(__file__).resolve().parents[2]
-spec = importlib.util.spec_from_file_location("merge_datasets", ROOT / "scripts" / "merge_datasets.py")
-merge_datasets = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(merge_datasets)
+merge_datasets = load_script("scripts/merge_datasets.py")
 
 
 def trajectories(path: Path, split: str):

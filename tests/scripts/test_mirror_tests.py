@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
+from load_script import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
-spec = importlib.util.spec_from_file_location("mirror_tests", ROOT / "scripts" / "mirror_tests.py")
-mirror_tests = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(mirror_tests)
+mirror_tests = load_script("scripts/mirror_tests.py")
 
 
 def test_a_module_finds_its_mirror_and_its_topic_splits():

@@ -8,7 +8,6 @@ writer cannot hide here.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import shutil
 from pathlib import Path
@@ -16,6 +15,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from load_script import load_script
 from gns_builtins.datasets._formats.tfrecord_format import SequenceExample, read_records
 
 from gns_framework.cli import main
@@ -60,9 +60,7 @@ def test_deepmind_tfrecord_is_read_as_written(registry):
 
 
 def test_the_committed_tfrecord_files_are_the_generators_bytes(tmp_path):
-    spec = importlib.util.spec_from_file_location("public_layouts_generate", FIXTURES / "generate.py")
-    generate = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(generate)
+    generate = load_script(FIXTURES / "generate.py")
     assert generate.crc32c(b"123456789") == 0xE3069283  # the CRC-32C check value
     generate.write_deepmind(tmp_path)
     for split in ("train", "test"):

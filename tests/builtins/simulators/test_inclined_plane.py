@@ -6,21 +6,18 @@ angle and finds the threshold within ~1 degree of atan(mu) (docs/ground_truth.md
 
 from __future__ import annotations
 
-import importlib.util
 import math
 from pathlib import Path
 
 import pytest
+from load_script import load_script
 
 SCRIPT = Path(__file__).resolve().parents[3] / "benchmarks" / "inclined_plane.py"
 
 
 @pytest.fixture(scope="module")
 def inclined_plane():
-    spec = importlib.util.spec_from_file_location("inclined_plane", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(SCRIPT)
 
 
 MU = 0.5

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from load_script import load_script
 from gns_framework.assembly.ground_truth import build_ground_truth_simulator
 from gns_framework.ground_truth.scene_spec import parse_scene
 from scene_builders import problems
@@ -75,14 +76,7 @@ def test_too_few_substeps_for_the_viscosity_says_how_many(sim_registry):
 @pytest.fixture(scope="module")
 def dam_break():
     """benchmarks/dam_break.py: the Martin & Moyce column and Ritter's reservoir."""
-    import importlib.util
-    from pathlib import Path
-
-    script = Path(__file__).resolve().parents[3] / "benchmarks" / "dam_break.py"
-    spec = importlib.util.spec_from_file_location("dam_break", script)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("benchmarks/dam_break.py")
 
 
 @pytest.fixture(scope="module")
