@@ -132,10 +132,10 @@ def measure(edge_block: str | None) -> dict:
         trainer = Trainer(recipe, load_registry(), run_dir=run, progress=False)
         trainer.train_step()  # the first step makes every lazy choice (kernels, plans)
         # The step's own room where the tree has one (training/step.py); before it, the trainer's method.
-        room = getattr(trainer, "optimisation", None)
+        room, step = getattr(trainer, "optimisation", None), trainer.step
         with LineTrace(roots) as training:
             if room is not None:
-                room(trainer.step)
+                room(step)
             else:
                 trainer.train_step()
         trajectory = open_dataset(recipe.dataset, load_registry(), data).split("test")[0]

@@ -62,7 +62,9 @@ class Envelope:
 
     Attributes:
         dim: spatial dimensions.
-        particle_spacing: median nearest-neighbour distance at frame 0 (median over trajectories).
+        particle_spacing: median nearest-neighbour distance among the moving (material) particles
+            at frame 0, median over trajectories. Fixed obstacles and walls of particles have a
+            lattice of their own (the rigid material is not jittered), so they are measured apart.
         step_dt: seconds per learned step (stored frame step x frame stride).
         frame_stride: stored frames per learned step.
         particle_types: type ids in the data.
@@ -74,6 +76,9 @@ class Envelope:
         max_speed: the largest particle speed between two consecutive (strided) frames, per second.
         particle_count: [fewest, most] particles in a trajectory.
         frames: (strided) frames per training trajectory, [fewest, most]; informational.
+        boundary_spacing: [smallest, largest] median nearest-neighbour distance among the fixed
+            (kinematic) particles of a trajectory, over the trajectories that have some; None
+            when none has (or the checkpoint predates it: then they are not judged).
     """
 
     dim: int
@@ -88,6 +93,7 @@ class Envelope:
     max_speed: float
     particle_count: list[int]
     frames: list[int] = field(default_factory=list)
+    boundary_spacing: list[float] | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -99,7 +105,7 @@ class Envelope:
     def union(self, earlier: "Envelope") -> "Envelope":
         """This envelope widened by ``earlier``'s ranges: a model fine-tuned on this data was trained on both.
 
-        Materials, property ranges, extents, walls, speeds and counts are joined. The
+        Materials, property ranges, extents, walls, speeds, counts and boundary spacings are joined. The
         particle spacing and learned step are this data's (the model is now fitted to
         them); a different dimension or frame stride is no model that was trained on both.
         """
@@ -144,6 +150,9 @@ class Envelope:
             frames=span(self.frames, earlier.frames)
             if self.frames and earlier.frames
             else list(self.frames or earlier.frames),
+            boundary_spacing=span(self.boundary_spacing, earlier.boundary_spacing)
+            if self.boundary_spacing and earlier.boundary_spacing
+            else self.boundary_spacing or earlier.boundary_spacing,
         )
 
     def rows(self) -> list[tuple[str, str]]:
@@ -163,6 +172,9 @@ class Envelope:
                 ),
             ),
         ]
+        if self.boundary_spacing:
+            lo, hi = self.boundary_spacing
+            rows.append(("boundary particle spacing", f"{lo:.4g} .. {hi:.4g} m (+-{SPACING_TOLERANCE:.0%})"))
         rows += [(f"property {name}", f"{lo:.4g} .. {hi:.4g}") for name, (lo, hi) in self.properties.items()]
         rows += [(f"domain {axes[a]} extent", f"{lo:.4g} .. {hi:.4g} m") for a, (lo, hi) in enumerate(self.extent)]
         rows += [(f"wall {face}", _wall_kinds(seen)) for face, seen in (self.walls or {}).items()]
@@ -179,6 +191,13 @@ def _wall_kinds(seen: dict) -> str:
     if seen["friction"] is not None:
         kinds.append(f"friction {seen['friction'][0]:.3g} .. {seen['friction'][1]:.3g}")
     return " or ".join(kinds)
+
+
+def _spacings(position: np.ndarray, moving: np.ndarray) -> tuple[float, float | None]:
+    """Particle spacing of the moving particles (of all, when fewer than two move) and of the fixed ones (None: fewer than two)."""
+    material = particle_spacing(position[moving]) if moving.sum() >= 2 else particle_spacing(position)
+    fixed = ~moving
+    return material, (particle_spacing(position[fixed]) if fixed.sum() >= 2 else None)
 
 
 def _property_values(trajectory: Trajectory, column: int, moving: np.ndarray) -> np.ndarray:
@@ -210,18 +229,21 @@ def measure_envelope(
     frame_stride: int,
 ) -> Envelope:
     """The envelope of ``trajectories`` as the model sees them (already strided; ``metadata.dt`` is per learned step)."""
-    spacings, counts, frames, speed = [], [], [], 0.0
+    spacings, boundary_spacings, counts, frames, speed = [], [], [], [], 0.0
     extents = []
     properties: dict[str, list[float]] = {}
     faces: dict[str, dict] | None = {}
     types: set[int] = set()
     kinematic = np.asarray(scene.kinematic_types, dtype=np.int64)
     for trajectory in trajectories:
-        spacings.append(particle_spacing(trajectory.position[0]))
+        moving = ~np.isin(trajectory.particle_type, kinematic)
+        material, boundary = _spacings(trajectory.position[0], moving)
+        spacings.append(material)
+        if boundary is not None:
+            boundary_spacings.append(boundary)
         counts.append(trajectory.num_particles)
         frames.append(trajectory.num_steps)
         types.update(int(t) for t in np.unique(trajectory.particle_type))
-        moving = ~np.isin(trajectory.particle_type, kinematic)
         speed = max(speed, _speed(trajectory.position, moving, metadata.dt))
         extents.append(_extent(trajectory, metadata))
         if trajectory.material_property is not None:
@@ -257,6 +279,7 @@ def measure_envelope(
         max_speed=speed,
         particle_count=[int(min(counts)), int(max(counts))],
         frames=[int(min(frames)), int(max(frames))],
+        boundary_spacing=[float(min(boundary_spacings)), float(max(boundary_spacings))] if boundary_spacings else None,
     )
 
 
@@ -310,7 +333,8 @@ def outside_envelope(
     axes = "xyz"
     for trajectory in trajectories:
         key = trajectory.key
-        spacing = particle_spacing(trajectory.position[0])
+        moving = ~np.isin(trajectory.particle_type, kinematic)
+        spacing, boundary = _spacings(trajectory.position[0], moving)
         if abs(spacing / envelope.particle_spacing - 1) > SPACING_TOLERANCE:
             findings.add(
                 "particle spacing",
@@ -318,6 +342,15 @@ def outside_envelope(
                 f"{envelope.particle_spacing:.4g} m +-{SPACING_TOLERANCE:.0%}",
                 key,
             )
+        if envelope.boundary_spacing and boundary is not None:
+            lo, hi = envelope.boundary_spacing
+            if not lo * (1 - SPACING_TOLERANCE) <= boundary <= hi * (1 + SPACING_TOLERANCE):
+                findings.add(
+                    "boundary particle spacing",
+                    f"{boundary:.4g} m",
+                    f"{lo:.4g} .. {hi:.4g} m +-{SPACING_TOLERANCE:.0%}",
+                    key,
+                )
         unknown = sorted(set(np.unique(trajectory.particle_type).tolist()) - trained_types)
         if unknown:
             findings.add("particle types", f"{unknown}", f"{envelope.particle_types}", key)
@@ -329,7 +362,6 @@ def outside_envelope(
                 f"{low} .. {high}, accepted {COUNT_SLACK[0]:g}x .. {COUNT_SLACK[1]:g}x",
                 key,
             )
-        moving = ~np.isin(trajectory.particle_type, kinematic)
         speed = _speed(trajectory.position[:history], moving, metadata.dt)
         if speed > SPEED_SLACK * envelope.max_speed:
             findings.add(

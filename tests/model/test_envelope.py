@@ -186,7 +186,9 @@ def test_a_fine_tuned_models_envelope_joins_both_datasets():
         max_speed=1.5,
         particle_count=[800, 4000],
         frames=[100, 120],
+        boundary_spacing=[0.0104, 0.0125],
     )
+    assert later.union(_envelope(boundary_spacing=[0.009, 0.011])).boundary_spacing == [0.009, 0.0125]
     joined = later.union(earlier)
     assert joined.particle_spacing == 0.0105, "the spacing is the new data's"
     assert joined.particle_types == [3, 6] and joined.materials == {"3": "rigid", "6": "sand"}
@@ -197,8 +199,58 @@ def test_a_fine_tuned_models_envelope_joins_both_datasets():
         "y_min": {"friction": [0.3, 0.5], "slip": True, "no_slip": False},
     }
     assert joined.max_speed == 2.0 and joined.particle_count == [500, 4000] and joined.frames == [100, 120]
+    assert joined.boundary_spacing == [0.0104, 0.0125], "only the new data had fixed particles"
 
 
 def test_envelopes_of_another_stride_do_not_join():
     with pytest.raises(ValueError, match="stride 1"):
         _envelope().union(_envelope(frame_stride=1))
+
+
+# --- fixed particles on a lattice of their own ------------------------------------------------------
+
+OBSTACLE_TYPE = 3
+OBSTACLE_SCENE = replace(SCENE, particle_types=(OBSTACLE_TYPE, 6), kinematic_types=(OBSTACLE_TYPE,))
+
+
+def _with_obstacle(column: Trajectory, width: float, height: float, spacing: float) -> Trajectory:
+    """``column`` beside a fixed block of particles on an unjittered lattice of ``spacing`` at x >= 0.5 m."""
+    xs, ys = np.meshgrid(np.arange(0, width, spacing), np.arange(0, height, spacing), indexing="ij")
+    block = np.stack([xs.ravel() + 0.5, ys.ravel()], axis=1).astype(np.float32)
+    frames = np.concatenate([column.position, np.broadcast_to(block, (column.num_steps, *block.shape))], axis=1)
+    n = frames.shape[1]
+    types = np.concatenate([column.particle_type, np.full(len(block), OBSTACLE_TYPE)])
+    assert column.material_property is not None
+    properties = np.concatenate([column.material_property, np.full((len(block), 1), 0.0, np.float32)])
+    assert len(types) == n
+    return replace(column, position=frames, particle_type=types, material_property=properties).validated("test")
+
+
+def test_the_spacing_is_the_materials_when_a_fixed_block_outnumbers_the_sand():
+    # Generated obstacles sit on the cell lattice (here 1.3x the sand's spacing) and may outnumber the
+    # sand: the median over all particles would then be the block's, and a scene drawn exactly like
+    # the training data would be refused (as it was for scenes/sand_general_2d.yaml's hump scenes).
+    trained = [_with_obstacle(t, 0.3, 0.3, 1.3 * SPACING) for t in TRAINED]
+    envelope = measure_envelope(_metadata(), trained, OBSTACLE_SCENE, {3: "rigid", 6: "sand"}, frame_stride=2)
+    assert envelope.particle_spacing == pytest.approx(SPACING, rel=1e-5)
+    assert envelope.boundary_spacing == [pytest.approx(1.3 * SPACING, rel=1e-5)] * 2
+    small_column = _with_obstacle(_column(0.1, 0.1, key="small"), 0.3, 0.3, 1.3 * SPACING)
+    assert (small_column.particle_type == OBSTACLE_TYPE).mean() > 0.5
+    assert outside_envelope(envelope, _metadata(), [small_column], history=6, kinematic_types=(OBSTACLE_TYPE,)) == []
+    coarse_block = _with_obstacle(_column(0.1, 0.2, key="coarse"), 0.3, 0.3, 2 * SPACING)
+    (line,) = outside_envelope(envelope, _metadata(), [coarse_block], history=6, kinematic_types=(OBSTACLE_TYPE,))
+    assert line.startswith("boundary particle spacing 0.02 m in trajectory 'coarse'"), line
+    assert "(trained: 0.013 .. 0.013 m +-10%)" in line
+    assert ("boundary particle spacing", "0.013 .. 0.013 m (+-10%)") in envelope.rows()
+
+
+def test_an_envelope_without_boundary_spacing_does_not_judge_fixed_particles():
+    # Checkpoints written before the boundary spacing was recorded load with None.
+    raw = ENVELOPE.to_dict()
+    raw.pop("boundary_spacing")
+    old = Envelope.from_dict(raw)
+    assert old.boundary_spacing is None
+    coarse_block = _with_obstacle(_column(0.1, 0.2, key="coarse"), 0.3, 0.3, 2 * SPACING)
+    assert outside_envelope(old, _metadata(), [coarse_block], history=6, kinematic_types=(OBSTACLE_TYPE,)) == [
+        "particle types [3] in trajectory 'coarse' (trained: [6])"
+    ]
