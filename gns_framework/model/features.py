@@ -81,6 +81,7 @@ class FeatureBuilder(nn.Module):
         # The walled dimensions as index tensors that move with the module: a list index would be
         # copied from the host on every call.
         walled = torch.tensor(scene.wall_dims, dtype=torch.long)
+        self.has_walls = bool(scene.wall_dims)
         self.register_buffer("walled_dims", walled, persistent=False)
         self.register_buffer("walled_bounds", self.bounds[walled], persistent=False)
         # Faces of the walled dimensions in the order of the distance features: lower faces, then upper.
@@ -111,7 +112,7 @@ class FeatureBuilder(nn.Module):
         n = position_sequence.shape[0]
         velocity_sequence = position_sequence[:, 1:] - position_sequence[:, :-1]
         parts = [self.velocity_stats.normalize(velocity_sequence).reshape(n, -1)]
-        if scene.wall_dims:
+        if self.has_walls:
             most_recent = position_sequence[:, -1].index_select(1, self.walled_dims)
             if bounds is None:
                 lower, upper = self.walled_bounds[:, 0][None], self.walled_bounds[:, 1][None]

@@ -46,7 +46,8 @@ class LearnedSimulator(nn.Module):
         self.decoder = decoder
         self.integrator = integrator
         self.output_stats = output_stats
-        self.box = PeriodicBox(scene)
+        # Only a domain that wraps around needs its history made continuous and its predictions wrapped back.
+        self.box = PeriodicBox(scene) if scene.periodic_dims else None
         kinematic = torch.zeros(max(scene.particle_types) + 1, dtype=torch.bool)
         kinematic[list(scene.kinematic_types)] = True
         self.register_buffer("kinematic_type", kinematic, persistent=False)
@@ -54,6 +55,14 @@ class LearnedSimulator(nn.Module):
     def predicted_mask(self, particle_type: Tensor) -> Tensor:
         """(N,) True for particles whose motion the model predicts (not kinematic)."""
         return ~self.kinematic_type[particle_type]
+
+    def continuous(self, position_sequence: Tensor) -> Tensor:
+        """(N, C, d) history made continuous across periodic boundaries (the stored one is wrapped)."""
+        return position_sequence if self.box is None else self.box.unwrap_history(position_sequence)
+
+    def wrapped(self, position: Tensor) -> Tensor:
+        """(N, d) positions wrapped back into a periodic box."""
+        return position if self.box is None else self.box.wrap(position)
 
     def build_graph(self, position_sequence: Tensor, batch: ParticleBatch) -> Graph:
         """The builder's edges, with the particles' current positions and examples attached (see :class:`Graph`)."""
@@ -88,7 +97,7 @@ class LearnedSimulator(nn.Module):
         Every row is decoded, kinematic ones included, so outputs compare one to one
         with reference implementations.
         """
-        return self.decoder(self.processed_latent(self.box.unwrap_history(position_sequence), batch))
+        return self.decoder(self.processed_latent(self.continuous(position_sequence), batch))
 
     def predict_next_position(self, batch: ParticleBatch, prescribed: Tensor | None = None) -> Tensor:
         """(N, d) next positions: predicted for moving particles, prescribed for kinematic ones.
@@ -104,17 +113,17 @@ class LearnedSimulator(nn.Module):
             prescribed: (N, d) next positions whose kinematic rows are used; when None,
                 kinematic particles stay where they are.
         """
-        sequence = self.box.unwrap_history(batch.position_sequence)
+        sequence = self.continuous(batch.position_sequence)
         moving = self.predicted_mask(batch.particle_type)
         node_latent = self.processed_latent(sequence, batch)
         base = batch.position_sequence[:, -1] if prescribed is None else prescribed
         if not avoids_read_backs(node_latent.device):
             next_position = base.clone()
             prediction = self.output_stats.denormalize(self.decoder(node_latent[moving]))
-            next_position[moving] = self.box.wrap(self.integrator.next_position(sequence[moving], prediction))
+            next_position[moving] = self.wrapped(self.integrator.next_position(sequence[moving], prediction))
             return next_position
         prediction = self.output_stats.denormalize(self.decoder(node_latent))
-        predicted = self.box.wrap(self.integrator.next_position(sequence, prediction))
+        predicted = self.wrapped(self.integrator.next_position(sequence, prediction))
         return torch.where(moving[:, None], predicted.to(base.dtype), base)
 
     def forward(self, batch: ParticleBatch, position_noise: Tensor) -> tuple[Tensor, Tensor]:
@@ -132,8 +141,10 @@ class LearnedSimulator(nn.Module):
             predicted and target normalised outputs, (N, d) each.
         """
         assert batch.next_position is not None  # training windows have their target
-        sequence = self.box.unwrap_history(batch.position_sequence)
-        next_position = self.box.unwrap_next(sequence[:, -1], batch.next_position)
+        sequence = self.continuous(batch.position_sequence)
+        next_position = (
+            batch.next_position if self.box is None else self.box.unwrap_next(sequence[:, -1], batch.next_position)
+        )
         noisy_sequence = sequence + position_noise
         prediction = self.decoder(self.processed_latent(noisy_sequence, batch))
         next_position_adjusted = next_position + position_noise[:, -1]

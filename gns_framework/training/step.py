@@ -25,7 +25,7 @@ from ..model.loss import masked_squared_error_sum
 from ..model.noise import random_walk_noise
 from ..runtime.precision import Precision, autocast, backward_precision
 from ..runtime.device import is_cuda
-from .distributed import Processes
+from .processes import Processes
 from .ema import WeightAverage
 from ..model.history import advance_window
 
@@ -70,6 +70,8 @@ class TrainingStep:
         self.optimizer, self.scheduler, self.ema = optimizer, scheduler, ema
         self.processes, self.device = processes, device
         self.seed, self.most_pushforward, self.precision = seed, pushforward_steps, precision
+        # Copies to a GPU from pinned host memory need not block the host.
+        self.pins_memory = is_cuda(device)
 
     def __call__(self, step: int) -> tuple[Tensor, int]:
         """Optimiser step number ``step`` on this process's windows of it.
@@ -93,7 +95,7 @@ class TrainingStep:
         """
         batch = self.windows.batch(self.order.indices(step))
         noise = self.noise(step)
-        if is_cuda(self.device):
+        if self.pins_memory:
             batch, noise = batch.pinned(), noise.pin_memory()
         batch = batch.to(self.device)
         unrolled = self.pushforward_steps(step)

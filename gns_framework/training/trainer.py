@@ -30,7 +30,7 @@ from ..runtime.deterministic import set_deterministic_sums
 from ..runtime.host_sync import avoids_read_backs, read_back
 from . import distributed
 from .checkpoints import Checkpoints
-from .distributed import Processes
+from .processes import Processes
 from .ema import WeightAverage
 from .optim import make_optimizer
 from .provenance import git_commit

@@ -69,13 +69,6 @@ def test_processes_come_from_torchrun_environment():
     assert not alone.distributed and alone.is_chief and alone.device(torch.device("cuda")) == torch.device("cuda")
 
 
-def test_a_rank_shown_one_gpu_takes_it():
-    """SLURM --gpus-per-task shows each rank only its GPU: LOCAL_RANK 1 must not ask for cuda:1."""
-    processes = processes_from_environment({"RANK": "1", "WORLD_SIZE": "2", "LOCAL_RANK": "1"})
-    assert processes.device(torch.device("cuda"), visible_gpus=1) == torch.device("cuda", 0)
-    assert processes.device(torch.device("cpu"), visible_gpus=1) == torch.device("cpu")
-
-
 def test_backend_is_gloo_on_cpu_and_nccl_on_gpu():
     assert backend_for(torch.device("cpu")) == "gloo"
     assert backend_for(torch.device("cuda", 0)) == "nccl"

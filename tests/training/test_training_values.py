@@ -16,7 +16,7 @@ from tiny import tiny_recipe, tiny_trainer
 from torch import nn
 
 from gns_framework.model.noise import random_walk_noise
-from gns_framework.training.distributed import Processes
+from gns_framework.training.processes import Processes
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # restores the count the tiny trainers set to 1
 
