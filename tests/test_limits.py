@@ -1,11 +1,12 @@
 """Limits before allocation (issue 30, item 5): particle counts, grid sizes, sequence lengths and tfrecord record
 lengths are refused against stated limits and this machine's memory, with the estimate, before anything is
-allocated."""
+allocated. End to end through the commands and readers, then gns_framework.limits' estimates and checks one by one."""
 
 from __future__ import annotations
 
 import json
 import struct
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -161,3 +162,122 @@ def test_the_commands_give_one_line_for_a_bad_record(tmp_path, capsys):
     assert main(["convert", str(source), "--from", "tfrecord", "--to", "safe", "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "the length field says 1,099,511,627,776 bytes" in err
+
+
+# ---- the estimates and checks themselves ------------------------------------------------------------------------
+
+
+def _range(high: float) -> SimpleNamespace:
+    """A drawn value whose largest draw is ``high``."""
+    return SimpleNamespace(high=high)
+
+
+def _scene(blocks=(), obstacles=(), extents=(1.0, 0.5), cell_size=0.1, particles_per_cell=2) -> SimpleNamespace:
+    """A scene in [0, extents], its particles ``cell_size / particles_per_cell`` apart."""
+    return SimpleNamespace(
+        domain=SimpleNamespace(bounds=[(0.0, e) for e in extents], cell_size=cell_size, grid=round(1 / cell_size)),
+        particle_spacing=cell_size / particles_per_cell,
+        particles_per_cell=particles_per_cell,
+        blocks=list(blocks),
+        obstacles=list(obstacles),
+        dim=len(extents),
+        time=SimpleNamespace(frames=10),
+    )
+
+
+def _box(*size: float, count: float = 1) -> SimpleNamespace:
+    return SimpleNamespace(shape="box", size=[_range(s) for s in size], count=_range(count))
+
+
+def test_a_box_holds_its_largest_size_in_lattice_cells():
+    scene = _scene()  # spacing 0.05
+    assert limits.body_particles(_box(0.3, 0.2), scene) == 6 * 4
+    assert limits.body_particles(_box(0.001, 0.2), scene) == 1 * 4  # thinner than a spacing: still one row
+    assert limits.body_particles(SimpleNamespace(shape="box", size=None), scene) == 1.0
+
+
+def test_a_plane_is_one_cell_deep_across_the_domain_but_its_height():
+    # Across x (1.0 m / 0.05 + 1 = 21 points) and not along y, times particles_per_cell rows; in 3D across x and z.
+    plane = SimpleNamespace(shape="plane")
+    assert limits.body_particles(plane, _scene()) == 2 * 21
+    assert limits.body_particles(plane, _scene(extents=(1.0, 0.5, 0.4))) == 2 * 21 * 9
+
+
+def test_a_polygon_holds_at_most_its_bounding_box():
+    triangle = SimpleNamespace(shape="polygon", vertices=[(0.1, 0.1), (0.4, 0.1), (0.1, 0.3)])
+    assert limits.body_particles(triangle, _scene()) == 6 * 4  # 0.3 x 0.2 m at 0.05 m
+
+
+def test_a_scene_holds_its_largest_count_of_each_body():
+    scene = _scene(
+        blocks=[_box(0.3, 0.2, count=3), _box(0.1, 0.1)], obstacles=[SimpleNamespace(shape="plane", count=_range(1))]
+    )
+    total, parts = limits.scene_particles(scene)
+    assert parts == [("blocks[0]", 3.0, 24.0), ("blocks[1]", 1.0, 4.0), ("obstacles[0]", 1.0, 42.0)]
+    assert total == 3 * 24 + 4 + 42
+
+
+def test_the_grid_has_one_node_more_than_cells_per_axis():
+    assert limits.grid_nodes(_scene()) == 11 * 6
+    assert limits.grid_nodes(_scene(extents=(1.0, 0.5, 0.2))) == 11 * 6 * 3
+
+
+def test_one_body_too_many_names_the_body_and_its_count(monkeypatch):
+    monkeypatch.setattr(limits, "MAX_PARTICLES", 50)
+    scene = _scene(blocks=[_box(0.1, 0.1), _box(0.3, 0.2)])  # 4 + 24 particles: within the limit
+    limits.check_scene(scene, "s.yaml")
+    scene.blocks[1] = _box(0.3, 0.2, count=2)  # 4 + 48: the second block, counted twice, is the largest part
+    with pytest.raises(limits.LimitError, match=r"^s.yaml: blocks\[1\].count: the scene asks for about 52 particles"):
+        limits.check_scene(scene, "s.yaml")
+    scene.blocks = [_box(0.5, 0.5)]  # one body of 100: no count to blame
+    with pytest.raises(limits.LimitError, match=r"^s.yaml: blocks\[0\]: .*\(blocks\[0\]: up to 1 body of 100"):
+        limits.check_scene(scene, "s.yaml")
+
+
+def test_the_memory_estimate_counts_every_stored_frame_and_the_working_state(monkeypatch):
+    scene = _scene(blocks=[_box(0.3, 0.2)])  # 24 particles, 66 grid nodes, 10 frames, 2D
+    stored = 4 * 10 * 24 * 2 * 4  # 4 trajectories x frames x particles x d x float32
+    working = 24 * limits.PARTICLE_STATE_BYTES[2] + 66 * limits.GRID_NODE_BYTES[2]
+    monkeypatch.setattr(limits, "physical_memory", lambda: stored + working)
+    limits.check_scene(scene, "s.yaml", trajectories=4)  # exactly fits
+    monkeypatch.setattr(limits, "physical_memory", lambda: stored + working - 1)
+    with pytest.raises(limits.LimitError, match="s.yaml: blocks: generating 4 trajectories of 10 frames of about 24"):
+        limits.check_scene(scene, "s.yaml", trajectories=4)
+
+
+def test_memory_is_not_judged_where_the_system_does_not_say(monkeypatch):
+    monkeypatch.setattr(limits, "physical_memory", lambda: None)
+    limits.check_memory("here", 1e30, "everything")
+
+
+def test_physical_memory_is_pages_times_page_size(monkeypatch):
+    pages = {"SC_PAGE_SIZE": 4096, "SC_PHYS_PAGES": 1000}
+    monkeypatch.setattr(limits.os, "sysconf", lambda name: pages[name])
+    assert limits.physical_memory() == 4096 * 1000
+
+    def unsupported(name):
+        raise ValueError(f"unrecognized configuration name {name!r}")
+
+    monkeypatch.setattr(limits.os, "sysconf", unsupported)
+    assert limits.physical_memory() is None
+
+
+@pytest.mark.parametrize("nbytes, text", [(2**30, "1 GiB"), (1.5 * 2**30, "1.5 GiB"), (2**40, "1.02e+03 GiB")])
+def test_sizes_are_written_in_gib_to_three_figures(nbytes, text):
+    assert limits.gib(nbytes) == text
+
+
+def test_the_sequence_length_limit_is_inclusive():
+    limits.check_sequence_length("m.json", limits.MAX_SEQUENCE_LENGTH)
+    with pytest.raises(limits.LimitError, match="m.json: sequence_length: 1e\\+06 frames, more than the limit"):
+        limits.check_sequence_length("m.json", limits.MAX_SEQUENCE_LENGTH + 1)
+
+
+def test_a_record_may_fill_its_file_but_not_pass_its_end_nor_the_record_limit(monkeypatch):
+    monkeypatch.setattr(limits, "physical_memory", lambda: None)
+    limits.check_record_length("f: record 0", 100, remaining=100)
+    with pytest.raises(DatasetError, match="length field says 101 bytes but only 100 bytes follow"):
+        limits.check_record_length("f: record 0", 101, remaining=100)
+    limits.check_record_length("f: record 0", limits.MAX_RECORD_BYTES, remaining=2**40)
+    with pytest.raises(limits.LimitError, match="f: record 0: 17,179,869,185 bytes, more than the limit"):
+        limits.check_record_length("f: record 0", limits.MAX_RECORD_BYTES + 1, remaining=2**40)

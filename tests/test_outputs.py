@@ -1,6 +1,7 @@
 """Outputs are never silently replaced (issue 30, item 4): convert, generate, rollout, evaluate and render refuse a
 non-empty output that is not their own earlier result, naming what is there, unless given --overwrite; a dataset is
-replaced whole, never left a mix of two."""
+replaced whole, never left a mix of two. End to end through each command, then gns_framework.outputs' functions
+one by one (markers, the description of a folder, the folder and file checks, the whole replacement)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from gns_framework.cli import generate as generate_command
 from gns_framework.cli import main
 from gns_framework.errors import GnsError
 from gns_framework.io.rollout_file import save_rollout
+from gns_framework import outputs
 from gns_framework.outputs import MARKER
 from gns_framework.plugins import load_registry
 
@@ -238,3 +240,124 @@ def test_evaluate_rewrites_its_own_report(checkpoint, tmp_path, capsys):
     assert main(args) == 0
     assert main(args) == 0
     assert "writing over the earlier contents" in capsys.readouterr().err
+
+
+# ---- the functions themselves -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "content, command",
+    [
+        ('{"command": "convert"}', "convert"),
+        ("not json", None),
+        ('["convert"]', None),  # JSON, but no object
+        ('{"command": 3}', None),  # an object, but no command name
+        (b"\xff\xfe", None),  # no text
+    ],
+)
+def test_the_recorded_command_is_read_from_a_well_formed_marker_only(tmp_path, content, command):
+    marker = tmp_path / MARKER
+    marker.write_bytes(content if isinstance(content, bytes) else content.encode())
+    assert outputs.recorded_command(tmp_path) == command
+
+
+def test_a_folder_without_marker_records_no_command(tmp_path):
+    assert outputs.recorded_command(tmp_path) is None
+    assert outputs.recorded_command(tmp_path / "absent") is None
+
+
+def test_the_description_names_the_first_entries_sorted_the_count_and_the_writer(tmp_path):
+    for name in ["g", "c", "a", "e", "f", "d"]:
+        (tmp_path / name).write_text("")
+    (tmp_path / "b").mkdir()
+    outputs.write_marker(tmp_path, "rollout")
+    # The marker is no entry of the user's: 7 entries, not 8.
+    assert outputs.describe_contents(tmp_path) == "7 entries (written by gns rollout): a, b/, c, d, e and 2 more"
+    assert outputs.describe_contents(tmp_path, most=7) == "7 entries (written by gns rollout): a, b/, c, d, e, f, g"
+
+
+def test_the_description_of_one_unmarked_entry(foreign):
+    assert outputs.describe_contents(foreign) == "1 entry: notes.txt"
+
+
+def test_an_absent_or_empty_folder_is_free(tmp_path):
+    assert outputs.check_folder(tmp_path / "new", "convert", overwrite=False) is False
+    outputs.write_marker(tmp_path, "generate")  # a marker alone: nothing to replace, whoever wrote it
+    assert outputs.check_folder(tmp_path, "convert", overwrite=False) is False
+
+
+def test_a_folder_is_replaced_when_it_is_the_commands_own_or_overwrite_is_given(foreign):
+    assert outputs.check_folder(foreign, "render", overwrite=True) is True
+    assert outputs.check_folder(foreign, "render", overwrite=False, own=lambda f: (f / "notes.txt").exists()) is True
+    outputs.write_marker(foreign, "render")
+    assert outputs.check_folder(foreign, "render", overwrite=False) is True
+
+
+def test_another_commands_folder_is_refused_naming_it(foreign):
+    outputs.write_marker(foreign, "convert")
+    with pytest.raises(GnsError) as info:
+        outputs.check_folder(foreign, "generate", overwrite=False, own=lambda f: False)
+    assert str(info.value) == (
+        f"{foreign}: not empty and not an earlier result of gns generate: it holds 1 entry (written by gns convert): "
+        "notes.txt; choose another folder, or pass --overwrite to write over it"
+    )
+
+
+def test_a_file_where_a_folder_goes_is_refused_even_with_overwrite(tmp_path):
+    path = tmp_path / "out"
+    path.write_text("x")
+    with pytest.raises(GnsError, match="is a file, not a folder: gns rollout writes a folder there"):
+        outputs.check_folder(path, "rollout", overwrite=True)
+
+
+def test_claiming_a_folder_creates_and_marks_it_and_says_when_it_replaces(tmp_path, foreign, capsys):
+    claimed = outputs.claim_folder(tmp_path / "a" / "b", "evaluate", overwrite=False)
+    assert claimed.is_dir() and outputs.recorded_command(claimed) == "evaluate"
+    assert capsys.readouterr().err == ""
+    outputs.claim_folder(foreign, "evaluate", overwrite=True)
+    assert capsys.readouterr().err == f"gns evaluate: writing over the earlier contents of {foreign}\n"
+    assert (foreign / "notes.txt").exists()  # claiming deletes nothing: the command writes over what it must
+
+
+def test_an_existing_file_output_is_replaced_only_with_overwrite(tmp_path):
+    gif = tmp_path / "anim.gif"
+    outputs.check_file(gif, "render", overwrite=False, option="--gif")  # absent: free
+    gif.write_bytes(b"12345")
+    with pytest.raises(GnsError) as info:
+        outputs.check_file(gif, "render", overwrite=False, option="--gif")
+    assert str(info.value) == (
+        f"{gif}: --gif: the file exists (5 bytes); gns render does not replace it unless you pass --overwrite"
+    )
+    outputs.check_file(gif, "render", overwrite=True, option="--gif")
+    with pytest.raises(GnsError, match="--gif: is a folder, not a file"):
+        outputs.check_file(tmp_path, "render", overwrite=True, option="--gif")
+
+
+def test_a_whole_replacement_swaps_the_folder_and_marks_it(tmp_path):
+    folder = tmp_path / "data"
+    folder.mkdir()
+    (folder / "test.npz").write_text("old")
+    with outputs.replaced_whole(folder, "convert") as staging:
+        assert staging.parent == tmp_path and staging != folder and not any(staging.iterdir())
+        (staging / "train.npz").write_text("new")
+        assert (folder / "test.npz").read_text() == "old"  # readers still see the old dataset meanwhile
+    assert sorted(p.name for p in folder.iterdir()) == [MARKER, "train.npz"]
+    assert outputs.recorded_command(folder) == "convert" and no_temporary_siblings(folder)
+
+
+def test_a_failed_whole_replacement_leaves_the_folder_as_it_was(tmp_path):
+    folder = tmp_path / "data"
+    folder.mkdir()
+    (folder / "test.npz").write_text("old")
+    with pytest.raises(OSError, match="disk full"):
+        with outputs.replaced_whole(folder, "convert") as staging:
+            (staging / "train.npz").write_text("half")
+            raise OSError("disk full")
+    assert tree(folder) == {"test.npz": b"old"} and no_temporary_siblings(folder)
+
+
+def test_a_whole_replacement_of_a_new_folder_creates_its_parents(tmp_path):
+    folder = tmp_path / "a" / "b" / "data"
+    with outputs.replaced_whole(folder, "generate") as staging:
+        (staging / "metadata.json").write_text("{}")
+    assert tree(folder) == {MARKER: b'{"command": "generate"}\n', "metadata.json": b"{}"}

@@ -35,13 +35,6 @@ def test_builtins_come_from_entry_points_of_this_distribution(registry):
             assert issubclass(entry.cls, COMPONENT_KINDS[kind])
 
 
-def test_every_kind_has_a_hook():
-    from gns_framework import hookspecs
-
-    for kind in COMPONENT_KINDS:
-        assert hasattr(hookspecs, hookspecs.hook_of_kind(kind))
-
-
 class _OtherInteractionNetwork(Processor):
     name = "interaction_network"
 

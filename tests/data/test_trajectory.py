@@ -34,13 +34,6 @@ def test_domain_and_walls_survive_validation_striding_and_windows():
     assert batch.bounds[1, 0, 1] == 2.0
 
 
-def test_examples_with_and_without_their_own_domain_do_not_mix():
-    with_domain = window(_trajectory().validated("d"), 0, 6)
-    without = window(_trajectory(bounds=None, walls=None).validated("d"), 0, 6)
-    with pytest.raises(ValueError, match="some examples have bounds and some not"):
-        collate([with_domain, without])
-
-
 @pytest.mark.parametrize(
     "fields, message",
     [

@@ -1,0 +1,38 @@
+"""The graph record: its edge count, the defaults a builder may leave out, and that it cannot be changed."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+
+from gns_framework.contracts import Graph
+
+
+def _graph(edges: int, **fields) -> Graph:
+    receivers = torch.zeros(edges, dtype=torch.long)
+    return Graph(torch.arange(edges), receivers, torch.zeros(edges, 2), num_nodes=max(edges, 1), **fields)
+
+
+@pytest.mark.parametrize("edges", [0, 1, 5])
+def test_num_edges_counts_the_senders(edges):
+    assert _graph(edges).num_edges == edges
+    assert isinstance(_graph(edges).num_edges, int)
+
+
+def test_a_builder_may_leave_out_positions_and_batch_of_one_example():
+    graph = _graph(3)
+    assert graph.position is None and graph.batch is None and graph.num_examples == 1
+
+
+def test_the_learned_simulator_may_attach_positions_and_the_batch():
+    position, batch = torch.zeros(4, 2), torch.tensor([0, 0, 1, 1])
+    graph = _graph(4, position=position, batch=batch, num_examples=2)
+    assert graph.position is position and graph.batch is batch and graph.num_examples == 2
+
+
+def test_a_graph_is_frozen():
+    # Processors share one graph across message-passing steps: none may change it under the others.
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        _graph(2).num_nodes = 7

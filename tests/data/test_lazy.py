@@ -1,0 +1,56 @@
+"""A split read lazily: each trajectory loaded on first access only, validated against the metadata's dim, then kept."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gns_framework.data.lazy import TrajectorySequence
+from gns_framework.data.trajectory import Trajectory
+from gns_framework.errors import DatasetError
+
+
+class Loader:
+    """Reads trajectory ``key`` as frames filled with its number, counting the reads."""
+
+    def __init__(self, dim: int = 2):
+        self.reads: list[str] = []
+        self.dim = dim
+
+    def __call__(self, key: str) -> Trajectory:
+        self.reads.append(key)
+        value = float(key.split("_")[1])
+        return Trajectory(np.full((3, 2, self.dim), value), np.array([5, 5]), key=key)
+
+
+KEYS = ["t_0", "t_1", "t_2", "t_3"]
+
+
+def test_nothing_is_read_until_asked_for_and_nothing_twice():
+    load = Loader()
+    split = TrajectorySequence(KEYS, load, "data/train.npz", dim=2)
+    assert len(split) == 4 and load.reads == []
+    first = split[2]
+    assert first.position[0, 0, 0] == 2.0 and first.position.dtype == np.float32  # validated on the way
+    assert split[2] is first and load.reads == ["t_2"]
+
+
+def test_negative_indices_and_slices_read_the_trajectories_they_name():
+    load = Loader()
+    split = TrajectorySequence(KEYS, load, "data/train.npz", dim=2)
+    assert split[-1].key == "t_3"
+    assert [t.key for t in split[1:4:2]] == ["t_1", "t_3"]
+    assert [t.key for t in split] == KEYS  # iterating stops at the end (IndexError)
+    assert load.reads == ["t_3", "t_1", "t_0", "t_2"]
+
+
+@pytest.mark.parametrize("index", [4, -5])
+def test_an_index_outside_the_split_is_an_index_error(index):
+    with pytest.raises(IndexError):
+        TrajectorySequence(KEYS, Loader(), "f.npz", dim=2)[index]
+
+
+def test_a_trajectory_of_another_dimension_names_the_file_and_trajectory():
+    split = TrajectorySequence(KEYS, Loader(dim=3), "data/valid.npz", dim=2)
+    with pytest.raises(DatasetError, match=r"data/valid.npz: trajectory 't_1': position: has d = 3"):
+        split[1]
