@@ -36,8 +36,8 @@ GOAL = {"median": 5.0, "worst": 15.0}
 MEASURES = ("extent_error_pct", "height_error_pct", "runout_error_pct", "sinkhorn_final_pct")
 
 
-def dataset(scene_path: Path, out: Path, test: int, seed: int | None, registry) -> Path:
-    """``out`` holding one training trajectory (statistics need one) and ``test`` cases of the scene."""
+def dataset(scene_path: Path, out: Path, test: int, seed: int | None, registry, obstacles: bool = True) -> Path:
+    """``out`` holding one training trajectory (statistics need one) and ``test`` cases of the scene (without its obstacles unless ``obstacles``)."""
     from gns_framework.assembly.ground_truth import build_ground_truth_simulator
     from gns_framework.ground_truth.generate import generate_dataset, is_up_to_date, provenance
     from gns_framework.ground_truth.scene_spec import load_scene
@@ -45,6 +45,8 @@ def dataset(scene_path: Path, out: Path, test: int, seed: int | None, registry) 
     scene = load_scene(scene_path)
     if seed is not None:
         scene = scene.model_copy(update={"seed": seed})
+    if not obstacles:
+        scene = scene.model_copy(update={"obstacles": []})
     simulator = build_ground_truth_simulator(scene, registry, scene_path)
     counts = {"train": 1, "valid": 0, "test": test}
     if not is_up_to_date(out, provenance(scene, simulator, counts)):
@@ -100,6 +102,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "sand2d_general.pt")
     parser.add_argument("--held-out", type=int, default=20, help="held-out envelope scenes (default 20)")
     parser.add_argument("--seed", type=int, default=7, help="scene seed of the held-out scenes (training used 0)")
+    parser.add_argument(
+        "--without-obstacles",
+        action="store_true",
+        help="draw the held-out scenes without the envelope's rigid obstacles",
+    )
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization", help="datasets are kept here")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--json", action="store_true", help="also print the per-scene figures as one JSON line")
@@ -119,7 +126,12 @@ def main(argv: list[str] | None = None) -> int:
     groups = {}
     if args.held_out:
         data = dataset(
-            ROOT / "scenes" / "sand_general_2d.yaml", args.out / "held_out", args.held_out, args.seed, registry
+            ROOT / "scenes" / "sand_general_2d.yaml",
+            args.out / ("held_out_without_obstacles" if args.without_obstacles else "held_out"),
+            args.held_out,
+            args.seed,
+            registry,
+            obstacles=not args.without_obstacles,
         )
         groups["held-out"] = evaluate(args.model, data, registry, device)
     canonical = {}

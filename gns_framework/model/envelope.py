@@ -79,6 +79,8 @@ class Envelope:
         boundary_spacing: [smallest, largest] median nearest-neighbour distance among the fixed
             (kinematic) particles of a trajectory, over the trajectories that have some; None
             when none has (or the checkpoint predates it: then they are not judged).
+        refused_types: type id -> why data holding it is refused although the model was trained
+            on it (what its evaluation measured there); set by ``scripts/refuse_types.py``.
     """
 
     dim: int
@@ -94,6 +96,7 @@ class Envelope:
     particle_count: list[int]
     frames: list[int] = field(default_factory=list)
     boundary_spacing: list[float] | None = None
+    refused_types: dict[str, str] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -108,6 +111,7 @@ class Envelope:
         Materials, property ranges, extents, walls, speeds, counts and boundary spacings are joined. The
         particle spacing and learned step are this data's (the model is now fitted to
         them); a different dimension or frame stride is no model that was trained on both.
+        Refusals are not kept: they were measured on the earlier model, not on this one.
         """
         if (earlier.dim, earlier.frame_stride) != (self.dim, self.frame_stride):
             raise ValueError(
@@ -175,6 +179,9 @@ class Envelope:
         if self.boundary_spacing:
             lo, hi = self.boundary_spacing
             rows.append(("boundary particle spacing", f"{lo:.4g} .. {hi:.4g} m (+-{SPACING_TOLERANCE:.0%})"))
+        rows += [
+            (f"refused: {self.materials.get(t, '?')} (type {t})", reason) for t, reason in self.refused_types.items()
+        ]
         rows += [(f"property {name}", f"{lo:.4g} .. {hi:.4g}") for name, (lo, hi) in self.properties.items()]
         rows += [(f"domain {axes[a]} extent", f"{lo:.4g} .. {hi:.4g} m") for a, (lo, hi) in enumerate(self.extent)]
         rows += [(f"wall {face}", _wall_kinds(seen)) for face, seen in (self.walls or {}).items()]
@@ -351,9 +358,16 @@ def outside_envelope(
                     f"{lo:.4g} .. {hi:.4g} m +-{SPACING_TOLERANCE:.0%}",
                     key,
                 )
-        unknown = sorted(set(np.unique(trajectory.particle_type).tolist()) - trained_types)
+        present = set(np.unique(trajectory.particle_type).tolist())
+        unknown = sorted(present - trained_types)
         if unknown:
             findings.add("particle types", f"{unknown}", f"{envelope.particle_types}", key)
+        for refused, reason in envelope.refused_types.items():
+            if int(refused) in present:
+                material = envelope.materials.get(refused, "?")
+                findings.add(
+                    f"{material} particles (type {refused})", "present", f"on them, but refused: {reason}", key
+                )
         low, high = envelope.particle_count
         if not COUNT_SLACK[0] * low <= trajectory.num_particles <= COUNT_SLACK[1] * high:
             findings.add(
