@@ -29,18 +29,3 @@ def test_the_missing_driver_warning_is_dropped_only_when_cuda_was_not_asked_for(
     err = capfd.readouterr().err
     assert (mpm_solver.NO_CUDA_DRIVER in err) is warned
     assert "Warp: some other notice" in err, "only the driver line is dropped"
-
-
-def test_undrained_clay_yields_at_its_cohesion_in_the_von_mises_return_map():
-    """tresca: sigma_y = sqrt(3) c_u (kPa -> Pa), so the yield strain is sqrt(2/3) sigma_y / (2 mu) = c_u / (sqrt(2) mu)."""
-    import numpy as np
-
-    from gns_builtins.simulators._mpm.models import MODELS, VonMisesGoop
-
-    model = MODELS["tresca"]
-    assert model.kernel_id == VonMisesGoop.kernel_id
-    values = {"youngs_modulus": np.array([1.3e6]), "poisson_ratio": np.array([0.3]), "cohesion": np.array([0.5])}
-    arrays = model.kernel_parameters(values)
-    mu = 1.3e6 / (2 * 1.3)
-    np.testing.assert_allclose(arrays["mu"], mu)
-    np.testing.assert_allclose(arrays["param_a"], 500.0 / (np.sqrt(2) * mu), rtol=1e-12)
