@@ -1,4 +1,4 @@
-"""The tiny model the inversion tests invert with, trained once for all of them."""
+"""The tiny model the `gns invert` tests (test_invert.py) invert with, trained once for all of them."""
 
 from __future__ import annotations
 

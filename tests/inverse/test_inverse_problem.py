@@ -1,4 +1,6 @@
-"""gns invert: gradients of the learned rollout against finite differences, config errors, outputs.
+"""An inverse problem (``gns_framework.inverse.problem``): gradients of the learned rollout against finite
+differences, the unknowns put in place of what the observation holds, and the problems only the model and the data
+reveal.
 
 The gradient checks run the shipped model in float64 on a short rollout of a
 synthetic granular-like trajectory. The loss is smooth only piecewise: a pair of
@@ -10,71 +12,16 @@ step (1e-5) already crosses such a kink on this trajectory and is off by 0.4 %.
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-import yaml
-from synthetic import soft_sphere_trajectory, synthetic_metadata
+from inverse_cases import SAND, autograd_and_central_differences, problem_of
 
-from gns_framework.assembly.trained import load_trained
 from gns_framework.errors import RecipeError
-from gns_framework.inverse.config import PropertyUnknown, VelocityUnknown, parse_invert_config
-from gns_framework.inverse.optimize import InversionDiverged, adam
-from gns_framework.inverse.problem import InverseProblem
-
-MODEL = Path(__file__).resolve().parents[2] / "models" / "sand2d_fast.pt"
-SAND = 6
-UNKNOWNS = {
-    "friction": PropertyUnknown(bounds=(0.4, 1.0), initial=0.7),
-    "initial_velocity": VelocityUnknown(
-        particle_type=SAND, bounds=[(-0.5, 0.5), (-0.5, 0.5)], initial=[0.1, -0.05], gravity=[0.0, -9.81]
-    ),
-}
-
-
-@pytest.fixture(scope="module")
-def shipped_float64(registry):
-    model = load_trained(MODEL, registry, "cpu")
-    return model.simulator.double()
-
-
-@pytest.fixture(scope="module")
-def observed():
-    """A falling block of sand-typed particles with a friction column, 12 frames."""
-    trajectory = soft_sphere_trajectory(3, frames=12, block=5, particle_types=(SAND,), with_property=True, key="block")
-    return trajectory, synthetic_metadata([trajectory], 2)
-
-
-def problem_of(simulator, observed, loss: str, checkpoint_every: int = 0, frames=(9, 11), unknowns=UNKNOWNS):
-    trajectory, metadata = observed
-    return InverseProblem(
-        simulator,
-        trajectory,
-        metadata,
-        unknowns,
-        loss,
-        list(frames),
-        checkpoint_every=checkpoint_every,
-        dtype=torch.float64,
-    )
-
-
-def autograd_and_central_differences(problem: InverseProblem, h: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
-    u = torch.tensor(problem.start, dtype=torch.float64, requires_grad=True)
-    (gradient,) = torch.autograd.grad(problem.loss(u), u)
-    differences = []
-    with torch.no_grad():
-        for i in range(len(problem.start)):
-            step = torch.zeros_like(u)
-            step[i] = h
-            differences.append((problem.loss(u + step).item() - problem.loss(u - step).item()) / (2 * h))
-    return gradient.numpy(), np.array(differences)
+from gns_framework.inverse.config import VelocityUnknown, parse_invert_config
+from gns_framework.inverse.problem import check_against_model, observed_frames
 
 
 @pytest.mark.parametrize("loss", ["positions", "runout"])
@@ -108,17 +55,6 @@ def test_the_gradient_check_catches_a_wrong_gradient(shipped_float64, observed):
     assert relative[0] > 1e-3
 
 
-def test_checkpointing_gives_the_same_loss_and_gradient(shipped_float64, observed):
-    whole, checkpointed = (problem_of(shipped_float64, observed, "positions", k) for k in (0, 2))
-    results = []
-    for problem in (whole, checkpointed):
-        u = torch.tensor(problem.start, dtype=torch.float64, requires_grad=True)
-        loss = problem.loss(u)
-        results.append((loss.item(), torch.autograd.grad(loss, u)[0].numpy()))
-    assert results[0][0] == pytest.approx(results[1][0], rel=1e-12)
-    np.testing.assert_allclose(results[0][1], results[1][1], rtol=1e-10)
-
-
 def test_the_observed_value_of_an_unknown_is_never_read(shipped_float64, observed):
     trajectory, metadata = observed
     altered = replace(
@@ -134,138 +70,6 @@ def test_the_observed_value_of_an_unknown_is_never_read(shipped_float64, observe
     assert float(first) == float(second)
 
 
-def test_adam_stops_on_a_non_finite_loss_naming_the_field():
-    def loss(u):
-        return (u * float("nan")).sum()
-
-    with pytest.raises(InversionDiverged, match=r"loss: non-finite value at evaluation 1 \(friction 0.7\)"):
-        adam(loss, np.array([0.5]), 0.1, 3, lambda it: None, lambda u: "friction 0.7")
-
-
-def config_mapping(model: Path, dataset: Path, **changes) -> dict:
-    raw = {
-        "model": str(model),
-        "observed": {"dataset": str(dataset), "split": "test", "trajectory": 0, "frames": "last"},
-        "unknowns": {"friction": {"bounds": [0.4, 1.0], "initial": 0.7}},
-        "optimizer": {"name": "adam", "lr": 0.05, "iterations": 2},
-        "loss": "positions",
-        "checkpoint_every": 3,
-        "threads": 1,
-    }
-    raw.update(changes)
-    return raw
-
-
-def test_schema_problems_are_reported_at_once_with_their_location():
-    raw = config_mapping(Path("m.pt"), Path("d"), optimizer={"name": "sgd", "iterations": 0}, loss="runnout")
-    raw["unknowns"] = {
-        "friction": {"bounds": [0.4, 1.0], "initial": 1.2},
-        "initial_velocity": {"particle_type": 6, "bounds": [[1, -1], [0, 1]]},
-    }
-    with pytest.raises(RecipeError) as caught:
-        parse_invert_config(raw, "inv.yaml")
-    locations = {loc for loc, _ in caught.value.problems}
-    assert {
-        "optimizer.name",
-        "optimizer.iterations",
-        "loss",
-        "unknowns.friction",
-        "unknowns.initial_velocity",
-    } <= locations
-    text = str(caught.value)
-    assert "initial 1.2 lies outside its bounds [0.4, 1.0]" in text
-    assert "axis 0: bounds must be [low, high] with low <= high" in text
-
-
-def gns(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "gns_framework.cli", *args], capture_output=True, text=True, cwd=cwd, timeout=600
-    )
-
-
-def write_config(path: Path, raw: dict) -> Path:
-    path.write_text(yaml.safe_dump(raw))
-    return path
-
-
-@pytest.mark.parametrize("optimizer", ["adam", "lbfgs"])
-def test_gns_invert_writes_its_results(tmp_path, tiny_model, dataset_multimaterial, optimizer):
-    config = write_config(
-        tmp_path / "inv.yaml",
-        config_mapping(tiny_model, dataset_multimaterial, optimizer={"name": optimizer, "lr": 0.05, "iterations": 2}),
-    )
-    # The search bounds [0.4, 1] reach beyond the frictions the tiny model was trained on.
-    refused = gns("invert", str(config), "--out", "out", "--no-progress", "--no-tracking", cwd=tmp_path)
-    assert refused.returncode == 2 and "unknowns.friction.bounds [0.4, 1] (trained: " in refused.stderr
-    assert not (tmp_path / "out").exists()
-    result = gns(
-        "invert", str(config), "--out", "out", "--no-progress", "--no-tracking", "--outside-envelope", cwd=tmp_path
-    )
-    assert result.returncode == 0, result.stderr
-    out = tmp_path / "out"
-    record = json.loads((out / "result.json").read_text())
-    assert set(record) >= {"unknowns", "loss", "iterations", "seconds"}
-    assert "unknowns.friction.bounds" in record["outside_envelope"][0]
-    assert 0.4 <= record["unknowns"]["friction"] <= 1.0 and np.isfinite(record["loss"])
-    assert 1 <= record["iterations"] <= 2
-    for name in ("convergence.png", "rollout.npz", "rollout.gif", "metrics.jsonl"):
-        assert (out / name).stat().st_size > 0
-    lines = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
-    assert [line["step"] for line in lines if "friction" in line][:2] == [1, 2]
-    # Nothing written is replaced: a second inversion into the same folder is refused.
-    before = (out / "result.json").read_bytes()
-    again = gns(
-        "invert", str(config), "--out", "out", "--no-progress", "--no-tracking", "--outside-envelope", cwd=tmp_path
-    )
-    assert again.returncode == 2 and "holds an earlier inversion" in again.stderr
-    assert (out / "result.json").read_bytes() == before
-
-
-def test_gns_invert_logs_to_mlflow(tmp_path, tiny_model, dataset_multimaterial, mlflow_store_of_the_session):
-    config = write_config(tmp_path / "inv.yaml", config_mapping(tiny_model, dataset_multimaterial))
-    result = gns(
-        "invert",
-        str(config),
-        "--out",
-        "out",
-        "--no-progress",
-        "--no-gif",
-        "--experiment",
-        "inverse-test",
-        "--outside-envelope",
-        cwd=tmp_path,
-    )
-    assert result.returncode == 0, result.stderr
-    from mlflow.tracking import MlflowClient
-
-    client = MlflowClient(mlflow_store_of_the_session)
-    experiment = client.get_experiment_by_name("inverse-test")
-    (run,) = client.search_runs([experiment.experiment_id])
-    assert {"loss", "friction", "final_loss"} <= set(run.data.metrics)
-    assert "unknowns.friction.bounds" in run.data.params["outside_envelope"]
-    assert "result.json" in {a.path for a in client.list_artifacts(run.info.run_id)}
-
-
-def test_model_and_data_problems_are_reported_at_once(tmp_path, tiny_model, dataset_multimaterial):
-    raw = config_mapping(tiny_model, dataset_multimaterial)
-    raw["observed"]["trajectory"] = 7
-    raw["unknowns"] = {
-        "cohesion": {"bounds": [0, 1]},
-        "initial_velocity": {"particle_type": 3, "bounds": [[-1, 1]]},
-    }
-    config = write_config(tmp_path / "inv.yaml", raw)
-    result = gns("invert", str(config), "--out", "out", "--no-progress", "--no-tracking", cwd=tmp_path)
-    assert result.returncode == 2
-    for expected in (
-        "unknowns.cohesion: the model has no input 'cohesion': it was trained with the material properties: friction",
-        "unknowns.initial_velocity.bounds: needs 2 [low, high] pairs",
-        "unknowns.initial_velocity.particle_type: 3 is kinematic",
-        "observed.trajectory: 7 is out of range",
-    ):
-        assert expected in result.stderr, result.stderr
-    assert not (tmp_path / "out").exists()
-
-
 def test_equal_bounds_fix_a_known_velocity_axis(shipped_float64, observed):
     unknowns = {"initial_velocity": VelocityUnknown(particle_type=SAND, bounds=[(0.0, 1.0), (-0.2, -0.2)])}
     problem = problem_of(shipped_float64, observed, "positions", unknowns=unknowns)
@@ -274,10 +78,6 @@ def test_equal_bounds_fix_a_known_velocity_axis(shipped_float64, observed):
     gradient = torch.autograd.grad(problem.loss(u), u)[0]
     assert gradient[0] != 0 and gradient[1] == 0
     assert problem.parameters.values(torch.tensor([0.25, 0.9], dtype=torch.float64)).tolist() == [0.25, -0.2]
-    with pytest.raises(RecipeError, match=r"unknowns.friction: .*low < high"):
-        parse_invert_config(
-            {"model": "m", "observed": {"dataset": "d"}, "unknowns": {"friction": {"bounds": [0.5, 0.5]}}}, "x"
-        )
 
 
 def test_a_ballistic_start_is_rebuilt_exactly(shipped_float64, observed):
@@ -296,24 +96,99 @@ def test_a_ballistic_start_is_rebuilt_exactly(shipped_float64, observed):
     u = torch.tensor(problem.parameters.scaled(launch))
     rebuilt = problem.model_inputs(u).position_sequence.transpose(0, 1).numpy()
     np.testing.assert_allclose(rebuilt, flight[:6], rtol=0, atol=1e-12)
-    with pytest.raises(RecipeError, match=r"gravity has 3 entries but bounds has 2"):
-        parse_invert_config(
-            {
-                "model": "m",
-                "observed": {"dataset": "d"},
-                "unknowns": {
-                    "initial_velocity": {"particle_type": 6, "bounds": [[0, 1], [0, 1]], "gravity": [0, 0, -9.81]}
-                },
-            },
-            "x",
-        )
 
 
-@pytest.mark.parametrize("path", sorted((Path(__file__).resolve().parents[2] / "inversions").glob("*.yaml")))
-def test_the_example_inversions_name_a_shipped_model_and_validate(path, registry):
-    from gns_framework.inverse.config import load_invert_config
+def test_the_unknowns_are_scaled_in_the_order_given_and_recorded_by_name(shipped_float64, observed):
+    problem = problem_of(shipped_float64, observed, "positions")
+    assert problem.parameters.names == ("friction", "initial_velocity.x", "initial_velocity.y")
+    # friction 0.7 in [0.4, 1.0], velocity (0.1, -0.05) in [-0.5, 0.5]^2.
+    np.testing.assert_allclose(problem.start, [0.5, 0.6, 0.45], rtol=0, atol=1e-15)  # float64 round-off
+    values = problem.parameters.values(torch.tensor(problem.start, dtype=torch.float64)).tolist()
+    record = problem.parameters.as_record(values, problem.unknowns)
+    # Values of order 0.1-1 through a scale and back: float64 round-off, 1e-15.
+    assert list(record) == ["friction", "initial_velocity"]
+    assert record["friction"] == pytest.approx(0.7, abs=1e-15)
+    assert record["initial_velocity"] == pytest.approx([0.1, -0.05], abs=1e-15)
 
-    config, unknowns = load_invert_config(path)  # the model is named relative to the config file
-    model = load_trained(config.model, registry, "cpu")
-    for name, unknown in unknowns.items():
-        assert name in model.simulator.scene.property_names or isinstance(unknown, VelocityUnknown)
+
+def test_the_positions_loss_is_the_mean_squared_offset_of_the_moving_particles(shipped_float64, observed):
+    problem = problem_of(shipped_float64, observed, "positions")
+    state = problem.model_inputs(torch.tensor(problem.start, dtype=torch.float64))
+    assert problem.misfit(state, problem.observed.clone()).item() == 0.0
+    # Every compared coordinate off by 0.01: the mean of the squares is 1e-4 (float64: to ~1e-16 relative).
+    shifted = problem.observed + 0.01
+    assert problem.misfit(state, shifted).item() == pytest.approx(1e-4, rel=1e-12)
+    # Only frames 9 and 11 are compared (rollout rows 3 and 5): an offset elsewhere costs nothing.
+    elsewhere = problem.observed.clone()
+    elsewhere[[0, 1, 2, 4]] += 1.0
+    assert problem.misfit(state, elsewhere).item() == 0.0
+    assert problem.misfit(state, shifted, frames=[6]).item() == pytest.approx(1e-4, rel=1e-12)
+    runout = problem_of(shipped_float64, observed, "runout")
+    assert runout.misfit(state, runout.observed.clone()).item() == 0.0
+
+
+def test_compared_frames_are_the_last_every_rolled_out_one_or_those_listed():
+    assert observed_frames("last", history=6, num_frames=12) == [11]
+    assert observed_frames("all", history=6, num_frames=12) == [6, 7, 8, 9, 10, 11]
+    assert observed_frames([11, 8, 8], history=6, num_frames=12) == [8, 11]  # sorted, each once
+
+
+def parsed(unknowns: dict, **observed) -> tuple:
+    raw = {"model": "m.pt", "observed": {"dataset": "d", **observed}, "unknowns": unknowns}
+    return parse_invert_config(raw, "inv.yaml")
+
+
+def problems_found(shipped_float64, trajectories, unknowns: dict, **observed) -> dict[str, str]:
+    config, typed = parsed(unknowns, **observed)
+    with pytest.raises(RecipeError) as caught:
+        check_against_model(config, typed, shipped_float64, trajectories, "inv.yaml")
+    return dict(caught.value.problems)
+
+
+def test_what_the_model_has_no_input_for_is_named_with_what_it_has(shipped_float64, observed):
+    trajectory, _ = observed
+    found = problems_found(
+        shipped_float64,
+        [trajectory],
+        {
+            "cohesion": {"bounds": [0, 1]},
+            "friction": {"bounds": [0.4, 1.0], "particle_type": 5},
+            "initial_velocity": {"particle_type": SAND, "bounds": [[0, 1], [0, 1], [0, 1]]},
+        },
+        trajectory=1,
+    )
+    assert found == {
+        "unknowns.cohesion": "the model has no input 'cohesion': it was trained with the material properties: "
+        "friction (or use initial_velocity)",
+        "unknowns.friction.particle_type": "5 is not among the model's particle types [6]",
+        "unknowns.initial_velocity.bounds": "needs 2 [low, high] pairs (one per axis), got 3",
+        "observed.trajectory": "1 is out of range: split 'test' of d holds 1 trajectories (0 .. 0)",
+    }
+
+
+def test_frames_must_be_rolled_out_and_the_properties_the_model_reads_must_be_there(shipped_float64, observed):
+    trajectory, _ = observed
+    velocity = {"initial_velocity": {"particle_type": SAND, "bounds": [[0, 1], [0, 1]]}}
+    found = problems_found(shipped_float64, [trajectory], velocity, frames=[3, 8, 12], held_out=[20])
+    # 12 frames, the first 6 the model's input: frames 6 .. 11 are rolled out.
+    assert found["observed.frames"] == (
+        "frames [3, 12] are not rolled out: give indices in [6, 11] (the first 6 are the model's input)"
+    )
+    assert found["observed.held_out"].startswith("frames [20] are not rolled out")
+    # Without a friction column the model lacks an input the unknowns do not provide.
+    bare = replace(trajectory, material_property=None)
+    found = problems_found(shipped_float64, [bare], velocity)
+    assert found == {
+        "observed.dataset": "trajectory 'block' has no material_property, and the model needs ['friction'] "
+        "besides the unknowns"
+    }
+    short = replace(trajectory, position=trajectory.position[:6])
+    assert problems_found(shipped_float64, [short], {"friction": {"bounds": [0.4, 1.0]}}) == {
+        "observed.trajectory": "has 6 frames; the model needs more than its 6 input frames"
+    }
+
+
+def test_a_problem_the_model_and_data_can_solve_passes(shipped_float64, observed):
+    trajectory, _ = observed
+    config, typed = parsed({"friction": {"bounds": [0.4, 1.0], "particle_type": SAND}}, frames=[8, 11])
+    check_against_model(config, typed, shipped_float64, [trajectory], "inv.yaml")  # raises nothing

@@ -1,174 +1,144 @@
-"""gns invert returns its best iterate (by the loss or by held-out frames), decays Adam's step if asked,
-records the truth the data holds, and reads the paths of its config relative to the config file."""
+"""Running an inversion (``gns_framework.inverse.solve``): the search returns its best iterate (by the loss, or by
+the held-out misfit when there is one) with the optimiser's final point evaluated too, the values in physical units,
+their errors against the truth, and the truth the observed dataset records. A closed-form stand-in for the learned
+problem keeps the expected iterates exact; ``gns invert`` end to end is tested in tests/cli/test_invert.py."""
 
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
-from pathlib import Path
+from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
-import yaml
+from inverse_cases import SAND
 
-from gns_framework.config.paths import resolve_named_path
-from gns_framework.config.recipe import load_recipe
-from gns_framework.errors import RecipeError
-from gns_framework.inverse.config import load_invert_config, parse_invert_config
-from gns_framework.inverse.optimize import Iterate, adam, best_iterate
+from gns_framework.inverse.config import InvertOptimizer, PropertyUnknown, VelocityUnknown
+from gns_framework.inverse.optimize import Iterate
+from gns_framework.inverse.problem import parameters_of
+from gns_framework.inverse.solve import InversionResult, iteration_metrics, solve, true_values
 
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def raw_config(**changes) -> dict:
-    raw = {
-        "model": "m.pt",
-        "observed": {"dataset": "d", "frames": [8, 10]},
-        "unknowns": {"friction": {"bounds": [0.4, 1.0]}},
-        "optimizer": {"name": "adam", "lr": 0.05},
-    }
-    for key, value in changes.items():
-        raw[key] = {**raw[key], **value}
-    return raw
+FRICTION = {"friction": PropertyUnknown(bounds=(0.4, 1.0))}
 
 
-def test_lr_decay_and_held_out_frames_are_validated_with_their_location():
-    config, _ = parse_invert_config(raw_config(optimizer={"lr_decay": 0.9}, observed={"held_out": [12]}), "x")
-    assert config.optimizer.lr_decay == 0.9 and config.observed.held_out == [12]
-    cases = [
-        (
-            raw_config(optimizer={"name": "lbfgs", "lr_decay": 0.9}),
-            "optimizer",
-            "lr_decay: only adam takes a step size",
-        ),
-        (raw_config(optimizer={"lr_decay": 0}), "optimizer.lr_decay", "greater than 0"),
-        (raw_config(optimizer={"lr_decay": 1.5}), "optimizer.lr_decay", "less than or equal to 1"),
-        (raw_config(observed={"held_out": [10, 12]}), "observed", "frames [10] are also in frames"),
-        (raw_config(observed={"frames": "all", "held_out": [12]}), "observed", "leaves no frame to hold out"),
-    ]
-    for raw, location, message in cases:
-        with pytest.raises(RecipeError) as caught:
-            parse_invert_config(raw, "inv.yaml")
-        assert any(loc == location and message in text for loc, text in caught.value.problems), caught.value.problems
+class Quadratic:
+    """A stand-in inverse problem in friction: loss (f - 0.55)^2, held-out misfit (f - 0.7)^2 if asked."""
+
+    def __init__(self, held_out: bool):
+        self.unknowns = FRICTION
+        self.parameters, self.start = parameters_of(FRICTION)
+        self.checkpoint_every = 0
+        self.dtype = torch.float64
+        self.held_out = [14] if held_out else []
+
+    def losses(self, u):
+        friction = self.parameters.values(u)[0]
+        held_out = (friction.detach() - 0.7) ** 2 if self.held_out else None
+        return (friction - 0.55) ** 2, held_out
 
 
-def test_adam_decays_its_step_size():
-    def loss(u):
-        return (u - 0.3).abs().sum()  # constant gradient: Adam's steps are its step size
-
-    def path(decay):
-        seen = []
-        adam(loss, np.array([0.9]), 0.05, 6, lambda it: seen.append(float(it.u[0])), lambda u: "", torch.float64, decay)
-        return -np.diff(seen)
-
-    np.testing.assert_allclose(path(None), 0.05, rtol=1e-6)
-    np.testing.assert_allclose(path(0.5), 0.05 * 0.5 ** np.arange(5), rtol=1e-6)
+def inversion_of(problem: Quadratic, **optimizer) -> SimpleNamespace:
+    return SimpleNamespace(problem=problem, config=SimpleNamespace(optimizer=InvertOptimizer(**optimizer)))
 
 
-def test_the_best_iterate_is_chosen_by_the_held_out_misfit_when_there_is_one():
-    u = np.zeros(1)
-    by_loss = [Iterate(1, 3.0, u), Iterate(2, 1.0, u), Iterate(3, 2.0, u)]
-    assert best_iterate(by_loss).iteration == 2
-    held_out = [Iterate(1, 3.0, u, 0.5), Iterate(2, 1.0, u, 0.9), Iterate(3, 2.0, u, 0.7)]
-    assert best_iterate(held_out).iteration == 1
+def test_adam_returns_its_lowest_loss_iterate_and_evaluates_its_final_point():
+    seen = []
+    problem = Quadratic(held_out=False)
+    result = solve(inversion_of(problem, name="adam", lr=0.05, iterations=4), seen.append)
+    # Adam's first steps are about lr each: from u 0.5 (friction 0.7) down towards 0.55 (u 0.25).
+    assert [it.iteration for it in seen] == [1, 2, 3, 4, 5]  # 5: the point after the last step
+    assert result.evaluations == 5 and result.iterations == 4
+    assert result.last is seen[-1] and result.history == seen
+    assert result.best == min(seen, key=lambda it: it.loss) and result.selected_by == "loss"
+    assert result.loss == result.best.loss
+    assert result.initial == {"friction": pytest.approx(0.7, abs=1e-15)}
+    # The unknowns returned are the best iterate's, in physical units: 0.4 + 0.6 u.
+    assert result.unknowns["friction"] == pytest.approx(0.4 + 0.6 * result.best.u[0], abs=1e-15)
+    assert result.last_unknowns["friction"] == pytest.approx(0.4 + 0.6 * seen[-1].u[0], abs=1e-15)
+    assert result.best.loss == pytest.approx((result.unknowns["friction"] - 0.55) ** 2, rel=1e-12)
 
 
-def test_named_paths_resolve_beside_their_file_then_from_the_working_directory(tmp_path, monkeypatch):
-    (tmp_path / "configs").mkdir()
-    (tmp_path / "configs" / "beside").mkdir()
-    (tmp_path / "here").mkdir()
-    source = tmp_path / "configs" / "x.yaml"
-    monkeypatch.chdir(tmp_path)
-    assert resolve_named_path("beside", source) == Path("configs/beside")
-    assert resolve_named_path("here", source) == Path("here")  # an older, working-directory-relative file
-    assert resolve_named_path("nowhere", source) == Path("configs/nowhere")  # named in the error beside the file
-    assert resolve_named_path("nowhere", source, missing="as_named") == Path("nowhere")  # a recipe's data not made yet
-    assert resolve_named_path(tmp_path / "here", source) == tmp_path / "here"
-    monkeypatch.chdir(tmp_path / "here")
-    assert resolve_named_path("beside", source) == tmp_path / "configs" / "beside"
+def test_with_held_out_frames_the_best_iterate_is_the_one_they_prefer():
+    problem = Quadratic(held_out=True)
+    result = solve(inversion_of(problem, name="adam", lr=0.05, iterations=4))
+    # The loss pulls friction from 0.7 towards 0.55; the held-out frames prefer 0.7, the start.
+    assert result.selected_by == "held_out" and result.best.iteration == 1
+    assert result.unknowns["friction"] == pytest.approx(0.7, abs=1e-15)
+    assert result.history[-1].loss < result.best.loss  # a lower loss did not win
+    for iterate in result.history:
+        friction = 0.4 + 0.6 * iterate.u[0]
+        assert iterate.held_out == pytest.approx((friction - 0.7) ** 2, rel=1e-12, abs=1e-15)
 
 
-def test_a_recipe_reads_its_dataset_beside_it_from_any_working_directory(tmp_path, monkeypatch, registry):
-    recipe_file = ROOT / "recipes" / "sand2d_fast.yaml"
-    copy = tmp_path / "recipes" / "fast.yaml"
-    copy.parent.mkdir()
-    raw = yaml.safe_load(recipe_file.read_text())
-    raw["dataset"]["path"] = "../data/demo"
-    copy.write_text(yaml.safe_dump(raw))
-    (tmp_path / "data" / "demo").mkdir(parents=True)
-    monkeypatch.chdir(tmp_path / "recipes")
-    assert Path(load_recipe("fast.yaml", registry).dataset.path) == Path("../data/demo").resolve()
-    monkeypatch.chdir(ROOT)  # the shipped recipes name data/... from the repository root, as before
-    assert load_recipe(recipe_file, registry).dataset.path == "data/demo_sand_2d"
-    assert load_recipe(recipe_file, registry, {"dataset": {"path": "elsewhere"}}).dataset.path == "elsewhere"
+def test_lbfgs_iterates_all_get_their_held_out_misfit():
+    problem = Quadratic(held_out=True)
+    result = solve(inversion_of(problem, name="lbfgs", iterations=10))
+    # SciPy may accept a point after evaluating others: those held-out misfits are computed afterwards.
+    assert all(iterate.held_out is not None for iterate in result.history)
+    for iterate in result.history:
+        friction = 0.4 + 0.6 * iterate.u[0]
+        assert iterate.held_out == pytest.approx((friction - 0.7) ** 2, rel=1e-9, abs=1e-15)
+    assert result.best == min(result.history, key=lambda it: (it.held_out, it.iteration))
+    # L-BFGS-B ends on its last iterate: no extra point to evaluate, so its final point is the last iterate.
+    assert result.last is result.history[-1]
+    assert result.last_unknowns["friction"] == pytest.approx(0.55, abs=1e-4)
 
 
-@pytest.mark.parametrize("path", sorted((ROOT / "inversions").glob("*.yaml")))
-def test_the_shipped_inversions_name_their_model_relative_to_themselves(path, tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    config, _ = load_invert_config(path)
-    assert Path(config.model).resolve().is_file() and Path(config.model).resolve().parent == ROOT / "models"
-    assert Path(config.observed.dataset).resolve().parent == ROOT / "data"
-
-
-@pytest.mark.parametrize("held_out", [False, True])
-def test_gns_invert_returns_its_best_iterate(tmp_path, tiny_model, dataset_multimaterial, held_out):
-    configs = tmp_path / "configs"
-    configs.mkdir()
-    os.symlink(tiny_model, configs / "model.pt")
-    os.symlink(dataset_multimaterial, tmp_path / "observed")
-    raw = {
-        "model": "model.pt",  # beside the config
-        "observed": {"dataset": "../observed", "split": "test", "trajectory": 0, "frames": [8, 10, 12]},
-        "unknowns": {"friction": {"bounds": [0.4, 1.0], "initial": 0.95}},
-        "optimizer": {"name": "adam", "lr": 0.3, "iterations": 6, "lr_decay": 0.8},
-        "loss": "positions",
-        "checkpoint_every": 3,
-        "threads": 1,
-    }
-    if held_out:
-        raw["observed"]["held_out"] = [14, 16]
-    (configs / "inv.yaml").write_text(yaml.safe_dump(raw))
-    elsewhere = tmp_path / "elsewhere"
-    elsewhere.mkdir()
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "gns_framework.cli",
-            "invert",
-            str(configs / "inv.yaml"),
-            "--out",
-            "out",
-            "--no-progress",
-            "--no-tracking",
-            "--no-gif",
-            "--outside-envelope",
-        ],
-        capture_output=True,
-        text=True,
-        cwd=elsewhere,
-        timeout=600,
+def test_errors_are_relative_percentages_and_absolute_against_a_zero_truth():
+    result = InversionResult(
+        u=np.zeros(3),
+        unknowns={"friction": 0.55, "initial_velocity": [3.0, 4.5], "still": [0.3, 0.4]},
+        initial={},
+        loss=0.0,
+        iterations=1,
+        evaluations=1,
+        seconds=0.0,
+        message="",
+        history=[],
     )
-    assert done.returncode == 0, done.stderr
-    record = json.loads((elsewhere / "out" / "result.json").read_text())
-    rows = [json.loads(line) for line in (elsewhere / "out" / "metrics.jsonl").read_text().splitlines()]
-    rows = [row for row in rows if "friction" in row]
-    assert [row["step"] for row in rows][:6] == [1, 2, 3, 4, 5, 6]
-    score = "held_out_loss" if held_out else "loss"
-    best = min(rows, key=lambda row: row[score])
-    assert record["best_iteration"] == best["step"] and record["selected_by"] == ("held_out" if held_out else "loss")
-    assert record["loss"] == pytest.approx(best["loss"]) and record["unknowns"]["friction"] == pytest.approx(
-        best["friction"]
-    )
-    assert record["last"]["iteration"] == rows[-1]["step"]
-    assert all(record.get("held_out_loss", record["loss"]) <= row[score] for row in rows)
-    # The synthetic data holds its friction in its property column: the truth, and the error of both answers.
-    truth = record["truth"]["friction"]
-    assert record["error_pct"]["friction"] == pytest.approx(100 * abs(record["unknowns"]["friction"] - truth) / truth)
-    assert "error_pct" in record["last"] and "unknowns.friction.bounds" in record["outside_envelope"][0]
-    assert f"iteration {record['best_iteration']}" in done.stdout and "error" in done.stdout
-    assert (elsewhere / "out" / "convergence.png").stat().st_size > 0
+    errors = result.errors({"friction": 0.5, "initial_velocity": [3.0, 4.0], "still": [0.0, 0.0]})
+    # 0.05 of 0.5; |(0, 0.5)| of |(3, 4)| = 5; a zero truth has no scale, so the distance itself, 0.5.
+    assert errors == {
+        "friction": pytest.approx(10.0, rel=1e-12),
+        "initial_velocity": pytest.approx(10.0, rel=1e-12),
+        "still": pytest.approx(0.5, rel=1e-12),
+    }
+    assert result.errors(None) is None and result.errors({}) is None
+    assert result.errors({"friction": 0.5}, {"friction": 0.6}) == {"friction": pytest.approx(20.0, rel=1e-12)}
+
+
+def test_iteration_metrics_are_the_losses_and_each_unknown_in_physical_units():
+    unknowns = {**FRICTION, "initial_velocity": VelocityUnknown(particle_type=SAND, bounds=[(-1.0, 1.0), (0.0, 2.0)])}
+    parameters, start = parameters_of(unknowns)
+    inversion = SimpleNamespace(problem=SimpleNamespace(parameters=parameters))
+    metrics = iteration_metrics(inversion, Iterate(3, 0.25, np.array([0.5, 0.75, 0.25]), held_out=0.5))
+    assert metrics == {
+        "loss": 0.25,
+        "held_out_loss": 0.5,
+        "friction": pytest.approx(0.7, abs=1e-15),
+        "initial_velocity.x": pytest.approx(0.5, abs=1e-15),
+        "initial_velocity.y": pytest.approx(0.5, abs=1e-15),
+    }
+    assert "held_out_loss" not in iteration_metrics(inversion, Iterate(1, 0.25, start))
+
+
+def test_the_truth_is_what_the_dataset_drew_else_a_constant_property_column(shipped_float64, observed, tmp_path):
+    trajectory, _ = observed
+    unknowns = {
+        "friction": PropertyUnknown(bounds=(0.4, 1.0)),
+        "initial_velocity": VelocityUnknown(particle_type=SAND, bounds=[(-1.0, 1.0), (-1.0, 1.0)]),
+    }
+    # Without drawn.json: the friction column, the same for every particle the model moves; no velocity.
+    column = float(trajectory.material_property[0, 0])
+    assert true_values(tmp_path, trajectory, unknowns, shipped_float64) == {"friction": pytest.approx(column)}
+    # With drawn.json: what was drawn for the blocks of the unknown's particle type.
+    drawn = {"blocks[0]": {"particle_type": SAND, "velocity": [0.3, -0.1], "friction": 0.62}}
+    (tmp_path / "drawn.json").write_text(json.dumps({"format": 1, "trajectories": {"block": drawn}}))
+    assert true_values(tmp_path, trajectory, unknowns, shipped_float64) == {
+        "friction": 0.62,
+        "initial_velocity": [0.3, -0.1],
+    }
+    # A column that varies between particles is no single truth, and nothing else records one.
+    varied = replace(trajectory, material_property=np.linspace(0.4, 0.9, trajectory.num_particles)[:, None])
+    assert true_values(tmp_path / "nowhere", varied, unknowns, shipped_float64) is None

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import pytest
 import torch
 from hypothesis import given, settings
@@ -103,11 +101,3 @@ def test_too_large_a_step_jumps_through_the_repulsive_wall(name):
     collision = RepulsiveCollision(closest_approach=0.5)
     assert collide(advance(name), collision, 30 / collision.contact_frequency).passed_through
     assert not collide(advance(name), collision, 1 / collision.contact_frequency).passed_through
-
-
-def test_chain_frequency_matches_the_linearised_dynamics():
-    chain = SpringChain(8, 250.0)
-    laplacian = torch.stack([chain.acceleration(torch.eye(8, dtype=torch.float64)[i][:, None])[:, 0] for i in range(8)])
-    assert math.sqrt(float(torch.linalg.eigvalsh(-laplacian).max())) == pytest.approx(
-        chain.highest_frequency, rel=1e-12
-    )

@@ -1,0 +1,168 @@
+"""``gns rollout`` (``gns_framework.cli.rollout``): rollouts of a trained checkpoint written beside the ground truth,
+refused outside the model's envelope unless asked, in reduced precision and in batches; how ``--batch`` groups
+trajectories; which earlier folders it may write into; a corrupt checkpoint as a one-line error."""
+
+from __future__ import annotations
+
+import json
+from argparse import Namespace
+from types import SimpleNamespace
+
+import numpy as np
+import torch
+import yaml
+from cli_runner import gns
+from tiny import tiny_recipe_mapping
+
+from gns_framework.cli import main
+from gns_framework.cli import rollout as rollout_command
+
+
+def test_train_resume_rollout_render(dataset_multimaterial, tmp_path):
+    recipe = tmp_path / "tiny.yaml"
+    raw = tiny_recipe_mapping(dataset_multimaterial, tmp_path / "run")
+    raw["training"]["log_every"] = 2
+    recipe.write_text(yaml.safe_dump(raw))
+    first = gns("train", str(recipe), "--steps", "3", "--no-progress")
+    assert first.returncode == 0, first.stderr
+    resumed = gns("train", str(recipe), "--steps", "5", "--resume", "--no-progress")
+    assert resumed.returncode == 0, resumed.stderr
+    assert "resumed from" in resumed.stdout and "to step 5" in resumed.stdout
+    assert "step 4 of 5" in resumed.stdout and "to go" in resumed.stdout, "without a bar, the run says how long is left"
+    checkpoint = tmp_path / "run" / "checkpoints" / "checkpoint-000000005.pt"
+    # Trained for 5 steps on 3 trajectories, the model's envelope is narrow: the test split's friction lies outside.
+    refused = gns("rollout", str(checkpoint), "--steps", "4", "--out", str(tmp_path / "rollouts"), "--no-progress")
+    assert refused.returncode == 2 and "outside the envelope of" in refused.stderr
+    assert "property friction" in refused.stderr and "--outside-envelope" in refused.stderr
+    assert not (tmp_path / "rollouts").exists()
+    rolled = gns(
+        "rollout",
+        str(checkpoint),
+        "--steps",
+        "4",
+        "--out",
+        str(tmp_path / "rollouts"),
+        "--no-progress",
+        "--outside-envelope",
+    )
+    assert rolled.returncode == 0, rolled.stderr
+    assert "warning: outside the envelope of" in rolled.stderr
+    rollout_file = tmp_path / "rollouts" / "test_0000.npz"
+    with np.load(rollout_file, allow_pickle=False) as z:
+        assert z["predicted_rollout"].shape[0] == 4
+        assert "property friction" in json.loads(str(z["metadata_json"]))["outside_envelope"][0]
+    # In process, to see the dtypes of the Linear layers' products as the rollout runs them.
+    products = []
+
+    def record(module, inputs, output):
+        if isinstance(module, torch.nn.Linear):
+            products.append(output.dtype)
+
+    hook = torch.nn.modules.module.register_module_forward_hook(record)
+    try:
+        low = main(
+            [
+                "rollout",
+                str(checkpoint),
+                "--steps",
+                "4",
+                "--out",
+                str(tmp_path / "low"),
+                "--no-progress",
+                "--precision",
+                "bfloat16",
+                "--outside-envelope",
+            ]
+        )
+    finally:
+        hook.remove()
+    assert low == 0
+    assert products and set(products) == {torch.bfloat16}, "--precision bfloat16 left products in float32"
+    with np.load(rollout_file) as full, np.load(tmp_path / "low" / "test_0000.npz") as bf16:
+        assert bf16["predicted_rollout"].dtype == full["predicted_rollout"].dtype == np.float32
+        assert np.allclose(bf16["predicted_rollout"], full["predicted_rollout"], atol=1e-3)
+    # --batch rolls the two training trajectories out together: each file as when rolled out alone.
+    for folder, batch in (("alone", "1"), ("batched", "2")):
+        code = main(
+            [
+                "rollout",
+                str(checkpoint),
+                "--split",
+                "train",
+                "--steps",
+                "4",
+                "--out",
+                str(tmp_path / folder),
+                "--no-progress",
+                "--batch",
+                batch,
+                "--outside-envelope",
+            ]
+        )
+        assert code == 0
+    for index in range(2):
+        with (
+            np.load(tmp_path / "alone" / f"train_{index:04d}.npz") as alone,
+            np.load(tmp_path / "batched" / f"train_{index:04d}.npz") as batched,
+        ):
+            expected = alone["predicted_rollout"]
+            np.testing.assert_allclose(
+                batched["predicted_rollout"], expected, rtol=0, atol=1e-5 * np.abs(expected).max()
+            )
+    rendered = gns("render", str(rollout_file), "--gif", str(tmp_path / "r.gif"))
+    assert rendered.returncode == 0 and (tmp_path / "r.gif").stat().st_size > 0
+
+
+def test_corrupt_checkpoint_is_a_clear_error(tmp_path):
+    bad = tmp_path / "checkpoint-000000001.pt"
+    bad.write_bytes(b"not a checkpoint")
+    result = gns("rollout", str(bad))
+    assert result.returncode == 2
+    assert str(bad) in result.stderr and "unreadable checkpoint" in result.stderr
+
+
+def batches_of(lengths: list[int], count: int, batch: int, monkeypatch) -> list[list[int]]:
+    """The groups of trajectory indices ``_rollouts`` hands to one call, with the model calls replaced by records."""
+    calls = []
+    trajectories = [SimpleNamespace(num_steps=length, index=i) for i, length in enumerate(lengths)]
+
+    def one(simulator, trajectory, steps, device, progress, guard, precision):
+        calls.append([trajectory.index])
+        return f"rollout {trajectory.index}"
+
+    def many(simulator, group, steps, device, guard, precision):
+        calls.append([t.index for t in group])
+        return [f"rollout {t.index}" for t in group]
+
+    monkeypatch.setattr(rollout_command, "rollout", one)
+    monkeypatch.setattr(rollout_command, "rollout_batch", many)
+    args = Namespace(batch=batch, no_progress=True, precision="float32")
+    results = list(rollout_command._rollouts(None, trajectories, count, None, "cpu", None, args))
+    # Every rollout comes back under its own index, in order, whatever the grouping.
+    assert results == [(i, f"rollout {i}") for i in range(count)]
+    return calls
+
+
+def test_batches_hold_consecutive_trajectories_of_one_length_up_to_the_batch_size(monkeypatch):
+    lengths = [5, 5, 5, 7, 5, 5, 5]
+    # A batch closes when it is full (0-1), when the next length differs (2 before the 7), and at the count (4-5).
+    assert batches_of(lengths, 6, 2, monkeypatch) == [[0, 1], [2], [3], [4, 5]]
+    assert batches_of(lengths, 7, 8, monkeypatch) == [[0, 1, 2], [3], [4, 5, 6]]
+    assert batches_of(lengths, 3, 1, monkeypatch) == [[0], [1], [2]]  # --batch 1: one rollout call each
+
+
+def test_only_rollout_files_make_a_folder_rollout_may_write_into(tmp_path):
+    folder = tmp_path / "rollouts"
+    folder.mkdir()
+    assert rollout_command._only_rollouts(folder)  # empty
+    (folder / "test_0000.npz").write_bytes(b"")
+    (folder / "valid-2_0013.npz").write_bytes(b"")
+    assert rollout_command._only_rollouts(folder)
+    (folder / "notes.txt").write_text("mine")
+    assert not rollout_command._only_rollouts(folder)
+    (folder / "notes.txt").unlink()
+    (folder / "test_001.npz").write_bytes(b"")  # three digits: not a name gns rollout writes
+    assert not rollout_command._only_rollouts(folder)
+    (folder / "test_001.npz").unlink()
+    (folder / "test_0001.npz").mkdir()  # the name of a rollout file, but a folder
+    assert not rollout_command._only_rollouts(folder)

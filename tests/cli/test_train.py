@@ -1,0 +1,33 @@
+"""``gns train`` (``gns_framework.cli.train``): bad arguments exit 2 with a message, and a ``--resume`` with
+nothing to resume starts at step 0 and says so. Resuming, fine-tuning, restarts and tracking are tested with the
+trainer (tests/training/), and end to end with the rollout that follows (test_cli_rollout.py)."""
+
+from __future__ import annotations
+
+import yaml
+from cli_runner import gns
+from tiny import tiny_recipe_mapping
+
+from gns_framework.cli import main
+
+
+def test_bad_arguments_exit_2_with_a_message(tmp_path):
+    result = gns("train", "recipes/water2d.yaml", "--steps", "many")
+    assert result.returncode == 2 and "invalid int value" in result.stderr
+    missing = gns("train", str(tmp_path / "nope.yaml"))
+    assert missing.returncode == 2 and "nope.yaml" in missing.stderr and "file not found" in missing.stderr
+
+
+def test_resume_without_a_checkpoint_starts_at_step_0_and_reports_the_run(dataset_2d, tmp_path, capsys):
+    recipe = tmp_path / "tiny.yaml"
+    raw = tiny_recipe_mapping(dataset_2d)
+    raw["training"]["device"] = "cuda:0"  # --device overrides it: this runs on any machine
+    recipe.write_text(yaml.safe_dump(raw))
+    run = tmp_path / "run"
+    argv = ["train", str(recipe), "--out", str(run), "--steps", "1", "--device", "cpu", "--resume"]
+    assert main([*argv, "--no-tracking", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "no checkpoint to resume from; starting at step 0" in out
+    # --steps 1 overrides the recipe's 3 steps; the last line names the run, its step and its checkpoints.
+    assert "trained tiny to step 1, valid_one_step_loss " in out and f"; checkpoints in {run / 'checkpoints'}" in out
+    assert sorted(p.name for p in (run / "checkpoints").glob("*.pt")) == ["checkpoint-000000001.pt"]
