@@ -20,17 +20,26 @@ def format_location(loc: tuple) -> str:
 
 
 def _model_at(model: type[BaseModel], path: tuple) -> type[BaseModel] | None:
-    """The pydantic model that owns the field at ``path`` (list indices skipped)."""
+    """The pydantic model that owns the field at ``path`` (list indices skipped).
+
+    A tagged union's member is named in the path by its tag (``@span``): the member
+    with that tag is followed, not the union's first.
+    """
     current: type[BaseModel] | None = model
+    annotation = None
     for part in path:
+        if isinstance(part, int):
+            continue
+        if part.startswith("@"):
+            current = _tagged_model(annotation, part) or current
+            continue
         if current is None:
             return None
-        if isinstance(part, int) or part.startswith("@"):
-            continue
         field = current.model_fields.get(part)
         if field is None:
             return None
-        current = _first_model(field.annotation)
+        annotation = field.annotation
+        current = _first_model(annotation)
     return current
 
 
@@ -39,6 +48,17 @@ def _first_model(annotation) -> type[BaseModel] | None:
         return annotation
     for arg in typing.get_args(annotation):
         found = _first_model(arg)
+        if found is not None:
+            return found
+    return None
+
+
+def _tagged_model(annotation, tag: str) -> type[BaseModel] | None:
+    """The member of the (nested) tagged union in ``annotation`` whose ``Tag`` is ``tag``."""
+    for arg in typing.get_args(annotation):
+        if any(getattr(meta, "tag", None) == tag for meta in getattr(arg, "__metadata__", ())):
+            return _first_model(arg)
+        found = _tagged_model(arg, tag)
         if found is not None:
             return found
     return None

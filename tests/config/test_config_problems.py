@@ -73,6 +73,12 @@ def test_an_unknown_key_of_a_union_member_lists_that_members_keys():
     ]
 
 
+def test_an_unknown_key_of_a_later_union_member_lists_that_members_keys_not_the_firsts():
+    assert problems({"name": "x", "shape": {"radius": 1.0, "radios": 2.0}}) == [
+        ("shape.radios", "unknown key (did you mean 'radius'?); allowed: radius")
+    ]
+
+
 def test_missing_keys_are_said_plainly_and_bad_values_are_quoted():
     found = dict(problems({"blocks": [{"size": ["wide"]}], "frames": "ten"}))
     assert found["name"] == "required key missing"
