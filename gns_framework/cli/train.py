@@ -127,7 +127,8 @@ def _train(trainer: Trainer, args: argparse.Namespace) -> int:
     if processes.distributed:
         say(f"training on {processes.world_size} processes ({trainer.device.type})")
     trainer.train()
-    final = trainer.validate()
+    # The loop validates at its last step; a run resumed at its end has not validated yet.
+    final = trainer.last_validation if trainer.last_validation is not None else trainer.validate()
     trainer.close()
     # Leave together: a rank that tears its process group down while rank 0 still
     # validates can abort at exit.

@@ -167,6 +167,8 @@ class Trainer:
             envelope,
         )
         """Writing checkpoints, resuming, fine-tuning from a trained model (:mod:`.checkpoints`)."""
+        self.last_validation: dict[str, float] | None = None
+        """The metrics of this run's latest validation (:meth:`train` validates at its last step), or None."""
         self.tracker = None
         if self.processes.is_chief:
             self.tracker = tracker if tracker is not None else JsonlTracker(self.run_dir)
@@ -297,7 +299,8 @@ class Trainer:
                 window_steps, window_particles, window_started = 0, 0, None
             if validates:
                 window_started = None
-                metrics.update(self.validate())
+                self.last_validation = self.validate()
+                metrics.update(self.last_validation)
                 if self.keep_if_best(metrics) is not None:
                     metrics["best_step"] = self.step
             if (

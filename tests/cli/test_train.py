@@ -31,3 +31,26 @@ def test_resume_without_a_checkpoint_starts_at_step_0_and_reports_the_run(datase
     # --steps 1 overrides the recipe's 3 steps; the last line names the run, its step and its checkpoints.
     assert "trained tiny to step 1, valid_one_step_loss " in out and f"; checkpoints in {run / 'checkpoints'}" in out
     assert sorted(p.name for p in (run / "checkpoints").glob("*.pt")) == ["checkpoint-000000001.pt"]
+
+
+def test_the_last_step_is_validated_once_and_a_run_resumed_at_its_end_validates(
+    dataset_2d, tmp_path, monkeypatch, capsys
+):
+    from gns_framework.training.trainer import Trainer
+
+    calls = []
+    validate = Trainer.validate
+
+    def counted(self):
+        calls.append(self.step)
+        return validate(self)
+
+    monkeypatch.setattr(Trainer, "validate", counted)
+    recipe = tmp_path / "tiny.yaml"
+    recipe.write_text(yaml.safe_dump(tiny_recipe_mapping(dataset_2d)))
+    argv = ["train", str(recipe), "--out", str(tmp_path / "run"), "--steps", "2", "--no-tracking", "--no-progress"]
+    assert main(argv) == 0
+    assert calls == [2], "the loop's validation at its last step is the summary's: no second one"
+    assert main([*argv, "--resume"]) == 0
+    assert calls == [2, 2], "nothing left to train: the summary validates"
+    assert "trained tiny to step 2, valid_one_step_loss " in capsys.readouterr().out
