@@ -20,14 +20,14 @@ from torch import Tensor
 
 from ..data.batch import ParticleBatch
 from ..data.windows import WindowIndex, WindowOrder, window_noise_generator
+from ..model.history import advance_window
 from ..model.learned_simulator import LearnedSimulator
 from ..model.loss import masked_squared_error_sum
 from ..model.noise import random_walk_noise
-from ..runtime.precision import Precision, autocast, backward_precision
 from ..runtime.device import is_cuda
-from .processes import Processes
+from ..runtime.precision import Precision, autocast, backward_precision
 from .ema import WeightAverage
-from ..model.history import advance_window
+from .processes import Processes
 
 
 class TrainingStep:
