@@ -29,3 +29,21 @@ def test_builder_connects_within_the_connectivity_radius_and_within_each_example
     assert graph.senders.tolist() == [0, 1, 0, 1, 2, 3]
     assert graph.receivers.tolist() == [0, 0, 1, 1, 2, 3]
     assert graph.num_nodes == 4
+
+
+def test_a_skin_gives_the_same_graph_every_frame_and_searches_less():
+    scene = ModelSetup(dim=2, bounds=((0, 1), (0, 1)), connectivity_radius=0.04, particle_types=(5,))
+    plain = RadiusGraphBuilder(RadiusGraphBuilder.Params(), scene)
+    skinned = RadiusGraphBuilder(RadiusGraphBuilder.Params(skin=0.5), scene)
+    assert plain.verlet is None and skinned.verlet is not None
+    generator = torch.Generator().manual_seed(3)
+    position = torch.rand(300, 2, generator=generator)
+    batch = torch.zeros(300, dtype=torch.long)
+    for _ in range(30):
+        # A settling pile: most particles still, a few moving 1 mm a frame.
+        position = position.clone()
+        position[:30] += 1e-3 * torch.randn(30, 2, generator=generator)
+        expected, graph = plain.build(position, batch, 1), skinned.build(position, batch, 1)
+        assert torch.equal(graph.senders, expected.senders) and torch.equal(graph.receivers, expected.receivers)
+        assert torch.equal(graph.displacement, expected.displacement)
+    assert skinned.verlet.searches < 10
