@@ -18,10 +18,10 @@ class GraphBuilder(ABC):
     name: ClassVar[str]
     Params: ClassVar[type[Params]] = Params
     supports_periodic: ClassVar[bool] = False
+    """Whether it connects particles across periodic boundaries (minimum image)."""
     optional_modules: ClassVar[tuple[str, ...]] = ()
     """Importable modules this component needs beyond the project's own requirements (``gns check`` finds the
     missing ones); any component class may declare it."""
-    """Whether it connects particles across periodic boundaries (minimum image)."""
 
     def __init__(self, params: ComponentParams, scene: ModelSetup):
         self.params = params
