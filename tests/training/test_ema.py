@@ -73,7 +73,7 @@ def test_a_run_with_a_weight_average_validates_ships_and_resumes_it(dataset_2d, 
         assert torch.equal(value, averaged[name]), name
 
     resumed = tiny_trainer(recipe, tmp_path / "resumed", registry)
-    resumed.resume(tmp_path / "run" / "checkpoints" / "checkpoint-000000003.pt")
+    resumed.checkpoints.resume(tmp_path / "run" / "checkpoints" / "checkpoint-000000003.pt")
     resumed.train()
     resumed.close()
     again = load_checkpoint(tmp_path / "resumed" / "checkpoints" / "checkpoint-000000006.pt")
