@@ -65,8 +65,9 @@ def run(args: argparse.Namespace) -> int:
         metrics = iteration_metrics(inversion, iterate)
         tracker.log_metrics(metrics, iterate.iteration)
         bar.set_postfix_str(", ".join(f"{name} {value:.4g}" for name, value in metrics.items()))
-        if iterate.iteration <= config.optimizer.iterations:  # the optimiser's final point comes after the last
-            bar.update(1)
+        # One tick per iteration, whichever start reports it first; the final points come after the last.
+        if bar.n < iterate.iteration <= config.optimizer.iterations:
+            bar.update(iterate.iteration - bar.n)
 
     try:
         result = solve(inversion, on_iteration)
@@ -86,9 +87,14 @@ def run(args: argparse.Namespace) -> int:
     tracker.close()
     recovered = ", ".join(f"{k} {v}" for k, v in result.unknowns.items())
     chosen = "held-out loss" if result.selected_by == "held_out" else "loss"
+    starts = config.optimizer.starts
+    where = f", start {result.best.start} of {starts}" if starts > 1 else ""
+    rollouts = (
+        f"{result.evaluations} batched rollouts of {starts} starts" if starts > 1 else f"{result.evaluations} rollouts"
+    )
     print(
-        f"recovered {recovered} (best {chosen}: iteration {result.best.iteration}); loss ({config.loss}) "
-        f"{result.loss:.4g} after {result.iterations} iterations, {result.evaluations} rollouts, {result.seconds:.1f} s"
+        f"recovered {recovered} (best {chosen}: iteration {result.best.iteration}{where}); loss ({config.loss}) "
+        f"{result.loss:.4g} after {result.iterations} iterations, {rollouts}, {result.seconds:.1f} s"
     )
     errors = result.errors(inversion.truth)
     if errors:

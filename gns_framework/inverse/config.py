@@ -11,7 +11,7 @@ Example::
     observed: {dataset: data/heldout, split: test, trajectory: 0, frames: last}
     unknowns:
       friction: {bounds: [0.4, 1.0], initial: 0.7}
-    optimizer: {name: adam, lr: 0.05, iterations: 40}
+    optimizer: {name: adam, lr: 0.05, iterations: 40}   # starts: 8 searches 8 starting points as one batch
     loss: positions
     checkpoint_every: 10
 """
@@ -149,11 +149,25 @@ class InvertOptimizer(_Strict):
         description="adam only: factor the step size is multiplied by after each iteration (exponential decay; "
         "0.9 over 30 iterations ends at 4 % of lr); default: a constant step size",
     )
+    starts: int = Field(
+        1,
+        ge=1,
+        description="adam only: searches from this many starting points at once, their rollouts stepped as one batch "
+        "(the first at the unknowns' initial values, the others spread over the bounds by a Latin hypercube); the "
+        "answer is the best iterate of all. A loss with several minima needs them",
+    )
+    seed: int = Field(0, ge=0, description="seed of the Latin hypercube that spreads the starts after the first")
 
     @model_validator(mode="after")
     def _decay_needs_adam(self) -> "InvertOptimizer":
         if self.lr_decay is not None and self.name != "adam":
             raise ValueError(f"lr_decay: only adam takes a step size ({self.name} chooses its own); remove lr_decay")
+        if self.starts > 1 and self.name != "adam":
+            raise ValueError(
+                f"starts: {self.starts} starts run as one batch, which needs an optimiser that steps each unknown on "
+                f"its own gradient (adam); {self.name}'s line search would tie the starts together: use adam or "
+                "starts: 1"
+            )
         return self
 
 

@@ -15,7 +15,7 @@ their C input frames from the first observed frame.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..data.batch import ParticleBatch, window
+from ..data.batch import ParticleBatch, collate, window
 from ..data.metadata import DatasetMetadata
 from ..data.trajectory import Trajectory
 from ..errors import RecipeError
@@ -194,6 +194,10 @@ def observed_frames(frames: Literal["last", "all"] | list[int], history: int, nu
 class InverseProblem:
     """The loss of an observed trajectory as a differentiable function of the scaled unknowns.
 
+    ``u`` is one point (k,) or M points (M, k), searched together: the M rollouts run as
+    one batch (each start a copy of the scene, never connected to the others), so M
+    starts cost one model call per step instead of M.
+
     Args:
         simulator: the trained model (its parameters are frozen here).
         trajectory: the observed trajectory, as the model sees it (frame stride applied).
@@ -240,110 +244,137 @@ class InverseProblem:
         if material_property is None and scene.property_names:
             # Every column the model reads is an unknown here (checked): start from the properties' defaults.
             material_property = torch.zeros(state.num_particles, len(scene.property_names), device=device)
-        self.state = ParticleBatch(
+        # The observation's own box and wall conditions stay: the model takes them from the data.
+        self.state = replace(
+            state,
             position_sequence=state.position_sequence.to(dtype),
-            particle_type=state.particle_type,
-            batch=state.batch,
-            num_examples=1,
             material_property=None if material_property is None else material_property.to(dtype),
-            context=state.context,
         )
-        observed = torch.from_numpy(trajectory.position[history : history + self.steps]).to(device, dtype)
-        self.prescribed = observed
+        self.observed = torch.from_numpy(trajectory.position[history : history + self.steps]).to(device, dtype)
+        self.prescribed = self.observed
         self.moving = simulator.predicted_mask(state.particle_type)
-        self.observed = observed
         kinds = list(granular_types) or sorted(set(state.particle_type[self.moving].tolist()))
         self.granular = torch.isin(state.particle_type, torch.tensor(kinds, device=device)) & self.moving
         self.first_frame = self.state.position_sequence[:, 0]
         self.domain = domain_size(metadata.bounds)
+        self._copies: dict[int, ParticleBatch] = {1: self.state}
+
+    def _copies_of_the_scene(self, starts: int) -> ParticleBatch:
+        """The observed start stacked ``starts`` times, one example per start (cached)."""
+        if starts not in self._copies:
+            self._copies[starts] = collate([self.state] * starts)
+        return self._copies[starts]
 
     def model_inputs(self, u: Tensor) -> ParticleBatch:
-        """The rollout's starting state with the unknowns' values in place of the observed ones."""
-        values = self.parameters.values(u).to(self.dtype)
-        sequence, material_property = self.state.position_sequence, self.state.material_property
+        """The rollout's starting state with the unknowns' values in place of the observed ones.
+
+        Shapes: u (k,) -> a batch of the N observed particles; u (M, k) -> M examples, M N particles.
+        """
+        points = u[None] if u.ndim == 1 else u
+        state = self._copies_of_the_scene(points.shape[0])
+        # Every particle reads the values of its own start: (M, k) -> (M N, k).
+        values = self.parameters.values(points).to(self.dtype)[state.batch]
+        sequence, material_property = state.position_sequence, state.material_property
+        first_frame = sequence[:, 0]
         index = 0
         scene = self.simulator.scene
         for name, unknown in self.unknowns.items():
             width = len(unknown.start)
-            value = values[index : index + width]
+            value = values[:, index : index + width]
             index += width
             if isinstance(unknown, VelocityUnknown):
                 # C input frames of a body starting at the unknown velocity from the first observed frame,
                 # accelerated by the given gravity (ballistic flight) or not at all (uniform motion).
-                times = torch.arange(scene.history, dtype=self.dtype, device=u.device)[:, None] * self.metadata.dt
+                times = torch.arange(scene.history, dtype=self.dtype, device=u.device)[None, :, None] * self.metadata.dt
                 gravity = torch.tensor(unknown.gravity or [0.0] * scene.dim, dtype=self.dtype, device=u.device)
-                rebuilt = self.first_frame[:, None] + times * value + 0.5 * times.square() * gravity
-                chosen = (self.state.particle_type == unknown.particle_type)[:, None, None]
+                rebuilt = first_frame[:, None] + times * value[:, None] + 0.5 * times.square() * gravity
+                chosen = (state.particle_type == unknown.particle_type)[:, None, None]
                 sequence = torch.where(chosen, rebuilt, sequence)
             else:
                 assert (
                     material_property is not None
                 )  # a property unknown: the model has properties (zeros if unrecorded)
-                chosen = self._particles(unknown)[:, None]
+                chosen = self._particles(unknown, state.particle_type)[:, None]
                 column = torch.zeros(len(scene.property_names), dtype=torch.bool, device=u.device)
                 column[scene.property_names.index(name)] = True
                 material_property = torch.where(chosen & column, value, material_property)
-        return ParticleBatch(
-            position_sequence=sequence,
-            particle_type=self.state.particle_type,
-            batch=self.state.batch,
-            num_examples=1,
-            material_property=material_property,
-            context=self.state.context,
-        )
+        return replace(state, position_sequence=sequence, material_property=material_property)
 
-    def _particles(self, unknown: PropertyUnknown) -> Tensor:
+    def _particles(self, unknown: PropertyUnknown, particle_type: Tensor) -> Tensor:
         if unknown.particle_type is None:
-            return self.moving
-        return self.state.particle_type == unknown.particle_type
+            return self.simulator.predicted_mask(particle_type)
+        return particle_type == unknown.particle_type
 
     def rollout(self, u: Tensor) -> tuple[ParticleBatch, Tensor]:
-        """The starting state and the (S, N, d) predicted positions for the scaled unknowns ``u``."""
+        """The starting state and the (S, N, d) predicted positions for the scaled unknowns ``u``.
+
+        With M points ``u`` (M, k), the predictions are (S, M N, d): start after start.
+        """
         state = self.model_inputs(u)
-        return state, differentiable_rollout(self.simulator, state, self.prescribed, self.checkpoint_every)
+        starts = state.num_examples
+        prescribed = self.prescribed.repeat(1, starts, 1) if starts > 1 else self.prescribed
+        return state, differentiable_rollout(self.simulator, state, prescribed, self.checkpoint_every)
 
     def loss(self, u: Tensor) -> Tensor:
-        """The scalar misfit (units in :data:`LOSS_UNITS`) of the rollout from ``u``."""
-        state, predicted = self.rollout(u)
-        return self.misfit(state, predicted)
-
-    def losses(self, u: Tensor) -> tuple[Tensor, Tensor | None]:
-        """The loss and, from the same rollout, the misfit on the held-out frames (detached; None without any)."""
+        """The scalar misfit (units in :data:`LOSS_UNITS`) of the rollout from ``u``; (M,) for M points."""
         state, predicted = self.rollout(u)
         loss = self.misfit(state, predicted)
-        if not self.held_out:
-            return loss, None
-        with torch.no_grad():
-            return loss, self.misfit(state, predicted.detach(), self.held_out).detach()
+        return loss[0] if u.ndim == 1 else loss
+
+    def losses(self, u: Tensor) -> tuple[Tensor, Tensor | None]:
+        """The loss and, from the same rollout, the misfit on the held-out frames (detached; None without any).
+
+        Shapes: u (k,) -> two scalars; u (M, k) -> (M,) and (M,), one per start.
+        """
+        state, predicted = self.rollout(u)
+        loss = self.misfit(state, predicted)
+        held_out = None
+        if self.held_out:
+            with torch.no_grad():
+                held_out = self.misfit(state, predicted.detach(), self.held_out).detach()
+        if u.ndim == 1:
+            return loss[0], None if held_out is None else held_out[0]
+        return loss, held_out
 
     def misfit(self, state: ParticleBatch, predicted: Tensor, frames: Sequence[int] | None = None) -> Tensor:
-        """The loss on ``frames`` (default: the frames the loss compares)."""
+        """(M,) the loss of each start on ``frames`` (default: the frames the loss compares).
+
+        Shapes: predicted (S, M N, d) -> (M,).
+        """
         history = self.simulator.scene.history
         index = [f - history for f in (self.frames if frames is None else frames)]
-        compared, target = predicted[index], self.observed[index]
+        starts = state.num_examples
+        n = self.state.num_particles
+        # (F, M, N, d): each start's frames beside the one observation.
+        compared, target = predicted[index].unflatten(1, (starts, n)), self.observed[index][:, None]
         if self.loss_name == "positions":
-            return (compared - target)[:, self.moving].square().mean()
-        final, observed_final = compared[-1], target[-1]
+            return (compared - target)[:, :, self.moving].square().mean(dim=(0, 2, 3))
+        final, observed_final = compared[-1], target[-1].expand(starts, -1, -1)
         if self.loss_name == "sinkhorn":
-            weight = self.moving[None]
+            weight = self.moving[None].expand(starts, -1)
             distance = sinkhorn_distance(
-                final[None],
-                observed_final[None],
+                final,
+                observed_final,
                 weight,
                 weight,
                 blur=SINKHORN_BLUR_FRACTION * self.domain,
                 diameter=self.domain,
             )
-            return 100 * distance[0] / self.domain
-        start = state.position_sequence[:, 0]
+            return 100 * distance / self.domain
         kinematic = self.simulator.scene.kinematic_types
+        types = self.state.particle_type[None].expand(starts, -1)
+        granular = self.granular[None].expand(starts, -1)
+        start = state.position_sequence[:, 0].unflatten(0, (starts, n))
         predicted_runout = runout_distance(
-            ParticleRollout.of(final[None], state.particle_type, start=start, kinematic_types=kinematic), self.granular
+            ParticleRollout.of(final[:, None], types, start=start, kinematic_types=kinematic), granular
         )
         observed_runout = runout_distance(
             ParticleRollout.of(
-                observed_final[None], state.particle_type, start=self.first_frame, kinematic_types=kinematic
+                observed_final[:, None],
+                types,
+                start=self.first_frame[None].expand(starts, -1, -1),
+                kinematic_types=kinematic,
             ),
-            self.granular,
+            granular,
         )
-        return 100 * (predicted_runout - observed_runout).abs()[0] / observed_runout.abs()[0]
+        return 100 * (predicted_runout - observed_runout).abs() / observed_runout.abs()

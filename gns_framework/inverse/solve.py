@@ -35,7 +35,7 @@ from ..model.envelope import PROPERTY_SLACK, SPEED_SLACK, OutsideEnvelope, envel
 from ..plugins import Registry
 from ..runtime.activation_memory import activations_recomputed
 from .config import InvertConfig, PropertyUnknown, VelocityUnknown
-from .optimize import Iterate, Solution, adam, best_iterate, lbfgs
+from .optimize import Iterate, Solution, adam, best_iterate, lbfgs, spread_starts
 from .problem import LOSS_UNITS, InverseProblem, check_against_model, observed_frames
 from .rollout import differentiable_rollout
 
@@ -190,6 +190,19 @@ def _envelope_warnings(model, metadata, trajectory, unknowns, allowed: bool, sou
 
 
 @dataclass(frozen=True)
+class StartResult:
+    """One start of a multi-start search: where it began, its best iterate and its optimiser's final point."""
+
+    start: int
+    initial: dict
+    best: Iterate
+    unknowns: dict
+    last: Iterate
+    stopped: bool
+    """It went non-finite and stopped at its last finite iterate."""
+
+
+@dataclass(frozen=True)
 class InversionResult:
     u: np.ndarray
     """(k,) the recovered unknowns, scaled to [0, 1] over their bounds."""
@@ -206,6 +219,8 @@ class InversionResult:
     last: Iterate | None = None
     """The optimiser's own final point (Adam: after its last step), evaluated too."""
     last_unknowns: dict | None = None
+    starts: tuple[StartResult, ...] = ()
+    """Each start of a multi-start search (``optimizer.starts`` > 1); empty for one start."""
 
     @property
     def selected_by(self) -> str:
@@ -252,6 +267,11 @@ class InversionResult:
             ),
             **({"truth": truth, "error_pct": self.errors(truth)} if truth else {}),
             "last": last,
+            **(
+                {"best_start": self.best.start, "starts": self._starts_json(truth)}
+                if self.starts and self.best is not None
+                else {}
+            ),
             "iterations": self.iterations,
             "evaluations": self.evaluations,
             "seconds": self.seconds,
@@ -262,14 +282,32 @@ class InversionResult:
             **({"outside_envelope": list(inversion.warnings)} if inversion.warnings else {}),
         }
 
+    def _starts_json(self, truth: dict | None) -> list[dict]:
+        return [
+            {
+                "start": start.start,
+                "initial": start.initial,
+                "unknowns": start.unknowns,
+                "loss": start.best.loss,
+                "best_iteration": start.best.iteration,
+                **({"held_out_loss": start.best.held_out} if start.best.held_out is not None else {}),
+                **({"error_pct": self.errors(truth, start.unknowns)} if truth else {}),
+                "stopped": start.stopped,
+            }
+            for start in self.starts
+        ]
+
 
 def solve(inversion: Inversion, on_iteration=lambda iterate: None) -> InversionResult:
     """Search the unknowns and return the best iterate; the loss reported is the one at the returned values.
 
     The optimiser's final point (after Adam's last step, which no iteration evaluated)
     is evaluated too and is a candidate; it is reported to ``on_iteration`` as iteration
-    ``iterations + 1`` when it is a new point.
+    ``iterations + 1`` when it is a new point. With ``optimizer.starts`` M > 1 the M
+    starts are searched together (:func:`solve_starts`).
     """
+    if inversion.config.optimizer.starts > 1:
+        return solve_starts(inversion, on_iteration)
     problem, spec = inversion.problem, inversion.config.optimizer
     parameters = problem.parameters
     history: list[Iterate] = []
@@ -331,6 +369,74 @@ def solve(inversion: Inversion, on_iteration=lambda iterate: None) -> InversionR
     )
 
 
+def solve_starts(inversion: Inversion, on_iteration=lambda iterate: None) -> InversionResult:
+    """Adam from ``optimizer.starts`` starting points at once, every iteration one batched rollout of them all.
+
+    The answer is the best iterate over every start; each start's own best and final
+    point are kept in :attr:`InversionResult.starts`. Every start's final point (after
+    its last step) is evaluated, all in one more batched rollout.
+    """
+    problem, spec = inversion.problem, inversion.config.optimizer
+    parameters = problem.parameters
+    history: list[Iterate] = []
+
+    def observe(iterate: Iterate) -> None:
+        history.append(iterate)
+        on_iteration(iterate)
+
+    def describe(u: np.ndarray) -> str:
+        values = parameters.values(torch.from_numpy(np.asarray(u, dtype=np.float64))).tolist()
+        return ", ".join(f"{name} {value:.4g}" for name, value in zip(parameters.names, values))
+
+    u0 = spread_starts(problem.start, spec.starts, spec.seed, parameters.high == parameters.low)
+    started = time.perf_counter()
+    with activations_recomputed(problem.checkpoint_every > 0):
+        solution = adam(problem.losses, u0, spec.lr, spec.iterations, observe, describe, problem.dtype, spec.lr_decay)
+        with torch.no_grad():
+            losses, held_out = problem.losses(torch.from_numpy(np.asarray(solution.u, dtype=np.float64)))
+    seconds = time.perf_counter() - started
+    lasts: dict[int, Iterate] = {}
+    for start, point in enumerate(solution.u):
+        own = [it for it in history if it.start == start]
+        if start in solution.stopped or np.array_equal(own[-1].u, point):
+            lasts[start] = own[-1]  # stopped where it was last finite, or no step moved it
+            continue
+        held = None if held_out is None else float(held_out[start])
+        lasts[start] = Iterate(spec.iterations + 1, float(losses[start]), np.asarray(point).copy(), held, start)
+        observe(lasts[start])
+    as_record = lambda u: parameters.as_record(parameters.values(torch.from_numpy(u)).tolist(), problem.unknowns)  # noqa: E731
+    starts = []
+    for start in range(spec.starts):
+        own_best = best_iterate([it for it in history if it.start == start])
+        starts.append(
+            StartResult(
+                start,
+                as_record(u0[start]),
+                own_best,
+                as_record(own_best.u),
+                lasts[start],
+                start in solution.stopped,
+            )
+        )
+    best = best_iterate(history)
+    last = lasts[best.start]
+    return InversionResult(
+        u=np.asarray(best.u).copy(),
+        unknowns=as_record(best.u),
+        initial=as_record(u0[0]),
+        loss=best.loss,
+        iterations=solution.iterations,
+        evaluations=solution.evaluations + 1,
+        seconds=seconds,
+        message=solution.message,
+        history=history,
+        best=best,
+        last=last,
+        last_unknowns=as_record(last.u),
+        starts=tuple(starts),
+    )
+
+
 def recovered_rollout(inversion: Inversion, result: InversionResult) -> Rollout:
     """The learned rollout of the whole observed trajectory from the recovered unknowns.
 
@@ -363,7 +469,8 @@ def plot_convergence(history: list[Iterate], inversion: Inversion, path: Path, b
 
     The held-out misfit is drawn beside the loss when there is one, the returned
     (best) iterate is marked on every panel, and each unknown's true value is a
-    dashed line when the dataset records it.
+    dashed line when the dataset records it. A multi-start search draws one line per
+    start, the others faint beside the start the answer came from.
     """
     import matplotlib
 
@@ -372,18 +479,28 @@ def plot_convergence(history: list[Iterate], inversion: Inversion, path: Path, b
 
     problem = inversion.problem
     names = problem.parameters.names
-    iterations = [it.iteration for it in history]
-    values = np.array([problem.parameters.values(torch.from_numpy(it.u)).tolist() for it in history])
     figure, axes = plt.subplots(1 + len(names), 1, figsize=(6, 2.2 * (1 + len(names))), sharex=True)
-    axes[0].semilogy(iterations, [max(it.loss, 1e-30) for it in history], marker=".", label="loss")
-    if any(it.held_out is not None for it in history):
-        axes[0].semilogy(
-            [it.iteration for it in history if it.held_out is not None],
-            [max(it.held_out, 1e-30) for it in history if it.held_out is not None],
-            marker=".",
-            color="tab:green",
-            label="held-out frames",
-        )
+    starts = sorted({it.start for it in history})
+    several = len(starts) > 1
+    for start in starts:
+        # One line per start of a multi-start search (faint but the best start's), one line for a single search.
+        own = [it for it in history if it.start == start]
+        chosen = best is None or best.start == start
+        style = {"marker": ".", "alpha": 1.0 if chosen or not several else 0.35}
+        iterations = [it.iteration for it in own]
+        values = np.array([problem.parameters.values(torch.from_numpy(it.u)).tolist() for it in own])
+        label = f"start {start}" if several else "loss"
+        axes[0].semilogy(iterations, [max(it.loss, 1e-30) for it in own], label=label, **style)
+        if any(it.held_out is not None for it in own):
+            axes[0].semilogy(
+                [it.iteration for it in own if it.held_out is not None],
+                [max(it.held_out, 1e-30) for it in own if it.held_out is not None],
+                color="tab:green",
+                label=None if several and not chosen else "held-out frames",
+                **style,
+            )
+        for axis, column in zip(axes[1:], values.T):
+            axis.plot(iterations, column, **style)
     axes[0].set_ylabel(f"loss ({inversion.config.loss})")
     truth = inversion.truth or {}
     true_columns = []
@@ -391,14 +508,13 @@ def plot_convergence(history: list[Iterate], inversion: Inversion, path: Path, b
         value = truth.get(name)
         width = len(unknown.start)
         true_columns += [None] * width if value is None else list(np.atleast_1d(np.asarray(value, dtype=np.float64)))
-    for axis, name, column, true in zip(axes[1:], names, values.T, true_columns):
-        axis.plot(iterations, column, marker=".")
+    for axis, name, true in zip(axes[1:], names, true_columns):
         if true is not None:
             axis.axhline(true, color="black", linestyle="--", linewidth=1, label=f"true {true:.4g}")
             axis.legend(loc="best", fontsize=8)
         axis.set_ylabel(name)
     if best is not None:
-        index = iterations.index(best.iteration)
+        where = f", start {best.start}" if several else ""
         axes[0].plot(
             [best.iteration],
             [max(best.score, 1e-30)],
@@ -406,10 +522,10 @@ def plot_convergence(history: list[Iterate], inversion: Inversion, path: Path, b
             markersize=14,
             color="tab:red",
             linestyle="none",
-            label=f"returned: iteration {best.iteration}",
+            label=f"returned: iteration {best.iteration}{where}",
         )
-        for axis, column in zip(axes[1:], values.T):
-            axis.plot([best.iteration], [column[index]], marker="*", markersize=14, color="tab:red", linestyle="none")
+        for axis, value in zip(axes[1:], problem.parameters.values(torch.from_numpy(best.u)).tolist()):
+            axis.plot([best.iteration], [value], marker="*", markersize=14, color="tab:red", linestyle="none")
         for axis in axes:
             axis.axvline(best.iteration, color="tab:red", linewidth=0.8, alpha=0.5)
     axes[0].legend(loc="best", fontsize=8)
@@ -440,7 +556,13 @@ def write_outputs(inversion: Inversion, result: InversionResult, out: Path, gif:
 
 
 def iteration_metrics(inversion: Inversion, iterate: Iterate) -> dict[str, float]:
-    """``{"loss": ..., "held_out_loss": ..., "friction": ..., "initial_velocity.x": ...}`` of one iterate, in physical units."""
+    """``{"loss": ..., "held_out_loss": ..., "friction": ..., "initial_velocity.x": ...}`` of one iterate, in physical units.
+
+    In a multi-start search each name is prefixed by the iterate's start (``start2.loss``).
+    """
     values = inversion.problem.parameters.values(torch.from_numpy(iterate.u)).tolist()
     held_out = {} if iterate.held_out is None else {"held_out_loss": iterate.held_out}
-    return {"loss": iterate.loss, **held_out, **dict(zip(inversion.problem.parameters.names, values))}
+    metrics = {"loss": iterate.loss, **held_out, **dict(zip(inversion.problem.parameters.names, values))}
+    if inversion.config.optimizer.starts == 1:
+        return metrics
+    return {f"start{iterate.start}.{name}": value for name, value in metrics.items()}

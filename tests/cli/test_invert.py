@@ -159,3 +159,30 @@ def test_gns_invert_returns_its_best_iterate(tmp_path, tiny_model, dataset_multi
     assert "error_pct" in record["last"] and "unknowns.friction.bounds" in record["outside_envelope"][0]
     assert f"iteration {record['best_iteration']}" in done.stdout and "error" in done.stdout
     assert (elsewhere / "out" / "convergence.png").stat().st_size > 0
+
+
+def test_gns_invert_searches_several_starts_as_one_batch(tmp_path, tiny_model, dataset_multimaterial):
+    raw = config_mapping(
+        tiny_model,
+        dataset_multimaterial,
+        optimizer={"name": "adam", "lr": 0.1, "iterations": 3, "starts": 3, "seed": 1},
+        observed={"dataset": str(dataset_multimaterial), "split": "test", "trajectory": 0, "frames": [8, 10]},
+    )
+    config = write_config(tmp_path / "inv.yaml", raw)
+    done = gns(
+        "invert", str(config), "--out", "out", "--no-progress", "--no-tracking", "--no-gif", "--outside-envelope",
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    record = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert [entry["start"] for entry in record["starts"]] == [0, 1, 2]
+    assert record["starts"][0]["initial"]["friction"] == pytest.approx(0.7)
+    assert len({round(entry["initial"]["friction"], 6) for entry in record["starts"]}) == 3
+    best = record["starts"][record["best_start"]]
+    assert record["loss"] == min(entry["loss"] for entry in record["starts"]) == best["loss"]
+    assert record["unknowns"] == best["unknowns"] and record["evaluations"] == 4
+    rows = [json.loads(line) for line in (tmp_path / "out" / "metrics.jsonl").read_text().splitlines()]
+    for start in range(3):
+        losses = [row[f"start{start}.loss"] for row in rows if f"start{start}.loss" in row]
+        assert len(losses) in (3, 4) and min(losses) == pytest.approx(record["starts"][start]["loss"])
+    assert f"start {record['best_start']} of 3" in done.stdout and "4 batched rollouts of 3 starts" in done.stdout

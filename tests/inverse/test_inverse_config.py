@@ -66,6 +66,8 @@ def test_lr_decay_and_held_out_frames_are_validated_with_their_location():
         ),
         (raw_config(optimizer={"lr_decay": 0}), "optimizer.lr_decay", "greater than 0"),
         (raw_config(optimizer={"lr_decay": 1.5}), "optimizer.lr_decay", "less than or equal to 1"),
+        (raw_config(optimizer={"name": "lbfgs", "starts": 4}), "optimizer", "starts: 4 starts run as one batch"),
+        (raw_config(optimizer={"starts": 0}), "optimizer.starts", "greater than or equal to 1"),
         (raw_config(observed={"held_out": [10, 12]}), "observed", "frames [10] are also in frames"),
         (raw_config(observed={"frames": "all", "held_out": [12]}), "observed", "leaves no frame to hold out"),
     ]

@@ -192,3 +192,46 @@ def test_a_problem_the_model_and_data_can_solve_passes(shipped_float64, observed
     trajectory, _ = observed
     config, typed = parsed({"friction": {"bounds": [0.4, 1.0], "particle_type": SAND}}, frames=[8, 11])
     check_against_model(config, typed, shipped_float64, [trajectory], "inv.yaml")  # raises nothing
+
+
+@pytest.mark.parametrize("loss", ["positions", "runout", "sinkhorn"])
+def test_starts_searched_as_one_batch_have_each_its_own_loss_and_gradient(shipped_float64, observed, loss):
+    """Three points (M, k) rolled out together give, per start, the loss and gradient of that point alone.
+
+    float64 throughout: only the row order of the batched products differs, so agreement is to ~1e-12
+    of the loss; a start reading another's unknowns (the check below) is off by the loss's whole change.
+    """
+    problem = problem_of(shipped_float64, observed, loss)
+    points = torch.tensor(
+        np.array([problem.start, [0.2, 0.3, 0.8], [0.9, 0.6, 0.1]]), dtype=torch.float64, requires_grad=True
+    )
+    losses, _ = problem.losses(points)
+    (gradients,) = torch.autograd.grad(losses.sum(), points)
+    assert losses.shape == (3,)
+    for start, point in enumerate(points.detach()):
+        alone = point.clone().requires_grad_(True)
+        value = problem.loss(alone)
+        (gradient,) = torch.autograd.grad(value, alone)
+        assert losses[start].item() == pytest.approx(value.item(), rel=1e-9, abs=1e-15)
+        np.testing.assert_allclose(
+            gradients[start].numpy(), gradient.numpy(), rtol=1e-7, atol=1e-12 * abs(value.item())
+        )
+    # The check has teeth: the same points, but every particle reading the first start's values.
+    inputs = problem.model_inputs
+
+    def all_read_the_first(u):
+        return inputs(u[:1].expand_as(u)) if u.ndim == 2 else inputs(u)
+
+    problem.model_inputs = all_read_the_first
+    mixed, _ = problem.losses(points.detach())
+    assert abs(mixed[1].item() - losses[1].item()) > 1e-3 * abs(losses[1].item())
+
+
+def test_the_observations_own_box_and_walls_reach_the_model(shipped_float64, observed):
+    trajectory, metadata = observed
+    walled = replace(trajectory, bounds=np.array([[0.0, 0.9], [0.0, 0.45]]))
+    problem = problem_of(shipped_float64, (walled, metadata), "positions")
+    box = np.float32(walled.bounds)  # batches hold the box in float32
+    np.testing.assert_array_equal(problem.model_inputs(torch.tensor(problem.start)).bounds[0].numpy(), box)
+    starts = problem.model_inputs(torch.tensor(np.stack([problem.start] * 3)))
+    assert starts.num_examples == 3 and starts.bounds.shape == (3, 2, 2)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from gns_framework.inverse.optimize import InversionDiverged, Iterate, adam, best_iterate, lbfgs
+from gns_framework.inverse.optimize import InversionDiverged, Iterate, adam, best_iterate, lbfgs, spread_starts
 
 
 def test_adam_stops_on_a_non_finite_loss_naming_the_field():
@@ -102,3 +102,60 @@ def test_the_earliest_of_equally_good_iterates_is_the_best_and_none_is_an_error(
     assert best_iterate([Iterate(1, 2.0, u), Iterate(2, 1.0, u), Iterate(3, 1.0, u)]).iteration == 2
     with pytest.raises(ValueError, match="no iterate to choose from"):
         best_iterate([])
+
+
+def test_adam_from_several_starts_takes_each_starts_own_steps():
+    """M starts searched together follow exactly the paths of M searches one at a time (Adam is elementwise)."""
+    target = torch.tensor([0.3, 0.8], dtype=torch.float64)
+
+    def loss(u):
+        return ((u - target) ** 2).sum(-1) * (1 + u.sum(-1))  # coupled within a start, never across starts
+
+    starts = np.array([[0.5, 0.5], [0.9, 0.1], [0.0, 1.0]])
+    together = []
+    solution = adam(loss, starts, 0.1, 5, together.append, lambda u: "", torch.float64)
+    assert solution.u.shape == (3, 2) and solution.evaluations == 5 and solution.stopped == ()
+    for start, u0 in enumerate(starts):
+        alone = []
+        single = adam(loss, u0, 0.1, 5, alone.append, lambda u: "", torch.float64)
+        mine = [it for it in together if it.start == start]
+        np.testing.assert_allclose([it.u for it in mine], [it.u for it in alone], rtol=0, atol=1e-15)
+        np.testing.assert_allclose([it.loss for it in mine], [it.loss for it in alone], rtol=1e-14)
+        np.testing.assert_allclose(solution.u[start], single.u, rtol=0, atol=1e-15)
+
+
+def test_a_start_that_turns_non_finite_stops_where_it_was_finite_and_the_others_go_on():
+    def loss(u):
+        # Start 1 walks towards u > 0.75, where its loss is NaN; start 0 stays well inside.
+        value = ((u - 1.0) ** 2).sum(-1)
+        return torch.where(u[:, 0] > 0.75, torch.nan, value)
+
+    seen = []
+    solution = adam(loss, np.array([[0.1], [0.6]]), 0.1, 6, seen.append, lambda u: "", torch.float64)
+    assert solution.stopped == (1,) and "starts [1] stopped" in solution.message
+    stopped_at = [it for it in seen if it.start == 1]
+    assert all(np.isfinite(it.loss) for it in seen)
+    np.testing.assert_array_equal(solution.u[1], stopped_at[-1].u)  # its last finite iterate
+    assert len([it for it in seen if it.start == 0]) == 6
+    assert len(stopped_at) < 6
+
+
+def test_a_start_non_finite_at_its_first_point_is_an_error_naming_it():
+    def loss(u):
+        return torch.where(u[:, 0] > 0.5, torch.nan, (u**2).sum(-1))
+
+    with pytest.raises(InversionDiverged, match=r"starting point of start 1 \(friction 0.9\)"):
+        adam(loss, np.array([[0.1], [0.9]]), 0.1, 3, lambda it: None, lambda u: "friction 0.9", torch.float64)
+
+
+def test_starts_are_the_given_one_then_a_latin_hypercube_that_keeps_fixed_axes():
+    u0 = np.array([0.25, 0.5, 0.7])
+    points = spread_starts(u0, 9, seed=3, fixed=np.array([False, True, False]))
+    assert points.shape == (9, 3)
+    np.testing.assert_array_equal(points[0], u0)
+    np.testing.assert_array_equal(points[:, 1], 0.5)  # a known axis stays known
+    for axis in (0, 2):
+        # One start in each eighth of the range: the hypercube's promise.
+        np.testing.assert_array_equal(np.sort(np.floor(points[1:, axis] * 8)), np.arange(8))
+    np.testing.assert_array_equal(spread_starts(u0, 9, seed=3, fixed=np.zeros(3, bool))[1:, 0], points[1:, 0])
+    np.testing.assert_array_equal(spread_starts(u0, 1, seed=3, fixed=np.zeros(3, bool)), u0[None])

@@ -38,8 +38,26 @@ class Quadratic:
         return (friction - 0.55) ** 2, held_out
 
 
-def inversion_of(problem: Quadratic, **optimizer) -> SimpleNamespace:
-    return SimpleNamespace(problem=problem, config=SimpleNamespace(optimizer=InvertOptimizer(**optimizer)))
+def config_of(**optimizer) -> SimpleNamespace:
+    return SimpleNamespace(optimizer=InvertOptimizer(**optimizer))
+
+
+def inversion_of(problem, **optimizer) -> SimpleNamespace:
+    return SimpleNamespace(problem=problem, config=config_of(**optimizer))
+
+
+class TwoMinima(Quadratic):
+    """Friction with a shallow minimum at 0.55 (loss 0.01) and the true one at 0.9 (loss 0), apart at 0.71.
+
+    One value (k,) or one per start (M, k), like the learned problem.
+    """
+
+    def __init__(self):
+        super().__init__(held_out=False)
+
+    def losses(self, u):
+        friction = self.parameters.values(u)[..., 0]
+        return torch.minimum((friction - 0.55) ** 2 + 0.01, (friction - 0.9) ** 2), None
 
 
 def test_adam_returns_its_lowest_loss_iterate_and_evaluates_its_final_point():
@@ -111,7 +129,7 @@ def test_errors_are_relative_percentages_and_absolute_against_a_zero_truth():
 def test_iteration_metrics_are_the_losses_and_each_unknown_in_physical_units():
     unknowns = {**FRICTION, "initial_velocity": VelocityUnknown(particle_type=SAND, bounds=[(-1.0, 1.0), (0.0, 2.0)])}
     parameters, start = parameters_of(unknowns)
-    inversion = SimpleNamespace(problem=SimpleNamespace(parameters=parameters))
+    inversion = SimpleNamespace(problem=SimpleNamespace(parameters=parameters), config=config_of())
     metrics = iteration_metrics(inversion, Iterate(3, 0.25, np.array([0.5, 0.75, 0.25]), held_out=0.5))
     assert metrics == {
         "loss": 0.25,
@@ -121,6 +139,14 @@ def test_iteration_metrics_are_the_losses_and_each_unknown_in_physical_units():
         "initial_velocity.y": pytest.approx(0.5, abs=1e-15),
     }
     assert "held_out_loss" not in iteration_metrics(inversion, Iterate(1, 0.25, start))
+    # In a multi-start search every name says which start it is of.
+    several = SimpleNamespace(problem=inversion.problem, config=config_of(starts=3))
+    assert set(iteration_metrics(several, Iterate(1, 0.25, start, start=2))) == {
+        "start2.loss",
+        "start2.friction",
+        "start2.initial_velocity.x",
+        "start2.initial_velocity.y",
+    }
 
 
 def test_the_truth_is_what_the_dataset_drew_else_a_constant_property_column(shipped_float64, observed, tmp_path):
@@ -142,3 +168,39 @@ def test_the_truth_is_what_the_dataset_drew_else_a_constant_property_column(ship
     # A column that varies between particles is no single truth, and nothing else records one.
     varied = replace(trajectory, material_property=np.linspace(0.4, 0.9, trajectory.num_particles)[:, None])
     assert true_values(tmp_path / "nowhere", varied, unknowns, shipped_float64) is None
+
+
+def test_several_starts_find_the_minimum_one_start_misses():
+    problem = TwoMinima()
+    one = solve(inversion_of(problem, name="adam", lr=0.05, iterations=40))
+    assert one.unknowns["friction"] == pytest.approx(0.55, abs=0.03) and one.loss > 0.009  # from 0.7: the shallow one
+    seen = []
+    several = solve(inversion_of(problem, name="adam", lr=0.05, iterations=40, starts=4, seed=0), seen.append)
+    assert several.unknowns["friction"] == pytest.approx(0.9, abs=0.03) and several.loss < 1e-3
+    assert several.best.start != 0 and several.best == min(seen, key=lambda it: (it.loss, it.iteration, it.start))
+    assert several.evaluations == 41  # 40 batched rollouts and one of the final points
+    assert [start.start for start in several.starts] == [0, 1, 2, 3]
+    # The first start is the configured one and ends where the single search did.
+    assert several.starts[0].initial == {"friction": pytest.approx(0.7, abs=1e-12)}
+    assert several.starts[0].best.loss == pytest.approx(one.loss, rel=1e-12)
+    for start in several.starts:
+        own = [it for it in seen if it.start == start.start]
+        assert [it.iteration for it in own] == list(range(1, 42))  # 41: its final point
+        assert start.last is own[-1] and start.best == min(own, key=lambda it: (it.loss, it.iteration))
+        assert start.unknowns["friction"] == pytest.approx(0.4 + 0.6 * start.best.u[0], abs=1e-15)
+    record = several.as_json(
+        SimpleNamespace(
+            config=SimpleNamespace(
+                observed=SimpleNamespace(model_dump=lambda: {}),
+                loss="positions",
+                optimizer=InvertOptimizer(starts=4),
+                model="m.pt",
+            ),
+            truth={"friction": 0.9},
+            trajectory=SimpleNamespace(key="k"),
+            warnings=(),
+        )
+    )
+    assert record["best_start"] == several.best.start and len(record["starts"]) == 4
+    assert record["starts"][0]["error_pct"]["friction"] == pytest.approx(100 * 0.35 / 0.9, abs=4)
+    assert min(entry["error_pct"]["friction"] for entry in record["starts"]) == record["error_pct"]["friction"]
