@@ -13,7 +13,22 @@ the hook of kind ``k`` is ``gns_<k>s``.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import pluggy
+
+if TYPE_CHECKING:  # annotations only: importing the contracts would load torch for `gns --help`
+    from .contracts import (
+        Dataset,
+        Decoder,
+        Encoder,
+        GraphBuilder,
+        GroundTruthSimulator,
+        Integrator,
+        Material,
+        Processor,
+    )
+    from .plugin_types import Command, Metric
 
 PROJECT = "gns_framework"
 hookspec = pluggy.HookspecMarker(PROJECT)
@@ -21,47 +36,47 @@ hookimpl = pluggy.HookimplMarker(PROJECT)
 
 
 @hookspec
-def gns_graph_builders() -> list[type]:
+def gns_graph_builders() -> list[type[GraphBuilder]]:
     """Return :class:`~gns_framework.contracts.GraphBuilder` subclasses."""
 
 
 @hookspec
-def gns_encoders() -> list[type]:
+def gns_encoders() -> list[type[Encoder]]:
     """Return :class:`~gns_framework.contracts.Encoder` subclasses."""
 
 
 @hookspec
-def gns_processors() -> list[type]:
+def gns_processors() -> list[type[Processor]]:
     """Return :class:`~gns_framework.contracts.Processor` subclasses."""
 
 
 @hookspec
-def gns_decoders() -> list[type]:
+def gns_decoders() -> list[type[Decoder]]:
     """Return :class:`~gns_framework.contracts.Decoder` subclasses."""
 
 
 @hookspec
-def gns_integrators() -> list[type]:
+def gns_integrators() -> list[type[Integrator]]:
     """Return :class:`~gns_framework.contracts.Integrator` subclasses."""
 
 
 @hookspec
-def gns_datasets() -> list[type]:
+def gns_datasets() -> list[type[Dataset]]:
     """Return :class:`~gns_framework.contracts.Dataset` subclasses."""
 
 
 @hookspec
-def gns_materials() -> list[type]:
+def gns_materials() -> list[type[Material]]:
     """Return :class:`~gns_framework.contracts.Material` subclasses."""
 
 
 @hookspec
-def gns_simulators() -> list[type]:
+def gns_simulators() -> list[type[GroundTruthSimulator]]:
     """Return :class:`~gns_framework.contracts.GroundTruthSimulator` subclasses."""
 
 
 @hookspec
-def gns_metrics() -> list:
+def gns_metrics() -> list[Metric]:
     """Return :class:`~gns_framework.plugin_types.Metric` records (name, unit, function).
 
     ``gns evaluate``, rollout files and validation rollouts report every installed
@@ -70,7 +85,7 @@ def gns_metrics() -> list:
 
 
 @hookspec
-def gns_commands() -> list:
+def gns_commands() -> list[Command]:
     """Return :class:`~gns_framework.plugin_types.Command` records: ``gns`` subcommands.
 
     Implemented by plugins of the ``gns_framework.commands`` entry-point group (not

@@ -58,3 +58,18 @@ def test_a_misspelt_hook_is_refused_when_plugins_are_checked():
     manager.register(Typo, name="typo")
     with pytest.raises(pluggy.PluginValidationError, match="unknown hook 'gns_processor'"):
         manager.check_pending()
+
+
+def test_each_hook_is_typed_with_what_it_returns():
+    """A plugin author's type checker sees ``list[type[Processor]]``, not ``list[type]``."""
+    import typing
+
+    from gns_framework import plugin_types
+
+    names = {cls.__name__: cls for cls in COMPONENT_KINDS.values()}
+    names.update(Metric=plugin_types.Metric, Command=plugin_types.Command)
+    for kind, contract in COMPONENT_KINDS.items():
+        hook = getattr(hookspecs, hookspecs.hook_of_kind(kind))
+        assert typing.get_type_hints(hook, localns=names)["return"] == list[type[contract]], kind
+    assert typing.get_type_hints(hookspecs.gns_metrics, localns=names)["return"] == list[plugin_types.Metric]
+    assert typing.get_type_hints(hookspecs.gns_commands, localns=names)["return"] == list[plugin_types.Command]
