@@ -60,7 +60,7 @@ def main() -> int:
     raw = {
         "model": str(args.model),
         "observed": {"dataset": str(args.data), "split": "test", "trajectory": args.trajectory, "frames": "all"},
-        "unknowns": {"friction": {"bounds": [0.5, 0.9]}},
+        "unknowns": {"friction": {"bounds": [0.6, 0.83]}},  # inside the model's trained range
         "loss": args.loss,
         "checkpoint_every": args.checkpoint_every,
     }

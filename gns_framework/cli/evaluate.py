@@ -24,6 +24,18 @@ def _scales(text: str) -> list[float]:
     return values
 
 
+def _precisions(text: str) -> list[str]:
+    from ..runtime.precision import PRECISIONS
+
+    values = [v.strip() for v in text.split(",")]
+    unknown = [v for v in values if v not in PRECISIONS]
+    if not values or unknown or len(set(values)) != len(values):
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated distinct precisions among {', '.join(PRECISIONS)}, got {text!r}"
+        )
+    return values
+
+
 def model_labels(recipe_names: list[str], checkpoints: list[Path]) -> list[str]:
     """One label per model, safe as a file name and unique: rollouts and GIFs are written under it.
 
@@ -74,6 +86,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="B",
         help="also roll each model out on B cases at a time as one batch, a second row beside one at a time "
         "(default 1: one at a time only)",
+    )
+    parser.add_argument(
+        "--precisions",
+        type=_precisions,
+        default=["float32"],
+        metavar="P[,P]",
+        help="precisions of the learned models' products, each giving every model its rows (e.g. float32,bfloat16: "
+        "bfloat16's error and speed beside float32's in one run; default float32)",
     )
     parser.add_argument("--vtk", action="store_true", help="also write VTK frames of each model's first rollout")
     parser.add_argument(
@@ -145,6 +165,7 @@ def run(args: argparse.Namespace) -> int:
         error_metric=args.error_metric,
         rollout_dir=args.out / "rollouts" if (args.vtk or args.gif) else None,
         batch=args.batch,
+        precisions=args.precisions,
     )
     report = dataclasses.replace(report, warnings=tuple(line for lines in warnings.values() for line in lines))
     paths = write_report(report, args.out)

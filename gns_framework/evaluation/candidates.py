@@ -19,6 +19,7 @@ from ..model.learned_simulator import LearnedSimulator
 from ..model.batched_rollout import rollout_batch
 from ..model.rollout import rollout
 from ..plugins import Registry
+from ..runtime.precision import Precision
 from .report import Candidate, Prediction, Report, evaluate
 
 
@@ -27,21 +28,26 @@ def cases_from_split(trajectories: Sequence[Trajectory]) -> list[Trajectory]:
     return [t if t.key else replace(t, key=f"case_{i}") for i, t in enumerate(trajectories)]
 
 
-def learned_positions(simulator: LearnedSimulator, trajectory: Trajectory, device: torch.device | str) -> np.ndarray:
+def learned_positions(
+    simulator: LearnedSimulator, trajectory: Trajectory, device: torch.device | str, precision: Precision = "float32"
+) -> np.ndarray:
     """(S, N, d) positions ``simulator`` rolls out from the first C frames of ``trajectory``.
 
     A diverged model is a result, not an error: its positions are NaN, which the
     metrics count as diverged with infinite error.
     """
     try:
-        return rollout(simulator, trajectory, device=device).predicted
+        return rollout(simulator, trajectory, device=device, precision=precision).predicted
     except RolloutDiverged:
         shape = (trajectory.num_steps - simulator.scene.history, *trajectory.position.shape[1:])
         return np.full(shape, np.nan, dtype=trajectory.position.dtype)
 
 
 def learned_positions_batch(
-    simulator: LearnedSimulator, cases: Sequence[Trajectory], device: torch.device | str
+    simulator: LearnedSimulator,
+    cases: Sequence[Trajectory],
+    device: torch.device | str,
+    precision: Precision = "float32",
 ) -> list[np.ndarray]:
     """Each case's (S, N, d) rolled-out positions, the cases of one length stepped as one batch.
 
@@ -54,33 +60,42 @@ def learned_positions_batch(
         lengths.setdefault(case.num_steps, []).append(index)
     for indices in lengths.values():
         try:
-            rolled = rollout_batch(simulator, [cases[i] for i in indices], device=device)
+            rolled = rollout_batch(simulator, [cases[i] for i in indices], device=device, precision=precision)
             for i, result in zip(indices, rolled):
                 out[i] = result.predicted
         except RolloutDiverged:
             for i in indices:
-                out[i] = learned_positions(simulator, cases[i], device)
+                out[i] = learned_positions(simulator, cases[i], device, precision)
     return cast("list[np.ndarray]", out)  # every case is filled in
 
 
-def learned_candidate(model: LoadedModel, name: str, device: torch.device, batch: int = 1) -> Candidate:
+def learned_candidate(
+    model: LoadedModel, name: str, device: torch.device, batch: int = 1, precision: Precision = "float32"
+) -> Candidate:
     """A trained simulator rolled out from each case's input frames (kinematic particles prescribed).
 
     With ``batch`` > 1 the cases are rolled out that many at a time as one batch
     (:func:`~gns_framework.model.batched_rollout.rollout_batch`), each charged its
-    share of the batch's time; the row is named ``<name> [batch B]``.
+    share of the batch's time; the row is named ``<name> [batch B]``. In another
+    ``precision`` than float32 (:mod:`gns_framework.runtime.precision`) the row is
+    named ``<name> [bfloat16]`` (``<name> [bfloat16, batch B]``).
     """
 
     def simulate(case: Trajectory) -> Prediction:
-        return Prediction(learned_positions(model.simulator, case, device))
+        return Prediction(learned_positions(model.simulator, case, device, precision))
 
     def simulate_batch(cases: Sequence[Trajectory]) -> list[Prediction]:
-        return [Prediction(p) for p in learned_positions_batch(model.simulator, cases, device)]
+        return [Prediction(p) for p in learned_positions_batch(model.simulator, cases, device, precision)]
 
     settings = f"{model.path.name} (step {model.step})"
+    if precision != "float32":
+        settings += f", products in {precision}"
+        name = f"{name} [{precision}" + (f", batch {batch}]" if batch > 1 else "]")
+    elif batch > 1:
+        name = f"{name} [batch {batch}]"
     if batch > 1:
         return Candidate(
-            f"{name} [batch {batch}]",
+            name,
             "learned",
             simulate,
             settings=f"{settings}, {batch} scenes per batch",
@@ -169,17 +184,22 @@ def compare(
     error_metric: str = "sinkhorn_final_pct",
     rollout_dir=None,
     batch: int = 1,
+    precisions: Sequence[Precision] = ("float32",),
 ) -> Report:
     """Error against run time of named trained models (and the ground-truth simulator) on ``cases``.
 
     The models share one input history C (the first model's); each case's first C frames are the input.
     With ``batch`` > 1 each model has a second row, its cases rolled out ``batch`` at a time,
-    beside the one-at-a-time row: the throughput gain measured in the same run.
+    beside the one-at-a-time row: the throughput gain measured in the same run. Each of
+    ``precisions`` gives every model its rows in that precision, so the error and time
+    bfloat16 products change are measured side by side.
     """
     scene = models[0][1].simulator.scene
-    candidates = [learned_candidate(model, name, device) for name, model in models]
-    if batch > 1:
-        candidates += [learned_candidate(model, name, device, batch) for name, model in models]
+    candidates = []
+    for precision in precisions:
+        candidates += [learned_candidate(model, name, device, 1, precision) for name, model in models]
+        if batch > 1:
+            candidates += [learned_candidate(model, name, device, batch, precision) for name, model in models]
     if with_simulator:
         candidates += simulator_candidates(metadata, registry, cases, scene.history, grid_scales, substep_scales)
     return evaluate(

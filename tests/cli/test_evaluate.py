@@ -116,3 +116,12 @@ def test_model_labels_are_safe_file_names_and_unique():
 def test_evaluate_rejects_bad_scales(tmp_path: Path):
     result = gns("evaluate", str(tmp_path / "x.pt"), "--grid-scales", "0,1")
     assert result.returncode == 2 and "comma-separated positive numbers" in result.stderr
+
+
+def test_precisions_are_checked_before_anything_runs(tmp_path: Path):
+    result = gns(
+        "evaluate", str(tmp_path / "model.pt"), "--precisions", "float32,float16", "--out", str(tmp_path / "r")
+    )
+    assert result.returncode == 2
+    assert "--precisions: expected comma-separated distinct precisions among float32, tf32, bfloat16" in result.stderr
+    assert "'float32,float16'" in result.stderr and not (tmp_path / "r").exists()
