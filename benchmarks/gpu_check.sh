@@ -152,7 +152,7 @@ part imports 40 "$PYTHON" benchmarks/gpu_check.py imports
 part info 30 "$PYTHON" benchmarks/gpu_check.py info --device "$DEVICE"
 if [ "$DEVICE" = cuda ]; then
   # The CUDA tests, and the precision getters under this machine's torch.
-  part cuda_tests 90 "$PYTHON" benchmarks/gpu_check.py tests tests/test_cuda.py tests/runtime/test_precision.py
+  part cuda_tests 90 "$PYTHON" benchmarks/gpu_check.py tests tests/test_cuda.py tests/runtime/test_precision.py tests/runtime/test_tf32.py
 else
   skip cuda_tests "--device cpu (the cuda-marked tests need a GPU; the test suite runs the rest)"
 fi

@@ -29,9 +29,10 @@ def autocast(precision: Precision, device: torch.device | str) -> contextlib.Abs
     import torch  # here: naming the choices (recipes, CLI help) needs no torch
 
     from .device import is_cuda
+    from .tf32 import cuda_tf32
 
     if precision == "tf32" and is_cuda(device):
-        return _cuda_tf32()
+        return cuda_tf32()
     return torch.autocast(torch.device(device).type, dtype=torch.bfloat16, enabled=precision == "bfloat16")
 
 
@@ -42,29 +43,6 @@ def backward_precision(precision: Precision, device: torch.device | str) -> cont
     TF32 is a process setting, so the backward's float32 products need it again.
     """
     from .device import is_cuda
+    from .tf32 import cuda_tf32
 
-    return _cuda_tf32() if precision == "tf32" and is_cuda(device) else contextlib.nullcontext()
-
-
-@contextlib.contextmanager
-def _cuda_tf32():
-    """float32 products on CUDA in TF32 inside the block; the process-wide setting is restored after.
-
-    Set through one API only, the ``allow_tf32`` flags. torch 2.9 and later (2.11 to
-    2.13 checked) keep two records of the setting: ``allow_tf32`` and
-    ``set_float32_matmul_precision`` write both, ``fp32_precision`` writes only the
-    new one. Set through ``fp32_precision`` alone, the legacy getters
-    (``torch.backends.cuda.matmul.allow_tf32``, ``torch.get_float32_matmul_precision()``),
-    which other code may read, raise "mix of the legacy and new APIs" inside the block. Through ``allow_tf32`` every getter, legacy and new,
-    stays readable (tests/runtime/test_precision.py). Only the CUDA flags change: the
-    CPU's (oneDNN) setting is left alone.
-    """
-    import torch
-
-    matmul, cudnn = torch.backends.cuda.matmul, torch.backends.cudnn
-    saved = matmul.allow_tf32, cudnn.allow_tf32
-    matmul.allow_tf32 = cudnn.allow_tf32 = True
-    try:
-        yield
-    finally:
-        matmul.allow_tf32, cudnn.allow_tf32 = saved
+    return cuda_tf32() if precision == "tf32" and is_cuda(device) else contextlib.nullcontext()

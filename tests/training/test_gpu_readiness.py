@@ -91,7 +91,7 @@ def test_throughput_is_timed_between_device_synchronisations(dataset_multimateri
 
 
 def test_tf32_is_float32_on_the_cpu_and_its_cuda_setting_is_restored(dataset_multimaterial, tmp_path, registry):
-    from gns_framework.runtime.precision import _cuda_tf32
+    from gns_framework.runtime.tf32 import cuda_tf32
 
     losses = {}
     for precision in ("float32", "tf32"):
@@ -102,6 +102,6 @@ def test_tf32_is_float32_on_the_cpu_and_its_cuda_setting_is_restored(dataset_mul
         trainer.close()
     assert losses["tf32"] == losses["float32"]
     before = torch.backends.cuda.matmul.allow_tf32, torch.get_float32_matmul_precision()
-    with _cuda_tf32():
+    with cuda_tf32():
         assert torch.backends.cuda.matmul.fp32_precision == "tf32"
     assert (torch.backends.cuda.matmul.allow_tf32, torch.get_float32_matmul_precision()) == before

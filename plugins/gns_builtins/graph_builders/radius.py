@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 from pydantic import Field
 from torch import Tensor
 
@@ -16,13 +18,8 @@ class RadiusGraphBuilder(GraphBuilder):
 
     No neighbour cap: unlike torch_cluster's ``max_num_neighbors`` (which silently keeps
     an implementation-defined subset), every neighbour is kept, however dense the scene.
-    Pure torch cell list, O(N). Edges are sorted by (receiver, sender).
-
-    With ``skin`` > 0 the search keeps its pairs closer than R (1 + skin) and later
-    frames of the same particles only filter them, until some particle has moved
-    about half the skin (a Verlet list, ``_kernels/verlet_list.py``): the same graph,
-    searched less often in a rollout. Training windows change every step, so there
-    it searches every step.
+    Pure torch cell list, O(N). Edges are sorted by (receiver, sender). ``skin`` > 0:
+    the same graph, searched less often in a rollout (a Verlet list, ``_kernels/verlet_list.py``).
     """
 
     name = "radius"
@@ -36,14 +33,12 @@ class RadiusGraphBuilder(GraphBuilder):
 
     def __init__(self, params: Params, scene: ModelSetup):
         super().__init__(params, scene)
-        radius, skin = scene.connectivity_radius, params.skin
-        self.verlet = VerletList(radius, skin * radius) if skin > 0 else None
+        radius = scene.connectivity_radius
+        self.verlet = VerletList(radius, params.skin * radius) if params.skin > 0 else None
 
     def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:
-        if self.verlet is not None:
-            senders, receivers = self.verlet.pairs(position, batch)
-        else:
-            senders, receivers = radius_pairs(position, batch, self.scene.connectivity_radius)
+        search = self.verlet.pairs if self.verlet else partial(radius_pairs, radius=self.scene.connectivity_radius)
+        senders, receivers = search(position, batch)
         return Graph(
             senders=senders,
             receivers=receivers,
