@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,18 +19,25 @@ from .scene import scene_from_data
 
 
 def open_dataset(
-    spec: DatasetSpec, registry: Registry, path: str | Path | None = None, allow_pickle: Path | None = None
+    spec: DatasetSpec,
+    registry: Registry,
+    path: str | Path | None = None,
+    allow_pickle: Path | None = None,
+    keep: int | None = None,
 ) -> Dataset:
     """The dataset plugin a recipe names, on ``path`` (default: the recipe's), seen every ``frame_stride`` frames.
 
     ``allow_pickle`` is the folder the user's ``--allow-pickle`` names: it lets the
-    plugin unpickle anything only if it is this dataset's folder.
+    plugin unpickle anything only if it is this dataset's folder. ``keep``: how many
+    trajectories each split keeps in memory (:func:`~gns_framework.data.memory.trajectories_kept`;
+    None: all).
     """
     cls, params = registry.resolve("dataset", spec, ("dataset",))
     folder = Path(path if path is not None else spec.path)
     if not folder.is_dir():
         raise DatasetError(f"{folder}: dataset folder not found (dataset.path in the recipe, or --dataset)")
     dataset = cls(params, folder, allow_pickle=pickle_granted(folder, allow_pickle))
+    dataset.keep_trajectories = keep
     if spec.frame_stride == 1:
         return dataset
     return FrameStrideDataset(dataset, spec.frame_stride, registry.kinematic_types())
@@ -44,12 +52,25 @@ class PreparedData:
     scene: ModelSetup
 
 
-def prepare_data(recipe: Recipe, registry: Registry, allow_pickle: Path | None = None) -> PreparedData:
-    """The recipe's dataset (at ``dataset.path``), its train and valid splits and the scene they give."""
-    dataset = open_dataset(recipe.dataset, registry, allow_pickle=allow_pickle)
-    metadata = dataset.metadata()
+def prepare_data(
+    recipe: Recipe,
+    registry: Registry,
+    allow_pickle: Path | None = None,
+    keep: int | None = None,
+    known: tuple[DatasetMetadata, ModelSetup] | None = None,
+) -> PreparedData:
+    """The recipe's dataset (at ``dataset.path``), its train and valid splits and the scene they give.
+
+    ``keep``: trajectories each split keeps in memory (None: all). ``known``: the
+    metadata (with its statistics) and scene another process already derived from
+    the same data; given, nothing is read here but the splits' lists of trajectories.
+    """
+    dataset = open_dataset(recipe.dataset, registry, allow_pickle=allow_pickle, keep=keep)
+    metadata = dataset.metadata() if known is None else known[0]
     train = dataset.split("train")
     valid = dataset.split("valid") if dataset.has_split("valid") else None
-    seen = list(train) + (list(valid) if valid is not None else [])
+    if known is not None:
+        return PreparedData(dataset, metadata, train, valid, known[1])
+    seen = itertools.chain(train, valid if valid is not None else ())
     scene = scene_from_data(metadata, seen, recipe.model, registry, source=str(dataset.path))
     return PreparedData(dataset, metadata, train, valid, scene)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -16,9 +17,32 @@ from ..errors import DatasetError, RecipeError
 from ..plugins import Registry
 
 
+class _Seen(NamedTuple):
+    """What the scene needs of one trajectory: read once, kept small."""
+
+    key: str
+    types: frozenset[int]
+    properties: int
+    """material_property columns (0: none)."""
+    context: int
+    """step_context width (0: none)."""
+    walls: np.ndarray | None
+
+    @classmethod
+    def of(cls, trajectory: Trajectory) -> _Seen:
+        prop, ctx = trajectory.material_property, trajectory.step_context
+        return cls(
+            trajectory.key,
+            frozenset(int(t) for t in np.unique(trajectory.particle_type)),
+            0 if prop is None else prop.shape[1],
+            0 if ctx is None else ctx.shape[1],
+            trajectory.walls,
+        )
+
+
 def scene_from_data(
     metadata: DatasetMetadata,
-    trajectories: Sequence[Trajectory],
+    trajectories: Iterable[Trajectory],
     model: ModelSpec,
     registry: Registry,
     source: str = "dataset",
@@ -28,22 +52,26 @@ def scene_from_data(
     Materials: the recipe's ``model.materials`` or, by default, those whose particle
     types occur in ``trajectories``. Properties and context exist only when the data
     carries them, so a scene never pays for features it does not use.
+
+    The trajectories are read once, one at a time: a split that keeps few of them in
+    memory (``dataset.memory: windows``) is never held whole.
     """
+    seen = [_Seen.of(traj) for traj in trajectories]
     if model.materials:
         materials = [registry.get("material", name) for name in model.materials]
     else:
-        present = sorted({int(t) for traj in trajectories for t in np.unique(traj.particle_type)})
+        present = sorted({t for summary in seen for t in summary.types})
         materials = [registry.material_by_type(t).cls for t in present]
     types = tuple(sorted(m.particle_type for m in materials))
-    for traj in trajectories:
-        unknown = sorted(set(np.unique(traj.particle_type).tolist()) - set(types))
+    for summary in seen:
+        unknown = sorted(summary.types - set(types))
         if unknown:
             raise DatasetError(
-                f"{source}: trajectory {traj.key!r}: particle_type: ids {unknown} belong to no material of "
+                f"{source}: trajectory {summary.key!r}: particle_type: ids {unknown} belong to no material of "
                 f"the model ({', '.join(m.name for m in materials)}); add them to model.materials"
             )
 
-    property_widths = {0 if t.material_property is None else t.material_property.shape[1] for t in trajectories}
+    property_widths = {summary.properties for summary in seen}
     if len(property_widths) > 1:
         raise DatasetError(
             f"{source}: material_property: trajectories disagree on the number of columns {sorted(property_widths)}"
@@ -65,7 +93,7 @@ def scene_from_data(
             )
         property_names = tuple(declared)
 
-    context_widths = {0 if t.step_context is None else t.step_context.shape[1] for t in trajectories}
+    context_widths = {summary.context for summary in seen}
     if len(context_widths) > 1:
         raise DatasetError(f"{source}: step_context: trajectories disagree on its width {sorted(context_widths)}")
     context_size = context_widths.pop() if context_widths else 0
@@ -79,7 +107,7 @@ def scene_from_data(
         raise RecipeError(None, [("model.periodic", f"has {len(given)} entries but the data has dim = {metadata.dim}")])
     periodic = tuple(bool(p) for p in given) if given and any(given) else ()
 
-    wall_conditions = _wall_conditions(trajectories, model.wall_conditions, bool(model.wall_features), source)
+    wall_conditions = _wall_conditions(seen, model.wall_conditions, bool(model.wall_features), source)
 
     return ModelSetup(
         dim=metadata.dim,
@@ -97,7 +125,7 @@ def scene_from_data(
     )
 
 
-def _wall_conditions(trajectories: Sequence[Trajectory], asked: bool | None, wall_features: bool, source: str) -> bool:
+def _wall_conditions(trajectories: Sequence[_Seen], asked: bool | None, wall_features: bool, source: str) -> bool:
     """Whether the model takes the walls' friction as inputs: as asked, or when the data's walls differ.
 
     Walls that are the same in every training trajectory teach the model nothing about

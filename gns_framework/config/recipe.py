@@ -58,6 +58,12 @@ class DatasetSpec(ComponentSpec):
         description="stored frames per learned step: the model sees every k-th frame (dt and statistics scale with it); "
         "fewer, larger steps make rollouts cheaper and accumulate less error",
     )
+    memory: Literal["auto", "all", "windows"] = Field(
+        "auto",
+        description="all: every trajectory read once and kept (fastest when the data fits); windows: a process "
+        "keeps the few trajectories it used last and reads, memory-mapped where the layout "
+        "stores positions uncompressed (safe), the frames of its windows; auto: windows when several processes train",
+    )
 
 
 class ModelSpec(_Strict):

@@ -32,6 +32,8 @@ class Dataset(ABC):
         self.params = params
         self.path = Path(path)
         self.allow_pickle = allow_pickle
+        self.keep_trajectories: int | None = None
+        """How many trajectories of a split stay in memory (``dataset.memory: windows``); None: all that were read."""
 
     @abstractmethod
     def metadata(self) -> "DatasetMetadata":

@@ -63,9 +63,10 @@ class ParticleBatch:
 def window(trajectory: Trajectory, start: int, history: int, with_target: bool = True, ahead: int = 0) -> ParticleBatch:
     """The window ``[start, start + history)`` of a trajectory as a batch of one example.
 
-    With a target, ``ahead`` > 0 also keeps the ``ahead`` true frames after it.
+    With a target, ``ahead`` > 0 also keeps the ``ahead`` true frames after it. Frames are copied: they may be
+    a read-only memory map of the file (``dataset.memory: windows``).
     """
-    positions = trajectory.position[start : start + history + (1 + ahead if with_target else 0)]
+    positions = np.array(trajectory.position[start : start + history + (1 + ahead if with_target else 0)])
     sequence = torch.from_numpy(np.ascontiguousarray(positions[:history].transpose(1, 0, 2)))
     n = sequence.shape[0]
     return ParticleBatch(

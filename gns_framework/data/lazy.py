@@ -1,8 +1,9 @@
-"""A split of trajectories read on first access, validated, then kept in memory."""
+"""A split of trajectories read on first access, validated, then kept in memory (all, or the most recently used)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from functools import lru_cache
 
 from .trajectory import Trajectory
 
@@ -15,14 +16,17 @@ class TrajectorySequence(Sequence[Trajectory]):
         load: reads the raw trajectory of a key (may raise DatasetError).
         source: the file, for error messages.
         dim: spatial dimensions the metadata promises.
+        keep: how many recently used trajectories stay in memory (None: every one read stays).
     """
 
-    def __init__(self, keys: Sequence[str], load: Callable[[str], Trajectory], source: str, dim: int):
+    def __init__(
+        self, keys: Sequence[str], load: Callable[[str], Trajectory], source: str, dim: int, keep: int | None = None
+    ):
         self.keys = list(keys)
         self._load = load
         self._source = source
         self._dim = dim
-        self._cache: dict[int, Trajectory] = {}
+        self._get = lru_cache(maxsize=keep)(self._validated)
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -34,6 +38,7 @@ class TrajectorySequence(Sequence[Trajectory]):
             index += len(self)
         if not 0 <= index < len(self):
             raise IndexError(index)
-        if index not in self._cache:
-            self._cache[index] = self._load(self.keys[index]).validated(self._source, dim=self._dim)
-        return self._cache[index]
+        return self._get(index)
+
+    def _validated(self, index: int) -> Trajectory:
+        return self._load(self.keys[index]).validated(self._source, dim=self._dim)

@@ -10,23 +10,26 @@ import torch
 from .batch import ParticleBatch, collate, window
 from .trajectory import Trajectory
 
+Shapes = Sequence[tuple[int, int]] | None
+
 
 class WindowIndex:
     """Every window ``[start, start + C + ahead]`` (C inputs, 1 target, ``ahead`` later frames) of every trajectory.
 
     ``ahead`` > 0 keeps the true frames after the target for push-forward training
-    (``ParticleBatch.ahead``).
+    (``ParticleBatch.ahead``). ``shapes``: each trajectory's (frames, particles), when known without reading it.
     """
 
-    def __init__(self, trajectories: Sequence[Trajectory], history: int, ahead: int = 0):
+    def __init__(self, trajectories: Sequence[Trajectory], history: int, ahead: int = 0, shapes: Shapes = None):
         self.trajectories = trajectories
         self.history = history
         self.ahead = ahead
-        pairs = [(i, s) for i, t in enumerate(trajectories) for s in range(t.num_steps - history - ahead)]
+        shapes = shapes if shapes is not None else [(t.num_steps, t.num_particles) for t in trajectories]
+        pairs = [(i, s) for i, (frames, _) in enumerate(shapes) for s in range(frames - history - ahead)]
         if not pairs:
             raise ValueError(f"no trajectory has more than history + push-forward = {history + ahead} frames")
         self.pairs = np.asarray(pairs, dtype=np.int64)
-        self._particles = np.asarray([t.num_particles for t in trajectories], dtype=np.int64)
+        self._particles = np.asarray([particles for _, particles in shapes], dtype=np.int64)
 
     def __len__(self) -> int:
         return len(self.pairs)

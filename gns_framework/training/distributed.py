@@ -10,15 +10,28 @@ job, DDP wrapping and the collectives are :class:`~.processes.Processes`.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from datetime import timedelta
+from typing import TypeVar
 
 import torch
 import torch.distributed as dist
 
+from ..errors import GnsError
 from ..runtime.device import is_cuda
 from .processes import Processes
 
-__all__ = ["Processes", "backend_for", "process_group_timeout", "processes_from_environment", "start", "stop"]
+__all__ = [
+    "Processes",
+    "backend_for",
+    "from_chief",
+    "process_group_timeout",
+    "processes_from_environment",
+    "start",
+    "stop",
+]
+
+T = TypeVar("T")
 
 
 def processes_from_environment(environ: dict[str, str] | None = None) -> Processes:
@@ -88,3 +101,27 @@ def start(processes: Processes, device: torch.device) -> torch.device:
 def stop() -> None:
     if dist.is_initialized():
         dist.destroy_process_group()
+
+
+def from_chief(processes: Processes, compute: Callable[[], T]) -> T:
+    """``compute()`` run by rank 0 alone, and its result on every rank; its failure, raised on every rank.
+
+    For what every rank needs and one can derive (the dataset's statistics and
+    scene): read once, not once per rank. A failure is sent as well as raised (rank
+    0 raises its own error, the others a GnsError or RuntimeError with its message),
+    so no rank waits forever for a result that will not come.
+    """
+    if not processes.distributed:
+        return compute()
+    outcome: tuple[T | None, tuple[bool, str] | None] = (None, None)
+    if processes.is_chief:
+        try:
+            outcome = (compute(), None)
+        except Exception as exc:
+            processes.broadcast((None, (isinstance(exc, GnsError), str(exc))))
+            raise
+    value, failure = processes.broadcast(outcome)
+    if failure is not None:
+        ours, message = failure
+        raise (GnsError if ours else RuntimeError)(f"rank 0 failed: {message}")
+    return value

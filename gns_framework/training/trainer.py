@@ -12,11 +12,14 @@ import yaml
 from torch import Tensor
 from tqdm import tqdm
 
-from ..assembly.data import prepare_data
+from ..assembly.data import PreparedData, prepare_data
 from ..assembly.learned import build_learned_simulator, plugin_versions, training_problems
 from ..evaluation.rollout_scores import validation_rollout_scorer
 from ..config.recipe import Recipe
+from ..contracts import ModelSetup
 from ..data.atomic import write_text_atomic
+from ..data.memory import trajectories_kept
+from ..data.metadata import DatasetMetadata
 from ..data.windows import WindowIndex, WindowOrder
 from ..errors import DatasetError, RecipeError
 from ..io.run_folder import RunFolder
@@ -99,7 +102,18 @@ class Trainer:
         refused = training_problems(self.recipe, registry)
         if refused:
             raise RecipeError(None, refused)
-        self.data = prepare_data(self.recipe, registry, allow_pickle=allow_pickle)
+        # dataset.memory: a process of several keeps a few trajectories, and rank 0 alone reads the
+        # whole train split once, for the statistics and scene every rank needs.
+        keep = trajectories_kept(self.recipe.dataset.memory, self.world_size)
+        read: list[PreparedData] = []
+
+        def derive() -> tuple[DatasetMetadata, ModelSetup, list[tuple[int, int]]]:
+            """What is derived from reading the data: the statistics, the scene, each train trajectory's shape."""
+            read.append(prepare_data(self.recipe, registry, allow_pickle=allow_pickle, keep=keep))
+            return read[0].metadata, read[0].scene, [(t.num_steps, t.num_particles) for t in read[0].train]
+
+        metadata, scene, shapes = distributed.from_chief(self.processes, derive)
+        self.data = read[0] if read else prepare_data(self.recipe, registry, allow_pickle, keep, (metadata, scene))
         if recipe.training.pushforward_steps and self.data.scene.context_size:
             raise RecipeError(
                 None,
@@ -111,7 +125,7 @@ class Trainer:
                     )
                 ],
             )
-        self.windows = self._training_windows()
+        self.windows = self._training_windows(shapes)
         self.order = WindowOrder(len(self.windows), recipe.training.batch_size, recipe.seed, self.rank, self.world_size)
         envelope = (
             measure_envelope(
@@ -173,7 +187,7 @@ class Trainer:
         if self.processes.is_chief:
             self.tracker = tracker if tracker is not None else JsonlTracker(self.run_dir)
 
-    def _training_windows(self) -> WindowIndex:
+    def _training_windows(self, shapes: list[tuple[int, int]]) -> WindowIndex:
         """The train split's windows; a split with none is a DatasetError naming the split's file and why."""
         train, history = self.data.train, self.recipe.model.history
         ahead = self.recipe.training.pushforward_steps
@@ -181,9 +195,9 @@ class Trainer:
         if len(train) == 0:
             raise DatasetError(f"{where}: holds 0 trajectories: training needs at least one")
         try:
-            return WindowIndex(train, history, ahead)
+            return WindowIndex(train, history, ahead, shapes)
         except ValueError:
-            longest = max(t.num_steps for t in train)
+            longest = max(frames for frames, _ in shapes)
             raise DatasetError(
                 f"{where}: sequence_length: its {len(train)} trajector{'y has' if len(train) == 1 else 'ies have'} "
                 f"at most {longest} frames, and training needs more than model.history"

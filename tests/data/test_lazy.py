@@ -54,3 +54,18 @@ def test_a_trajectory_of_another_dimension_names_the_file_and_trajectory():
     split = TrajectorySequence(KEYS, Loader(dim=3), "data/valid.npz", dim=2)
     with pytest.raises(DatasetError, match=r"data/valid.npz: trajectory 't_1': position: has d = 3"):
         split[1]
+
+
+def test_with_keep_only_the_most_recently_used_trajectories_stay_and_the_others_are_read_again():
+    load = Loader()
+    split = TrajectorySequence(KEYS, load, "data/train.npz", dim=2, keep=2)
+    first = split[0]
+    split[1], split[0], split[2]  # t_1 is now the least recently used
+    assert split[0] is first and load.reads == ["t_0", "t_1", "t_2"]
+    again = split[1]  # evicted: read again, the same values
+    assert load.reads == ["t_0", "t_1", "t_2", "t_1"]
+    assert again.position[0, 0, 0] == 1.0
+    split[3]  # keeps t_1 and t_3: t_0 and t_2 are read again when asked for
+    assert split[1] is again
+    split[0]
+    assert load.reads == ["t_0", "t_1", "t_2", "t_1", "t_3", "t_0"]

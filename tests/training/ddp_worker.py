@@ -10,6 +10,7 @@ from pathlib import Path
 import torch
 
 from gns_framework.config.recipe import validate_recipe
+from gns_framework.errors import DatasetError, GnsError
 from gns_framework.plugins import load_registry
 from gns_framework.training import distributed
 from gns_framework.training.distributed import Processes, processes_from_environment
@@ -61,6 +62,34 @@ def train_under_torchrun(recipe_file: str, out: str, steps: int) -> None:
         }
         torch.save(snapshot, Path(out) / f"rank{processes.rank}.pt")
         trainer.close()
+    finally:
+        distributed.stop()
+
+
+def share_from_chief(rank: int, world_size: int, port: int, out: str) -> None:
+    """Rank 0's result of ``from_chief`` on every rank, then rank 0's failure raised on every rank; written to ``out``."""
+    os.environ.update({"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port), "GLOO_SOCKET_IFNAME": "lo"})
+    processes = Processes(rank, world_size, rank)
+    distributed.start(processes, torch.device("cpu"))
+    computed: list[int] = []
+
+    def compute() -> dict:
+        computed.append(rank)
+        return {"statistics": [0.5, float(rank)]}
+
+    def fail() -> dict:
+        raise DatasetError("data/train.npz: trajectory 'a': position: non-finite value at frame 3, particle 1")
+
+    try:
+        shared = distributed.from_chief(processes, compute)
+        try:
+            distributed.from_chief(processes, fail)
+            failure = "none"
+        except GnsError as exc:
+            failure = f"{type(exc).__name__}: {exc}"
+        Path(out, f"rank{rank}.json").write_text(
+            json.dumps({"shared": shared, "computed": computed, "failure": failure})
+        )
     finally:
         distributed.stop()
 

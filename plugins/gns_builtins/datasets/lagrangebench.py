@@ -123,7 +123,7 @@ class LagrangeBenchDataset(Dataset):
                 )
             return checked(trajectory, str(file), metadata.dim, frames, promise)
 
-        return TrajectorySequence(keys, load, str(file), metadata.dim)
+        return TrajectorySequence(keys, load, str(file), metadata.dim, keep=self.keep_trajectories)
 
     @classmethod
     def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:

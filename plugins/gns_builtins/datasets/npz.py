@@ -55,7 +55,9 @@ class GeoelementsNpzDataset(NpzSplitsDataset):
                 np.asarray(item[0]), np.asarray(item[1]), np.asarray(item[2]) if len(item) == 3 else None, key=key
             )
 
-        return TrajectorySequence(list(archive.files), load, str(file), self.metadata().dim)
+        return TrajectorySequence(
+            list(archive.files), load, str(file), self.metadata().dim, keep=self.keep_trajectories
+        )
 
     @classmethod
     def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:

@@ -1,5 +1,9 @@
 """The safe layout: plain numeric arrays in ``<split>.npz`` plus ``metadata.json``; no pickle.
 
+Positions are stored uncompressed and the other members compressed (older files:
+all compressed; both read the same). Uncompressed positions are memory-mapped under
+``dataset.memory: windows``.
+
 Layout of ``<split>.npz`` (one group of members per trajectory, keys sorted)::
 
     <key>/position           (T, N, d) float32
@@ -13,6 +17,7 @@ Layout of ``<split>.npz`` (one group of members per trajectory, keys sorted)::
 from __future__ import annotations
 
 import json
+import zipfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -23,6 +28,7 @@ from gns_framework.contracts import ComponentParams
 from gns_framework.data.atomic import atomic_path, write_text_atomic
 from gns_framework.data.lazy import TrajectorySequence
 from gns_framework.data.metadata import DatasetMetadata
+from gns_framework.data.npz_mapping import mapped_member
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
 
@@ -54,11 +60,15 @@ class SafeDataset(NpzSplitsDataset):
                 if required not in fields:
                     raise DatasetError(f"{file}: trajectory {key!r}: {required}: missing")
 
+        # dataset.memory: windows maps each position member, so a process reads the frames of its windows.
+        mapped = self.keep_trajectories is not None
+
         def load(key: str) -> Trajectory:
             fields = groups[key]
             get = lambda f: read_member(archive, file, f"{key}/{f}") if f in fields else None  # noqa: E731
+            position = mapped_member(file, archive.zip, f"{key}/position") if mapped and archive.zip else None
             return Trajectory(  # position and particle_type: present (checked above)
-                read_member(archive, file, f"{key}/position"),
+                read_member(archive, file, f"{key}/position") if position is None else position,
                 read_member(archive, file, f"{key}/particle_type"),
                 get("material_property"),
                 get("step_context"),
@@ -69,7 +79,7 @@ class SafeDataset(NpzSplitsDataset):
 
         # File order is the order the trajectories were written in (``gns generate``: seed order), which
         # re-simulating a test case relies on; sorting the keys would lose it.
-        return TrajectorySequence(list(groups), load, str(file), self.metadata().dim)
+        return TrajectorySequence(list(groups), load, str(file), self.metadata().dim, keep=self.keep_trajectories)
 
     @classmethod
     def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:
@@ -86,5 +96,21 @@ class SafeDataset(NpzSplitsDataset):
                     if getattr(traj, name) is not None:
                         arrays[f"{key}/{name}"] = np.asarray(getattr(traj, name), dtype=np.float32)
             with atomic_path(path / f"{split}.npz", suffix=".npz") as tmp:
-                np.savez_compressed(tmp, **arrays)
+                _write_npz(tmp, arrays)
         write_text_atomic(path / "metadata.json", json.dumps(metadata.to_json_dict(), indent=2) + "\n")
+
+
+def _write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
+    """``arrays`` as an ``.npz`` that ``numpy.load`` reads: positions stored as they are, the rest compressed.
+
+    Positions are most of a dataset and compress little (float32 coordinates); stored
+    uncompressed they can be memory-mapped (:func:`~gns_framework.data.npz_mapping.mapped_member`),
+    so a training process reads only the frames it uses. Member times are fixed, so the
+    same data gives the same file.
+    """
+    with zipfile.ZipFile(path, "w", allowZip64=True) as archive:
+        for name, array in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_STORED if name.endswith("/position") else zipfile.ZIP_DEFLATED
+            with archive.open(info, "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(array), allow_pickle=False)

@@ -74,7 +74,9 @@ class TfRecordDataset(Dataset):
             promise = f"sequence_length = {metadata.sequence_length - 1} (steps, as DeepMind counts)"
             return checked(trajectory, str(file), metadata.dim, metadata.sequence_length, promise)
 
-        return TrajectorySequence([str(i) for i in range(len(records))], load, str(file), metadata.dim)
+        return TrajectorySequence(
+            [str(i) for i in range(len(records))], load, str(file), metadata.dim, keep=self.keep_trajectories
+        )
 
     @classmethod
     def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:
