@@ -545,8 +545,11 @@ def plot_error_vs_time(report: Report, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    fig, ax = plt.subplots(figsize=(9.6, 4.8))
     left_out, drawn_x, drawn_y = [], [], []
+    # Points are numbered and named in a key beside the axes: names written at the points
+    # overlap as soon as a few models (precisions, batch rows) sit at similar times.
+    key: list[str] = []
     for kind, marker in (("simulator", "s"), ("learned", "o")):
         points = []
         for e in report.entries:
@@ -575,7 +578,8 @@ def plot_error_vs_time(report: Report, path: Path) -> None:
             label="ground-truth simulator" if kind == "simulator" else "learned simulator",
         )
         for x, y, name in zip(xs, ys, names):
-            ax.annotate(name, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+            key.append(f"{len(key) + 1}  {name}")
+            ax.annotate(str(len(key)), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
         drawn_x += [x for x in xs] + [x + s / 2 for x, s in zip(xs, spreads)]
         drawn_y += [v for v in (*lows, *highs) if v > 0]
     if report.reference is not None:
@@ -594,7 +598,8 @@ def plot_error_vs_time(report: Report, path: Path) -> None:
     ax.set_title(title, fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.0, 0.6, 1.0))
+    fig.text(0.61, 0.5, "\n".join(key), va="center", ha="left", fontsize=8)
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
