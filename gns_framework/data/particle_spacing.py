@@ -11,6 +11,7 @@ import math
 from collections.abc import Iterable
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .trajectory import Trajectory
 
@@ -33,13 +34,15 @@ def particle_spacing(position: np.ndarray, max_queries: int = 2048, seed: int = 
     queries = np.arange(n)
     if n > max_queries:
         queries = np.sort(np.random.default_rng(seed).choice(n, size=max_queries, replace=False))
-    nearest = np.empty(len(queries))
-    for start in range(0, len(queries), 256):
-        chunk = queries[start : start + 256]
-        d2 = ((position[chunk, None, :] - position[None, :, :]) ** 2).sum(-1)
-        # A particle's distance to itself, or to a coincident one, says nothing about spacing.
+    # Each query's two nearest (itself and its neighbour) from a k-d tree: O(N log N), where
+    # comparing every query with every particle took ~0.1 s per 2,000-particle frame.
+    distance, _ = cKDTree(position).query(position[queries], k=2)
+    nearest = distance[:, 1]
+    # A particle's distance to a coincident one says nothing about spacing: those rows look further.
+    for row in np.flatnonzero(nearest == 0):
+        d2 = ((position - position[queries[row]]) ** 2).sum(-1)
         d2[d2 == 0] = np.inf
-        nearest[start : start + len(chunk)] = np.sqrt(d2.min(axis=1))
+        nearest[row] = np.sqrt(d2.min())
     finite = nearest[np.isfinite(nearest)]
     if finite.size == 0:
         raise ValueError("all particles coincide: spacing is undefined")

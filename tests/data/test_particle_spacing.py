@@ -38,6 +38,16 @@ def test_spacing_skips_coincident_particles_and_subsamples_big_clouds():
     assert particle_spacing(points, max_queries=100) == pytest.approx(0.01)
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_spacing_is_the_median_nearest_non_coincident_distance_of_every_pair(dim):
+    """Against all pairs compared in float64, on a random cloud with a coincident triple (which the tree meets first)."""
+    points = np.random.default_rng(dim).random((400, dim))
+    points[[5, 6]] = points[7]
+    d2 = ((points[:, None] - points[None]) ** 2).sum(-1)
+    d2[d2 == 0] = np.inf
+    assert particle_spacing(points) == np.median(np.sqrt(d2.min(axis=1)))
+
+
 def test_radius_holds_the_asked_number_of_neighbours():
     points = lattice(0.01, (41, 41))
     radius = radius_for_spacing(0.01, 2, neighbours=20)
