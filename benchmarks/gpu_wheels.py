@@ -285,9 +285,12 @@ def prepare(out: Path, pythons: list[str], limit_mib: float) -> int:
         f"limit_mib={limit_mib:g} seconds={time.perf_counter() - started:.1f}"
     )
     if size > limit_mib * MiB or travel > limit_mib * MiB:
+        largest = ", ".join(f"{folder} {bytes_ / MiB:.1f} MiB" for folder, bytes_ in _largest_folders(out))
         print(
             f"gpu_wheels: {out} ({size / MiB:.1f} MiB) with the working tree ({travel / MiB:.1f} MiB) is over "
-            f"the {limit_mib:g} MiB that travels to the device",
+            f"the {limit_mib:g} MiB that travels to the device; the largest folders that travel: {largest}. "
+            "Move what the check does not need (models/in_training/: checkpoints of runs in progress) out of "
+            "the tree for the call, and back after it",
             file=sys.stderr,
         )
         return 1
@@ -307,6 +310,18 @@ def _working_tree_files() -> list[str]:
         check=True,
     ).stdout
     return [name for name in listed.decode().split("\0") if name and (REPO / name).is_file()]
+
+
+def _largest_folders(exclude: Path, count: int = 3, depth: int = 2) -> list[tuple[str, int]]:
+    """The ``count`` folders (``depth`` levels down) holding the most bytes of what travels, less ``exclude``."""
+    exclude = exclude.resolve()
+    totals: dict[str, int] = {}
+    for name in _working_tree_files():
+        if exclude in (REPO / name).resolve().parents:
+            continue
+        folder = "/".join(Path(name).parts[:-1][:depth]) or "."
+        totals[folder] = totals.get(folder, 0) + (REPO / name).stat().st_size
+    return sorted(totals.items(), key=lambda item: -item[1])[:count]
 
 
 def _working_tree_bytes(exclude: Path) -> int:

@@ -169,3 +169,16 @@ def test_the_projects_own_environment_needs_no_prepared_folder(tmp_path, capsys)
     assert gpu_wheels.install(tmp_path / "absent", tmp_path / "site") == 0
     assert "installed=none" in capsys.readouterr().out and not (tmp_path / "site").exists()
     assert not gpu_wheels._already_complete(installed=lambda name: None)
+
+
+def test_the_largest_folders_that_travel_are_named_by_their_bytes(tmp_path, monkeypatch):
+    files = {"models/in_training/a.pt": 50, "models/in_training/b.pt": 30, "models/c.pt": 40, "README.md": 5}
+    for name, size in files.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_bytes(b"x" * size)
+    (tmp_path / "gpu_wheels").mkdir()
+    (tmp_path / "gpu_wheels" / "w.whl").write_bytes(b"x" * 100)
+    monkeypatch.setattr(gpu_wheels, "REPO", tmp_path)
+    monkeypatch.setattr(gpu_wheels, "_working_tree_files", lambda: [*files, "gpu_wheels/w.whl"])
+    largest = gpu_wheels._largest_folders(tmp_path / "gpu_wheels")
+    assert largest == [("models/in_training", 80), ("models", 40), (".", 5)]
