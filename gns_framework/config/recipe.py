@@ -121,7 +121,8 @@ class OptimizerSpec(_Strict):
 
     ``exponential`` (the reference's): ``lr = lr_min + (lr_init - lr_min) * lr_decay ** (step / lr_decay_steps)``.
     ``cosine``: after ``warmup_steps`` of linear warm-up from 0 to ``lr_init``, a half cosine from ``lr_init``
-    down to ``lr_min`` at the last training step (``training.steps``), so the whole budget is used.
+    down to ``lr_min`` at ``anneal_fraction`` of the training steps (``training.steps``; by default the last),
+    then ``lr_min`` to the end.
     """
 
     schedule: Literal["exponential", "cosine"] = Field("exponential", description="exponential (reference) or cosine")
@@ -130,6 +131,9 @@ class OptimizerSpec(_Strict):
     lr_decay: float = Field(0.1, gt=0, le=1, description="exponential schedule only")
     lr_decay_steps: float = Field(5e6, gt=0, description="exponential schedule only")
     warmup_steps: int = Field(0, ge=0, description="linear warm-up steps from lr 0 (both schedules)")
+    anneal_fraction: float = Field(
+        1.0, gt=0, le=1, description="cosine schedule only: fraction of training.steps at which lr reaches lr_min"
+    )
 
     @model_validator(mode="after")
     def _floor_below_start(self) -> "OptimizerSpec":

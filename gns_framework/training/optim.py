@@ -16,14 +16,14 @@ def learning_rate(spec: OptimizerSpec, step: int, total_steps: int) -> float:
     first steps take full-size moves whatever the gradient scale, which a freshly
     initialised network with LayerNorm turns into large jumps. The exponential
     schedule then decays as the reference does; the cosine one reaches ``lr_min``
-    at ``total_steps``, so a short run ends with small steps instead of stopping
-    at a high learning rate.
+    at ``anneal_fraction * total_steps`` and holds it, so a short run ends with
+    small steps instead of stopping at a high learning rate.
     """
     if step < spec.warmup_steps:
         return spec.lr_init * (step + 1) / spec.warmup_steps
     if spec.schedule == "exponential":
         return spec.lr_min + (spec.lr_init - spec.lr_min) * spec.lr_decay ** (step / spec.lr_decay_steps)
-    span = max(total_steps - spec.warmup_steps, 1)
+    span = max(round(spec.anneal_fraction * total_steps) - spec.warmup_steps, 1)
     progress = min((step - spec.warmup_steps) / span, 1.0)
     return spec.lr_min + (spec.lr_init - spec.lr_min) * 0.5 * (1.0 + math.cos(math.pi * progress))
 

@@ -28,6 +28,8 @@ EXPONENTIAL_WARM = OptimizerSpec(
     warmup_steps=10,
 )
 COSINE = OptimizerSpec(schedule="cosine", lr_init=1e-3, lr_min=1e-5, warmup_steps=10)
+# The same cosine compressed into the first half of the run: floor at step round(0.5 * 110) = 55.
+COSINE_HALF = OptimizerSpec(schedule="cosine", lr_init=1e-3, lr_min=1e-5, warmup_steps=10, anneal_fraction=0.5)
 
 
 @pytest.mark.parametrize(
@@ -53,6 +55,11 @@ COSINE = OptimizerSpec(schedule="cosine", lr_init=1e-3, lr_min=1e-5, warmup_step
         (COSINE, 85, 1e-5 + 9.9e-4 * (1 - math.sqrt(0.5)) / 2),
         (COSINE, 110, 1e-5),
         (COSINE, 150, 1e-5),  # past the budget (a resumed run with more steps) it stays on the floor
+        # anneal_fraction 0.5: the half cosine spans steps 10..55 (45 steps), then the floor
+        (COSINE_HALF, 9, 1e-3),
+        (COSINE_HALF, 10 + 45 / 2, 1e-5 + 9.9e-4 / 2),
+        (COSINE_HALF, 55, 1e-5),
+        (COSINE_HALF, 80, 1e-5),
     ],
 )
 def test_learning_rate_at_given_steps(spec, step, expected):
