@@ -19,6 +19,9 @@ class GraphBuilder(ABC):
     Params: ClassVar[type[Params]] = Params
     supports_periodic: ClassVar[bool] = False
     """Whether it connects particles across periodic boundaries (minimum image)."""
+    joins_within_radius: ClassVar[bool] = False
+    """Whether two particles are joined by their own positions alone, when closer than the connectivity radius (not
+    k nearest): what a domain-decomposed rollout (:mod:`gns_framework.decomposition`) needs of a builder."""
     optional_modules: ClassVar[tuple[str, ...]] = ()
     """Importable modules this component needs beyond the project's own requirements (``gns check`` finds the
     missing ones); any component class may declare it."""

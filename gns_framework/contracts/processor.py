@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from typing import ClassVar
 from torch import Tensor
 
 from .graph import Graph
@@ -11,6 +12,10 @@ from .learned_part import LearnedPart
 
 class Processor(LearnedPart, ABC):
     """Message passing on the latent graph."""
+
+    hops_param: ClassVar[str | None] = None
+    """The parameter that says how many edges away a particle's output can depend on (M message-passing steps);
+    None when it reaches farther (a grid over the scene). A domain-decomposed rollout needs one."""
 
     @abstractmethod
     def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:

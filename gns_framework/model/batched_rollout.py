@@ -25,7 +25,7 @@ from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..runtime.precision import Precision
 from .learned_simulator import LearnedSimulator
-from .rollout import _check_simulates, rollout_step
+from .rollout import check_simulates, rollout_step
 from .rollout_guard import GuardViolation, RolloutGuard
 from .history import advance_window
 
@@ -73,7 +73,7 @@ def rollout_batch(
     if not trajectories:
         return []
     for trajectory in trajectories:
-        _check_simulates(simulator, trajectory)
+        check_simulates(simulator, trajectory)
     history = simulator.scene.history
     available = min(t.num_steps for t in trajectories) - history
     steps = available if steps is None else min(steps, available)

@@ -56,7 +56,7 @@ def rollout(
     (:class:`HostFrames`), so a ``stop`` names the step where the violation occurred
     after the model has run a few steps past it.
     """
-    _check_simulates(simulator, trajectory)
+    check_simulates(simulator, trajectory)
     guard = guard if guard is not None else RolloutGuard(simulator.scene)
     if trajectory.bounds is not None:
         guard = guard.with_bounds(trajectory.bounds)  # its own domain's walls, not the training data's
@@ -179,7 +179,7 @@ class HostFrames:
         return ready
 
 
-def _check_simulates(simulator: LearnedSimulator, trajectory: Trajectory) -> None:
+def check_simulates(simulator: LearnedSimulator, trajectory: Trajectory) -> None:
     """Refuse a trajectory of another dimension or with particle types the model was not built for."""
     scene = simulator.scene
     where = f"trajectory {trajectory.key!r}"

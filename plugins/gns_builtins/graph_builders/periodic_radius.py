@@ -30,6 +30,7 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
     """
 
     name = "periodic_radius"
+    joins_within_radius = True
     supports_periodic = True
 
     class Params(ComponentParams):

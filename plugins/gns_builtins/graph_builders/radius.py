@@ -23,6 +23,7 @@ class RadiusGraphBuilder(GraphBuilder):
     """
 
     name = "radius"
+    joins_within_radius = True
 
     class Params(ComponentParams):
         skin: float = Field(

@@ -30,6 +30,7 @@ class TorchClusterRadiusGraphBuilder(GraphBuilder):
     """
 
     name = "radius_torch_cluster"
+    joins_within_radius = True
     optional_modules = ("torch_cluster",)
     """Modules this component needs that the project does not install by default (``gns check`` looks for them)."""
 

@@ -58,6 +58,7 @@ class EquivariantProcessor(Processor):
     """M unshared EGNN steps on the latent graph, using relative positions ``Graph.displacement / R``."""
 
     name = "egnn"
+    hops_param = "message_passing_steps"
 
     class Params(ComponentParams):
         message_passing_steps: int = Field(10, ge=1, description="M, number of unshared steps")

@@ -59,6 +59,7 @@ class GraphAttentionProcessor(Processor):
     """M unshared GATv2 attention steps with residuals on nodes, and on edges in every step but the last."""
 
     name = "graph_attention"
+    hops_param = "message_passing_steps"
 
     class Params(ComponentParams):
         message_passing_steps: int = Field(10, ge=1, description="M, number of unshared steps")

@@ -78,6 +78,7 @@ class InteractionNetwork(Processor):
     """M interaction-network steps with separate weights (the paper's default, M = 10)."""
 
     name = "interaction_network"
+    hops_param = "message_passing_steps"
 
     class Params(ComponentParams):
         message_passing_steps: int = Field(10, ge=1, description="M, number of unshared steps")

@@ -18,6 +18,7 @@ class SharedInteractionNetwork(Processor):
     """
 
     name = "shared_interaction_network"
+    hops_param = "message_passing_steps"
 
     class Params(ComponentParams):
         message_passing_steps: int = Field(10, ge=1, description="M, times the one step is applied")

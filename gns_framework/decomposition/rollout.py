@@ -1,0 +1,261 @@
+"""A rollout of one scene over several processes: each owns a slab of it and predicts only its own particles.
+
+Every step, on every process (rank r of P):
+
+1. **halo**: send each other process the particles it needs: those within the receptive
+   field (connectivity radius x message-passing hops, :func:`.halo.receptive_field`) of its
+   slab (:class:`.slabs.SlabPartition`);
+2. **predict** the next positions of owned plus halo particles, sorted by global particle id:
+   the radius graph lists edges by (receiver, sender), so every owned particle sums its
+   messages in the same order as in the whole scene, and its prediction is the same;
+3. **gather** the owned particles' next positions on rank 0, which checks the frame with the
+   rollout guard as a single process does, and keeps it;
+4. **migrate**: particles whose new position lies in another slab move to that process.
+
+The halo's outermost particles miss some of their own neighbours, but what they get wrong
+travels one edge per message-passing step and never reaches an owned particle. Memory per
+process is its share of the scene plus the halo; rank 0 alone also holds the predicted
+frames (as the rollout file does).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch import Tensor
+
+from ..data.batch import ParticleBatch, window
+from ..data.rollout import Rollout
+from ..data.trajectory import Trajectory
+from ..errors import GnsError
+from ..model.history import advance_window
+from ..model.learned_simulator import LearnedSimulator
+from ..model.rollout import check_simulates, rollout_step
+from ..model.rollout_guard import GuardViolation, RolloutGuard
+from ..runtime.precision import Precision
+from ..training.processes import Processes
+from .exchange import send_rows
+from .halo import receptive_field
+from .slabs import SlabPartition
+
+
+@dataclass(frozen=True)
+class Particles:
+    """The particles a process holds. Shapes: ids (n,) int64 global index, sequence (n, C, d),
+    particle_type (n,), material_property (n, P) or None."""
+
+    ids: Tensor
+    sequence: Tensor
+    particle_type: Tensor
+    material_property: Tensor | None
+
+    def fields(self) -> list[Tensor | None]:
+        return [self.ids, self.sequence, self.particle_type, self.material_property]
+
+    @classmethod
+    def of(cls, fields: list[Tensor | None]) -> "Particles":
+        ids, sequence, particle_type, material_property = fields
+        assert ids is not None and sequence is not None and particle_type is not None
+        return cls(ids, sequence, particle_type, material_property)
+
+    def select(self, rows: Tensor) -> "Particles":
+        return Particles.of([None if f is None else f[rows] for f in self.fields()])
+
+    def cat(self, other: "Particles") -> "Particles":
+        return Particles.of([None if a is None else torch.cat([a, b]) for a, b in zip(self.fields(), other.fields())])
+
+
+@dataclass(frozen=True)
+class DecompositionStats:
+    """What the decomposition cost, summed over steps and processes.
+
+    Attributes:
+        owned: particle-steps predicted (N x steps).
+        halo: halo particle-steps held beside them; ``halo / owned`` is the halo fraction.
+        migrations: particles that moved to another process.
+        partition: the slabs.
+    """
+
+    owned: int
+    halo: int
+    migrations: int
+    partition: SlabPartition
+
+    @property
+    def halo_fraction(self) -> float:
+        return self.halo / max(self.owned, 1)
+
+
+@torch.inference_mode()
+def partitioned_rollout(
+    simulator: LearnedSimulator,
+    trajectory: Trajectory,
+    processes: Processes,
+    steps: int | None = None,
+    device: torch.device | str = "cpu",
+    guard: RolloutGuard | None = None,
+    precision: Precision = "float32",
+    axis: int | None = None,
+) -> tuple[Rollout | None, DecompositionStats]:
+    """Predict ``steps`` frames from the first C of ``trajectory``, the scene split over ``processes``.
+
+    Every process of the (started) process group calls it with the same arguments. Returns,
+    on rank 0, the rollout as :func:`gns_framework.model.rollout.rollout` gives it (None on the
+    others), and on every process the decomposition's statistics. A guard stop raises on
+    every process (rank 0 the guard's error, the others a GnsError naming it).
+
+    Args:
+        axis: the dimension cut into slabs (default: the one the particles spread farthest in).
+    """
+    check_simulates(simulator, trajectory)
+    scene = simulator.scene
+    guard = guard if guard is not None else RolloutGuard(scene)
+    if trajectory.bounds is not None:
+        guard = guard.with_bounds(trajectory.bounds)
+    device = torch.device(device)
+    history = scene.history
+    available = trajectory.num_steps - history
+    steps = available if steps is None else min(steps, available)
+    if steps < 1:
+        raise ValueError(
+            f"trajectory {trajectory.key!r} has {trajectory.num_steps} frames; rollout needs more than {history}"
+        )
+    rank, world = processes.rank, processes.world_size
+    start = window(trajectory, 0, history, with_target=False)
+    partition = SlabPartition.balanced(
+        start.position_sequence[:, -1],
+        world,
+        receptive_field(simulator),
+        axis,
+        periodic_dims=scene.periodic_dims,
+        bounds=scene.bounds,
+    )
+    everyone = Particles(
+        torch.arange(start.num_particles), start.position_sequence, start.particle_type, start.material_property
+    )
+    mine = partition.owner(start.position_sequence[:, -1]) == rank
+    owned = Particles.of([None if f is None else f.to(device) for f in everyone.select(mine).fields()])
+    # What the whole scene shares (its walls) is the same on every process; the particle fields are set per step.
+    nothing = start.particle_type[:0]
+    shared = replace(start, position_sequence=start.position_sequence[:0], particle_type=nothing, batch=nothing)
+    shared = replace(shared, material_property=None).to(device)
+    context = None if trajectory.step_context is None else torch.from_numpy(trajectory.step_context).to(device)
+    chief = rank == 0
+    predicted = torch.empty((steps, start.num_particles, scene.dim)) if chief else None
+    last_input = torch.from_numpy(np.array(trajectory.position[history - 1])) if chief else None
+    violations: list[GuardViolation] = []
+    halo_count = migrations = 0
+    for step in range(steps):
+        local, owned_rows, received = _with_halo(owned, partition, world)
+        halo_count += received
+        kinematic = owned_rows[~simulator.predicted_mask(owned.particle_type)]
+        kinematic_ids = local.ids[kinematic].cpu().numpy()
+        kinematic_next = torch.from_numpy(np.asarray(trajectory.position[history + step][kinematic_ids])).to(device)
+        current = replace(
+            shared,
+            position_sequence=local.sequence,
+            particle_type=local.particle_type,
+            material_property=local.material_property,
+            batch=torch.zeros(local.ids.shape[0], dtype=torch.long, device=device),
+            context=None if context is None else context[history - 1 + step][None],
+        )
+        next_position, continued = _step(simulator, guard, current, kinematic, kinematic_next, precision, owned_rows)
+        next_owned, continued_owned = next_position[owned_rows], continued[owned_rows]
+        previous = None if predicted is None else (predicted[step - 1] if step > 0 else last_input)
+        violations += _gather_and_check(
+            owned.ids, next_owned, predicted, previous, step, guard, trajectory.key, processes
+        )
+        owned = replace(owned, sequence=advance_window(owned.sequence, continued_owned))
+        owned, moved = _migrate(owned, partition, rank, world)
+        migrations += moved
+    totals = torch.tensor([halo_count, migrations], dtype=torch.long, device=device)
+    if processes.distributed:
+        dist.all_reduce(totals)
+    stats = DecompositionStats(start.num_particles * steps, int(totals[0]), int(totals[1]), partition)
+    if not chief:
+        return None, stats
+    assert predicted is not None
+    return (
+        Rollout(
+            truth=trajectory.first_frames(history + steps),
+            predicted=predicted.numpy(),
+            history=history,
+            predicted_particles=simulator.predicted_mask(start.particle_type.to(device)).cpu().numpy(),
+            guard_violations=tuple(violations),
+        ),
+        stats,
+    )
+
+
+def _with_halo(owned: Particles, partition: SlabPartition, world: int) -> tuple[Particles, Tensor, int]:
+    """Owned plus halo particles sorted by id, the owned ones' rows in it (in ``owned``'s order), the halo count."""
+    rows, destination = partition.halo_of(owned.sequence[:, -1]).nonzero(as_tuple=True)
+    halo = Particles.of(send_rows(destination, owned.select(rows).fields(), world))
+    local = owned.cat(halo)
+    order = torch.argsort(local.ids)
+    place = torch.empty_like(order)
+    place[order] = torch.arange(order.shape[0], device=order.device)
+    return local.select(order), place[: owned.ids.shape[0]], int(halo.ids.shape[0])
+
+
+def _step(
+    simulator: LearnedSimulator,
+    guard: RolloutGuard,
+    current: ParticleBatch,
+    kinematic: Tensor,
+    kinematic_next: Tensor,
+    precision: Precision,
+    owned_rows: Tensor,
+) -> tuple[Tensor, Tensor]:
+    """:func:`rollout_step` on this process's particles; a process that owns none has nothing to predict."""
+    if owned_rows.numel() == 0:
+        empty = current.position_sequence[:0, -1]
+        return empty, empty
+    return rollout_step(simulator, guard, current, kinematic, kinematic_next, precision)
+
+
+def _gather_and_check(
+    ids: Tensor,
+    next_owned: Tensor,
+    predicted: Tensor | None,
+    previous: Tensor | None,
+    step: int,
+    guard: RolloutGuard,
+    key: str,
+    processes: Processes,
+) -> list[GuardViolation]:
+    """Frame ``step`` assembled in ``predicted`` on rank 0 and checked by the guard against ``previous``.
+
+    Returns what the guard clamped. A guard stop raises on every process: rank 0 the
+    guard's error, the others a GnsError that points to it.
+    """
+    gathered_ids, gathered = send_rows(torch.zeros_like(ids), [ids, next_owned], processes.world_size)
+    found: list[GuardViolation] = []
+    failure: GnsError | None = None
+    if predicted is not None:
+        assert gathered_ids is not None and gathered is not None and previous is not None
+        frame = torch.empty_like(predicted[step])
+        frame[gathered_ids.cpu()] = gathered.cpu()
+        try:
+            predicted[step], found = guard.check(step, frame, previous, key)
+        except GnsError as exc:
+            failure = exc
+    stopped = torch.tensor([failure is not None], dtype=torch.long, device=next_owned.device)
+    if processes.distributed:
+        dist.broadcast(stopped, src=0)
+    if failure is not None:
+        raise failure
+    if bool(stopped):
+        raise GnsError(f"rank 0 stopped the rollout of trajectory {key!r} at step {step} (its error says why)")
+    return found
+
+
+def _migrate(owned: Particles, partition: SlabPartition, rank: int, world: int) -> tuple[Particles, int]:
+    """Particles now in another slab sent to its process, those arriving appended; and how many left."""
+    owner = partition.owner(owned.sequence[:, -1])
+    leaving = owner != rank
+    arrived = Particles.of(send_rows(owner[leaving], owned.select(leaving).fields(), world))
+    return owned.select(~leaving).cat(arrived), int(leaving.sum())

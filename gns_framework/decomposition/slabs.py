@@ -1,0 +1,99 @@
+"""Slabs: the domain cut along one axis into P pieces of about equal particle count, one per process.
+
+Process r owns the particles whose coordinate along the axis lies in ``[cut_r, cut_{r+1})``
+(the first slab open below, the last open above; in a periodic axis the box's faces close
+them). A particle's next position depends on the particles within its receptive field, at
+most ``depth`` away (connectivity radius times message-passing steps), so each process also
+holds a halo: every particle of another slab closer than ``depth`` to its own along the axis
+(through the periodic faces where the axis wraps around).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+
+@dataclass(frozen=True)
+class SlabPartition:
+    """P slabs along ``axis``.
+
+    Attributes:
+        axis: the dimension cut.
+        cuts: the P - 1 inner faces, ascending (dataset length units).
+        depth: halo depth, the receptive field (length units).
+        box: ``(lower, upper)`` of the axis when it wraps around (periodic), else None.
+    """
+
+    axis: int
+    cuts: tuple[float, ...]
+    depth: float
+    box: tuple[float, float] | None = None
+
+    @property
+    def parts(self) -> int:
+        return len(self.cuts) + 1
+
+    @classmethod
+    def balanced(
+        cls,
+        position: Tensor,
+        parts: int,
+        depth: float,
+        axis: int | None = None,
+        box: tuple[float, float] | None = None,
+        periodic_dims: tuple[int, ...] = (),
+        bounds: tuple[tuple[float, float], ...] | None = None,
+    ) -> "SlabPartition":
+        """Cuts at the particle-count quantiles of ``position`` (N, d) along ``axis``.
+
+        ``axis`` defaults to the dimension in which the particles spread farthest (a
+        periodic one counts its box length): the thinnest slabs relative to the halo.
+        ``bounds`` (d pairs) gives the periodic box of ``periodic_dims``; ``box``
+        overrides it for the axis.
+        """
+        if parts < 1:
+            raise ValueError(f"partitions must be at least 1, got {parts}")
+        if axis is None:
+            spread = (position.max(0).values - position.min(0).values).tolist()
+            for k in periodic_dims:
+                assert bounds is not None, "a periodic dimension needs the box bounds"
+                spread[k] = bounds[k][1] - bounds[k][0]
+            axis = max(range(len(spread)), key=lambda k: spread[k])
+        if box is None and axis in periodic_dims:
+            assert bounds is not None, "a periodic dimension needs the box bounds"
+            box = (float(bounds[axis][0]), float(bounds[axis][1]))
+        coordinate = torch.sort(position[:, axis].to(torch.float64)).values
+        n = coordinate.shape[0]
+        cuts = tuple(float(coordinate[min(n - 1, (n * k) // parts)]) for k in range(1, parts)) if n else ()
+        return cls(axis=axis, cuts=cuts, depth=float(depth), box=box)
+
+    def owner(self, position: Tensor) -> Tensor:
+        """(N,) int64 slab of each position (N, d)."""
+        cuts = torch.tensor(self.cuts, dtype=position.dtype, device=position.device)
+        return torch.bucketize(position[:, self.axis].contiguous(), cuts, right=True)
+
+    def halo_of(self, position: Tensor) -> Tensor:
+        """(N, P) bool: row i, column r is True when particle i lies within ``depth`` of slab r but outside it."""
+        x = position[:, self.axis].to(torch.float64)[:, None]
+        inf = float("inf")
+        lower = torch.tensor((-inf,) + self.cuts, dtype=torch.float64, device=position.device)
+        upper = torch.tensor(self.cuts + (inf,), dtype=torch.float64, device=position.device)
+        if self.box is not None:
+            lower[0], upper[-1] = self.box
+        distance = _distance_to_interval(x, lower, upper)
+        if self.box is not None:
+            length = self.box[1] - self.box[0]
+            # Through the periodic faces: the particle's images one box length away.
+            distance = torch.minimum(distance, _distance_to_interval(x + length, lower, upper))
+            distance = torch.minimum(distance, _distance_to_interval(x - length, lower, upper))
+        near = distance <= self.depth
+        near[torch.arange(position.shape[0], device=position.device), self.owner(position)] = False
+        return near
+
+
+def _distance_to_interval(x: Tensor, lower: Tensor, upper: Tensor) -> Tensor:
+    """(N, 1) coordinates, (P,) intervals -> (N, P) distance to each interval (0 inside)."""
+    return torch.clamp(torch.maximum(lower - x, x - upper), min=0)

@@ -1,0 +1,75 @@
+"""A rollout split over 2 and 4 gloo processes equals the single-process rollout (decomposition/rollout.py)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from decomposition_cases import CASES, case_simulator, case_trajectory, partitioned_worker
+from spawned import free_loopback_port, run_processes
+
+from gns_framework.decomposition.rollout import partitioned_rollout
+from gns_framework.errors import GnsError
+from gns_framework.model.rollout import rollout
+from gns_framework.training.processes import Processes
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+@pytest.fixture(scope="module")
+def single_process() -> dict[str, np.ndarray]:
+    return {name: rollout(case_simulator(name), case_trajectory(name)).predicted for name in CASES}
+
+
+def _partitioned(tmp_path, processes: int, depth_scale: float = 1.0) -> dict[str, np.ndarray]:
+    run_processes(partitioned_worker, (processes, free_loopback_port(), str(tmp_path), list(CASES), depth_scale), processes)
+    return {name: np.load(tmp_path / f"{name}.npy") for name in CASES}
+
+
+def _tolerance(reference: np.ndarray) -> float:
+    """One float32 rounding of positions of this size per step of the rollout.
+
+    The processes' smaller matrix products may round differently on other CPUs (here
+    the results are bitwise equal). A halo one hop short is off by 8e-5 to 5e-4 in
+    these scenes, 58x or more above this.
+    """
+    return np.finfo(np.float32).eps * float(np.abs(reference).max()) * reference.shape[0]
+
+
+@pytest.mark.parametrize("processes", [2, 4])
+def test_a_partitioned_rollout_equals_the_single_process_one(tmp_path, single_process, processes):
+    """2D and 3D, walls and periodic boundaries, kinematic particles and material properties; particles migrate."""
+    partitioned = _partitioned(tmp_path, processes)
+    for name, reference in single_process.items():
+        np.testing.assert_allclose(partitioned[name], reference, rtol=0, atol=_tolerance(reference), err_msg=name)
+        summary = json.loads((tmp_path / f"{name}.json").read_text())
+        assert summary["migrations"] > 0, f"{name}: no particle crossed a slab face; the test would miss migration"
+        assert 0 < summary["halo_fraction"] < processes, name
+
+
+def test_a_halo_one_hop_short_gives_different_positions(tmp_path, single_process):
+    """The equality above is not luck: half the receptive field as halo changes the owned particles' predictions."""
+    partitioned = _partitioned(tmp_path, 2, depth_scale=0.5)
+    for name, reference in single_process.items():
+        assert np.abs(partitioned[name] - reference).max() > 10 * _tolerance(reference), name
+
+
+def test_one_process_is_the_plain_rollout(single_process):
+    name = "2d_periodic"
+    result, stats = partitioned_rollout(case_simulator(name), case_trajectory(name), Processes())
+    assert result is not None and stats.halo == 0 and stats.migrations == 0
+    np.testing.assert_array_equal(result.predicted, single_process[name])
+
+
+def test_a_builder_or_processor_without_a_bounded_reach_is_refused(monkeypatch):
+    from gns_builtins.graph_builders.knn import KnnGraphBuilder
+
+    simulator = case_simulator("2d_walls")
+    simulator.graph_builder = KnnGraphBuilder(KnnGraphBuilder.Params(k=6), simulator.scene)
+    # As a grid over the whole scene would: no bound on how far a particle's output reaches.
+    monkeypatch.setattr(type(simulator.processor), "hops_param", None)
+    with pytest.raises(GnsError) as refused:
+        partitioned_rollout(simulator, case_trajectory("2d_walls"), Processes())
+    assert "graph builder 'knn' joins particles by more than their own distance" in str(refused.value)
+    assert "processor 'interaction_network' does not bound how far" in str(refused.value)
