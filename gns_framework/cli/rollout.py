@@ -18,7 +18,8 @@ from pathlib import Path
 
 from ..assembly.data import open_dataset
 from ..assembly.trained import load_trained
-from ..errors import DatasetError
+from ..decomposition.rollout import partitioned_rollout
+from ..errors import DatasetError, GnsError
 from ..io.rollout_file import write_rollout
 from ..io.run_folder import RunFolder
 from ..model.batched_rollout import rollout_batch
@@ -29,8 +30,10 @@ from ..plugins import load_registry
 from ..runtime.device import resolve_device
 from ..runtime.precision import PRECISIONS
 from ..safe_names import ensure_inside, require_component, safe_component
+from ..training.distributed import from_chief, processes_from_environment, start, stop
 from ..training.mlflow_tracker import log_to_recorded_run
-from .arguments import add_allow_pickle, non_negative_float, positive_int
+from ..training.processes import Processes
+from .arguments import add_allow_pickle, non_negative_float, non_negative_int, positive_int
 from .envelope_option import add_outside_envelope, enforce_envelope
 
 
@@ -69,6 +72,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="roll out B trajectories of one length at a time as one batch: one graph and one model call per "
         "step for all of them (default 1)",
     )
+    parser.add_argument(
+        "--partitions",
+        type=positive_int,
+        default=1,
+        metavar="P",
+        help="split each scene into P slabs of about equal particle count, one per process, for scenes too large "
+        "for one device: launch as torchrun --nproc-per-node P -m gns_framework.cli rollout ... (default 1)",
+    )
+    parser.add_argument(
+        "--partition-axis",
+        type=non_negative_int,
+        metavar="K",
+        help="with --partitions: the dimension cut into slabs (default: the one the particles spread farthest in)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
         "--overwrite",
@@ -79,8 +96,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    processes = _processes(args)
+    try:
+        return _run(args, processes)
+    finally:
+        stop()
+
+
+def _processes(args: argparse.Namespace) -> Processes:
+    """This process's place in a ``--partitions`` job (torchrun's environment), refused when it does not match."""
+    processes = processes_from_environment()
+    if args.partitions > 1 and args.batch > 1:
+        raise GnsError("gns rollout: --partitions and --batch do not combine: a partitioned scene is rolled out alone")
+    if args.partitions != processes.world_size:
+        raise GnsError(
+            f"gns rollout: --partitions {args.partitions} needs {args.partitions} processes, one per slab, but "
+            f"WORLD_SIZE is {processes.world_size}: launch it as torchrun --nproc-per-node {args.partitions} "
+            "-m gns_framework.cli rollout ..."
+        )
+    return processes
+
+
+def _run(args: argparse.Namespace, processes: Processes) -> int:
     registry = load_registry()
-    device = resolve_device(args.device)
+    device = start(processes, resolve_device(args.device))
     loaded = load_trained(args.checkpoint, registry, device)
     spec = loaded.recipe.rollout
     dataset = open_dataset(loaded.recipe.dataset, registry, args.dataset, args.allow_pickle)
@@ -90,6 +129,8 @@ def run(args: argparse.Namespace) -> int:
             f"{dataset.path / 'metadata.json'}: dim: the dataset has dim = {dim} but the model simulates "
             f"dim = {loaded.simulator.scene.dim} ({args.checkpoint})"
         )
+    if args.partition_axis is not None and args.partition_axis >= dim:
+        raise GnsError(f"gns rollout: --partition-axis {args.partition_axis}: the scene has dimensions 0 to {dim - 1}")
     split_name = require_component(args.split or spec.split, "--split" if args.split else "the recipe's rollout.split")
     trajectories = dataset.split(split_name)
     count = min(len(trajectories), args.trajectories or spec.trajectories or len(trajectories))
@@ -105,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
     run = RunFolder.of_checkpoint(args.checkpoint)
     out = args.out or run.rollouts
     # Checked now, claimed with the first file: a rollout that stops writes nothing, not even the marker.
-    check_folder(out, "rollout", args.overwrite, own=_only_rollouts)
+    # Rank 0 alone writes; a refusal there stops every process.
+    from_chief(processes, lambda: check_folder(out, "rollout", args.overwrite, own=_only_rollouts))
     errors = []
     guard = RolloutGuard(
         loaded.simulator.scene,
@@ -114,8 +156,10 @@ def run(args: argparse.Namespace) -> int:
     )
     steps = args.steps or spec.steps
     for position, (index, result) in enumerate(
-        _rollouts(loaded.simulator, trajectories, count, steps, device, guard, args)
+        _rollouts(loaded.simulator, trajectories, count, steps, device, guard, args, processes)
     ):
+        if result is None:
+            continue  # a partitioned rollout's frames are on rank 0
         if position == 0:
             claim_folder(out, "rollout", args.overwrite, own=_only_rollouts)
         file = ensure_inside(out / f"{safe_component(split_name)}_{index:04d}.npz", out)
@@ -137,8 +181,27 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _rollouts(simulator, trajectories, count: int, steps: int | None, device, guard: RolloutGuard, args):
-    """(index, rollout) of the first ``count`` trajectories, in order; ``--batch`` of one length at a time."""
+def _rollouts(
+    simulator, trajectories, count: int, steps: int | None, device, guard: RolloutGuard, args, processes: Processes
+):
+    """(index, rollout) of the first ``count`` trajectories, in order; ``--batch`` of one length at a time.
+
+    With ``--partitions`` every process rolls out its slab of each scene, and only rank 0 gets the rollout
+    (None elsewhere).
+    """
+    if args.partitions > 1:
+        for index in range(count):
+            result, stats = partitioned_rollout(
+                simulator, trajectories[index], processes, steps, device, guard, args.precision, args.partition_axis
+            )
+            if result is not None:
+                print(
+                    f"{trajectories[index].key or index}: {args.partitions} slabs along dimension "
+                    f"{stats.partition.axis}, halo {stats.halo_fraction:.1%} of the particles, "
+                    f"{stats.migrations} moved between processes"
+                )
+            yield index, result
+        return
     if args.batch == 1:
         for index in range(count):
             yield (

@@ -166,3 +166,32 @@ def test_only_rollout_files_make_a_folder_rollout_may_write_into(tmp_path):
     (folder / "test_001.npz").unlink()
     (folder / "test_0001.npz").mkdir()  # the name of a rollout file, but a folder
     assert not rollout_command._only_rollouts(folder)
+
+
+def test_a_rollout_partitioned_over_two_processes_writes_what_one_process_writes(tiny_model, tmp_path):
+    """``torchrun --nproc-per-node 2 ... rollout --partitions 2``, as a user launches it, against one process."""
+    import os
+    import subprocess
+    import sys
+
+    common = [str(tiny_model), "--steps", "5", "--outside-envelope", "--no-progress"]
+    one = gns("rollout", *common, "--out", str(tmp_path / "one"))
+    assert one.returncode == 0, one.stderr
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    launcher = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2"]
+    command = ["-m", "gns_framework.cli", "rollout", *common, "--partitions", "2", "--out", str(tmp_path / "two")]
+    two = subprocess.run(launcher + command, capture_output=True, text=True, timeout=600, env=env)
+    assert two.returncode == 0, two.stderr
+    assert "2 slabs along dimension" in two.stdout and "moved between processes" in two.stdout
+    with np.load(tmp_path / "one" / "test_0000.npz") as a, np.load(tmp_path / "two" / "test_0000.npz") as b:
+        scale = np.abs(a["predicted_rollout"]).max()
+        tolerance = np.finfo(np.float32).eps * scale * a["predicted_rollout"].shape[0]
+        np.testing.assert_allclose(b["predicted_rollout"], a["predicted_rollout"], rtol=0, atol=tolerance)
+        np.testing.assert_array_equal(b["ground_truth_rollout"], a["ground_truth_rollout"])
+
+
+def test_partitions_without_as_many_processes_is_refused(tiny_model, tmp_path):
+    refused = gns("rollout", str(tiny_model), "--partitions", "2", "--out", str(tmp_path / "out"))
+    assert refused.returncode != 0
+    assert "--partitions 2 needs 2 processes" in refused.stderr and "torchrun --nproc-per-node 2" in refused.stderr
+    assert not (tmp_path / "out").exists()
