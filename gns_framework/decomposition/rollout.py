@@ -38,34 +38,9 @@ from ..model.rollout_guard import GuardViolation, RolloutGuard
 from ..runtime.precision import Precision
 from ..training.processes import Processes
 from .exchange import send_rows
-from .halo import receptive_field
+from .halo import receptive_field, with_halo
+from .particles import Particles
 from .slabs import SlabPartition
-
-
-@dataclass(frozen=True)
-class Particles:
-    """The particles a process holds. Shapes: ids (n,) int64 global index, sequence (n, C, d),
-    particle_type (n,), material_property (n, P) or None."""
-
-    ids: Tensor
-    sequence: Tensor
-    particle_type: Tensor
-    material_property: Tensor | None
-
-    def fields(self) -> list[Tensor | None]:
-        return [self.ids, self.sequence, self.particle_type, self.material_property]
-
-    @classmethod
-    def of(cls, fields: list[Tensor | None]) -> "Particles":
-        ids, sequence, particle_type, material_property = fields
-        assert ids is not None and sequence is not None and particle_type is not None
-        return cls(ids, sequence, particle_type, material_property)
-
-    def select(self, rows: Tensor) -> "Particles":
-        return Particles.of([None if f is None else f[rows] for f in self.fields()])
-
-    def cat(self, other: "Particles") -> "Particles":
-        return Particles.of([None if a is None else torch.cat([a, b]) for a, b in zip(self.fields(), other.fields())])
 
 
 @dataclass(frozen=True)
@@ -137,7 +112,7 @@ def partitioned_rollout(
         torch.arange(start.num_particles), start.position_sequence, start.particle_type, start.material_property
     )
     mine = partition.owner(start.position_sequence[:, -1]) == rank
-    owned = Particles.of([None if f is None else f.to(device) for f in everyone.select(mine).fields()])
+    owned = everyone.select(mine).to(device)
     # What the whole scene shares (its walls) is the same on every process; the particle fields are set per step.
     nothing = start.particle_type[:0]
     shared = replace(start, position_sequence=start.position_sequence[:0], particle_type=nothing, batch=nothing)
@@ -149,7 +124,7 @@ def partitioned_rollout(
     violations: list[GuardViolation] = []
     halo_count = migrations = 0
     for step in range(steps):
-        local, owned_rows, received = _with_halo(owned, partition, world)
+        local, owned_rows, received = with_halo(owned, partition, world)
         halo_count += received
         kinematic = owned_rows[~simulator.predicted_mask(owned.particle_type)]
         kinematic_ids = local.ids[kinematic].cpu().numpy()
@@ -188,17 +163,6 @@ def partitioned_rollout(
         ),
         stats,
     )
-
-
-def _with_halo(owned: Particles, partition: SlabPartition, world: int) -> tuple[Particles, Tensor, int]:
-    """Owned plus halo particles sorted by id, the owned ones' rows in it (in ``owned``'s order), the halo count."""
-    rows, destination = partition.halo_of(owned.sequence[:, -1]).nonzero(as_tuple=True)
-    halo = Particles.of(send_rows(destination, owned.select(rows).fields(), world))
-    local = owned.cat(halo)
-    order = torch.argsort(local.ids)
-    place = torch.empty_like(order)
-    place[order] = torch.arange(order.shape[0], device=order.device)
-    return local.select(order), place[: owned.ids.shape[0]], int(halo.ids.shape[0])
 
 
 def _step(
@@ -257,5 +221,5 @@ def _migrate(owned: Particles, partition: SlabPartition, rank: int, world: int) 
     """Particles now in another slab sent to its process, those arriving appended; and how many left."""
     owner = partition.owner(owned.sequence[:, -1])
     leaving = owner != rank
-    arrived = Particles.of(send_rows(owner[leaving], owned.select(leaving).fields(), world))
+    arrived = Particles.of(send_rows(owner[leaving], owned.select(leaving).columns(), world))
     return owned.select(~leaving).cat(arrived), int(leaving.sum())

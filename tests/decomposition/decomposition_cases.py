@@ -17,26 +17,25 @@ from gns_framework.data.trajectory import Trajectory
 from gns_framework.model.learned_simulator import LearnedSimulator
 from gns_framework.plugins import load_registry
 
-RADIUS = 0.1
 HOPS = 2
 TYPES = (3, 5, 6)  # kinematic, water, sand
 FRAMES = 18  # 6 inputs, 12 predicted
 CASES = {
-    # name: (dim, periodic dims, particles, material property)
-    "2d_walls": (2, (), 320, True),
-    "2d_periodic": (2, (0,), 320, False),
-    "3d_walls": (3, (), 420, False),
-    "3d_periodic": (3, (0, 2), 420, False),
+    # name: (dim, periodic dims, particles, material property, connectivity radius): about 12 and 8 neighbours
+    "2d_walls": (2, (), 320, True, 0.1),
+    "2d_periodic": (2, (0,), 320, False, 0.1),
+    "3d_walls": (3, (), 420, False, 0.15),
+    "3d_periodic": (3, (0, 2), 420, False, 0.15),
 }
 
 
 def case_simulator(name: str) -> LearnedSimulator:
     """A randomly initialised model of the case's scene (latent 16, 2 message-passing steps), the same every call."""
-    dim, periodic, _, with_property = CASES[name]
+    dim, periodic, _, with_property, radius = CASES[name]
     scene = ModelSetup(
         dim=dim,
         bounds=((0.0, 1.0),) * dim,
-        connectivity_radius=RADIUS,
+        connectivity_radius=radius,
         particle_types=TYPES,
         kinematic_types=(3,),
         property_names=("friction",) if with_property else (),
@@ -46,7 +45,7 @@ def case_simulator(name: str) -> LearnedSimulator:
     metadata = DatasetMetadata(
         bounds=[(0.0, 1.0)] * dim,
         sequence_length=FRAMES,
-        default_connectivity_radius=RADIUS,
+        default_connectivity_radius=radius,
         dim=dim,
         dt=0.01,
         vel_mean=[0.0] * dim,
@@ -71,7 +70,7 @@ def case_trajectory(name: str) -> Trajectory:
 
     Periodic dimensions wrap the stored positions into the box.
     """
-    dim, periodic, n, with_property = CASES[name]
+    dim, periodic, n, with_property, _ = CASES[name]
     rng = np.random.default_rng(7)
     start = rng.uniform(0.05, 0.95, (n, dim))
     velocity = rng.uniform(-0.03, 0.03, (n, dim))
@@ -108,5 +107,67 @@ def partitioned_worker(rank: int, world: int, port: int, out: str, cases: list[s
                 np.save(Path(out) / f"{name}.npy", result.predicted)
                 summary = {"migrations": stats.migrations, "halo_fraction": stats.halo_fraction, "axis": stats.partition.axis}
                 (Path(out) / f"{name}.json").write_text(json.dumps(summary))
+    finally:
+        stop()
+
+
+def training_window(name: str):
+    """The case's first training window and its noise, in float64 (the test compares gradients at float64 round-off).
+
+    Kinematic particles get no noise, as in training.
+    """
+    from gns_framework.data.batch import window
+
+    trajectory = case_trajectory(name)
+    batch = window(trajectory, 0, 6, with_target=True)
+    batch = batch._map_tensors(lambda t: t.double() if t.is_floating_point() else t)
+    generator = torch.Generator().manual_seed(3)
+    noise = 1e-3 * torch.randn(batch.position_sequence.shape, generator=generator, dtype=torch.float64)
+    noise[batch.particle_type == 3] = 0.0
+    return batch, noise
+
+
+def single_process_gradients(name: str) -> tuple[float, dict[str, torch.Tensor]]:
+    """The whole scene's loss and gradients in one process (the reference)."""
+    from gns_framework.model.loss import masked_acceleration_loss
+
+    simulator = case_simulator(name).double().train()
+    batch, noise = training_window(name)
+    prediction, target = simulator(batch, noise)
+    loss = masked_acceleration_loss(prediction, target, simulator.predicted_mask(batch.particle_type))
+    loss.backward()
+    return float(loss.detach()), {k: p.grad.clone() for k, p in simulator.named_parameters() if p.grad is not None}
+
+
+def training_worker(rank: int, world: int, port: int, out: str, cases: list[str], depth_scale: float = 1.0) -> None:
+    """One decomposed training step of every case over ``world`` gloo processes; rank 0 saves ``<case>.pt``."""
+    from gns_framework.decomposition.halo import receptive_field
+    from gns_framework.decomposition.slabs import SlabPartition
+    from gns_framework.decomposition.training_step import owned_share, partitioned_gradients
+    from gns_framework.training.distributed import processes_from_environment, start, stop
+
+    os.environ.update(
+        MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world), LOCAL_RANK=str(rank)
+    )
+    torch.set_num_threads(1)
+    processes = processes_from_environment()
+    start(processes, torch.device("cpu"))
+    try:
+        for name in cases:
+            simulator = case_simulator(name).double().train()
+            batch, noise = training_window(name)
+            scene = simulator.scene
+            partition = SlabPartition.balanced(
+                batch.position_sequence[:, -1],
+                world,
+                depth_scale * receptive_field(simulator),
+                periodic_dims=scene.periodic_dims,
+                bounds=scene.bounds,
+            )
+            owned = owned_share(batch, noise, partition, rank)
+            loss = partitioned_gradients(simulator, owned, batch, partition, processes)
+            grads = {k: p.grad for k, p in simulator.named_parameters() if p.grad is not None}
+            if rank == 0:
+                torch.save({"loss": float(loss), "grads": grads}, Path(out) / f"{name}.pt")
     finally:
         stop()

@@ -1,0 +1,102 @@
+"""A training step of one scene split over several processes, with the gradients of the whole scene.
+
+Each process holds the particles of its slab (:func:`owned_share`), fetches its halo
+(positions, noise and targets of the particles within the receptive field, from the
+processes that own them) and runs the model on owned plus halo particles. Only owned
+particles enter its part of the loss, the squared error of their normalised
+accelerations divided by the number of predicted particles in the whole scene: summed
+over processes that is the single-process loss (Sanchez-Gonzalez et al. 2020, Sec. 3),
+and an owned particle's prediction is the same function of the weights as in the whole
+scene (the halo covers its receptive field), so the gradients summed over processes are
+the single-process gradients. Then every process takes the same optimiser step.
+
+Memory per process is its share of the scene's edges and latents plus the halo's: a scene
+too large for one device trains on several.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import torch
+import torch.distributed as dist
+from torch import Tensor
+
+from ..data.batch import ParticleBatch
+from ..model.learned_simulator import LearnedSimulator
+from ..model.loss import masked_squared_error_sum
+from ..training.processes import Processes
+from .halo import with_halo
+from .particles import Particles
+from .slabs import SlabPartition
+
+
+def owned_share(window: ParticleBatch, position_noise: Tensor, partition: SlabPartition, rank: int) -> Particles:
+    """The particles of a one-example training window that process ``rank`` owns (by their last input position).
+
+    Shapes: window (N, C, d) with ``next_position``; position_noise (N, C, d).
+    """
+    assert window.num_examples == 1 and window.next_position is not None, "one scene's training window"
+    everyone = Particles(
+        torch.arange(window.num_particles, device=window.position_sequence.device),
+        window.position_sequence,
+        window.particle_type,
+        window.material_property,
+        window.next_position,
+        position_noise,
+    )
+    return everyone.select(partition.owner(window.position_sequence[:, -1]) == rank)
+
+
+def partitioned_gradients(
+    simulator: LearnedSimulator,
+    owned: Particles,
+    scene: ParticleBatch,
+    partition: SlabPartition,
+    processes: Processes,
+) -> Tensor:
+    """Forward and backward of this process's share, then the gradients summed over processes.
+
+    Every process calls it at once. Afterwards every parameter's ``grad`` holds the gradient
+    of the whole scene's loss (add to what was there: zero them before, as for a plain step).
+
+    Args:
+        owned: this process's particles, with ``next_position`` and ``noise``.
+        scene: what the whole scene shares (``context``, ``bounds``, ``walls``); its particle fields are ignored.
+
+    Returns:
+        the whole scene's loss (a detached scalar, the same on every process).
+    """
+    local, owned_rows, _ = with_halo(owned, partition, processes.world_size)
+    moving = simulator.predicted_mask(local.particle_type)[owned_rows]
+    predicted_count = processes.sum(moving.sum().to(torch.float64))
+    share = torch.zeros((), device=owned.sequence.device)
+    if owned.count:
+        batch = replace(
+            scene,
+            position_sequence=local.sequence,
+            particle_type=local.particle_type,
+            material_property=local.material_property,
+            next_position=local.next_position,
+            batch=torch.zeros(local.count, dtype=torch.long, device=local.ids.device),
+            num_examples=1,
+        )
+        assert local.noise is not None, "the owned particles carry their training noise"
+        prediction, target = simulator(batch, local.noise)
+        error = masked_squared_error_sum(prediction[owned_rows], target[owned_rows], moving)
+        share = error / predicted_count.clamp(min=1).to(error.dtype)
+        share.backward()
+    _sum_gradients(simulator, processes)
+    return processes.sum(share.detach())
+
+
+def _sum_gradients(module: torch.nn.Module, processes: Processes) -> None:
+    """Every parameter's gradient summed over processes (a process that owned nothing adds zeros)."""
+    if not processes.distributed:
+        return
+    for parameter in module.parameters():
+        if not parameter.requires_grad:
+            continue
+        if parameter.grad is None:
+            parameter.grad = torch.zeros_like(parameter)
+        dist.all_reduce(parameter.grad)
