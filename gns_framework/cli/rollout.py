@@ -106,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
 def _processes(args: argparse.Namespace) -> Processes:
     """This process's place in a ``--partitions`` job (torchrun's environment), refused when it does not match."""
     processes = processes_from_environment()
+    if args.partition_axis is not None and args.partitions == 1:
+        raise GnsError("gns rollout: --partition-axis needs --partitions P with P > 1")
     if args.partitions > 1 and args.batch > 1:
         raise GnsError("gns rollout: --partitions and --batch do not combine: a partitioned scene is rolled out alone")
     if args.partitions != processes.world_size:

@@ -105,7 +105,11 @@ def partitioned_worker(rank: int, world: int, port: int, out: str, cases: list[s
             if rank == 0:
                 assert result is not None
                 np.save(Path(out) / f"{name}.npy", result.predicted)
-                summary = {"migrations": stats.migrations, "halo_fraction": stats.halo_fraction, "axis": stats.partition.axis}
+                summary = {
+                    "migrations": stats.migrations,
+                    "halo_fraction": stats.halo_fraction,
+                    "axis": stats.partition.axis,
+                }
                 (Path(out) / f"{name}.json").write_text(json.dumps(summary))
     finally:
         stop()
@@ -169,5 +173,57 @@ def training_worker(rank: int, world: int, port: int, out: str, cases: list[str]
             grads = {k: p.grad for k, p in simulator.named_parameters() if p.grad is not None}
             if rank == 0:
                 torch.save({"loss": float(loss), "grads": grads}, Path(out) / f"{name}.pt")
+    finally:
+        stop()
+
+
+def _join(rank: int, world: int, port: int):
+    from gns_framework.training.distributed import processes_from_environment, start
+
+    os.environ.update(
+        MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world), LOCAL_RANK=str(rank)
+    )
+    torch.set_num_threads(1)
+    processes = processes_from_environment()
+    start(processes, torch.device("cpu"))
+    return processes
+
+
+def exchange_worker(rank: int, world: int, port: int, out: str) -> None:
+    """Rank r sends rows labelled 100 r + i to the ranks listed per row; saves what it received."""
+    from gns_framework.decomposition.exchange import send_rows
+    from gns_framework.training.distributed import stop
+
+    _join(rank, world, port)
+    try:
+        destination = torch.tensor([(rank + i) % world for i in range(2 * world)], dtype=torch.long)
+        label = 100 * rank + torch.arange(2 * world)
+        pairs = torch.stack([label, -label], dim=1).double()
+        flags = label % 2 == 0
+        got = send_rows(destination, [label, pairs, flags, None], world)
+        torch.save({"label": got[0], "pairs": got[1], "flags": got[2], "none": got[3]}, Path(out) / f"rank{rank}.pt")
+    finally:
+        stop()
+
+
+def halo_worker(rank: int, world: int, port: int, out: str) -> None:
+    """The halo each rank gets of the 2d_walls case's first frame, beside its own particles; saved per rank."""
+    from gns_framework.data.batch import window
+    from gns_framework.decomposition.halo import receptive_field, with_halo
+    from gns_framework.decomposition.particles import Particles
+    from gns_framework.decomposition.slabs import SlabPartition
+    from gns_framework.training.distributed import stop
+
+    _join(rank, world, port)
+    try:
+        start = window(case_trajectory("2d_walls"), 0, 6, with_target=False)
+        last = start.position_sequence[:, -1]
+        partition = SlabPartition.balanced(last, world, receptive_field(case_simulator("2d_walls")))
+        everyone = Particles(torch.arange(start.num_particles), start.position_sequence, start.particle_type)
+        owned = everyone.select(partition.owner(last) == rank)
+        local, owned_rows, halo_count = with_halo(owned, partition, world)
+        saved = {"owned": owned.ids, "local": local.ids, "owned_rows": owned_rows, "halo": halo_count}
+        saved["local_sequence"] = local.sequence
+        torch.save(saved, Path(out) / f"rank{rank}.pt")
     finally:
         stop()

@@ -10,7 +10,6 @@ from decomposition_cases import CASES, case_simulator, case_trajectory, partitio
 from spawned import free_loopback_port, run_processes
 
 from gns_framework.decomposition.rollout import partitioned_rollout
-from gns_framework.errors import GnsError
 from gns_framework.model.rollout import rollout
 from gns_framework.training.processes import Processes
 
@@ -23,7 +22,9 @@ def single_process() -> dict[str, np.ndarray]:
 
 
 def _partitioned(tmp_path, processes: int, depth_scale: float = 1.0) -> dict[str, np.ndarray]:
-    run_processes(partitioned_worker, (processes, free_loopback_port(), str(tmp_path), list(CASES), depth_scale), processes)
+    run_processes(
+        partitioned_worker, (processes, free_loopback_port(), str(tmp_path), list(CASES), depth_scale), processes
+    )
     return {name: np.load(tmp_path / f"{name}.npy") for name in CASES}
 
 
@@ -60,16 +61,3 @@ def test_one_process_is_the_plain_rollout(single_process):
     result, stats = partitioned_rollout(case_simulator(name), case_trajectory(name), Processes())
     assert result is not None and stats.halo == 0 and stats.migrations == 0
     np.testing.assert_array_equal(result.predicted, single_process[name])
-
-
-def test_a_builder_or_processor_without_a_bounded_reach_is_refused(monkeypatch):
-    from gns_builtins.graph_builders.knn import KnnGraphBuilder
-
-    simulator = case_simulator("2d_walls")
-    simulator.graph_builder = KnnGraphBuilder(KnnGraphBuilder.Params(k=6), simulator.scene)
-    # As a grid over the whole scene would: no bound on how far a particle's output reaches.
-    monkeypatch.setattr(type(simulator.processor), "hops_param", None)
-    with pytest.raises(GnsError) as refused:
-        partitioned_rollout(simulator, case_trajectory("2d_walls"), Processes())
-    assert "graph builder 'knn' joins particles by more than their own distance" in str(refused.value)
-    assert "processor 'interaction_network' does not bound how far" in str(refused.value)

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import pytest
 import torch
 from ddp_worker import train_rank
-from training_support import free_loopback_port, tiny_recipe, write_uneven_dataset
+from spawned import free_loopback_port, run_processes
+from training_support import tiny_recipe, write_uneven_dataset
 
 
 @pytest.fixture(scope="session")
@@ -29,18 +29,7 @@ def ddp_recipe(uneven_dataset) -> dict:
 def ddp_snapshots(ddp_recipe, tmp_path_factory) -> dict[tuple[int, int], dict]:
     """``(rank, step) -> {"params", "losses", "windows"}`` of an uninterrupted 2-process CPU run."""
     out = tmp_path_factory.mktemp("ddp")
-    context = torch.multiprocessing.spawn(
-        train_rank,
-        args=(2, free_loopback_port(), ddp_recipe, str(out / "run"), list(DDP_SNAPSHOTS), str(out)),
-        nprocs=2,
-        join=False,
-    )
-    deadline = time.monotonic() + 240
-    while not context.join(timeout=2):
-        if time.monotonic() > deadline:
-            for process in context.processes:
-                process.kill()
-            pytest.fail("2-process training did not finish within 240 s")
+    run_processes(train_rank, (2, free_loopback_port(), ddp_recipe, str(out / "run"), list(DDP_SNAPSHOTS), str(out)))
     return {
         (rank, step): torch.load(out / f"rank{rank}-step{step}.pt", weights_only=True)
         for rank in (0, 1)

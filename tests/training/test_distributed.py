@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import json
-import time
 
-import pytest
 import torch
 from conftest import DDP_SNAPSHOTS
 from ddp_worker import share_from_chief, train_rank
-from training_support import free_loopback_port
+from spawned import free_loopback_port, run_processes
 
 from gns_framework.config.recipe import validate_recipe
 from gns_framework.data.windows import WindowOrder
@@ -80,22 +78,12 @@ def test_backend_is_gloo_on_cpu_and_nccl_on_gpu():
     assert backend_for(torch.device("cuda", 0)) == "nccl"
 
 
-def _spawn(function, args: tuple, processes: int = 2, seconds: float = 240) -> None:
-    context = torch.multiprocessing.spawn(function, args=args, nprocs=processes, join=False)
-    deadline = time.monotonic() + seconds
-    while not context.join(timeout=2):
-        if time.monotonic() > deadline:
-            for process in context.processes:
-                process.kill()
-            pytest.fail(f"{processes} processes did not finish within {seconds} s")
-
-
 def test_ranks_that_keep_a_few_trajectories_train_bitwise_as_ranks_that_keep_all(ddp_snapshots, ddp_recipe, tmp_path):
     """dataset.memory: two processes keep a few trajectories each (auto), with the same windows in the same order."""
     assert ddp_recipe["dataset"].get("memory", "auto") == "auto"  # the snapshots' run: windows mode
     steps = DDP_SNAPSHOTS[0]
     keep_all = dict(ddp_recipe, dataset=dict(ddp_recipe["dataset"], memory="all"))
-    _spawn(train_rank, (2, free_loopback_port(), keep_all, str(tmp_path / "run"), [steps], str(tmp_path)))
+    run_processes(train_rank, (2, free_loopback_port(), keep_all, str(tmp_path / "run"), [steps], str(tmp_path)))
     for rank in (0, 1):
         whole = torch.load(tmp_path / f"rank{rank}-step{steps}.pt", weights_only=True)
         windows = ddp_snapshots[rank, steps]
@@ -105,7 +93,7 @@ def test_ranks_that_keep_a_few_trajectories_train_bitwise_as_ranks_that_keep_all
 
 
 def test_what_rank_0_derives_reaches_every_rank_and_so_does_its_failure(tmp_path):
-    _spawn(share_from_chief, (2, free_loopback_port(), str(tmp_path)), seconds=120)
+    run_processes(share_from_chief, (2, free_loopback_port(), str(tmp_path)), seconds=120)
     ranks = [json.loads((tmp_path / f"rank{rank}.json").read_text()) for rank in (0, 1)]
     assert [r["shared"] for r in ranks] == [{"statistics": [0.5, 0.0]}] * 2  # rank 0's value
     assert [r["computed"] for r in ranks] == [[0], []]  # computed once, on rank 0

@@ -17,7 +17,8 @@ import pytest
 import torch
 from tiny import TINY_GRAPH_BUILDERS as GRAPH_BUILDERS
 from tiny import TINY_PROCESSORS as PROCESSORS
-from training_support import free_loopback_port, subprocess_env, tiny_recipe, trainable_integrators
+from spawned import free_loopback_port
+from training_support import subprocess_env, tiny_recipe, trainable_integrators
 
 from gns_framework.plugins import load_registry
 

@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 import torch
 from conftest import DDP_SNAPSHOTS
+from spawned import free_loopback_port
 from training_support import (
     child_processes,
-    free_loopback_port,
     process_environment,
     subprocess_env,
     wait_until,

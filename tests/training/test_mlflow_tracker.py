@@ -13,8 +13,8 @@ import urllib.error
 import urllib.request
 
 import pytest
+from spawned import free_loopback_port
 from training_support import (
-    free_loopback_port,
     last_logged_step,
     subprocess_env,
     tiny_recipe,
