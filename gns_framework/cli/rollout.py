@@ -86,6 +86,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="K",
         help="with --partitions: the dimension cut into slabs (default: the one the particles spread farthest in)",
     )
+    parser.add_argument(
+        "--halo",
+        choices=("auto", "positions", "latents"),
+        default="auto",
+        help="with --partitions: what each process gets of its neighbours' particles: positions as deep as the "
+        "receptive field (radius x message-passing steps, any processor that bounds its steps), or node latents "
+        "one radius deep after each message-passing step (fewer particles, more exchanges; processors that "
+        "exchange latents); auto: latents where the processor exchanges them (default)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
         "--overwrite",
@@ -106,8 +115,8 @@ def run(args: argparse.Namespace) -> int:
 def _processes(args: argparse.Namespace) -> Processes:
     """This process's place in a ``--partitions`` job (torchrun's environment), refused when it does not match."""
     processes = processes_from_environment()
-    if args.partition_axis is not None and args.partitions == 1:
-        raise GnsError("gns rollout: --partition-axis needs --partitions P with P > 1")
+    if args.partitions == 1 and (args.partition_axis is not None or args.halo != "auto"):
+        raise GnsError("gns rollout: --partition-axis and --halo need --partitions P with P > 1")
     if args.partitions > 1 and args.batch > 1:
         raise GnsError("gns rollout: --partitions and --batch do not combine: a partitioned scene is rolled out alone")
     if args.partitions != processes.world_size:
@@ -194,12 +203,20 @@ def _rollouts(
     if args.partitions > 1:
         for index in range(count):
             result, stats = partitioned_rollout(
-                simulator, trajectories[index], processes, steps, device, guard, args.precision, args.partition_axis
+                simulator,
+                trajectories[index],
+                processes,
+                steps,
+                device,
+                guard,
+                args.precision,
+                args.partition_axis,
+                args.halo,
             )
             if result is not None:
                 print(
                     f"{trajectories[index].key or index}: {args.partitions} slabs along dimension "
-                    f"{stats.partition.axis}, halo {stats.halo_fraction:.1%} of the particles, "
+                    f"{stats.partition.axis}, halo of {stats.halo_kind} {stats.halo_fraction:.1%} of the particles, "
                     f"{stats.migrations} moved between processes"
                 )
             yield index, result

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from torch import Tensor
@@ -25,6 +26,9 @@ class Graph:
         batch: (N,) int64 example index of each particle (non-decreasing), or None
             (one example), so such processors keep the examples of a batch apart.
         num_examples: B.
+        exchange: in a domain-decomposed step with a halo of latents, refreshes the (N, L) node latents of
+            the particles other processes own; a processor that declares ``exchanges_latents`` calls it
+            between message-passing steps. None otherwise.
     """
 
     senders: Tensor
@@ -34,6 +38,7 @@ class Graph:
     position: Tensor | None = None
     batch: Tensor | None = None
     num_examples: int = 1
+    exchange: Callable[[Tensor], Tensor] | None = None
 
     @property
     def num_edges(self) -> int:

@@ -2,41 +2,64 @@
 
 Works with gloo (CPU tensors) and nccl (CUDA tensors) alike: the counts go first, so
 every process knows how many rows it receives from each other, then the rows of each
-tensor with those splits.
+tensor with those splits. A tensor that requires gradients travels through the
+differentiable all-to-all, whose backward sends each row's gradient back to its sender.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 import torch.distributed as dist
+import torch.distributed.nn.functional as differentiable
 from torch import Tensor
 
 
-def send_rows(destination: Tensor, tensors: list[Tensor | None], world_size: int) -> list[Tensor | None]:
-    """Send row i of every tensor to process ``destination[i]``; return the rows received.
+@dataclass(frozen=True)
+class Routing:
+    """Where each row goes: its order when sent (grouped by destination) and the counts each way.
 
-    Received rows come ordered by the sending process, and within one sender in the
-    order it sent them. A None stays None (a field the scene does not have).
-
-    Shapes: destination (M,) int64 in [0, world_size); each tensor (M, ...) -> (M', ...),
-    M' the rows sent to this process.
+    Attributes:
+        order: (M,) the rows in the order they are sent.
+        sent: rows sent to each process.
+        received: rows received from each process.
     """
-    if world_size == 1:
-        return list(tensors)  # a single process sends every row to itself, in order
-    order = torch.argsort(destination, stable=True)
-    sent_counts = torch.bincount(destination, minlength=world_size)
-    received_counts = torch.empty_like(sent_counts)
-    dist.all_to_all_single(received_counts, sent_counts)
-    sent, received = sent_counts.tolist(), received_counts.tolist()
-    out: list[Tensor | None] = []
-    for tensor in tensors:
-        if tensor is None:
-            out.append(None)
-            continue
-        rows = tensor.index_select(0, order).contiguous()
+
+    order: Tensor
+    sent: list[int]
+    received: list[int]
+
+    @classmethod
+    def of(cls, destination: Tensor, world_size: int) -> "Routing":
+        """Row i goes to process ``destination[i]`` (M,); every process calls this at once."""
+        if world_size == 1:
+            count = int(destination.shape[0])
+            return cls(torch.arange(count, device=destination.device), [count], [count])
+        sent = torch.bincount(destination, minlength=world_size)
+        received = torch.empty_like(sent)
+        dist.all_to_all_single(received, sent)
+        return cls(torch.argsort(destination, stable=True), sent.tolist(), received.tolist())
+
+    def send(self, rows: Tensor) -> Tensor:
+        """``rows`` (M, ...) sent as routed; the rows received (M', ...), ordered by sender, then as sent."""
+        if len(self.sent) == 1:
+            return rows  # a single process keeps every row, in order
+        wire = rows.index_select(0, self.order)
         # gloo has no bool all-to-all: masks travel as bytes.
-        wire = rows.to(torch.uint8) if rows.dtype == torch.bool else rows
-        into = wire.new_empty((sum(received),) + tuple(wire.shape[1:]))
-        dist.all_to_all_single(into, wire, output_split_sizes=received, input_split_sizes=sent)
-        out.append(into.to(torch.bool) if rows.dtype == torch.bool else into)
-    return out
+        wire = wire.to(torch.uint8) if rows.dtype == torch.bool else wire.contiguous()
+        into = wire.new_empty((sum(self.received),) + tuple(wire.shape[1:]))
+        if wire.requires_grad:
+            into = differentiable.all_to_all_single(into, wire, self.received, self.sent)
+        else:
+            dist.all_to_all_single(into, wire, output_split_sizes=self.received, input_split_sizes=self.sent)
+        return into.to(torch.bool) if rows.dtype == torch.bool else into
+
+
+def send_rows(destination: Tensor, tensors: list[Tensor | None], world_size: int) -> list[Tensor | None]:
+    """Send row i of every tensor to process ``destination[i]``; return the rows received (None stays None).
+
+    Shapes: destination (M,) int64 in [0, world_size); each tensor (M, ...) -> (M', ...).
+    """
+    routing = Routing.of(destination, world_size)
+    return [None if tensor is None else routing.send(tensor) for tensor in tensors]

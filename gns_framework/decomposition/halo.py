@@ -1,15 +1,38 @@
-"""The halo: how deep it must be (the receptive field), and the particles in it, fetched from the processes that own them."""
+"""The halo: which of two kinds, how deep, and the particles in it, fetched from the processes that own them.
+
+Two ways to give the particles a process owns exactly the inputs they have in the whole scene:
+
+- ``positions``: a halo as deep as the receptive field (connectivity radius x message-passing
+  hops). Every process runs the whole model on owned plus halo particles; only the owned
+  outputs are right, and they are all that is kept. One exchange per step, extra compute
+  in proportion to the halo. Works with every processor that bounds its hops.
+- ``latents``: a halo one connectivity radius deep, and after each message-passing step the
+  owners send the halo particles' new node latents. Edges are kept only where an owned
+  particle receives. Hops exchanges per step, almost no extra compute. Needs a processor that
+  calls the exchange between its steps (``Processor.exchanges_latents``).
+
+Which costs less depends on the halo's share of the scene against the cost of an exchange:
+docs/domain_decomposition.md measures both terms and projects them to many GPUs.
+"""
 
 from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
+from typing import Literal
 
 import torch
 from torch import Tensor
 
+from ..contracts import Graph, GraphBuilder
 from ..errors import GnsError
 from ..model.learned_simulator import LearnedSimulator
-from .exchange import send_rows
+from .exchange import Routing
 from .particles import Particles
 from .slabs import SlabPartition
+
+HaloKind = Literal["auto", "positions", "latents"]
 
 
 def receptive_field(simulator: LearnedSimulator) -> float:
@@ -40,17 +63,135 @@ def receptive_field(simulator: LearnedSimulator) -> float:
     return simulator.scene.connectivity_radius * int(getattr(processor.params, hops_param))
 
 
-def with_halo(owned: Particles, partition: SlabPartition, world: int) -> tuple[Particles, Tensor, int]:
-    """Owned plus halo particles, sorted by id; the owned particles' rows in it (in ``owned``'s order); the halo count.
+def halo_kind(simulator: LearnedSimulator, requested: HaloKind) -> Literal["positions", "latents"]:
+    """``requested``, or for ``auto`` latents where the processor exchanges them, else positions."""
+    exchanges = type(simulator.processor).exchanges_latents
+    if requested == "auto":
+        return "latents" if exchanges else "positions"
+    if requested == "latents" and not exchanges:
+        raise GnsError(
+            f"processor {simulator.processor.name!r} does not exchange node latents between its message-passing "
+            "steps (exchanges_latents is False): use the halo of positions (halo: positions)"
+        )
+    return requested
 
-    Every process calls it at once (the halo travels in one all-to-all). Sorted by id, the
-    local particles keep the relative order they have in the whole scene, so a radius graph
-    lists each owned particle's edges in the same order and its sums round the same way.
+
+def halo_depth(simulator: LearnedSimulator, kind: Literal["positions", "latents"]) -> float:
+    """The receptive field for a halo of positions; one connectivity radius for a halo of latents."""
+    reach = receptive_field(simulator)  # refuses what has no bounded reach, for either kind
+    return reach if kind == "positions" else simulator.scene.connectivity_radius
+
+
+def slabs_for(
+    simulator: LearnedSimulator, position: Tensor, parts: int, halo: HaloKind = "auto", axis: int | None = None
+) -> tuple[SlabPartition, Literal["positions", "latents"]]:
+    """Slabs of equal particle count of the scene at ``position`` (N, d), with the halo ``halo`` resolves to."""
+    kind = halo_kind(simulator, halo)
+    scene = simulator.scene
+    depth = halo_depth(simulator, kind)
+    partition = SlabPartition.balanced(
+        position, parts, depth, axis, periodic_dims=scene.periodic_dims, bounds=scene.bounds
+    )
+    return partition, kind
+
+
+@dataclass(frozen=True)
+class Halo:
+    """A process's particles for one step: its own and its halo, sorted by global id.
+
+    Sorted by id, the local particles keep the relative order they have in the whole scene,
+    so a radius graph lists each owned particle's edges in the same order, and its sums
+    round the same way.
+
+    Attributes:
+        local: owned plus halo particles, sorted by id.
+        owned_rows: (n,) the owned particles' rows in ``local``, in the owned particles' order.
+        halo_rows: (h,) the halo particles' rows in ``local``, in the order they arrived.
+        sent_rows: the rows in ``local`` of the owned particles sent as others' halo, one per sending.
+        routing: where those go.
     """
+
+    local: Particles
+    owned_rows: Tensor
+    halo_rows: Tensor
+    sent_rows: Tensor
+    routing: Routing
+
+    @property
+    def halo_count(self) -> int:
+        return int(self.halo_rows.shape[0])
+
+    def refresh(self, node_latent: Tensor) -> Tensor:
+        """(n + h, L) node latents with the halo rows replaced by their owners' (differentiable)."""
+        incoming = self.routing.send(node_latent.index_select(0, self.sent_rows))
+        return node_latent.index_copy(0, self.halo_rows, incoming.to(node_latent.dtype))
+
+
+def with_halo(owned: Particles, partition: SlabPartition, world: int) -> Halo:
+    """This process's particles plus the halo ``partition`` gives it; every process calls it at once."""
     rows, destination = partition.halo_of(owned.sequence[:, -1]).nonzero(as_tuple=True)
-    halo = Particles.of(send_rows(destination, owned.select(rows).columns(), world))
+    routing = Routing.of(destination, world)
+    halo = Particles.of([None if c is None else routing.send(c[rows]) for c in owned.columns()])
     local = owned.cat(halo)
     order = torch.argsort(local.ids)
     place = torch.empty_like(order)
     place[order] = torch.arange(order.shape[0], device=order.device)
-    return local.select(order), place[: owned.ids.shape[0]], int(halo.ids.shape[0])
+    owned_rows = place[: owned.count]
+    return Halo(local.select(order), owned_rows, place[owned.count :], owned_rows[rows], routing)
+
+
+class OwnedReceivers(GraphBuilder):
+    """A builder's graph of a process's particles, kept where an owned particle receives, with the latent exchange.
+
+    For a halo of latents: the halo particles only send; their latents come from their
+    owners after each message-passing step (``Graph.exchange``).
+    """
+
+    name = "owned_receivers"
+
+    def __init__(self, inner: GraphBuilder, halo: Halo):
+        super().__init__(inner.params, inner.scene)
+        self.inner, self.halo = inner, halo
+        owned = torch.zeros(halo.local.count, dtype=torch.bool, device=halo.owned_rows.device)
+        self.owned = owned.index_fill(0, halo.owned_rows, True)
+
+    def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:
+        graph = self.inner.build(position, batch, num_examples)
+        keep = self.owned[graph.receivers].nonzero()[:, 0]
+        return replace(
+            graph,
+            senders=graph.senders[keep],
+            receivers=graph.receivers[keep],
+            displacement=graph.displacement[keep],
+            exchange=self.halo.refresh,
+        )
+
+
+@contextmanager
+def latent_exchange(simulator: LearnedSimulator, halo: Halo, kind: str) -> Iterator[None]:
+    """For a halo of latents, the simulator builds :class:`OwnedReceivers` graphs of ``halo`` while inside."""
+    if kind != "latents":
+        yield
+        return
+    inner = simulator.graph_builder
+    simulator.graph_builder = OwnedReceivers(inner, halo)
+    try:
+        yield
+    finally:
+        simulator.graph_builder = inner
+
+
+def stand_in_exchanges(simulator: LearnedSimulator, halo: Halo, backward: bool) -> None:
+    """What a process with no particle at all (none owned, no halo) does instead of a step with a halo of latents.
+
+    The others exchange latents between their message-passing steps (and again in the
+    backward pass); this process must take part in each exchange, though it sends and
+    receives nothing, or they would wait for it forever.
+    """
+    hops_param = type(simulator.processor).hops_param
+    assert hops_param is not None and halo.local.count == 0
+    latent = torch.zeros((0, 1), device=halo.owned_rows.device, requires_grad=backward)
+    for _ in range(int(getattr(simulator.processor.params, hops_param)) - 1):
+        latent = halo.refresh(latent)
+    if backward:
+        latent.sum().backward()

@@ -27,7 +27,7 @@ import torch
 import torch.distributed as dist
 from torch import Tensor
 
-from ..data.batch import ParticleBatch, window
+from ..data.batch import window
 from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..errors import GnsError
@@ -38,7 +38,7 @@ from ..model.rollout_guard import GuardViolation, RolloutGuard
 from ..runtime.precision import Precision
 from ..training.processes import Processes
 from .exchange import send_rows
-from .halo import receptive_field, with_halo
+from .halo import HaloKind, latent_exchange, slabs_for, stand_in_exchanges, with_halo
 from .particles import Particles
 from .slabs import SlabPartition
 
@@ -52,12 +52,14 @@ class DecompositionStats:
         halo: halo particle-steps held beside them; ``halo / owned`` is the halo fraction.
         migrations: particles that moved to another process.
         partition: the slabs.
+        halo_kind: ``positions`` or ``latents`` (:mod:`.halo`).
     """
 
     owned: int
     halo: int
     migrations: int
     partition: SlabPartition
+    halo_kind: str
 
     @property
     def halo_fraction(self) -> float:
@@ -74,6 +76,7 @@ def partitioned_rollout(
     guard: RolloutGuard | None = None,
     precision: Precision = "float32",
     axis: int | None = None,
+    halo: HaloKind = "auto",
 ) -> tuple[Rollout | None, DecompositionStats]:
     """Predict ``steps`` frames from the first C of ``trajectory``, the scene split over ``processes``.
 
@@ -84,6 +87,9 @@ def partitioned_rollout(
 
     Args:
         axis: the dimension cut into slabs (default: the one the particles spread farthest in).
+        halo: ``positions`` (as deep as the receptive field), ``latents`` (one radius deep, latents
+            exchanged between message-passing steps), or ``auto``: latents where the processor
+            exchanges them (:mod:`.halo`).
     """
     check_simulates(simulator, trajectory)
     scene = simulator.scene
@@ -100,14 +106,7 @@ def partitioned_rollout(
         )
     rank, world = processes.rank, processes.world_size
     start = window(trajectory, 0, history, with_target=False)
-    partition = SlabPartition.balanced(
-        start.position_sequence[:, -1],
-        world,
-        receptive_field(simulator),
-        axis,
-        periodic_dims=scene.periodic_dims,
-        bounds=scene.bounds,
-    )
+    partition, kind = slabs_for(simulator, start.position_sequence[:, -1], world, halo, axis)
     everyone = Particles(
         torch.arange(start.num_particles), start.position_sequence, start.particle_type, start.material_property
     )
@@ -124,8 +123,9 @@ def partitioned_rollout(
     violations: list[GuardViolation] = []
     halo_count = migrations = 0
     for step in range(steps):
-        local, owned_rows, received = with_halo(owned, partition, world)
-        halo_count += received
+        particles = with_halo(owned, partition, world)
+        local, owned_rows = particles.local, particles.owned_rows
+        halo_count += particles.halo_count
         kinematic = owned_rows[~simulator.predicted_mask(owned.particle_type)]
         kinematic_ids = local.ids[kinematic].cpu().numpy()
         kinematic_next = torch.from_numpy(np.asarray(trajectory.position[history + step][kinematic_ids])).to(device)
@@ -137,7 +137,14 @@ def partitioned_rollout(
             batch=torch.zeros(local.ids.shape[0], dtype=torch.long, device=device),
             context=None if context is None else context[history - 1 + step][None],
         )
-        next_position, continued = _step(simulator, guard, current, kinematic, kinematic_next, precision, owned_rows)
+        if local.count == 0 or (kind == "positions" and owned.count == 0):
+            # Nothing to predict here; with a halo of latents the others' exchanges still need this process.
+            if kind == "latents":
+                stand_in_exchanges(simulator, particles, backward=False)
+            next_position = continued = current.position_sequence[:0, -1]
+        else:
+            with latent_exchange(simulator, particles, kind):
+                next_position, continued = rollout_step(simulator, guard, current, kinematic, kinematic_next, precision)
         next_owned, continued_owned = next_position[owned_rows], continued[owned_rows]
         previous = None if predicted is None else (predicted[step - 1] if step > 0 else last_input)
         violations += _gather_and_check(
@@ -149,7 +156,7 @@ def partitioned_rollout(
     totals = torch.tensor([halo_count, migrations], dtype=torch.long, device=device)
     if processes.distributed:
         dist.all_reduce(totals)
-    stats = DecompositionStats(start.num_particles * steps, int(totals[0]), int(totals[1]), partition)
+    stats = DecompositionStats(start.num_particles * steps, int(totals[0]), int(totals[1]), partition, kind)
     if not chief:
         return None, stats
     assert predicted is not None
@@ -163,22 +170,6 @@ def partitioned_rollout(
         ),
         stats,
     )
-
-
-def _step(
-    simulator: LearnedSimulator,
-    guard: RolloutGuard,
-    current: ParticleBatch,
-    kinematic: Tensor,
-    kinematic_next: Tensor,
-    precision: Precision,
-    owned_rows: Tensor,
-) -> tuple[Tensor, Tensor]:
-    """:func:`rollout_step` on this process's particles; a process that owns none has nothing to predict."""
-    if owned_rows.numel() == 0:
-        empty = current.position_sequence[:0, -1]
-        return empty, empty
-    return rollout_step(simulator, guard, current, kinematic, kinematic_next, precision)
 
 
 def _gather_and_check(

@@ -17,6 +17,7 @@ too large for one device trains on several.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Literal
 
 import torch
 import torch.distributed as dist
@@ -26,7 +27,7 @@ from ..data.batch import ParticleBatch
 from ..model.learned_simulator import LearnedSimulator
 from ..model.loss import masked_squared_error_sum
 from ..training.processes import Processes
-from .halo import with_halo
+from .halo import latent_exchange, stand_in_exchanges, with_halo
 from .particles import Particles
 from .slabs import SlabPartition
 
@@ -54,6 +55,7 @@ def partitioned_gradients(
     scene: ParticleBatch,
     partition: SlabPartition,
     processes: Processes,
+    halo: Literal["positions", "latents"] = "positions",
 ) -> Tensor:
     """Forward and backward of this process's share, then the gradients summed over processes.
 
@@ -63,15 +65,19 @@ def partitioned_gradients(
     Args:
         owned: this process's particles, with ``next_position`` and ``noise``.
         scene: what the whole scene shares (``context``, ``bounds``, ``walls``); its particle fields are ignored.
+        partition, halo: from :func:`.halo.slabs_for`, the same on every process.
 
     Returns:
         the whole scene's loss (a detached scalar, the same on every process).
     """
-    local, owned_rows, _ = with_halo(owned, partition, processes.world_size)
+    particles = with_halo(owned, partition, processes.world_size)
+    local, owned_rows = particles.local, particles.owned_rows
     moving = simulator.predicted_mask(local.particle_type)[owned_rows]
     predicted_count = processes.sum(moving.sum().to(torch.float64))
     share = torch.zeros((), device=owned.sequence.device)
-    if owned.count:
+    if local.count == 0 and halo == "latents":
+        stand_in_exchanges(simulator, particles, backward=True)  # the others' exchanges still need this process
+    elif local.count and (owned.count or halo == "latents"):
         batch = replace(
             scene,
             position_sequence=local.sequence,
@@ -82,7 +88,8 @@ def partitioned_gradients(
             num_examples=1,
         )
         assert local.noise is not None, "the owned particles carry their training noise"
-        prediction, target = simulator(batch, local.noise)
+        with latent_exchange(simulator, particles, halo):
+            prediction, target = simulator(batch, local.noise)
         error = masked_squared_error_sum(prediction[owned_rows], target[owned_rows], moving)
         share = error / predicted_count.clamp(min=1).to(error.dtype)
         share.backward()

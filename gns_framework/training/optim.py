@@ -12,12 +12,10 @@ from ..config.recipe import OptimizerSpec
 def learning_rate(spec: OptimizerSpec, step: int, total_steps: int) -> float:
     """The learning rate of optimiser step ``step`` (0-based) of a ``total_steps`` run.
 
-    Warm-up ramps linearly from ``lr_init / warmup_steps`` to ``lr_init``: Adam's
-    first steps take full-size moves whatever the gradient scale, which a freshly
-    initialised network with LayerNorm turns into large jumps. The exponential
-    schedule then decays as the reference does; the cosine one reaches ``lr_min``
-    at ``anneal_fraction * total_steps`` and holds it, so a short run ends with
-    small steps instead of stopping at a high learning rate.
+    Warm-up ramps linearly to ``lr_init``: Adam's first steps take full-size moves whatever the
+    gradient scale, which a fresh network with LayerNorm turns into large jumps. The exponential
+    schedule then decays as the reference's; the cosine one reaches ``lr_min`` at ``anneal_fraction
+    * total_steps`` and holds it, so a short run ends with small steps, not at a high learning rate.
     """
     if step < spec.warmup_steps:
         return spec.lr_init * (step + 1) / spec.warmup_steps

@@ -27,11 +27,13 @@ CASES = {
     "3d_walls": (3, (), 420, False, 0.15),
     "3d_periodic": (3, (0, 2), 420, False, 0.15),
 }
+DRIFT = {"2d_drift": (2, (), 200, False, 0.1)}
+"""A scene whose particles all drift along x by 0.04 per frame: the first slab empties within a few steps."""
 
 
 def case_simulator(name: str) -> LearnedSimulator:
     """A randomly initialised model of the case's scene (latent 16, 2 message-passing steps), the same every call."""
-    dim, periodic, _, with_property, radius = CASES[name]
+    dim, periodic, _, with_property, radius = {**CASES, **DRIFT}[name]
     scene = ModelSetup(
         dim=dim,
         bounds=((0.0, 1.0),) * dim,
@@ -70,10 +72,13 @@ def case_trajectory(name: str) -> Trajectory:
 
     Periodic dimensions wrap the stored positions into the box.
     """
-    dim, periodic, n, with_property, _ = CASES[name]
+    dim, periodic, n, with_property, _ = {**CASES, **DRIFT}[name]
     rng = np.random.default_rng(7)
     start = rng.uniform(0.05, 0.95, (n, dim))
     velocity = rng.uniform(-0.03, 0.03, (n, dim))
+    if name in DRIFT:
+        start[:, 0] *= 0.4
+        velocity[:, 0] = 0.04
     position = np.stack([start + t * velocity for t in range(FRAMES)])
     for k in periodic:
         position[..., k] = np.mod(position[..., k], 1.0)
@@ -82,12 +87,14 @@ def case_trajectory(name: str) -> Trajectory:
     return Trajectory(position.astype(np.float32), types, material_property=friction, key=name)
 
 
-def partitioned_worker(rank: int, world: int, port: int, out: str, cases: list[str], depth_scale: float = 1.0) -> None:
+def partitioned_worker(
+    rank: int, world: int, port: int, out: str, cases: list[str], depth_scale: float = 1.0, halo: str = "positions"
+) -> None:
     """Roll every case out over ``world`` gloo processes; rank 0 saves ``<case>.npy`` and ``<case>.json``.
 
-    ``depth_scale`` < 1 shrinks the halo below the receptive field: a broken decomposition.
+    ``depth_scale`` < 1 shrinks the halo below what ``halo`` needs: a broken decomposition.
     """
-    from gns_framework.decomposition import halo, rollout as decomposed
+    from gns_framework.decomposition import halo as halos, rollout as decomposed
     from gns_framework.training.distributed import processes_from_environment, start, stop
 
     os.environ.update(
@@ -95,13 +102,15 @@ def partitioned_worker(rank: int, world: int, port: int, out: str, cases: list[s
     )
     torch.set_num_threads(1)
     if depth_scale != 1.0:
-        reach = halo.receptive_field
-        decomposed.receptive_field = lambda simulator: depth_scale * reach(simulator)  # type: ignore[assignment]
+        depth = halos.halo_depth
+        halos.halo_depth = lambda simulator, kind: depth_scale * depth(simulator, kind)  # type: ignore[assignment]
     processes = processes_from_environment()
     start(processes, torch.device("cpu"))
     try:
         for name in cases:
-            result, stats = decomposed.partitioned_rollout(case_simulator(name), case_trajectory(name), processes)
+            result, stats = decomposed.partitioned_rollout(
+                case_simulator(name), case_trajectory(name), processes, halo=halo
+            )
             if rank == 0:
                 assert result is not None
                 np.save(Path(out) / f"{name}.npy", result.predicted)
@@ -143,9 +152,11 @@ def single_process_gradients(name: str) -> tuple[float, dict[str, torch.Tensor]]
     return float(loss.detach()), {k: p.grad.clone() for k, p in simulator.named_parameters() if p.grad is not None}
 
 
-def training_worker(rank: int, world: int, port: int, out: str, cases: list[str], depth_scale: float = 1.0) -> None:
+def training_worker(
+    rank: int, world: int, port: int, out: str, cases: list[str], depth_scale: float = 1.0, halo: str = "positions"
+) -> None:
     """One decomposed training step of every case over ``world`` gloo processes; rank 0 saves ``<case>.pt``."""
-    from gns_framework.decomposition.halo import receptive_field
+    from gns_framework.decomposition.halo import halo_depth
     from gns_framework.decomposition.slabs import SlabPartition
     from gns_framework.decomposition.training_step import owned_share, partitioned_gradients
     from gns_framework.training.distributed import processes_from_environment, start, stop
@@ -164,12 +175,12 @@ def training_worker(rank: int, world: int, port: int, out: str, cases: list[str]
             partition = SlabPartition.balanced(
                 batch.position_sequence[:, -1],
                 world,
-                depth_scale * receptive_field(simulator),
+                depth_scale * halo_depth(simulator, halo),
                 periodic_dims=scene.periodic_dims,
                 bounds=scene.bounds,
             )
             owned = owned_share(batch, noise, partition, rank)
-            loss = partitioned_gradients(simulator, owned, batch, partition, processes)
+            loss = partitioned_gradients(simulator, owned, batch, partition, processes, halo)
             grads = {k: p.grad for k, p in simulator.named_parameters() if p.grad is not None}
             if rank == 0:
                 torch.save({"loss": float(loss), "grads": grads}, Path(out) / f"{name}.pt")
@@ -221,9 +232,19 @@ def halo_worker(rank: int, world: int, port: int, out: str) -> None:
         partition = SlabPartition.balanced(last, world, receptive_field(case_simulator("2d_walls")))
         everyone = Particles(torch.arange(start.num_particles), start.position_sequence, start.particle_type)
         owned = everyone.select(partition.owner(last) == rank)
-        local, owned_rows, halo_count = with_halo(owned, partition, world)
-        saved = {"owned": owned.ids, "local": local.ids, "owned_rows": owned_rows, "halo": halo_count}
+        particles = with_halo(owned, partition, world)
+        local = particles.local
+        saved = {
+            "owned": owned.ids,
+            "local": local.ids,
+            "owned_rows": particles.owned_rows,
+            "halo": particles.halo_count,
+        }
         saved["local_sequence"] = local.sequence
+        # Latents (3 columns) holding each owned particle's id, -1 on the halo rows: the exchange fills those in.
+        owned_mask = torch.zeros(local.count, dtype=torch.bool).index_fill(0, particles.owned_rows, True)
+        latent = torch.where(owned_mask[:, None], local.ids[:, None].double().expand(-1, 3), -1.0)
+        saved["refreshed"] = particles.refresh(latent)
         torch.save(saved, Path(out) / f"rank{rank}.pt")
     finally:
         stop()

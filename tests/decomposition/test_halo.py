@@ -8,7 +8,7 @@ from decomposition_cases import CASES, case_simulator, case_trajectory, halo_wor
 from spawned import free_loopback_port, run_processes
 
 from gns_framework.data.batch import window
-from gns_framework.decomposition.halo import receptive_field, with_halo
+from gns_framework.decomposition.halo import halo_depth, halo_kind, receptive_field, with_halo
 from gns_framework.decomposition.particles import Particles
 from gns_framework.decomposition.slabs import SlabPartition
 from gns_framework.errors import GnsError
@@ -34,10 +34,25 @@ def test_a_builder_or_processor_without_a_bounded_reach_is_refused_naming_both(m
 
 def test_alone_the_local_particles_are_the_owned_ones_sorted_by_id():
     owned = Particles(torch.tensor([5, 1, 3]), torch.arange(3.0)[:, None, None].expand(3, 2, 2), torch.zeros(3))
-    local, owned_rows, halo = with_halo(owned, SlabPartition(axis=0, cuts=(), depth=1.0), world=1)
-    assert local.ids.tolist() == [1, 3, 5] and halo == 0
+    particles = with_halo(owned, SlabPartition(axis=0, cuts=(), depth=1.0), world=1)
+    local, owned_rows = particles.local, particles.owned_rows
+    assert local.ids.tolist() == [1, 3, 5] and particles.halo_count == 0
     assert torch.equal(local.ids[owned_rows], owned.ids)
     assert torch.equal(local.sequence[owned_rows], owned.sequence)
+    latent = torch.randn(3, 4)
+    assert torch.equal(particles.refresh(latent), latent)  # no halo: nothing to refresh
+
+
+def test_the_halo_kind_follows_the_processor_and_latents_are_refused_where_it_does_not_exchange(monkeypatch):
+    simulator = case_simulator("2d_walls")
+    assert halo_kind(simulator, "auto") == "latents" and halo_kind(simulator, "positions") == "positions"
+    assert halo_depth(simulator, "latents") == pytest.approx(0.1) and halo_depth(
+        simulator, "positions"
+    ) == pytest.approx(0.2)
+    monkeypatch.setattr(type(simulator.processor), "exchanges_latents", False)
+    assert halo_kind(simulator, "auto") == "positions"
+    with pytest.raises(GnsError, match="does not exchange node latents between its message-passing steps"):
+        halo_kind(simulator, "latents")
 
 
 def test_each_process_gets_exactly_the_particles_within_the_receptive_field_of_its_slab(tmp_path):
@@ -60,3 +75,5 @@ def test_each_process_gets_exactly_the_particles_within_the_receptive_field_of_i
         assert got["halo"] == int(near.sum()) > 0
         assert torch.equal(got["local"][got["owned_rows"]], got["owned"])
         assert torch.equal(got["local_sequence"], start.position_sequence[got["local"]])
+        # The latent exchange gave every halo row its owner's value.
+        assert got["refreshed"][:, 0].tolist() == got["local"].double().tolist()

@@ -38,22 +38,36 @@ def _tolerance(reference: np.ndarray) -> float:
     return np.finfo(np.float32).eps * float(np.abs(reference).max()) * reference.shape[0]
 
 
+@pytest.mark.parametrize("halo", ["positions", "latents"])
 @pytest.mark.parametrize("processes", [2, 4])
-def test_a_partitioned_rollout_equals_the_single_process_one(tmp_path, single_process, processes):
+def test_a_partitioned_rollout_equals_the_single_process_one(tmp_path, single_process, processes, halo):
     """2D and 3D, walls and periodic boundaries, kinematic particles and material properties; particles migrate."""
-    partitioned = _partitioned(tmp_path, processes)
+    partitioned = _partitioned(tmp_path, processes, halo)
     for name, reference in single_process.items():
         np.testing.assert_allclose(partitioned[name], reference, rtol=0, atol=_tolerance(reference), err_msg=name)
         summary = json.loads((tmp_path / f"{name}.json").read_text())
+        assert summary["kind"] == halo
         assert summary["migrations"] > 0, f"{name}: no particle crossed a slab face; the test would miss migration"
         assert 0 < summary["halo_fraction"] < processes, name
 
 
-def test_a_halo_one_hop_short_gives_different_positions(tmp_path, single_process):
-    """The equality above is not luck: half the receptive field as halo changes the owned particles' predictions."""
-    partitioned = _partitioned(tmp_path, 2, depth_scale=0.5)
+@pytest.mark.parametrize("halo", ["positions", "latents"])
+def test_a_halo_too_shallow_gives_different_positions(tmp_path, single_process, halo):
+    """The equality above is not luck: half the halo each kind needs changes the owned particles' predictions."""
+    partitioned = _partitioned(tmp_path, 2, halo, depth_scale=0.5)
     for name, reference in single_process.items():
         assert np.abs(partitioned[name] - reference).max() > 10 * _tolerance(reference), name
+
+
+@pytest.mark.parametrize("halo", ["positions", "latents"])
+def test_a_process_left_without_particles_keeps_taking_part(tmp_path, halo):
+    """Every particle drifts out of the first slab: its process then owns none, and the others still finish."""
+    name = "2d_drift"
+    reference = rollout(case_simulator(name), case_trajectory(name)).predicted
+    partitioned = _partitioned(tmp_path, 4, halo, cases=(name,))[name]
+    np.testing.assert_allclose(partitioned, reference, rtol=0, atol=_tolerance(reference))
+    first_cut = float(np.sort(case_trajectory(name).position[5, :, 0])[len(reference[0]) // 4])
+    assert (reference[-1, :, 0] > first_cut + 0.2).all(), "every particle left the first slab, beyond its halo"
 
 
 def test_one_process_is_the_plain_rollout(single_process):

@@ -32,15 +32,17 @@ def _largest_relative_error(grads: dict[str, torch.Tensor], reference: dict[str,
     return max(float((grads[k] - reference[k]).abs().max() / reference[k].abs().max().clamp(min=1e-300)) for k in grads)
 
 
+@pytest.mark.parametrize("halo", ["positions", "latents"])
 @pytest.mark.parametrize("processes", [2, 4])
-def test_decomposed_gradients_equal_the_single_process_gradients(tmp_path, single_process, processes):
+def test_decomposed_gradients_equal_the_single_process_gradients(tmp_path, single_process, processes, halo):
     """2D and 3D, walls and periodic boundaries, kinematic particles and material properties."""
-    for name, run in _decomposed(tmp_path, processes).items():
+    for name, run in _decomposed(tmp_path, processes, halo).items():
         loss, reference = single_process[name]
         assert run["loss"] == pytest.approx(loss, rel=RELATIVE), name
         assert _largest_relative_error(run["grads"], reference) < RELATIVE, name
 
 
-def test_a_halo_one_hop_short_gives_other_gradients(tmp_path, single_process):
-    for name, run in _decomposed(tmp_path, 2, depth_scale=0.5).items():
+@pytest.mark.parametrize("halo", ["positions", "latents"])
+def test_a_halo_too_shallow_gives_other_gradients(tmp_path, single_process, halo):
+    for name, run in _decomposed(tmp_path, 2, halo, depth_scale=0.5).items():
         assert _largest_relative_error(run["grads"], single_process[name][1]) > 1e3 * RELATIVE, name

@@ -79,6 +79,7 @@ class InteractionNetwork(Processor):
 
     name = "interaction_network"
     hops_param = "message_passing_steps"
+    exchanges_latents = True
 
     class Params(ComponentParams):
         message_passing_steps: int = Field(10, ge=1, description="M, number of unshared steps")
@@ -94,6 +95,8 @@ class InteractionNetwork(Processor):
         )
 
     def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:
-        for step in self.steps:
+        for k, step in enumerate(self.steps):
+            if k and graph.exchange is not None:  # a domain-decomposed step: the halo's latents from their owners
+                node_latent = graph.exchange(node_latent)
             node_latent, edge_latent = step(node_latent, edge_latent, graph.senders, graph.receivers)
         return node_latent, edge_latent

@@ -19,6 +19,7 @@ class SharedInteractionNetwork(Processor):
 
     name = "shared_interaction_network"
     hops_param = "message_passing_steps"
+    exchanges_latents = True
 
     class Params(ComponentParams):
         message_passing_steps: int = Field(10, ge=1, description="M, times the one step is applied")
@@ -33,6 +34,8 @@ class SharedInteractionNetwork(Processor):
         self.step = InteractionStep(sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers, params.edge_block)
 
     def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:
-        for _ in range(self.params.message_passing_steps):
+        for k in range(self.params.message_passing_steps):
+            if k and graph.exchange is not None:  # a domain-decomposed step: the halo's latents from their owners
+                node_latent = graph.exchange(node_latent)
             node_latent, edge_latent = self.step(node_latent, edge_latent, graph.senders, graph.receivers)
         return node_latent, edge_latent

@@ -1,0 +1,374 @@
+"""One scene split over P processes: time per step, memory per process and halo against P, and a projection to GPUs.
+
+    python benchmarks/decomposition_scaling.py --particles 100000 --processes 1 2 4 [--aspect 8]
+        [--hops 5 --latent 64] [--steps 5] [--train-steps 3] [--json] [--plot docs/images/decomposition_scaling.png]
+
+The scene is a 2D layer of water-like particles on a jittered lattice (about 20
+neighbours each, benchmarks/lattice_scene.py's spacing and radius), ``--aspect``
+times as wide as it is high, like a runout or a long channel. A randomly initialised
+interaction network of ``--hops`` message-passing steps and ``--latent`` width (the
+fast recipe's 5 x 64 by default) rolls it out for ``--steps`` steps and takes
+``--train-steps`` training steps, decomposed into P slabs across the width
+(:mod:`gns_framework.decomposition`), under P gloo processes of one thread each.
+
+Per P it prints: seconds per rollout step and per training step (the slowest process
+sets the pace), the time spent in all-to-all exchanges, the halo fraction (halo particles
+over owned ones), and the peak resident memory each process added beyond what it held
+before the first step (the model, the scene and torch itself are not counted).
+On a machine with fewer cores than processes they share the cores (oversubscribed):
+then times are not speed-ups, and the script says so; memory and halo are unaffected.
+
+The projection for 8-64 GPUs takes the measured terms (time per particle-step at P = 1,
+the halo fraction's growth with P, exchange bytes) and, for the GPU, the per-particle
+times and bytes per particle measured on the lent H200 (docs/performance.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import resource
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+SPACING = 0.0058
+RADIUS = 0.015
+JITTER = 0.15
+HISTORY = 6
+
+
+def scene_particles(particles: int, aspect: float) -> tuple[int, int]:
+    """Lattice sites across (nx) and up (ny), nx = aspect * ny, nx * ny >= particles."""
+    high = max(1, round(math.sqrt(particles / aspect)))
+    return math.ceil(particles / high), high
+
+
+def build(particles: int, aspect: float, hops: int, latent: int, frames: int):
+    """The simulator and a trajectory of ``frames`` frames (a slow random walk), the same in every process."""
+    import numpy as np
+
+    from gns_framework.assembly.learned import build_learned_simulator
+    from gns_framework.config.recipe import ModelSpec
+    from gns_framework.contracts import ModelSetup
+    from gns_framework.data.metadata import DatasetMetadata
+    from gns_framework.data.trajectory import Trajectory
+    from gns_framework.plugins import load_registry
+
+    across, up = scene_particles(particles, aspect)
+    rng = np.random.default_rng(0)
+    grid = np.stack(np.meshgrid(np.arange(across), np.arange(up), indexing="ij"), -1).reshape(-1, 2)[:particles]
+    start = (grid + rng.uniform(-JITTER, JITTER, grid.shape)) * SPACING + 2 * SPACING
+    upper = [float(start[:, k].max()) + 2 * SPACING for k in range(2)]
+    velocity = rng.normal(0.0, 2e-4, (frames, particles, 2))
+    position = (start[None] + np.cumsum(velocity, 0)).astype(np.float32)
+    bounds = ((0.0, upper[0]), (0.0, upper[1]))
+    scene = ModelSetup(dim=2, bounds=bounds, connectivity_radius=RADIUS, particle_types=(5,), history=HISTORY)
+    metadata = DatasetMetadata(
+        bounds=[list(b) for b in bounds],
+        sequence_length=frames,
+        default_connectivity_radius=RADIUS,
+        dim=2,
+        dt=0.0025,
+        vel_mean=[0.0, 0.0],
+        vel_std=[2e-4, 2e-4],
+        acc_mean=[0.0, 0.0],
+        acc_std=[2e-4, 2e-4],
+    )
+    model = ModelSpec(
+        latent_size=latent,
+        mlp_hidden_size=latent,
+        mlp_hidden_layers=2,
+        processor={"name": "interaction_network", "message_passing_steps": hops},
+    )
+    torch.manual_seed(0)
+    simulator = build_learned_simulator(scene, metadata, model, load_registry())
+    trajectory = Trajectory(position, np.full(particles, 5, dtype=np.int64), key="layer")
+    return simulator, trajectory
+
+
+def _resident_mb() -> float:
+    with open("/proc/self/statm") as statm:
+        return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+def _peak_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3  # KiB on Linux
+
+
+def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
+    """Measure one process of a P-process run; writes ``rank<r>.json``."""
+    import torch.distributed as dist
+
+    from gns_framework.data.batch import window
+    from gns_framework.decomposition.halo import receptive_field
+    from gns_framework.decomposition.rollout import partitioned_rollout
+    from gns_framework.decomposition.slabs import SlabPartition
+    from gns_framework.decomposition.training_step import owned_share, partitioned_gradients
+    from gns_framework.training.distributed import processes_from_environment, start, stop
+
+    os.environ.update(
+        MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world), LOCAL_RANK=str(rank)
+    )
+    torch.set_num_threads(1)
+    processes = processes_from_environment()
+    start(processes, torch.device("cpu"))
+    exchanged = [0.0]
+    calls = {"count": 0, "bytes": 0}
+    if processes.distributed:
+        plain = dist.all_to_all_single
+
+        def timed(output, input, *args, **kwargs):
+            began = time.perf_counter()
+            result = plain(output, input, *args, **kwargs)
+            exchanged[0] += time.perf_counter() - began
+            calls["count"] += 1
+            calls["bytes"] += input.numel() * input.element_size()
+            return result
+
+        dist.all_to_all_single = timed
+    try:
+        steps, train_steps = config["steps"], config["train_steps"]
+        simulator, trajectory = build(
+            config["particles"], config["aspect"], config["hops"], config["latent"], HISTORY + steps + 1
+        )
+        before = _resident_mb()
+        partitioned_rollout(simulator, trajectory, processes, steps=1)  # warm-up: allocations, kernel choices
+        exchanged[0] = 0.0
+        calls.update(count=0, bytes=0)
+        processes.barrier()
+        began = time.perf_counter()
+        _, stats = partitioned_rollout(simulator, trajectory, processes, steps=steps)
+        rollout_seconds = (time.perf_counter() - began) / steps
+        rollout_exchange = exchanged[0] / steps
+        rollout_calls = dict(calls)
+        rollout_peak = _peak_mb() - before
+        simulator.train()
+        batch = window(trajectory, 0, HISTORY, with_target=True)
+        noise = torch.zeros_like(batch.position_sequence)
+        partition = SlabPartition.balanced(batch.position_sequence[:, -1], world, receptive_field(simulator), axis=0)
+        owned = owned_share(batch, noise, partition, rank)
+        times, train_exchange = [], []
+        for _ in range(train_steps + 1):
+            simulator.zero_grad(set_to_none=True)
+            exchanged[0] = 0.0
+            processes.barrier()
+            began = time.perf_counter()
+            partitioned_gradients(simulator, owned, batch, partition, processes)
+            times.append(time.perf_counter() - began)
+            train_exchange.append(exchanged[0])
+        result = {
+            "rank": rank,
+            "owned": owned.count,
+            "rollout_seconds": rollout_seconds,
+            "rollout_exchange_seconds": rollout_exchange,
+            "rollout_exchange_calls": rollout_calls["count"],
+            "rollout_exchange_bytes": rollout_calls["bytes"],
+            "rollout_peak_mb": rollout_peak,
+            "train_seconds": statistics.median(times[1:]),
+            "train_exchange_seconds": statistics.median(train_exchange[1:]),
+            "train_peak_mb": _peak_mb() - before,
+            "halo_fraction": stats.halo_fraction,
+            "axis": stats.partition.axis,
+        }
+        (Path(out) / f"rank{rank}.json").write_text(json.dumps(result))
+    finally:
+        stop()
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def measure(processes: int, config: dict) -> dict:
+    with tempfile.TemporaryDirectory() as out:
+        torch.multiprocessing.spawn(worker, args=(processes, _free_port(), out, config), nprocs=processes)
+        ranks = [json.loads((Path(out) / f"rank{r}.json").read_text()) for r in range(processes)]
+    return {
+        "processes": processes,
+        "rollout_seconds": max(r["rollout_seconds"] for r in ranks),
+        "rollout_exchange_seconds": max(r["rollout_exchange_seconds"] for r in ranks),
+        "seconds_per_exchange": max(
+            r["rollout_exchange_seconds"] * config["steps"] / max(r["rollout_exchange_calls"], 1) for r in ranks
+        ),
+        "exchange_bytes_per_second": sum(r["rollout_exchange_bytes"] for r in ranks)
+        / max(sum(r["rollout_exchange_seconds"] * config["steps"] for r in ranks), 1e-9),
+        "train_seconds": max(r["train_seconds"] for r in ranks),
+        "train_exchange_seconds": max(r["train_exchange_seconds"] for r in ranks),
+        "rollout_peak_mb_per_process": max(r["rollout_peak_mb"] for r in ranks),
+        "train_peak_mb_per_process": max(r["train_peak_mb"] for r in ranks),
+        "halo_fraction": ranks[0]["halo_fraction"],
+        "owned_per_process": [r["owned"] for r in ranks],
+    }
+
+
+H200 = {
+    # The paper's model (10 x 128) on the 3D lattice, docs/performance.md (lent H200, 2026-12-04).
+    "rollout_seconds_per_particle": 3.31 / 1e6,  # bfloat16, 1M particles
+    "train_seconds_per_particle": 12.4 / 1e6,  # bfloat16 + recomputed activations, 1M particles
+    "train_bytes_per_particle": 118.9e9 / 1e6,
+    "memory_bytes": 139e9,
+    "parameters": 1.6e6,
+}
+LINK = {"latency_s": 20e-6, "bytes_per_s": 25e9}
+"""Between nodes: InfiniBand NDR (200 Gb/s, ~25 GB/s) and ~20 us per exchange; NVLink within a node is faster."""
+RADIUS_IN_SITES_3D = 0.015 / 0.0085
+"""The 3D lattice's connectivity radius in lattice spacings (benchmarks/lattice_scene.py)."""
+
+
+def projection(particles: float, aspect: float, hops: int, gpus: list[int]) -> list[dict]:
+    """Step time and memory per GPU of a 3D scene split into P slabs across its length, on P H200s.
+
+    The scene is a lattice ``aspect`` times as long as its square cross-section. Each slab
+    holds N / P particles and a halo up to ``hops x R`` deep on each side:
+    h = 2 hops R P / length (capped at P - 1 once slabs are thinner than the halo). A step
+    costs the GPU's time per particle for N / P (1 + h) particles, plus the exchanges: the halo's
+    positions (C x 3 float32 each), the predicted frame gathered on rank 0 (rollout), the
+    gradients' all-reduce (training; ring: twice the parameters' bytes), at :data:`LINK`'s rate.
+    """
+    side = (particles / aspect) ** (1 / 3)
+    length = aspect * side
+    depth = hops * RADIUS_IN_SITES_3D
+    rows = []
+    for p in gpus:
+        halo = min(2 * depth * p / length, p - 1)
+        per_gpu = particles / p * (1 + halo)
+        halo_bytes = particles / p * halo * HISTORY * 3 * 4
+        rollout_link = 3 * LINK["latency_s"] + (halo_bytes + particles / p * 3 * 4) / LINK["bytes_per_s"]
+        train_link = 2 * LINK["latency_s"] + (halo_bytes + 2 * 4 * H200["parameters"]) / LINK["bytes_per_s"]
+        train_bytes = per_gpu * H200["train_bytes_per_particle"]
+        ideal = particles / p * H200["train_seconds_per_particle"]
+        train_seconds = per_gpu * H200["train_seconds_per_particle"] + train_link
+        # Exchanging node latents (128 bfloat16) after each of the hops instead: a halo one radius deep.
+        shallow = halo / hops
+        latent_link = hops * (LINK["latency_s"] + particles / p * shallow * 128 * 2 / LINK["bytes_per_s"])
+        per_gpu_shallow = particles / p * (1 + shallow)
+        rows.append(
+            {
+                "gpus": p,
+                "halo_fraction": halo,
+                "rollout_seconds": per_gpu * H200["rollout_seconds_per_particle"] + rollout_link,
+                "train_seconds": train_seconds,
+                "train_efficiency": ideal / train_seconds,
+                "rollout_seconds_latents": per_gpu_shallow * H200["rollout_seconds_per_particle"]
+                + rollout_link
+                + latent_link,
+                "train_seconds_latents": per_gpu_shallow * H200["train_seconds_per_particle"]
+                + train_link
+                + 2 * latent_link,
+                "train_gb_per_gpu": train_bytes / 1e9,
+                "fits": train_bytes < H200["memory_bytes"],
+            }
+        )
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--particles", type=int, default=100_000)
+    parser.add_argument("--processes", type=int, nargs="+", default=[1, 2, 4])
+    parser.add_argument("--aspect", type=float, default=8.0, help="scene width / height (slabs cut the width)")
+    parser.add_argument("--hops", type=int, default=5, help="message-passing steps (halo = hops x radius)")
+    parser.add_argument("--latent", type=int, default=64)
+    parser.add_argument("--steps", type=int, default=5, help="rollout steps timed")
+    parser.add_argument("--train-steps", type=int, default=3, help="training steps timed (after one warm-up)")
+    parser.add_argument(
+        "--project-particles", type=float, default=1e7, help="the 3D scene of the GPU projection (default 10M)"
+    )
+    parser.add_argument("--project-aspect", type=float, default=8.0, help="its length / cross-section side")
+    parser.add_argument("--project-gpus", type=int, nargs="+", default=[1, 8, 16, 32, 64])
+    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--plot", type=Path, help="write a figure of time and memory per process against P")
+    args = parser.parse_args(argv)
+    cores = len(os.sched_getaffinity(0))
+    config = {k: getattr(args, k) for k in ("particles", "aspect", "hops", "latent", "steps", "train_steps")}
+    across, up = scene_particles(args.particles, args.aspect)
+    print(
+        f"scene: {args.particles} particles, {across} x {up} lattice sites, halo depth {args.hops} x R = "
+        f"{args.hops * RADIUS / SPACING:.1f} sites; {cores} core(s)"
+    )
+    rows = []
+    for p in args.processes:
+        row = measure(p, config)
+        row["oversubscribed"] = p > cores
+        rows.append(row)
+        note = " (oversubscribed: processes share cores)" if row["oversubscribed"] else ""
+        print(
+            f"P={p}: rollout step {row['rollout_seconds']:.3f} s (exchange {row['rollout_exchange_seconds']:.3f} s), "
+            f"training step {row['train_seconds']:.3f} s (exchange {row['train_exchange_seconds']:.3f} s), "
+            f"halo {row['halo_fraction']:.1%}, peak added memory per process: rollout "
+            f"{row['rollout_peak_mb_per_process']:.0f} MB, training {row['train_peak_mb_per_process']:.0f} MB{note}",
+            flush=True,
+        )
+    for row in rows:
+        if row["processes"] == 1:
+            continue
+        # What the halo of positions costs: the halo's share of the compute. What exchanging node latents after
+        # each message-passing step would cost instead: a halo one radius deep (1 / hops of this one), no extra
+        # compute, and per step one exchange of its latents per message-passing step (twice in training).
+        compute = row["rollout_seconds"] - row["rollout_exchange_seconds"]
+        deep = compute * row["halo_fraction"] / (1 + row["halo_fraction"])
+        per_process = args.particles / row["processes"]
+        latent_bytes = per_process * row["halo_fraction"] / args.hops * args.latent * 4
+        latents = args.hops * (row["seconds_per_exchange"] + latent_bytes / row["exchange_bytes_per_second"])
+        row["deep_halo_extra_seconds"], row["latent_exchange_seconds_estimate"] = deep, latents
+        print(
+            f"P={row['processes']} rollout step: the position halo costs ~{deep:.3f} s of compute; exchanging node "
+            f"latents instead would cost ~{latents:.3f} s ({args.hops} exchanges of "
+            f"{latent_bytes / 1e6:.2f} MB at {row['seconds_per_exchange'] * 1e3:.2f} ms + "
+            f"{row['exchange_bytes_per_second'] / 1e9:.2f} GB/s, as measured here)"
+        )
+    projected = projection(args.project_particles, args.project_aspect, 10, args.project_gpus)
+    print(
+        f"\nprojection: the paper's model (10 x 128, bfloat16, recomputed activations) on a 3D scene of "
+        f"{args.project_particles:.3g} particles, {args.project_aspect:g}x as long as wide, in slabs on P H200s:"
+    )
+    for row in projected:
+        print(
+            f"  P={row['gpus']:3d}: halo {row['halo_fraction']:6.1%}, rollout step {row['rollout_seconds']:.3f} s, "
+            f"training step {row['train_seconds']:.3f} s (efficiency {row['train_efficiency']:.0%}), "
+            f"{row['train_gb_per_gpu']:.0f} GB per GPU{'' if row['fits'] else ' (does not fit)'}; exchanging "
+            f"latents instead: rollout {row['rollout_seconds_latents']:.3f} s, training {row['train_seconds_latents']:.3f} s"
+        )
+    if args.plot:
+        plot(rows, args.plot)
+    if args.json:
+        print(json.dumps({"config": config, "cores": cores, "rows": rows, "projection": projected}))
+    return 0
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    p = [r["processes"] for r in rows]
+    figure, (time_axis, memory_axis) = plt.subplots(1, 2, figsize=(10, 4))
+    time_axis.plot(p, [r["rollout_seconds"] for r in rows], "o-", label="rollout step")
+    time_axis.plot(p, [r["train_seconds"] for r in rows], "s-", label="training step")
+    time_axis.set(xlabel="processes P", ylabel="seconds (slowest process)", xticks=p)
+    time_axis.legend()
+    memory_axis.plot(p, [r["rollout_peak_mb_per_process"] for r in rows], "o-", label="rollout")
+    memory_axis.plot(p, [r["train_peak_mb_per_process"] for r in rows], "s-", label="training")
+    memory_axis.set(xlabel="processes P", ylabel="peak added memory per process (MB)", xticks=p)
+    memory_axis.legend()
+    figure.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=120)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
