@@ -17,10 +17,9 @@ def random_walk_noise(
 ) -> Tensor:
     """Noise for a (N, C, d) position history whose velocities follow a random walk.
 
-    Velocity noise is a random walk: a cumulative sum of C - 1 independent
-    N(0, (sigma / sqrt(C - 1))^2) increments, so the last velocity's noise has std
-    sigma. Position noise integrates the velocity noise (a second cumulative sum)
-    from a noise-free first position.
+    Velocity noise is a random walk: a cumulative sum of C - 1 independent N(0, (sigma / sqrt(C - 1))^2)
+    increments, so the last velocity's noise has std sigma. Position noise integrates the velocity
+    noise (a second cumulative sum) from a noise-free first position.
 
     Returns:
         (N, C, d) position noise, same dtype and device as the input.

@@ -8,9 +8,8 @@ paper's Eq. in Sec. 2)::
     x'_i = LN(MLP_n([x_i, a_i]))
     x <- x + x',  e <- e + e'
 
-Our concatenation order is DeepMind's ([edge, receiver, sender] and [node,
-aggregate]); geoelements uses [receiver, sender, edge] and [aggregate, node], and
-its checkpoints are imported by reordering the first-layer columns.
+Our concatenation order is DeepMind's ([edge, receiver, sender] and [node, aggregate]); geoelements
+uses [receiver, sender, edge] and [aggregate, node]: its checkpoints import by reordering columns.
 """
 
 from __future__ import annotations
@@ -31,10 +30,9 @@ if TYPE_CHECKING:
 
 
 EdgeBlock = Literal["fused", "plain"]
-"""How the edge update runs: ``plain`` is the paper's three lines in torch, the code to read;
-``fused`` (default) evaluates the same function in cache-sized chunks of edges with fused CPU
-loops and a hand-written backward (``_kernels/edge_block.py``): faster, less memory, and equal
-to ``plain`` within float rounding (``tests/builtins/processors/test_interaction_network.py``)."""
+"""How the edge update runs: ``plain`` is the paper's three lines in torch, the code to read; ``fused``
+(default) evaluates it in cache-sized chunks of edges with fused CPU loops and a hand-written backward
+(``_kernels/edge_block.py``): faster, less memory, equal within float rounding (its mirror test)."""
 
 
 class InteractionStep(nn.Module):
