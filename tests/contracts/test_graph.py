@@ -24,6 +24,7 @@ def test_num_edges_counts_the_senders(edges):
 def test_a_builder_may_leave_out_positions_and_batch_of_one_example():
     graph = _graph(3)
     assert graph.position is None and graph.batch is None and graph.num_examples == 1
+    assert graph.exchange is None  # set only in a domain-decomposed step
 
 
 def test_the_learned_simulator_may_attach_positions_and_the_batch():

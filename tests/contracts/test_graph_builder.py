@@ -43,3 +43,8 @@ def test_a_builder_keeps_its_params_and_the_setup_it_connects_for():
 
 def test_by_default_a_builder_is_not_periodic_and_needs_no_optional_module():
     assert AllPairs.supports_periodic is False and AllPairs.optional_modules == ()
+
+
+def test_by_default_a_builder_does_not_promise_edges_within_the_radius_alone():
+    """A domain decomposition refuses a builder that does not declare it (decomposition/halo.py)."""
+    assert AllPairs.joins_within_radius is False

@@ -33,3 +33,8 @@ def test_a_processor_with_forward_passes_messages_over_the_graph_it_is_given():
     graph = Graph(torch.tensor([0, 2]), torch.tensor([1, 1]), torch.zeros(2, 2), num_nodes=3)
     nodes, edges = processor(torch.zeros(3, SIZES.latent), torch.ones(2, SIZES.latent), graph)
     assert nodes[:, 0].tolist() == [0.0, 2.0, 0.0] and edges.shape == (2, SIZES.latent)
+
+
+def test_by_default_a_processor_bounds_no_hops_and_exchanges_no_latents():
+    """What a domain decomposition reads (decomposition/halo.py): unknown reach, no exchange between steps."""
+    assert Processor.hops_param is None and Processor.exchanges_latents is False

@@ -6,12 +6,34 @@ import pytest
 import torch
 from decomposition_cases import CASES, case_simulator, case_trajectory, halo_worker
 from spawned import free_loopback_port, run_processes
+from tiny import TINY_GRAPH_BUILDERS, TINY_PROCESSORS
 
 from gns_framework.data.batch import window
 from gns_framework.decomposition.halo import halo_depth, halo_kind, receptive_field, with_halo
 from gns_framework.decomposition.particles import Particles
 from gns_framework.decomposition.slabs import SlabPartition
 from gns_framework.errors import GnsError
+from gns_framework.plugins import load_registry
+
+
+def test_the_built_in_components_declare_their_reach():
+    registry = load_registry()
+    builders = {e.name: e.cls.joins_within_radius for e in registry.entries("graph_builder")}
+    assert {name: builders[name] for name in TINY_GRAPH_BUILDERS} == {
+        "radius": True,
+        "periodic_radius": True,
+        "radius_torch_cluster": True,
+        "knn": False,  # its edges depend on which other particles are near
+    }
+    processors = {e.name: (e.cls.hops_param, e.cls.exchanges_latents) for e in registry.entries("processor")}
+    steps = "message_passing_steps"
+    assert {name: processors[name] for name in TINY_PROCESSORS} == {
+        "interaction_network": (steps, True),
+        "shared_interaction_network": (steps, True),
+        "graph_attention": (steps, False),
+        "egnn": (steps, False),
+        "grid_cnn": (None, False),  # its grid spans the scene
+    }
 
 
 def test_the_receptive_field_is_the_connectivity_radius_times_the_message_passing_steps():
