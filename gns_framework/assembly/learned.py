@@ -36,8 +36,28 @@ def training_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str
     problems: list[tuple[str, str]] = []
     try:
         integrator = registry.get("integrator", recipe.model.integrator.name)
+        builder = registry.get("graph_builder", recipe.model.graph_builder.name)
+        processor = registry.get("processor", recipe.model.processor.name)
     except GnsError:
         return problems  # an unknown name is the schema's to report
+    if recipe.training.partitions > 1:
+        # What a domain decomposition needs of the components (gns_framework.decomposition.halo).
+        if not builder.joins_within_radius:
+            problems.append(
+                (
+                    "training.partitions",
+                    f"graph builder {builder.name!r} joins particles by more than their own distance: a split scene "
+                    "needs one that declares joins_within_radius (radius, periodic_radius)",
+                )
+            )
+        if processor.hops_param is None:
+            problems.append(
+                (
+                    "training.partitions",
+                    f"processor {processor.name!r} does not bound how far a particle's output reaches (hops_param): "
+                    "a split scene needs one that does (interaction_network, ...)",
+                )
+            )
     same = integrator.same_position_map_as
     if same is not None:
         problems.append(

@@ -186,6 +186,13 @@ class TrainingSpec(_Strict):
         description="valid trajectories rolled out in full at each validation (0: one-step loss only); "
         "the checkpoint with the best best_metric so far is kept as checkpoints/best.pt",
     )
+    partitions: int = Field(
+        1,
+        ge=1,
+        description="split each training step's scenes into this many slabs, one per process (launch under torchrun "
+        "with as many processes), for scenes too large for one device: every process takes the same windows and "
+        "the gradients are one process's (docs/domain_decomposition.md); 1: data-parallel over the processes",
+    )
     best_metric: str = Field(
         "valid_rollout_mse",
         description="rollout metric (lower is better) that picks best.pt: valid_rollout_<name>, the mean over the "
@@ -193,6 +200,16 @@ class TrainingSpec(_Strict):
         "or valid_rollout_<name>_worst, its largest; valid_rollout_deposit_error_pct is the mean of each rollout's "
         "final extent and height errors",
     )
+
+
+    @model_validator(mode="after")
+    def _partitions_without_pushforward(self) -> "TrainingSpec":
+        if self.partitions > 1 and self.pushforward_steps:
+            raise ValueError(
+                f"partitions {self.partitions} with pushforward_steps {self.pushforward_steps}: a split scene trains "
+                "without push-forward for now; set pushforward_steps: 0"
+            )
+        return self
 
 
 class RolloutGuardSpec(_Strict):

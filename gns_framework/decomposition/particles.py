@@ -12,9 +12,10 @@ from torch import Tensor
 class Particles:
     """n particles of the scene, any order. Fields the scene or the step does not have are None.
 
-    Shapes: ids (n,) int64 index in the whole scene; sequence (n, C, d) positions;
-    particle_type (n,) int64; material_property (n, P); next_position (n, d) the training
-    target; noise (n, C, d) the training noise added to ``sequence``.
+    Shapes: ids (n,) int64 index in the whole batch (example after example, as collated);
+    sequence (n, C, d) positions; particle_type (n,) int64; material_property (n, P);
+    next_position (n, d) the training target; noise (n, C, d) the training noise added to
+    ``sequence``; example (n,) int64 the example of each particle in a batch of several.
     """
 
     ids: Tensor
@@ -23,6 +24,7 @@ class Particles:
     material_property: Tensor | None = None
     next_position: Tensor | None = None
     noise: Tensor | None = None
+    example: Tensor | None = None
 
     @property
     def count(self) -> int:

@@ -21,6 +21,7 @@ frames (as the rollout file does).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -36,11 +37,13 @@ from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import check_simulates, rollout_step
 from ..model.rollout_guard import GuardViolation, RolloutGuard
 from ..runtime.precision import Precision
-from ..training.processes import Processes
 from .exchange import send_rows
 from .halo import HaloKind, latent_exchange, slabs_for, stand_in_exchanges, with_halo
 from .particles import Particles
 from .slabs import SlabPartition
+
+if TYPE_CHECKING:
+    from ..training.processes import Processes
 
 
 @dataclass(frozen=True)

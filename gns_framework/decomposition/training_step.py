@@ -17,7 +17,7 @@ too large for one device trains on several.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import torch
 import torch.distributed as dist
@@ -26,18 +26,24 @@ from torch import Tensor
 from ..data.batch import ParticleBatch
 from ..model.learned_simulator import LearnedSimulator
 from ..model.loss import masked_squared_error_sum
-from ..training.processes import Processes
+from ..runtime.precision import Precision, autocast, backward_precision
 from .halo import latent_exchange, stand_in_exchanges, with_halo
 from .particles import Particles
 from .slabs import SlabPartition
 
+if TYPE_CHECKING:
+    from ..training.processes import Processes
+
 
 def owned_share(window: ParticleBatch, position_noise: Tensor, partition: SlabPartition, rank: int) -> Particles:
-    """The particles of a one-example training window that process ``rank`` owns (by their last input position).
+    """The particles of a batch of training windows that process ``rank`` owns (by their last input position).
+
+    The examples of a batch overlap in space; each keeps its own particles apart by its
+    example index, as the graph builder does.
 
     Shapes: window (N, C, d) with ``next_position``; position_noise (N, C, d).
     """
-    assert window.num_examples == 1 and window.next_position is not None, "one scene's training window"
+    assert window.next_position is not None, "training windows, with their targets"
     everyone = Particles(
         torch.arange(window.num_particles, device=window.position_sequence.device),
         window.position_sequence,
@@ -45,6 +51,7 @@ def owned_share(window: ParticleBatch, position_noise: Tensor, partition: SlabPa
         window.material_property,
         window.next_position,
         position_noise,
+        window.batch,
     )
     return everyone.select(partition.owner(window.position_sequence[:, -1]) == rank)
 
@@ -56,6 +63,7 @@ def partitioned_gradients(
     partition: SlabPartition,
     processes: Processes,
     halo: Literal["positions", "latents"] = "positions",
+    precision: Precision = "float32",
 ) -> Tensor:
     """Forward and backward of this process's share, then the gradients summed over processes.
 
@@ -66,6 +74,7 @@ def partitioned_gradients(
         owned: this process's particles, with ``next_position`` and ``noise``.
         scene: what the whole scene shares (``context``, ``bounds``, ``walls``); its particle fields are ignored.
         partition, halo: from :func:`.halo.slabs_for`, the same on every process.
+        precision: of the forward and backward (``training.precision``).
 
     Returns:
         the whole scene's loss (a detached scalar, the same on every process).
@@ -84,15 +93,16 @@ def partitioned_gradients(
             particle_type=local.particle_type,
             material_property=local.material_property,
             next_position=local.next_position,
-            batch=torch.zeros(local.count, dtype=torch.long, device=local.ids.device),
-            num_examples=1,
+            batch=local.example if local.example is not None else torch.zeros_like(local.ids),
         )
         assert local.noise is not None, "the owned particles carry their training noise"
-        with latent_exchange(simulator, particles, halo):
+        device = local.ids.device
+        with latent_exchange(simulator, particles, halo), autocast(precision, device):
             prediction, target = simulator(batch, local.noise)
-        error = masked_squared_error_sum(prediction[owned_rows], target[owned_rows], moving)
+        error = masked_squared_error_sum(prediction[owned_rows].to(target.dtype), target[owned_rows], moving)
         share = error / predicted_count.clamp(min=1).to(error.dtype)
-        share.backward()
+        with backward_precision(precision, device):
+            share.backward()
     _sum_gradients(simulator, processes)
     return processes.sum(share.detach())
 

@@ -37,6 +37,7 @@ from .processes import Processes
 from .ema import WeightAverage
 from .optim import make_optimizer
 from .provenance import git_commit
+from .partitioned_step import PartitionedTrainingStep
 from .step import TrainingStep
 from .tracking import JsonlTracker, Tracker
 from .validation import Validation, validation_windows
@@ -126,7 +127,10 @@ class Trainer:
                 ],
             )
         self.windows = self._training_windows(shapes)
-        self.order = WindowOrder(len(self.windows), recipe.training.batch_size, recipe.seed, self.rank, self.world_size)
+        # Split scenes (training.partitions): every process takes every window of a step.
+        partitioned = self._partitioned()
+        replicas, replica = (1, 0) if partitioned else (self.world_size, self.rank)
+        self.order = WindowOrder(len(self.windows), recipe.training.batch_size, recipe.seed, replica, replicas)
         envelope = (
             measure_envelope(
                 self.data.metadata,
@@ -145,13 +149,15 @@ class Trainer:
         self.simulator = build_learned_simulator(self.data.scene, self.data.metadata, recipe.model, registry).to(
             self.device
         )
-        self.model: torch.nn.Module = self.processes.wrap(self.simulator, self.device)
+        self.model: torch.nn.Module = (
+            self.simulator if partitioned else self.processes.wrap(self.simulator, self.device)
+        )
         self.noise_std = training_noise_std(recipe.model, self.data.metadata)
         self.optimizer, self.scheduler = make_optimizer(
             self.simulator.parameters(), recipe.training.optimizer, recipe.training.steps
         )
         decay = recipe.training.ema_decay
-        self.optimisation = TrainingStep(
+        self.optimisation = (PartitionedTrainingStep if partitioned else TrainingStep)(
             self.simulator,
             self.model,
             self.windows,
@@ -186,6 +192,22 @@ class Trainer:
         self.tracker = None
         if self.processes.is_chief:
             self.tracker = tracker if tracker is not None else JsonlTracker(self.run_dir)
+
+    def _partitioned(self) -> bool:
+        """Whether scenes are split over the processes (``training.partitions``); refused unless one per slab."""
+        partitions = self.recipe.training.partitions
+        if partitions > 1 and partitions != self.world_size:
+            raise RecipeError(
+                None,
+                [
+                    (
+                        "training.partitions",
+                        f"{partitions} slabs need {partitions} processes, one per slab, but WORLD_SIZE is "
+                        f"{self.world_size}: launch as torchrun --nproc-per-node {partitions} -m gns_framework.cli train",
+                    )
+                ],
+            )
+        return partitions > 1
 
     def _training_windows(self, shapes: list[tuple[int, int]]) -> WindowIndex:
         """The train split's windows; a split with none is a DatasetError naming the split's file and why."""

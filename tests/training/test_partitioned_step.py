@@ -1,0 +1,60 @@
+"""training.partitions: each scene split over the processes trains as one process trains it (training/partitioned_step.py)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from ddp_worker import train_rank
+from spawned import free_loopback_port, run_processes
+from training_support import tiny_recipe
+
+from gns_framework.config.recipe import validate_recipe
+from gns_framework.errors import RecipeError
+from gns_framework.plugins import load_registry
+from gns_framework.training.processes import Processes
+from gns_framework.training.trainer import Trainer
+
+STEPS = 4
+
+
+def test_two_processes_that_split_each_scene_train_as_one_process(uneven_dataset, tmp_path):
+    """Same losses at every step (the split forward) and the same weights after it (the summed gradients)."""
+    recipe = tiny_recipe(uneven_dataset, name="split", steps=STEPS, validate_every=1000, checkpoint_every=1000)
+    split = dict(recipe, training=dict(recipe["training"], partitions=2))
+    run_processes(train_rank, (2, free_loopback_port(), split, str(tmp_path / "split"), [STEPS], str(tmp_path)))
+    registry = load_registry()
+    torch.set_num_threads(1)
+    alone = Trainer(validate_recipe(recipe, registry), registry, run_dir=tmp_path / "alone", progress=False)
+    losses = alone.train(STEPS)
+    alone.close()
+    ranks = [torch.load(tmp_path / f"rank{rank}-step{STEPS}.pt", weights_only=True) for rank in (0, 1)]
+    # Both processes took every window of each step, and the same updates: bitwise the same weights.
+    assert ranks[0]["windows"] == ranks[1]["windows"] == alone.order.indices(0)
+    for name, value in ranks[0]["params"].items():
+        assert torch.equal(value, ranks[1]["params"][name]), name
+    # Against one process: float32 sums in another order (the unit tests check the gradients at float64).
+    assert ranks[0]["losses"] == pytest.approx(losses, rel=1e-5)
+    for name, value in alone.simulator.state_dict().items():
+        torch.testing.assert_close(ranks[0]["params"][name], value, rtol=1e-4, atol=1e-6, msg=name)
+
+
+def test_partitions_other_than_the_processes_are_refused(uneven_dataset, tmp_path):
+    registry = load_registry()
+    recipe = validate_recipe(tiny_recipe(uneven_dataset, partitions=2), registry)
+    with pytest.raises(RecipeError, match="2 slabs need 2 processes, one per slab, but WORLD_SIZE is 1"):
+        Trainer(recipe, registry, run_dir=tmp_path / "run", processes=Processes(), progress=False)
+
+
+def test_a_split_scene_refuses_push_forward_and_components_without_a_bounded_reach(uneven_dataset, tmp_path):
+    registry = load_registry()
+    with pytest.raises(RecipeError, match="a split scene trains without push-forward for now"):
+        validate_recipe(tiny_recipe(uneven_dataset, partitions=2, pushforward_steps=1), registry)
+    raw = tiny_recipe(uneven_dataset, partitions=2)
+    raw["model"]["graph_builder"] = {"name": "knn", "k": 6}
+    raw["model"]["processor"] = {"name": "grid_cnn", "message_passing_steps": 2, "conv_layers": 2}
+    with pytest.raises(RecipeError) as refused:
+        Trainer(validate_recipe(raw, registry), registry, run_dir=tmp_path / "run", progress=False)
+    assert "training.partitions: graph builder 'knn' joins particles by more than their own distance" in str(
+        refused.value
+    )
+    assert "processor 'grid_cnn' does not bound how far" in str(refused.value)
