@@ -1,7 +1,8 @@
 """One scene split over P processes: time per step, memory per process and halo against P, and a projection to GPUs.
 
     python benchmarks/decomposition_scaling.py --particles 100000 --processes 1 2 4 [--aspect 8]
-        [--hops 5 --latent 64] [--steps 5] [--train-steps 3] [--json] [--plot docs/images/decomposition_scaling.png]
+        [--hops 5 --latent 64] [--halo positions latents] [--steps 5] [--train-steps 3] [--json]
+        [--plot docs/images/decomposition_scaling.png]
 
 The scene is a 2D layer of water-like particles on a jittered lattice (about 20
 neighbours each, benchmarks/lattice_scene.py's spacing and radius), ``--aspect``
@@ -9,18 +10,20 @@ times as wide as it is high, like a runout or a long channel. A randomly initial
 interaction network of ``--hops`` message-passing steps and ``--latent`` width (the
 fast recipe's 5 x 64 by default) rolls it out for ``--steps`` steps and takes
 ``--train-steps`` training steps, decomposed into P slabs across the width
-(:mod:`gns_framework.decomposition`), under P gloo processes of one thread each.
+(:mod:`gns_framework.decomposition`), under P gloo processes of one thread each, once
+with each kind of halo (``--halo``: positions as deep as the receptive field, or
+latents one radius deep exchanged between message-passing steps).
 
-Per P it prints: seconds per rollout step and per training step (the slowest process
+Per P and halo kind it prints: seconds per rollout step and per training step (the slowest process
 sets the pace), the time spent in all-to-all exchanges, the halo fraction (halo particles
 over owned ones), and the peak resident memory each process added beyond what it held
 before the first step (the model, the scene and torch itself are not counted).
 On a machine with fewer cores than processes they share the cores (oversubscribed):
 then times are not speed-ups, and the script says so; memory and halo are unaffected.
 
-The projection for 8-64 GPUs takes the measured terms (time per particle-step at P = 1,
-the halo fraction's growth with P, exchange bytes) and, for the GPU, the per-particle
-times and bytes per particle measured on the lent H200 (docs/performance.md).
+The projection for 8-64 GPUs (:func:`projection`) applies the same terms, halo fraction
+growing with P for slabs, time per particle, exchange bytes and latency, with the per-particle
+times and bytes measured on the lent H200 (docs/performance.md) and an InfiniBand link.
 """
 
 from __future__ import annotations
@@ -109,9 +112,8 @@ def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
     import torch.distributed as dist
 
     from gns_framework.data.batch import window
-    from gns_framework.decomposition.halo import receptive_field
+    from gns_framework.decomposition.halo import slabs_for
     from gns_framework.decomposition.rollout import partitioned_rollout
-    from gns_framework.decomposition.slabs import SlabPartition
     from gns_framework.decomposition.training_step import owned_share, partitioned_gradients
     from gns_framework.training.distributed import processes_from_environment, start, stop
 
@@ -141,12 +143,13 @@ def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
             config["particles"], config["aspect"], config["hops"], config["latent"], HISTORY + steps + 1
         )
         before = _resident_mb()
-        partitioned_rollout(simulator, trajectory, processes, steps=1)  # warm-up: allocations, kernel choices
+        halo = config["halo"]
+        partitioned_rollout(simulator, trajectory, processes, steps=1, halo=halo)  # warm-up: allocations, kernels
         exchanged[0] = 0.0
         calls.update(count=0, bytes=0)
         processes.barrier()
         began = time.perf_counter()
-        _, stats = partitioned_rollout(simulator, trajectory, processes, steps=steps)
+        _, stats = partitioned_rollout(simulator, trajectory, processes, steps=steps, halo=halo)
         rollout_seconds = (time.perf_counter() - began) / steps
         rollout_exchange = exchanged[0] / steps
         rollout_calls = dict(calls)
@@ -154,7 +157,7 @@ def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
         simulator.train()
         batch = window(trajectory, 0, HISTORY, with_target=True)
         noise = torch.zeros_like(batch.position_sequence)
-        partition = SlabPartition.balanced(batch.position_sequence[:, -1], world, receptive_field(simulator), axis=0)
+        partition, kind = slabs_for(simulator, batch.position_sequence[:, -1], world, halo, axis=0)
         owned = owned_share(batch, noise, partition, rank)
         times, train_exchange = [], []
         for _ in range(train_steps + 1):
@@ -162,7 +165,7 @@ def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
             exchanged[0] = 0.0
             processes.barrier()
             began = time.perf_counter()
-            partitioned_gradients(simulator, owned, batch, partition, processes)
+            partitioned_gradients(simulator, owned, batch, partition, processes, kind)
             times.append(time.perf_counter() - began)
             train_exchange.append(exchanged[0])
         result = {
@@ -282,6 +285,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--aspect", type=float, default=8.0, help="scene width / height (slabs cut the width)")
     parser.add_argument("--hops", type=int, default=5, help="message-passing steps (halo = hops x radius)")
     parser.add_argument("--latent", type=int, default=64)
+    parser.add_argument(
+        "--halo", nargs="+", default=["positions", "latents"], choices=["positions", "latents"], help="halo kinds"
+    )
     parser.add_argument("--steps", type=int, default=5, help="rollout steps timed")
     parser.add_argument("--train-steps", type=int, default=3, help="training steps timed (after one warm-up)")
     parser.add_argument(
@@ -301,35 +307,19 @@ def main(argv: list[str] | None = None) -> int:
     )
     rows = []
     for p in args.processes:
-        row = measure(p, config)
-        row["oversubscribed"] = p > cores
-        rows.append(row)
-        note = " (oversubscribed: processes share cores)" if row["oversubscribed"] else ""
-        print(
-            f"P={p}: rollout step {row['rollout_seconds']:.3f} s (exchange {row['rollout_exchange_seconds']:.3f} s), "
-            f"training step {row['train_seconds']:.3f} s (exchange {row['train_exchange_seconds']:.3f} s), "
-            f"halo {row['halo_fraction']:.1%}, peak added memory per process: rollout "
-            f"{row['rollout_peak_mb_per_process']:.0f} MB, training {row['train_peak_mb_per_process']:.0f} MB{note}",
-            flush=True,
-        )
-    for row in rows:
-        if row["processes"] == 1:
-            continue
-        # What the halo of positions costs: the halo's share of the compute. What exchanging node latents after
-        # each message-passing step would cost instead: a halo one radius deep (1 / hops of this one), no extra
-        # compute, and per step one exchange of its latents per message-passing step (twice in training).
-        compute = row["rollout_seconds"] - row["rollout_exchange_seconds"]
-        deep = compute * row["halo_fraction"] / (1 + row["halo_fraction"])
-        per_process = args.particles / row["processes"]
-        latent_bytes = per_process * row["halo_fraction"] / args.hops * args.latent * 4
-        latents = args.hops * (row["seconds_per_exchange"] + latent_bytes / row["exchange_bytes_per_second"])
-        row["deep_halo_extra_seconds"], row["latent_exchange_seconds_estimate"] = deep, latents
-        print(
-            f"P={row['processes']} rollout step: the position halo costs ~{deep:.3f} s of compute; exchanging node "
-            f"latents instead would cost ~{latents:.3f} s ({args.hops} exchanges of "
-            f"{latent_bytes / 1e6:.2f} MB at {row['seconds_per_exchange'] * 1e3:.2f} ms + "
-            f"{row['exchange_bytes_per_second'] / 1e9:.2f} GB/s, as measured here)"
-        )
+        for halo in args.halo if p > 1 else ["positions"]:
+            row = measure(p, dict(config, halo=halo))
+            row["halo"], row["oversubscribed"] = halo, p > cores
+            rows.append(row)
+            note = " (oversubscribed: processes share cores)" if row["oversubscribed"] else ""
+            print(
+                f"P={p} halo of {halo if p > 1 else '-'}: rollout step {row['rollout_seconds']:.3f} s "
+                f"(exchanges {row['rollout_exchange_seconds']:.3f} s), training step {row['train_seconds']:.3f} s "
+                f"(exchanges {row['train_exchange_seconds']:.3f} s), halo {row['halo_fraction']:.1%} of the "
+                f"particles, peak added memory per process: rollout {row['rollout_peak_mb_per_process']:.0f} MB, "
+                f"training {row['train_peak_mb_per_process']:.0f} MB{note}",
+                flush=True,
+            )
     projected = projection(args.project_particles, args.project_aspect, 10, args.project_gpus)
     print(
         f"\nprojection: the paper's model (10 x 128, bfloat16, recomputed activations) on a 3D scene of "
@@ -350,21 +340,28 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def plot(rows: list[dict], path: Path) -> None:
+    """Time per step and peak added memory per process against P, one line per halo kind (P = 1 in both)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    p = [r["processes"] for r in rows]
     figure, (time_axis, memory_axis) = plt.subplots(1, 2, figsize=(10, 4))
-    time_axis.plot(p, [r["rollout_seconds"] for r in rows], "o-", label="rollout step")
-    time_axis.plot(p, [r["train_seconds"] for r in rows], "s-", label="training step")
-    time_axis.set(xlabel="processes P", ylabel="seconds (slowest process)", xticks=p)
-    time_axis.legend()
-    memory_axis.plot(p, [r["rollout_peak_mb_per_process"] for r in rows], "o-", label="rollout")
-    memory_axis.plot(p, [r["train_peak_mb_per_process"] for r in rows], "s-", label="training")
-    memory_axis.set(xlabel="processes P", ylabel="peak added memory per process (MB)", xticks=p)
-    memory_axis.legend()
+    alone = [r for r in rows if r["processes"] == 1]
+    for halo, marker in (("positions", "o"), ("latents", "s")):
+        kind = alone + [r for r in rows if r["processes"] > 1 and r["halo"] == halo]
+        if len(kind) == len(alone):
+            continue
+        p = [r["processes"] for r in kind]
+        time_axis.plot(p, [r["rollout_seconds"] for r in kind], marker + "-", label=f"rollout, halo of {halo}")
+        time_axis.plot(p, [r["train_seconds"] for r in kind], marker + "--", label=f"training, halo of {halo}")
+        memory_axis.plot(p, [r["rollout_peak_mb_per_process"] for r in kind], marker + "-", label=f"rollout, {halo}")
+        memory_axis.plot(p, [r["train_peak_mb_per_process"] for r in kind], marker + "--", label=f"training, {halo}")
+    ticks = sorted({r["processes"] for r in rows})
+    time_axis.set(xlabel="processes P", ylabel="seconds per step (slowest process)", xticks=ticks)
+    memory_axis.set(xlabel="processes P", ylabel="peak added memory per process (MB)", xticks=ticks)
+    time_axis.legend(fontsize=8)
+    memory_axis.legend(fontsize=8)
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=120)
