@@ -2,18 +2,20 @@
 
 Every step, on every process (rank r of P):
 
-1. **halo**: send each other process the particles it needs: those within the receptive
-   field (connectivity radius x message-passing hops, :func:`.halo.receptive_field`) of its
-   slab (:class:`.slabs.SlabPartition`);
+1. **halo**: send each other process the particles it needs (:mod:`.halo`): those within the
+   receptive field (connectivity radius x message-passing hops) of its slab
+   (:class:`.slabs.SlabPartition`) for a halo of positions, within one radius for a halo of
+   latents;
 2. **predict** the next positions of owned plus halo particles, sorted by global particle id:
    the radius graph lists edges by (receiver, sender), so every owned particle sums its
-   messages in the same order as in the whole scene, and its prediction is the same;
+   messages in the same order as in the whole scene, and its prediction is the same (with a
+   halo of latents the halo's node latents come from their owners between message-passing steps);
 3. **gather** the owned particles' next positions on rank 0, which checks the frame with the
    rollout guard as a single process does, and keeps it;
 4. **migrate**: particles whose new position lies in another slab move to that process.
 
-The halo's outermost particles miss some of their own neighbours, but what they get wrong
-travels one edge per message-passing step and never reaches an owned particle. Memory per
+With a halo of positions, its outermost particles miss some of their own neighbours, but what
+they get wrong travels one edge per message-passing step and never reaches an owned particle. Memory per
 process is its share of the scene plus the halo; rank 0 alone also holds the predicted
 frames (as the rollout file does).
 """
