@@ -117,7 +117,7 @@ def partitioned_worker(
                 summary = {
                     "migrations": stats.migrations,
                     "halo_fraction": stats.halo_fraction,
-                    "axis": stats.partition.axis,
+                    "kind": stats.halo_kind,
                 }
                 (Path(out) / f"{name}.json").write_text(json.dumps(summary))
     finally:

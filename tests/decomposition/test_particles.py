@@ -33,4 +33,4 @@ def test_columns_round_trip():
     particles = _particles([0, 5], True)
     again = Particles.of(particles.columns())
     assert all((a is None and b is None) or torch.equal(a, b) for a, b in zip(again.columns(), particles.columns()))
-    assert len(particles.columns()) == 6
+    assert len(particles.columns()) == 7  # every field travels

@@ -21,11 +21,12 @@ def single_process() -> dict[str, np.ndarray]:
     return {name: rollout(case_simulator(name), case_trajectory(name)).predicted for name in CASES}
 
 
-def _partitioned(tmp_path, processes: int, depth_scale: float = 1.0) -> dict[str, np.ndarray]:
-    run_processes(
-        partitioned_worker, (processes, free_loopback_port(), str(tmp_path), list(CASES), depth_scale), processes
-    )
-    return {name: np.load(tmp_path / f"{name}.npy") for name in CASES}
+def _partitioned(
+    tmp_path, processes: int, halo: str, depth_scale: float = 1.0, cases: tuple[str, ...] = tuple(CASES)
+) -> dict[str, np.ndarray]:
+    arguments = (processes, free_loopback_port(), str(tmp_path), list(cases), depth_scale, halo)
+    run_processes(partitioned_worker, arguments, processes)
+    return {name: np.load(tmp_path / f"{name}.npy") for name in cases}
 
 
 def _tolerance(reference: np.ndarray) -> float:

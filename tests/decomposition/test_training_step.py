@@ -20,10 +20,9 @@ def single_process() -> dict[str, tuple[float, dict[str, torch.Tensor]]]:
     return {name: single_process_gradients(name) for name in CASES}
 
 
-def _decomposed(tmp_path, processes: int, depth_scale: float = 1.0) -> dict[str, dict]:
-    run_processes(
-        training_worker, (processes, free_loopback_port(), str(tmp_path), list(CASES), depth_scale), processes
-    )
+def _decomposed(tmp_path, processes: int, halo: str, depth_scale: float = 1.0) -> dict[str, dict]:
+    arguments = (processes, free_loopback_port(), str(tmp_path), list(CASES), depth_scale, halo)
+    run_processes(training_worker, arguments, processes)
     return {name: torch.load(tmp_path / f"{name}.pt", weights_only=True) for name in CASES}
 
 
