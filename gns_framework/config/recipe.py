@@ -201,7 +201,6 @@ class TrainingSpec(_Strict):
         "final extent and height errors",
     )
 
-
     @model_validator(mode="after")
     def _partitions_without_pushforward(self) -> "TrainingSpec":
         if self.partitions > 1 and self.pushforward_steps:

@@ -45,7 +45,13 @@ class Particles:
         return Particles.of([None if c is None else c[rows] for c in self.columns()])
 
     def cat(self, other: "Particles") -> "Particles":
-        return Particles.of([None if a is None else torch.cat([a, b]) for a, b in zip(self.columns(), other.columns())])
+        """These particles, then ``other``'s: both must have the same fields."""
+        return Particles.of([_cat(a, b) for a, b in zip(self.columns(), other.columns())])
 
     def to(self, device: torch.device) -> "Particles":
         return Particles.of([None if c is None else c.to(device) for c in self.columns()])
+
+
+def _cat(first: Tensor | None, second: Tensor | None) -> Tensor | None:
+    assert (first is None) == (second is None), "particles of one scene carry the same fields"
+    return None if first is None or second is None else torch.cat([first, second])

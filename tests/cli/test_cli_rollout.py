@@ -16,6 +16,7 @@ from tiny import tiny_recipe_mapping
 
 from gns_framework.cli import main
 from gns_framework.cli import rollout as rollout_command
+from gns_framework.training.processes import Processes
 
 
 def test_train_resume_rollout_render(dataset_multimaterial, tmp_path):
@@ -136,8 +137,8 @@ def batches_of(lengths: list[int], count: int, batch: int, monkeypatch) -> list[
 
     monkeypatch.setattr(rollout_command, "rollout", one)
     monkeypatch.setattr(rollout_command, "rollout_batch", many)
-    args = Namespace(batch=batch, no_progress=True, precision="float32")
-    results = list(rollout_command._rollouts(None, trajectories, count, None, "cpu", None, args))
+    args = Namespace(batch=batch, no_progress=True, precision="float32", partitions=1)
+    results = list(rollout_command._rollouts(None, trajectories, count, None, "cpu", None, args, Processes()))
     # Every rollout comes back under its own index, in order, whatever the grouping.
     assert results == [(i, f"rollout {i}") for i in range(count)]
     return calls
