@@ -12,7 +12,6 @@ from dataclasses import dataclass
 
 import torch
 import torch.distributed as dist
-import torch.distributed.nn.functional as differentiable
 from torch import Tensor
 
 
@@ -50,7 +49,7 @@ class Routing:
         wire = wire.to(torch.uint8) if rows.dtype == torch.bool else wire.contiguous()
         into = wire.new_empty((sum(self.received),) + tuple(wire.shape[1:]))
         if wire.requires_grad:
-            into = differentiable.all_to_all_single(into, wire, self.received, self.sent)
+            into = _AllToAll.apply(wire, self.received, self.sent)
         else:
             dist.all_to_all_single(into, wire, output_split_sizes=self.received, input_split_sizes=self.sent)
         return into.to(torch.bool) if rows.dtype == torch.bool else into
@@ -63,3 +62,20 @@ def send_rows(destination: Tensor, tensors: list[Tensor | None], world_size: int
     """
     routing = Routing.of(destination, world_size)
     return [None if tensor is None else routing.send(tensor) for tensor in tensors]
+
+
+class _AllToAll(torch.autograd.Function):
+    """All-to-all of rows whose backward sends each row's gradient back to the process it came from."""
+
+    @staticmethod
+    def forward(ctx, rows: Tensor, received: list[int], sent: list[int]) -> Tensor:
+        ctx.received, ctx.sent = received, sent
+        into = rows.new_empty((sum(received),) + tuple(rows.shape[1:]))
+        dist.all_to_all_single(into, rows.contiguous(), output_split_sizes=received, input_split_sizes=sent)
+        return into
+
+    @staticmethod
+    def backward(ctx, gradient: Tensor) -> tuple[Tensor, None, None]:
+        back = gradient.new_empty((sum(ctx.sent),) + tuple(gradient.shape[1:]))
+        dist.all_to_all_single(back, gradient.contiguous(), output_split_sizes=ctx.sent, input_split_sizes=ctx.received)
+        return back, None, None
