@@ -5,6 +5,7 @@ from __future__ import annotations
 from ..config.recipe import COMPONENT_SECTIONS, ModelSpec, Recipe
 from ..contracts import ModelSizes, ModelSetup
 from ..data.metadata import DatasetMetadata
+from ..decomposition.halo import unbounded_reach
 from ..errors import GnsError, RecipeError
 from ..model.features import FeatureBuilder, edge_feature_size, node_feature_size
 from ..model.learned_simulator import LearnedSimulator
@@ -41,23 +42,7 @@ def training_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str
     except GnsError:
         return problems  # an unknown name is the schema's to report
     if recipe.training.partitions > 1:
-        # What a domain decomposition needs of the components (gns_framework.decomposition.halo).
-        if not builder.joins_within_radius:
-            problems.append(
-                (
-                    "training.partitions",
-                    f"graph builder {builder.name!r} joins particles by more than their own distance: a split scene "
-                    "needs one that declares joins_within_radius (radius, periodic_radius)",
-                )
-            )
-        if processor.hops_param is None:
-            problems.append(
-                (
-                    "training.partitions",
-                    f"processor {processor.name!r} does not bound how far a particle's output reaches (hops_param): "
-                    "a split scene needs one that does (interaction_network, ...)",
-                )
-            )
+        problems += [("training.partitions", why) for why in unbounded_reach(builder, processor)]
     same = integrator.same_position_map_as
     if same is not None:
         problems.append(

@@ -2,8 +2,8 @@
 
 Works with gloo (CPU tensors) and nccl (CUDA tensors) alike: the counts go first, so
 every process knows how many rows it receives from each other, then the rows of each
-tensor with those splits. A tensor that requires gradients travels through the
-differentiable all-to-all, whose backward sends each row's gradient back to its sender.
+tensor with those splits. The all-to-all is differentiable: its backward sends each row's
+gradient back to its sender.
 """
 
 from __future__ import annotations
@@ -47,11 +47,7 @@ class Routing:
         wire = rows.index_select(0, self.order)
         # gloo has no bool all-to-all: masks travel as bytes.
         wire = wire.to(torch.uint8) if rows.dtype == torch.bool else wire.contiguous()
-        into = wire.new_empty((sum(self.received),) + tuple(wire.shape[1:]))
-        if wire.requires_grad:
-            into = _AllToAll.apply(wire, self.received, self.sent)
-        else:
-            dist.all_to_all_single(into, wire, output_split_sizes=self.received, input_split_sizes=self.sent)
+        into = _AllToAll.apply(wire, self.received, self.sent)
         return into.to(torch.bool) if rows.dtype == torch.bool else into
 
 

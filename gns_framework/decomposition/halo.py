@@ -25,7 +25,7 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-from ..contracts import Graph, GraphBuilder
+from ..contracts import Graph, GraphBuilder, Processor
 from ..errors import GnsError
 from ..model.learned_simulator import LearnedSimulator
 from .exchange import Routing
@@ -45,22 +45,28 @@ def receptive_field(simulator: LearnedSimulator) -> float:
     on each particle and each edge alone (their contracts), so they add no reach.
     Refuses a graph builder or processor that does not declare such a bound.
     """
-    builder, processor = simulator.graph_builder, simulator.processor
+    processor = simulator.processor
+    problems = unbounded_reach(type(simulator.graph_builder), type(processor))
+    if problems:
+        raise GnsError("a domain-decomposed rollout needs a bounded receptive field: " + "; ".join(problems))
+    hops_param = type(processor).hops_param
+    assert hops_param is not None
+    return simulator.scene.connectivity_radius * int(getattr(processor.params, hops_param))
+
+
+def unbounded_reach(builder: type[GraphBuilder], processor: type[Processor]) -> list[str]:
+    """Why a model of these components cannot be split into slabs (empty when it can): the facts they declare."""
     problems = []
-    if not type(builder).joins_within_radius:
+    if not builder.joins_within_radius:
         problems.append(
             f"graph builder {builder.name!r} joins particles by more than their own distance "
             "(joins_within_radius is False): use radius or periodic_radius"
         )
-    hops_param = type(processor).hops_param
-    if hops_param is None:
+    if processor.hops_param is None:
         problems.append(
             f"processor {processor.name!r} does not bound how far a particle's output reaches (hops_param is None)"
         )
-    if problems:
-        raise GnsError("a domain-decomposed rollout needs a bounded receptive field: " + "; ".join(problems))
-    assert hops_param is not None
-    return simulator.scene.connectivity_radius * int(getattr(processor.params, hops_param))
+    return problems
 
 
 def halo_kind(simulator: LearnedSimulator, requested: HaloKind) -> Literal["positions", "latents"]:

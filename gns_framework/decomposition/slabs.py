@@ -43,7 +43,6 @@ class SlabPartition:
         parts: int,
         depth: float,
         axis: int | None = None,
-        box: tuple[float, float] | None = None,
         periodic_dims: tuple[int, ...] = (),
         bounds: tuple[tuple[float, float], ...] | None = None,
     ) -> "SlabPartition":
@@ -51,8 +50,7 @@ class SlabPartition:
 
         ``axis`` defaults to the dimension in which the particles spread farthest (a
         periodic one counts its box length): the thinnest slabs relative to the halo.
-        ``bounds`` (d pairs) gives the periodic box of ``periodic_dims``; ``box``
-        overrides it for the axis.
+        ``bounds`` (d pairs) gives the periodic box of ``periodic_dims``.
         """
         if parts < 1:
             raise ValueError(f"partitions must be at least 1, got {parts}")
@@ -62,7 +60,8 @@ class SlabPartition:
                 assert bounds is not None, "a periodic dimension needs the box bounds"
                 spread[k] = bounds[k][1] - bounds[k][0]
             axis = max(range(len(spread)), key=lambda k: spread[k])
-        if box is None and axis in periodic_dims:
+        box = None
+        if axis in periodic_dims:
             assert bounds is not None, "a periodic dimension needs the box bounds"
             box = (float(bounds[axis][0]), float(bounds[axis][1]))
         coordinate = torch.sort(position[:, axis].to(torch.float64)).values

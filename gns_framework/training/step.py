@@ -76,22 +76,11 @@ class TrainingStep:
     def __call__(self, step: int) -> tuple[Tensor, int]:
         """Optimiser step number ``step`` on this process's windows of it.
 
-        The loss is the squared error averaged over the predicted particles of the
-        *global* batch (every rank's windows): each rank divides its error sum by the
-        all-reduced particle count and multiplies by the world size, which DDP's
-        gradient averaging divides out again. So W processes of B windows take
-        exactly the step of one process with the same W x B windows, whatever the
-        particle counts of the windows.
-
-        Nothing here waits for the device: the batch and its noise are built on the
-        host and copied from pinned memory without blocking when training on a GPU,
-        and the loss stays a device tensor (the caller reads it back when it needs
-        it). The graph builder's edge count is the one read-back a step needs
-        (``radius_pairs``).
-
-        Returns:
-            the global batch's loss, a float64 scalar tensor on the device, and its
-            particle count (both identical on every rank).
+        Nothing here waits for the device: the batch and its noise are built on the host and
+        copied from pinned memory without blocking when training on a GPU, and the loss stays a
+        device tensor (the caller reads it back when it needs it). The graph builder's edge count
+        is the one read-back a step needs (``radius_pairs``). Returns the global batch's loss, a
+        float64 scalar tensor on the device, and its particle count (both the same on every rank).
         """
         batch = self.windows.batch(self.order.indices(step))
         noise = self.noise(step)
@@ -103,6 +92,21 @@ class TrainingStep:
             batch = self.pushed_forward(batch, unrolled)
         mask = self.simulator.predicted_mask(batch.particle_type)
         noise = noise.to(self.device, non_blocking=True) * mask[:, None, None]
+        loss = self.gradients(batch, noise, mask)
+        self.optimizer.step()
+        if self.ema is not None:
+            self.ema.update(self.simulator)
+        self.scheduler.step()
+        particles = sum(self.windows.num_particles(self.order.window_at(p)) for p in self.order.step_positions(step))
+        return loss, particles
+
+    def gradients(self, batch: ParticleBatch, noise: Tensor, mask: Tensor) -> Tensor:
+        """Fresh gradients of the global batch's loss on every rank; returns that loss (float64).
+
+        The loss averages the squared error over the predicted particles of *every* rank's windows: each
+        rank divides its error sum by the all-reduced count times the world size, which DDP's averaging
+        undoes, so W processes of B windows take exactly one process's step with the same W x B windows.
+        """
         with autocast(self.precision, self.device):
             prediction, target = self.model(batch, noise)
         error_sum = masked_squared_error_sum(prediction.to(target.dtype), target, mask)
@@ -113,12 +117,7 @@ class TrainingStep:
         self.optimizer.zero_grad(set_to_none=True)
         with backward_precision(self.precision, self.device):
             loss.backward()
-        self.optimizer.step()
-        if self.ema is not None:
-            self.ema.update(self.simulator)
-        self.scheduler.step()
-        particles = sum(self.windows.num_particles(self.order.window_at(p)) for p in self.order.step_positions(step))
-        return global_error / predicted, particles
+        return global_error / predicted
 
     def pushforward_steps(self, step: int) -> int:
         """k of step ``step``'s push-forward, uniform in 0..``pushforward_steps``, the same on every rank."""

@@ -87,6 +87,19 @@ def case_trajectory(name: str) -> Trajectory:
     return Trajectory(position.astype(np.float32), types, material_property=friction, key=name)
 
 
+def _join(rank: int, world: int, port: int):
+    """Join a gloo process group of ``world`` processes on the loopback as ``rank``, one thread; its Processes."""
+    from gns_framework.training.distributed import processes_from_environment, start
+
+    os.environ.update(
+        MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world), LOCAL_RANK=str(rank)
+    )
+    torch.set_num_threads(1)
+    processes = processes_from_environment()
+    start(processes, torch.device("cpu"))
+    return processes
+
+
 def partitioned_worker(
     rank: int, world: int, port: int, out: str, cases: list[str], depth_scale: float = 1.0, halo: str = "positions"
 ) -> None:
@@ -95,17 +108,12 @@ def partitioned_worker(
     ``depth_scale`` < 1 shrinks the halo below what ``halo`` needs: a broken decomposition.
     """
     from gns_framework.decomposition import halo as halos, rollout as decomposed
-    from gns_framework.training.distributed import processes_from_environment, start, stop
+    from gns_framework.training.distributed import stop
 
-    os.environ.update(
-        MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world), LOCAL_RANK=str(rank)
-    )
-    torch.set_num_threads(1)
+    processes = _join(rank, world, port)
     if depth_scale != 1.0:
         depth = halos.halo_depth
         halos.halo_depth = lambda simulator, kind: depth_scale * depth(simulator, kind)  # type: ignore[assignment]
-    processes = processes_from_environment()
-    start(processes, torch.device("cpu"))
     try:
         for name in cases:
             result, stats = decomposed.partitioned_rollout(
@@ -159,14 +167,9 @@ def training_worker(
     from gns_framework.decomposition.halo import halo_depth
     from gns_framework.decomposition.slabs import SlabPartition
     from gns_framework.decomposition.training_step import owned_share, partitioned_gradients
-    from gns_framework.training.distributed import processes_from_environment, start, stop
+    from gns_framework.training.distributed import stop
 
-    os.environ.update(
-        MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world), LOCAL_RANK=str(rank)
-    )
-    torch.set_num_threads(1)
-    processes = processes_from_environment()
-    start(processes, torch.device("cpu"))
+    processes = _join(rank, world, port)
     try:
         for name in cases:
             simulator = case_simulator(name).double().train()
@@ -186,18 +189,6 @@ def training_worker(
                 torch.save({"loss": float(loss), "grads": grads}, Path(out) / f"{name}.pt")
     finally:
         stop()
-
-
-def _join(rank: int, world: int, port: int):
-    from gns_framework.training.distributed import processes_from_environment, start
-
-    os.environ.update(
-        MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world), LOCAL_RANK=str(rank)
-    )
-    torch.set_num_threads(1)
-    processes = processes_from_environment()
-    start(processes, torch.device("cpu"))
-    return processes
 
 
 def exchange_worker(rank: int, world: int, port: int, out: str) -> None:
