@@ -2,7 +2,7 @@
 
 Usage:
     python benchmarks/time_to_accuracy.py --budget-minutes M --data DIR --threads T [--json]
-        [--held-out DIR] [--seeds S] [--reference recipes/sand2d.yaml] [--ours recipes/sand2d_fast_pushforward.yaml]
+        [--held-out DIR] [--seeds S] [--reference recipes/sand2d.yaml] [--ours recipes/sand2d_fast_grid.yaml]
         [--points P] [--trajectories K]
 
 Each recipe trains from scratch for M minutes of wall clock on the same dataset
@@ -218,8 +218,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--ours",
         type=Path,
-        default=REPO / "recipes" / "sand2d_fast_pushforward.yaml",
-        help="the project's best recipe (default: the fast recipe with push-forward)",
+        default=REPO / "recipes" / "sand2d_fast_grid.yaml",
+        help="the project's best recipe (default: the grid-processor recipe)",
     )
     parser.add_argument("--points", type=int, default=5, help="evaluations per run (evenly spaced in wall clock)")
     parser.add_argument("--trajectories", type=int, default=20, help="test trajectories rolled out per evaluation")
