@@ -201,15 +201,6 @@ class TrainingSpec(_Strict):
         "final extent and height errors",
     )
 
-    @model_validator(mode="after")
-    def _partitions_without_pushforward(self) -> "TrainingSpec":
-        if self.partitions > 1 and self.pushforward_steps:
-            raise ValueError(
-                f"partitions {self.partitions} with pushforward_steps {self.pushforward_steps}: a split scene trains "
-                "without push-forward for now; set pushforward_steps: 0"
-            )
-        return self
-
 
 class RolloutGuardSpec(_Strict):
     """What a rollout does when a prediction is not finite or a particle leaves the domain."""

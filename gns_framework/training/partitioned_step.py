@@ -1,8 +1,10 @@
 """The optimisation step with each scene split over the processes (``training.partitions``).
 
 Every process takes the same windows of the step (the whole batch, with the same noise),
-owns the particles in its slab, and computes the gradients of the whole batch's loss
-with the others (:func:`gns_framework.decomposition.training_step.partitioned_gradients`).
+owns the particles in its slab, rolls the windows on with the others where the step pushes
+them forward (:func:`gns_framework.decomposition.pushforward.partitioned_pushed_forward`),
+and computes the gradients of the whole batch's loss with the others
+(:func:`gns_framework.decomposition.training_step.partitioned_gradients`).
 The weights, the optimiser, the schedule and the weight average then take the same update
 on every process, so the run is one process's run, with the memory of each scene split.
 """
@@ -14,13 +16,14 @@ from torch import Tensor
 
 from ..data.batch import ParticleBatch
 from ..decomposition.halo import slabs_for
+from ..decomposition.pushforward import partitioned_pushed_forward
 from ..decomposition.training_step import owned_share, partitioned_gradients
 from .step import TrainingStep
 
 
 class PartitionedTrainingStep(TrainingStep):
-    """:class:`TrainingStep` for scenes split into slabs, one per process (no push-forward): the
-    same windows, noise and update, with the gradients computed slab by slab.
+    """:class:`TrainingStep` for scenes split into slabs, one per process: the same windows,
+    noise, push-forward and update, with the unrolled steps and the gradients computed slab by slab.
 
     Built as a TrainingStep whose ``model`` is the bare simulator and whose window order
     is the one of a single process (every process takes every window of the step).
@@ -33,3 +36,7 @@ class PartitionedTrainingStep(TrainingStep):
         self.optimizer.zero_grad(set_to_none=True)
         loss = partitioned_gradients(self.simulator, owned, batch, partition, self.processes, halo, self.precision)
         return loss.to(torch.float64)
+
+    def pushed_forward(self, batch: ParticleBatch, steps: int) -> ParticleBatch:
+        """The single process's push-forward, each unrolled step predicted slab by slab (the same batch on every process)."""
+        return partitioned_pushed_forward(self.simulator, batch, steps, self.processes)

@@ -29,11 +29,13 @@ CASES = {
 }
 DRIFT = {"2d_drift": (2, (), 200, False, 0.1)}
 """A scene whose particles all drift along x by 0.04 per frame: the first slab empties within a few steps."""
+FEW = {"2d_few": (2, (), 3, False, 0.5)}
+"""Three particles for four processes: one process owns none (slabs cut at particle-count quantiles)."""
 
 
 def case_simulator(name: str) -> LearnedSimulator:
     """A randomly initialised model of the case's scene (latent 16, 2 message-passing steps), the same every call."""
-    dim, periodic, _, with_property, radius = {**CASES, **DRIFT}[name]
+    dim, periodic, _, with_property, radius = {**CASES, **DRIFT, **FEW}[name]
     scene = ModelSetup(
         dim=dim,
         bounds=((0.0, 1.0),) * dim,
@@ -72,7 +74,7 @@ def case_trajectory(name: str) -> Trajectory:
 
     Periodic dimensions wrap the stored positions into the box.
     """
-    dim, periodic, n, with_property, _ = {**CASES, **DRIFT}[name]
+    dim, periodic, n, with_property, _ = {**CASES, **DRIFT, **FEW}[name]
     rng = np.random.default_rng(7)
     start = rng.uniform(0.05, 0.95, (n, dim))
     velocity = rng.uniform(-0.03, 0.03, (n, dim))
@@ -187,6 +189,50 @@ def training_worker(
             grads = {k: p.grad for k, p in simulator.named_parameters() if p.grad is not None}
             if rank == 0:
                 torch.save({"loss": float(loss), "grads": grads}, Path(out) / f"{name}.pt")
+    finally:
+        stop()
+
+
+PUSHED_STEPS = 3
+
+
+def pushforward_batch(name: str):
+    """Two training windows of the case (frames 0 and 3 on) collated into one batch, with 3 frames ahead, in float64."""
+    from gns_framework.data.batch import collate, window
+
+    trajectory = case_trajectory(name)
+    windows = [window(trajectory, start, 6, with_target=True, ahead=PUSHED_STEPS) for start in (0, 3)]
+    return collate(windows)._map_tensors(lambda t: t.double() if t.is_floating_point() else t)
+
+
+def single_process_pushed_forward(name: str):
+    """The case's batch pushed forward ``PUSHED_STEPS`` steps by the single-process training step (the reference)."""
+    from types import SimpleNamespace
+
+    from gns_framework.training.step import TrainingStep
+
+    step = SimpleNamespace(simulator=case_simulator(name).double())
+    return TrainingStep.pushed_forward(step, pushforward_batch(name), PUSHED_STEPS)  # type: ignore[arg-type]
+
+
+def pushforward_worker(
+    rank: int, world: int, port: int, out: str, cases: list[str], depth_scale: float = 1.0, halo: str = "positions"
+) -> None:
+    """Every case's batch pushed forward over ``world`` gloo processes; each rank saves ``<case>-rank<r>.pt``."""
+    from gns_framework.decomposition import halo as halos
+    from gns_framework.decomposition.pushforward import partitioned_pushed_forward
+    from gns_framework.training.distributed import stop
+
+    processes = _join(rank, world, port)
+    if depth_scale != 1.0:
+        depth = halos.halo_depth
+        halos.halo_depth = lambda simulator, kind: depth_scale * depth(simulator, kind)  # type: ignore[assignment]
+    try:
+        for name in cases:
+            simulator = case_simulator(name).double()
+            pushed = partitioned_pushed_forward(simulator, pushforward_batch(name), PUSHED_STEPS, processes, halo)
+            saved = {"sequence": pushed.position_sequence, "target": pushed.next_position}
+            torch.save(saved, Path(out) / f"{name}-rank{rank}.pt")
     finally:
         stop()
 

@@ -17,9 +17,18 @@ from gns_framework.training.trainer import Trainer
 STEPS = 4
 
 
-def test_two_processes_that_split_each_scene_train_as_one_process(uneven_dataset, tmp_path):
-    """Same losses at every step (the split forward) and the same weights after it (the summed gradients)."""
-    recipe = tiny_recipe(uneven_dataset, name="split", steps=STEPS, validate_every=1000, checkpoint_every=1000)
+@pytest.mark.parametrize("pushforward_steps", [0, 2])
+def test_two_processes_that_split_each_scene_train_as_one_process(uneven_dataset, tmp_path, pushforward_steps):
+    """Same losses at every step (the split forward, and the split push-forward where the recipe has one) and the
+    same weights after it (the summed gradients)."""
+    recipe = tiny_recipe(
+        uneven_dataset,
+        name="split",
+        steps=STEPS,
+        validate_every=1000,
+        checkpoint_every=1000,
+        pushforward_steps=pushforward_steps,
+    )
     split = dict(recipe, training=dict(recipe["training"], partitions=2))
     run_processes(train_rank, (2, free_loopback_port(), split, str(tmp_path / "split"), [STEPS], str(tmp_path)))
     registry = load_registry()
@@ -45,10 +54,8 @@ def test_partitions_other_than_the_processes_are_refused(uneven_dataset, tmp_pat
         Trainer(recipe, registry, run_dir=tmp_path / "run", processes=Processes(), progress=False)
 
 
-def test_a_split_scene_refuses_push_forward_and_components_without_a_bounded_reach(uneven_dataset, tmp_path):
+def test_a_split_scene_refuses_components_without_a_bounded_reach(uneven_dataset, tmp_path):
     registry = load_registry()
-    with pytest.raises(RecipeError, match="a split scene trains without push-forward for now"):
-        validate_recipe(tiny_recipe(uneven_dataset, partitions=2, pushforward_steps=1), registry)
     raw = tiny_recipe(uneven_dataset, partitions=2)
     raw["model"]["graph_builder"] = {"name": "knn", "k": 6}
     raw["model"]["processor"] = {"name": "grid_cnn", "message_passing_steps": 2, "conv_layers": 2}

@@ -1,0 +1,110 @@
+"""Push-forward of training windows whose scenes are split over several processes.
+
+Push-forward (Brandstetter et al. 2022) rolls each training window on k steps with the
+model itself, without gradient, and trains on the true frame after them
+(:meth:`gns_framework.training.step.TrainingStep.pushed_forward`). With
+``training.partitions`` every process holds the whole batch's positions (a few floats per
+particle) but only its slab's graph and latents, which is what a large scene cannot fit
+on one device. So each unrolled step is a decomposed prediction, as in
+:mod:`.rollout`: every process predicts the particles of its slab from them plus a halo;
+then every process receives every other's predictions, so all hold the same next frame
+and cut the next step's slabs alike. No particle needs to migrate: the slabs are cut
+afresh from the whole frame at every step.
+
+Every owned particle's prediction is the one it gets in the whole batch (the halo
+covers its receptive field), so the pushed-forward windows equal the single process's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import torch
+from torch import Tensor
+
+from ..data.batch import ParticleBatch
+from ..model.history import advance_window
+from ..model.learned_simulator import LearnedSimulator
+from .exchange import send_rows
+from .halo import HaloKind, latent_exchange, slabs_for, stand_in_exchanges, with_halo
+from .particles import Particles
+
+if TYPE_CHECKING:
+    from ..training.processes import Processes
+
+
+@torch.no_grad()
+def partitioned_pushed_forward(
+    simulator: LearnedSimulator,
+    batch: ParticleBatch,
+    steps: int,
+    processes: Processes,
+    halo: HaloKind = "auto",
+) -> ParticleBatch:
+    """``batch`` with its inputs rolled ``steps`` on by the model, the scenes split over ``processes``.
+
+    Every process calls it at once with the same batch, and gets the same result: the
+    single process's push-forward (its inputs advanced by the model's predictions, the true
+    frame after them as target). Kinematic particles follow their true positions.
+
+    Shapes: batch (N, C, d) windows with ``next_position`` (N, d) and ``ahead`` (N, m, d), m >= ``steps``.
+    """
+    assert batch.next_position is not None and batch.ahead is not None, "windows drawn with push-forward steps"
+    truth = torch.cat([batch.next_position[:, None], batch.ahead], dim=1)
+    sequence = batch.position_sequence
+    for k in range(steps):
+        following = _decomposed_next_frame(
+            simulator, replace(batch, position_sequence=sequence), truth[:, k], processes, halo
+        )
+        sequence = advance_window(sequence, following)
+    return replace(batch, position_sequence=sequence, next_position=truth[:, steps])
+
+
+def _decomposed_next_frame(
+    simulator: LearnedSimulator, batch: ParticleBatch, prescribed: Tensor, processes: Processes, halo: HaloKind
+) -> Tensor:
+    """(N, d) the next positions of every particle of ``batch``, each predicted by the process that owns it.
+
+    The process predicts its slab's particles from them plus the halo, then every process
+    sends its predictions to every other (an all-gather of rows, by global id).
+    """
+    world, rank = processes.world_size, processes.rank
+    current = batch.position_sequence[:, -1]
+    partition, kind = slabs_for(simulator, current, world, halo)
+    everyone = Particles(
+        torch.arange(batch.num_particles, device=current.device),
+        batch.position_sequence,
+        batch.particle_type,
+        batch.material_property,
+        example=batch.batch,
+    )
+    owned = everyone.select(partition.owner(current) == rank)
+    particles = with_halo(owned, partition, world)
+    local = particles.local
+    if local.count == 0 or (kind == "positions" and owned.count == 0):
+        # Nothing to predict here; with a halo of latents the others' exchanges still need this process.
+        if kind == "latents":
+            stand_in_exchanges(simulator, particles, backward=False)
+        predicted = current[:0]
+    else:
+        assert local.example is not None
+        mine = replace(
+            batch,
+            position_sequence=local.sequence,
+            particle_type=local.particle_type,
+            material_property=local.material_property,
+            batch=local.example,
+            next_position=None,
+            ahead=None,
+        )
+        with latent_exchange(simulator, particles, kind):
+            predicted = simulator.predict_next_position(mine, prescribed=prescribed[local.ids])
+        predicted = predicted[particles.owned_rows]
+    # Every process sends each of its rows to every process, itself included.
+    destination = torch.arange(world, device=current.device).repeat_interleave(owned.count)
+    ids, rows = send_rows(destination, [owned.ids.repeat(world), predicted.repeat(world, 1)], world)
+    assert ids is not None and rows is not None
+    following = torch.empty_like(current)
+    following[ids] = rows.to(current.dtype)
+    return following
