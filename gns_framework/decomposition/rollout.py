@@ -33,7 +33,7 @@ from torch import Tensor
 from ..data.batch import window
 from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
-from ..errors import GnsError
+from ..errors import GnsError, RolloutDiverged
 from ..model.history import advance_window
 from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import check_simulates, rollout_step
@@ -87,8 +87,9 @@ def partitioned_rollout(
 
     Every process of the (started) process group calls it with the same arguments. Returns,
     on rank 0, the rollout as :func:`gns_framework.model.rollout.rollout` gives it (None on the
-    others), and on every process the decomposition's statistics. A guard stop raises on
-    every process (rank 0 the guard's error, the others a GnsError naming it).
+    others), and on every process the decomposition's statistics. A guard stop raises
+    :class:`~gns_framework.errors.RolloutDiverged` on every process (rank 0 the guard's, the
+    others one naming the step).
 
     Args:
         axis: the dimension cut into slabs (default: the one the particles spread farthest in).
@@ -189,8 +190,8 @@ def _gather_and_check(
 ) -> list[GuardViolation]:
     """Frame ``step`` assembled in ``predicted`` on rank 0 and checked by the guard against ``previous``.
 
-    Returns what the guard clamped. A guard stop raises on every process: rank 0 the
-    guard's error, the others a GnsError that points to it.
+    Returns what the guard clamped. A guard stop raises RolloutDiverged on every process: rank 0
+    the guard's, the others one that points to it.
     """
     gathered_ids, gathered = send_rows(torch.zeros_like(ids), [ids, next_owned], processes.world_size)
     found: list[GuardViolation] = []
@@ -209,7 +210,9 @@ def _gather_and_check(
     if failure is not None:
         raise failure
     if bool(stopped):
-        raise GnsError(f"rank 0 stopped the rollout of trajectory {key!r} at step {step} (its error says why)")
+        raise RolloutDiverged(
+            f"rank 0 stopped the rollout of trajectory {key!r} at step {step} (its error says why)", key, step
+        )
     return found
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,7 @@ from ..data.atomic import write_text_atomic
 from ..data.memory import trajectories_kept
 from ..data.metadata import DatasetMetadata
 from ..data.windows import WindowIndex, WindowOrder
+from ..decomposition.validation import partitioned_one_step_errors, partitioned_positions
 from ..errors import DatasetError, RecipeError
 from ..io.run_folder import RunFolder
 from ..model.envelope import measure_envelope
@@ -172,7 +174,7 @@ class Trainer:
             pushforward_steps=recipe.training.pushforward_steps,
             precision=recipe.training.precision,
         )
-        self.validation = self._validation()
+        self.validation = self._validation(partitioned)
         self.checkpoints = Checkpoints(
             self.recipe,
             registry,
@@ -226,22 +228,39 @@ class Trainer:
                 f"{' + training.pushforward_steps' if ahead else ''} = {history + ahead}"
             ) from None
 
-    def _validation(self) -> Validation:
-        """Rank 0's validation: fixed one-step windows and the first ``validation_rollouts`` valid trajectories.
+    def _validation(self, partitioned: bool) -> Validation:
+        """Fixed one-step windows and the first ``validation_rollouts`` valid trajectories, on the bare model.
 
-        The other ranks get an empty one: validation is rank 0's, on the bare model.
+        Data-parallel, validation is rank 0's and the other ranks get an empty one. With the
+        scenes split (``training.partitions``) every process validates its slabs and rank 0
+        reports (:mod:`gns_framework.decomposition.validation`): a scene too large for one
+        device is validated as it is trained.
         """
         spec, valid = self.recipe.training, self.data.valid
         batches, trajectories = [], []
-        if self.processes.is_chief:
+        if self.processes.is_chief or partitioned:
             batches = validation_windows(
                 valid, self.recipe.model.history, spec.validation_windows, spec.batch_size, str(self.data.dataset.path)
             )
             if batches:
                 assert valid is not None  # windows come only from a valid split
                 trajectories = [valid[i] for i in range(min(spec.validation_rollouts, len(valid)))]
-        score = validation_rollout_scorer(self.registry, self.data.scene, self.data.metadata, self.device)
-        return Validation(batches, trajectories, score, spec.best_metric, self.run, self.device)
+        scene, metadata = self.data.scene, self.data.metadata
+        if not partitioned:
+            score = validation_rollout_scorer(self.registry, scene, metadata, self.device)
+            return Validation(batches, trajectories, score, spec.best_metric, self.run, self.device)
+        split = partitioned_positions(self.processes, self.device)
+        score = validation_rollout_scorer(self.registry, scene, metadata, self.device, positions=split)
+        return Validation(
+            batches,
+            trajectories,
+            score,
+            spec.best_metric,
+            self.run,
+            self.device,
+            one_step=partial(partitioned_one_step_errors, processes=self.processes),
+            reports=self.processes.is_chief,
+        )
 
     @property
     def ema(self) -> WeightAverage | None:
@@ -280,7 +299,8 @@ class Trainer:
     def keep_if_best(self, metrics: dict[str, float]) -> Path | None:
         """Write ``checkpoints/best.pt`` (and ``best.json``) when ``metrics`` beat the best rollout score so far.
 
-        Only rank 0 validates, so only rank 0 ever writes it; the numbered
+        Only rank 0 reports validation metrics (it validates alone, or split with the
+        others under ``training.partitions``), so only rank 0 ever writes it; the numbered
         checkpoints' retention never touches it.
         """
         return self.validation.keep_if_best(metrics, self.step, self.checkpoints.state)

@@ -85,6 +85,24 @@ def rollout_score_summary(
     return summary
 
 
+@torch.no_grad()
+def one_step_errors(model: LearnedSimulator, batch: ParticleBatch) -> tuple[float, float]:
+    """(one-step loss, next-position MSE) of noise-free windows on one process.
+
+    The loss is the squared error of the normalised accelerations summed over dimensions and
+    averaged over the predicted particles; the MSE is that of the next positions (L^2),
+    averaged over predicted particles and dimensions.
+
+    Shapes: batch (N, C, d) windows with ``next_position`` (N, d).
+    """
+    mask = model.predicted_mask(batch.particle_type)
+    prediction, target = model(batch, torch.zeros_like(batch.position_sequence))
+    loss = float(masked_acceleration_loss(prediction, target, mask))
+    next_position = model.integrator.next_position(batch.position_sequence, model.output_stats.denormalize(prediction))
+    assert batch.next_position is not None, "validation windows have their target"
+    return loss, float(((next_position - batch.next_position)[mask] ** 2).mean())
+
+
 class Validation:
     """Validation of a training run and its best checkpoint.
 
@@ -95,6 +113,11 @@ class Validation:
         best_metric: the tracked error that picks ``best.pt`` (lower is better).
         run: the run folder ``best.pt`` and ``best.json`` go to.
         device: where the model runs.
+        one_step: ``(model, batch) -> (one-step loss, next-position MSE)`` of a batch of
+            windows on ``device``; default: :func:`one_step_errors`, on one process.
+        reports: whether :meth:`measure` returns the metrics. Processes that validate a
+            scene split over several (``training.partitions``) all take part in every
+            measure, and only rank 0 reports.
 
     ``best`` is ``{"metric", "value", "step"}`` of the best score so far; checkpoints
     carry it so that a resumed run keeps beating the same record.
@@ -108,35 +131,33 @@ class Validation:
         best_metric: str,
         run: RunFolder,
         device: torch.device,
+        one_step: Callable[[LearnedSimulator, ParticleBatch], tuple[float, float]] = one_step_errors,
+        reports: bool = True,
     ):
         self.batches = list(batches)
         self.trajectories = list(trajectories)
         self.score_rollout = score_rollout
         self.run = run
         self.device = device
+        self.one_step = one_step
+        self.reports = reports
         self.best: dict = {"metric": best_metric, "value": math.inf, "step": None}
 
     @torch.no_grad()
     def measure(self, model: LearnedSimulator) -> dict[str, float]:
         """One-step loss and next-position MSE on the fixed windows, then the rollouts' mean and worst errors.
 
-        Empty when there is nothing to validate on (also on every rank but 0, which
-        does not validate). ``model`` is left in training mode.
+        Empty when there is nothing to validate on, and on a process that does not report
+        (every rank but 0). ``model`` is left in training mode.
         """
         if not self.batches:
             return {}
         model.eval()
         losses, position_errors = [], []
         for batch in self.batches:
-            batch = batch.to(self.device)
-            mask = model.predicted_mask(batch.particle_type)
-            prediction, target = model(batch, torch.zeros_like(batch.position_sequence))
-            losses.append(float(masked_acceleration_loss(prediction, target, mask)))
-            next_position = model.integrator.next_position(
-                batch.position_sequence, model.output_stats.denormalize(prediction)
-            )
-            assert batch.next_position is not None  # validation windows have their target
-            position_errors.append(float(((next_position - batch.next_position)[mask] ** 2).mean()))
+            loss, position_error = self.one_step(model, batch.to(self.device))
+            losses.append(loss)
+            position_errors.append(position_error)
         metrics = {
             "valid_one_step_loss": float(np.mean(losses)),
             "valid_one_step_position_mse": float(np.mean(position_errors)),
@@ -144,7 +165,7 @@ class Validation:
         if self.trajectories:
             metrics.update(rollout_score_summary(model, self.trajectories, self.score_rollout))
         model.train()
-        return metrics
+        return metrics if self.reports else {}
 
     def keep_if_best(self, metrics: Mapping[str, float], step: int, state: Callable[[], dict]) -> Path | None:
         """Write ``best.pt`` (of ``state()``) and ``best.json`` when ``metrics`` beat the best score so far.

@@ -237,6 +237,40 @@ def pushforward_worker(
         stop()
 
 
+def validation_worker(rank: int, world: int, port: int, out: str, cases: list[str], halo: str = "positions") -> None:
+    """Every case validated over ``world`` gloo processes: the one-step errors of two windows (float64) and the
+    rollout positions (float32, as rollouts store them), then those of a model made to diverge; each rank saves
+    ``<case>-rank<r>.pt``."""
+    from gns_framework.decomposition.validation import partitioned_one_step_errors, partitioned_positions
+    from gns_framework.training.distributed import stop
+
+    processes = _join(rank, world, port)
+    try:
+        for name in cases:
+            batch, trajectory = pushforward_batch(name), case_trajectory(name)
+            positions = partitioned_positions(processes, "cpu", halo)  # type: ignore[arg-type]
+            saved = {
+                "one_step": partitioned_one_step_errors(
+                    case_simulator(name).double(),
+                    batch,
+                    processes,
+                    halo,  # type: ignore[arg-type]
+                ),
+                "positions": positions(case_simulator(name), trajectory),
+                "diverged": positions(diverging(case_simulator(name)), trajectory),
+            }
+            torch.save(saved, Path(out) / f"{name}-rank{rank}.pt")
+    finally:
+        stop()
+
+
+def diverging(simulator: LearnedSimulator) -> LearnedSimulator:
+    """``simulator`` with a decoder whose output is infinite: its first rolled-out frame is not finite."""
+    for parameter in simulator.decoder.parameters():
+        parameter.data.fill_(float("inf"))
+    return simulator
+
+
 def exchange_worker(rank: int, world: int, port: int, out: str) -> None:
     """Rank r sends rows labelled 100 r + i to the ranks listed per row; saves what it received."""
     from gns_framework.decomposition.exchange import send_rows

@@ -68,3 +68,22 @@ def test_metrics_without_granular_particles_are_absent(dataset_2d, tmp_path, reg
     values = score(trainer.simulator, trainer.data.valid[0])
     assert set(values) == {"valid_rollout_mse", "valid_rollout_sinkhorn_pct"}
     trainer.close()
+
+
+def test_positions_rolled_elsewhere_are_scored_and_none_scores_nothing(trained, registry):
+    """A rollout split over processes hands its positions in (rank 0) or None (the others)."""
+    scene, metadata, cpu = trained.data.scene, trained.data.metadata, torch.device("cpu")
+    trajectory = trained.data.valid[0]
+    rolled = learned_positions(trained.simulator, trajectory, cpu)
+    calls = []
+
+    def positions(simulator, case):
+        calls.append(case.key)
+        return rolled + 1.0 if len(calls) == 1 else None
+
+    score = validation_rollout_scorer(registry, scene, metadata, cpu, positions=positions)
+    shifted = score(trained.simulator, trajectory)
+    plain = validation_rollout_scorer(registry, scene, metadata, cpu)(trained.simulator, trajectory)
+    assert shifted["valid_rollout_mse"] > plain["valid_rollout_mse"], "the positions handed in were scored"
+    assert score(trained.simulator, trajectory) == {}
+    assert calls == [trajectory.key] * 2

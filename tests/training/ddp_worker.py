@@ -34,7 +34,12 @@ def train_rank(
     try:
         for steps in snapshots:
             losses = trainer.train(steps)
-            snapshot = {"params": trainer.simulator.state_dict(), "losses": losses, "windows": trainer.order.indices(0)}
+            snapshot = {
+                "params": trainer.simulator.state_dict(),
+                "losses": losses,
+                "windows": trainer.order.indices(0),
+                "validation": trainer.last_validation,
+            }
             torch.save(snapshot, Path(out) / f"rank{rank}-step{steps}.pt")
         trainer.close()
     finally:

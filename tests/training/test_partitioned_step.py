@@ -19,8 +19,8 @@ STEPS = 4
 
 @pytest.mark.parametrize("pushforward_steps", [0, 2])
 def test_two_processes_that_split_each_scene_train_as_one_process(uneven_dataset, tmp_path, pushforward_steps):
-    """Same losses at every step (the split forward, and the split push-forward where the recipe has one) and the
-    same weights after it (the summed gradients)."""
+    """Same losses at every step (the split forward, and the split push-forward where the recipe has one), the
+    same weights after it (the summed gradients), and the same validation at the last step (split too)."""
     recipe = tiny_recipe(
         uneven_dataset,
         name="split",
@@ -28,6 +28,7 @@ def test_two_processes_that_split_each_scene_train_as_one_process(uneven_dataset
         validate_every=1000,
         checkpoint_every=1000,
         pushforward_steps=pushforward_steps,
+        validation_rollouts=1,
     )
     split = dict(recipe, training=dict(recipe["training"], partitions=2))
     run_processes(train_rank, (2, free_loopback_port(), split, str(tmp_path / "split"), [STEPS], str(tmp_path)))
@@ -45,6 +46,10 @@ def test_two_processes_that_split_each_scene_train_as_one_process(uneven_dataset
     assert ranks[0]["losses"] == pytest.approx(losses, rel=1e-5)
     for name, value in alone.simulator.state_dict().items():
         torch.testing.assert_close(ranks[0]["params"][name], value, rtol=1e-4, atol=1e-6, msg=name)
+    # Validated split: every process took part, rank 0 reports; weights 1e-4 apart move the errors as much.
+    assert alone.last_validation and ranks[1]["validation"] == {}
+    assert any(name.startswith("valid_rollout_") for name in alone.last_validation)
+    assert ranks[0]["validation"] == pytest.approx(alone.last_validation, rel=1e-3)
 
 
 def test_partitions_other_than_the_processes_are_refused(uneven_dataset, tmp_path):

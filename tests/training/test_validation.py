@@ -108,3 +108,28 @@ def test_measure_scores_the_rollouts_and_leaves_the_model_training(dataset_2d, r
     assert np.isfinite(metrics["valid_one_step_loss"]) and metrics["valid_one_step_position_mse"] >= 0
     assert simulator.training
     trainer.close()
+
+
+def test_a_process_that_does_not_report_measures_with_the_others_and_returns_nothing(dataset_2d, registry, tmp_path):
+    """A split validation's rank other than 0: it takes part in each one-step measure and rollout, and reports none."""
+    trainer = tiny_trainer(tiny_recipe(dataset_2d, registry), tmp_path / "run", registry)
+    simulator, valid = trainer.simulator, trainer.data.valid
+    batches = validation_windows(valid, simulator.scene.history, count=4, batch_size=2, where="data")
+    measured, scored = [], []
+
+    def one_step(model, batch):
+        measured.append(batch.num_examples)
+        return 1.0, 2.0
+
+    def score(model, trajectory):
+        scored.append(trajectory.key)
+        return {}
+
+    validation = Validation(
+        batches, valid[:2], score, "valid_rollout_x", RunFolder(tmp_path), torch.device("cpu"), one_step, reports=False
+    )
+    assert validation.measure(simulator) == {}
+    assert measured == [2, 2] and scored == [t.key for t in valid[:2]]
+    reporting = Validation(batches, [], score, "m", RunFolder(tmp_path), torch.device("cpu"), one_step)
+    assert reporting.measure(simulator) == {"valid_one_step_loss": 1.0, "valid_one_step_position_mse": 2.0}
+    trainer.close()

@@ -1,0 +1,107 @@
+"""Validation of a model whose scenes are split over several processes (``training.partitions``).
+
+A scene too large for one device to train on is often too large to validate on one, too: a
+rollout holds the graph of the whole scene at every step. So a split run validates split, with
+the measures of :class:`gns_framework.training.validation.Validation` taken slab by slab:
+
+- the one-step errors on the fixed windows: each process predicts its slab's particles from
+  them plus the halo (:mod:`.halo`), and the squared errors and predicted-particle counts are
+  summed over the processes, so the means are the whole batch's;
+- the rollouts: :func:`.rollout.partitioned_rollout`, whose frames rank 0 gathers and scores.
+
+Every process calls these at once; rank 0 gets the results the single process would.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+from ..data.batch import ParticleBatch
+from ..data.trajectory import Trajectory
+from ..errors import RolloutDiverged
+from ..model.learned_simulator import LearnedSimulator
+from ..model.loss import masked_squared_error_sum
+from .halo import HaloKind, latent_exchange, slabs_for, stand_in_exchanges, with_halo
+from .rollout import partitioned_rollout
+from .training_step import owned_share
+
+if TYPE_CHECKING:
+    from ..training.processes import Processes
+
+
+@torch.no_grad()
+def partitioned_one_step_errors(
+    simulator: LearnedSimulator, batch: ParticleBatch, processes: Processes, halo: HaloKind = "auto"
+) -> tuple[float, float]:
+    """(one-step loss, next-position MSE) of noise-free windows, the scenes split over ``processes``.
+
+    The loss is the squared error of the normalised accelerations summed over dimensions and
+    averaged over the predicted particles (L^0); the MSE is that of the next positions,
+    averaged over predicted particles and dimensions (L^2): both as one process measures
+    them on the whole batch.
+
+    Shapes: batch (N, C, d) windows with ``next_position`` (N, d).
+    """
+    assert batch.next_position is not None, "validation windows have their target"
+    world, rank = processes.world_size, processes.rank
+    partition, kind = slabs_for(simulator, batch.position_sequence[:, -1], world, halo)
+    owned = owned_share(batch, torch.zeros_like(batch.position_sequence), partition, rank)
+    particles = with_halo(owned, partition, world)
+    local, owned_rows = particles.local, particles.owned_rows
+    # Summed over processes: the acceleration error, the position error, the predicted particles.
+    sums = torch.zeros(3, dtype=torch.float64, device=batch.position_sequence.device)
+    if local.count == 0 or (kind == "positions" and owned.count == 0):
+        # Nothing to predict here; with a halo of latents the others' exchanges still need this process.
+        if kind == "latents":
+            stand_in_exchanges(simulator, particles, backward=False)
+    else:
+        assert local.noise is not None and local.next_position is not None and local.example is not None
+        mine = replace(
+            batch,
+            position_sequence=local.sequence,
+            particle_type=local.particle_type,
+            material_property=local.material_property,
+            next_position=local.next_position,
+            batch=local.example,
+            ahead=None,
+        )
+        with latent_exchange(simulator, particles, kind):
+            prediction, target = simulator(mine, local.noise)
+        moving = simulator.predicted_mask(local.particle_type)[owned_rows]
+        acceleration = masked_squared_error_sum(prediction[owned_rows], target[owned_rows], moving)
+        accelerations = simulator.output_stats.denormalize(prediction)
+        next_position = simulator.integrator.next_position(local.sequence, accelerations)[owned_rows]
+        position = ((next_position - local.next_position[owned_rows])[moving] ** 2).sum()
+        sums = torch.stack([acceleration.double(), position.double(), moving.sum().double()])
+    acceleration_sum, position_sum, predicted = processes.sum(sums).tolist()
+    predicted = max(predicted, 1.0)
+    return acceleration_sum / predicted, position_sum / (predicted * batch.position_sequence.shape[-1])
+
+
+def partitioned_positions(
+    processes: Processes, device: torch.device | str, halo: HaloKind = "auto"
+) -> Callable[[LearnedSimulator, Trajectory], np.ndarray | None]:
+    """``positions(simulator, trajectory)``: on rank 0 the (S, N, d) positions of a rollout split over
+    ``processes``, None on the others.
+
+    As for one process (:func:`gns_framework.evaluation.candidates.learned_positions`), a
+    diverged rollout is a result, not an error: its positions are NaN, which the metrics count
+    as diverged with infinite error.
+    """
+
+    def positions(simulator: LearnedSimulator, trajectory: Trajectory) -> np.ndarray | None:
+        try:
+            result, _ = partitioned_rollout(simulator, trajectory, processes, device=device, halo=halo)
+        except RolloutDiverged:
+            if not processes.is_chief:
+                return None
+            shape = (trajectory.num_steps - simulator.scene.history, *trajectory.position.shape[1:])
+            return np.full(shape, np.nan, dtype=trajectory.position.dtype)
+        return None if result is None else result.predicted
+
+    return positions
