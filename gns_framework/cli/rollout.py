@@ -77,14 +77,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=positive_int,
         default=1,
         metavar="P",
-        help="split each scene into P slabs of about equal particle count, one per process, for scenes too large "
-        "for one device: launch as torchrun --nproc-per-node P -m gns_framework.cli rollout ... (default 1)",
+        help="split each scene into P pieces (slabs or blocks) of about equal particle count, one per process, for "
+        "scenes too large for one device: launch as torchrun --nproc-per-node P -m gns_framework.cli rollout ... "
+        "(default 1)",
     )
     parser.add_argument(
         "--partition-axis",
         type=non_negative_int,
         metavar="K",
-        help="with --partitions: the dimension cut into slabs (default: the one the particles spread farthest in)",
+        help="with --partitions: cut slabs across dimension K (default: the one the particles spread farthest in)",
+    )
+    parser.add_argument(
+        "--cut",
+        choices=("auto", "slabs", "blocks"),
+        default="auto",
+        help="with --partitions: slabs across one dimension, or blocks by recursive bisection (each cut halves the "
+        "particles across the dimension they spread farthest in); auto: whichever leaves fewer particles in the "
+        "halo at the first frame (default)",
     )
     parser.add_argument(
         "--halo",
@@ -115,13 +124,15 @@ def run(args: argparse.Namespace) -> int:
 def _processes(args: argparse.Namespace) -> Processes:
     """This process's place in a ``--partitions`` job (torchrun's environment), refused when it does not match."""
     processes = processes_from_environment()
-    if args.partitions == 1 and (args.partition_axis is not None or args.halo != "auto"):
-        raise GnsError("gns rollout: --partition-axis and --halo need --partitions P with P > 1")
+    if args.partitions == 1 and (args.partition_axis is not None or args.halo != "auto" or args.cut != "auto"):
+        raise GnsError("gns rollout: --partition-axis, --cut and --halo need --partitions P with P > 1")
+    if args.cut == "blocks" and args.partition_axis is not None:
+        raise GnsError("gns rollout: --partition-axis cuts slabs across one dimension; --cut blocks has no one axis")
     if args.partitions > 1 and args.batch > 1:
         raise GnsError("gns rollout: --partitions and --batch do not combine: a partitioned scene is rolled out alone")
     if args.partitions != processes.world_size:
         raise GnsError(
-            f"gns rollout: --partitions {args.partitions} needs {args.partitions} processes, one per slab, but "
+            f"gns rollout: --partitions {args.partitions} needs {args.partitions} processes, one per piece, but "
             f"WORLD_SIZE is {processes.world_size}: launch it as torchrun --nproc-per-node {args.partitions} "
             "-m gns_framework.cli rollout ..."
         )
@@ -212,11 +223,12 @@ def _rollouts(
                 args.precision,
                 args.partition_axis,
                 args.halo,
+                args.cut,
             )
             if result is not None:
                 print(
-                    f"{trajectories[index].key or index}: {args.partitions} slabs along dimension "
-                    f"{stats.partition.axis}, halo of {stats.halo_kind} {stats.halo_fraction:.1%} of the particles, "
+                    f"{trajectories[index].key or index}: {stats.partition.describe()}, "
+                    f"halo of {stats.halo_kind} {stats.halo_fraction:.1%} of the particles, "
                     f"{stats.migrations} moved between processes"
                 )
             yield index, result

@@ -189,7 +189,8 @@ class TrainingSpec(_Strict):
     partitions: int = Field(
         1,
         ge=1,
-        description="split each training step's scenes into this many slabs, one per process (launch under torchrun "
+        description="split each training step's scenes into this many pieces (slabs or blocks, whichever leaves the "
+        "smaller halo), one per process (launch under torchrun "
         "with as many processes), for scenes too large for one device: every process takes the same windows and "
         "the gradients are one process's (docs/domain_decomposition.md); 1: data-parallel over the processes",
     )

@@ -30,7 +30,7 @@ from ..errors import GnsError
 from ..model.learned_simulator import LearnedSimulator
 from .exchange import Routing
 from .particles import Particles
-from .slabs import SlabPartition
+from .partition import Cut, Partition, balanced_partition
 
 HaloKind = Literal["auto", "positions", "latents"]
 
@@ -55,7 +55,7 @@ def receptive_field(simulator: LearnedSimulator) -> float:
 
 
 def unbounded_reach(builder: type[GraphBuilder], processor: type[Processor]) -> list[str]:
-    """Why a model of these components cannot be split into slabs (empty when it can): the facts they declare."""
+    """Why a model of these components cannot be split over processes (empty when it can): the facts they declare."""
     problems = []
     if not builder.joins_within_radius:
         problems.append(
@@ -88,15 +88,21 @@ def halo_depth(simulator: LearnedSimulator, kind: Literal["positions", "latents"
     return reach if kind == "positions" else simulator.scene.connectivity_radius
 
 
-def slabs_for(
-    simulator: LearnedSimulator, position: Tensor, parts: int, halo: HaloKind = "auto", axis: int | None = None
-) -> tuple[SlabPartition, Literal["positions", "latents"]]:
-    """Slabs of equal particle count of the scene at ``position`` (N, d), with the halo ``halo`` resolves to."""
+def partition_for(
+    simulator: LearnedSimulator,
+    position: Tensor,
+    parts: int,
+    halo: HaloKind = "auto",
+    axis: int | None = None,
+    cut: Cut = "auto",
+) -> tuple[Partition, Literal["positions", "latents"]]:
+    """Pieces of equal particle count of the scene at ``position`` (N, d), cut as ``cut`` says
+    (:func:`.partition.balanced_partition`), with the halo ``halo`` resolves to."""
     kind = halo_kind(simulator, halo)
     scene = simulator.scene
     depth = halo_depth(simulator, kind)
-    partition = SlabPartition.balanced(
-        position, parts, depth, axis, periodic_dims=scene.periodic_dims, bounds=scene.bounds
+    partition = balanced_partition(
+        position, parts, depth, cut, axis, periodic_dims=scene.periodic_dims, bounds=scene.bounds
     )
     return partition, kind
 
@@ -133,7 +139,7 @@ class Halo:
         return node_latent.index_copy(0, self.halo_rows, incoming.to(node_latent.dtype))
 
 
-def with_halo(owned: Particles, partition: SlabPartition, world: int) -> Halo:
+def with_halo(owned: Particles, partition: Partition, world: int) -> Halo:
     """This process's particles plus the halo ``partition`` gives it; every process calls it at once."""
     rows, destination = partition.halo_of(owned.sequence[:, -1]).nonzero(as_tuple=True)
     routing = Routing.of(destination, world)

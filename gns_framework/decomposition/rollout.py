@@ -1,18 +1,18 @@
-"""A rollout of one scene over several processes: each owns a slab of it and predicts only its own particles.
+"""A rollout of one scene over several processes: each owns a piece of it and predicts only its own particles.
 
 Every step, on every process (rank r of P):
 
 1. **halo**: send each other process the particles it needs (:mod:`.halo`): those within the
-   receptive field (connectivity radius x message-passing hops) of its slab
-   (:class:`.slabs.SlabPartition`) for a halo of positions, within one radius for a halo of
-   latents;
+   receptive field (connectivity radius x message-passing hops) of its piece (a slab,
+   :class:`.slabs.SlabPartition`, or a block, :class:`.blocks.BlockPartition`) for a halo
+   of positions, within one radius for a halo of latents;
 2. **predict** the next positions of owned plus halo particles, sorted by global particle id:
    the radius graph lists edges by (receiver, sender), so every owned particle sums its
    messages in the same order as in the whole scene, and its prediction is the same (with a
    halo of latents the halo's node latents come from their owners between message-passing steps);
 3. **gather** the owned particles' next positions on rank 0, which checks the frame with the
    rollout guard as a single process does, and keeps it;
-4. **migrate**: particles whose new position lies in another slab move to that process.
+4. **migrate**: particles whose new position lies in another piece move to that process.
 
 With a halo of positions, its outermost particles miss some of their own neighbours, but what
 they get wrong travels one edge per message-passing step and never reaches an owned particle. Memory per
@@ -40,9 +40,9 @@ from ..model.rollout import check_simulates, rollout_step
 from ..model.rollout_guard import GuardViolation, RolloutGuard
 from ..runtime.precision import Precision
 from .exchange import send_rows
-from .halo import HaloKind, latent_exchange, slabs_for, stand_in_exchanges, with_halo
+from .halo import HaloKind, latent_exchange, partition_for, stand_in_exchanges, with_halo
 from .particles import Particles
-from .slabs import SlabPartition
+from .partition import Cut, Partition
 
 if TYPE_CHECKING:
     from ..training.processes import Processes
@@ -56,14 +56,14 @@ class DecompositionStats:
         owned: particle-steps predicted (N x steps).
         halo: halo particle-steps held beside them; ``halo / owned`` is the halo fraction.
         migrations: particles that moved to another process.
-        partition: the slabs.
+        partition: the pieces (slabs or blocks).
         halo_kind: ``positions`` or ``latents`` (:mod:`.halo`).
     """
 
     owned: int
     halo: int
     migrations: int
-    partition: SlabPartition
+    partition: Partition
     halo_kind: str
 
     @property
@@ -82,6 +82,7 @@ def partitioned_rollout(
     precision: Precision = "float32",
     axis: int | None = None,
     halo: HaloKind = "auto",
+    cut: Cut = "auto",
 ) -> tuple[Rollout | None, DecompositionStats]:
     """Predict ``steps`` frames from the first C of ``trajectory``, the scene split over ``processes``.
 
@@ -92,7 +93,9 @@ def partitioned_rollout(
     others one naming the step).
 
     Args:
-        axis: the dimension cut into slabs (default: the one the particles spread farthest in).
+        axis: the dimension cut into slabs (default: the one the particles spread farthest in); slabs only.
+        cut: ``slabs``, ``blocks`` (recursive bisection) or ``auto``: whichever leaves the smaller halo
+            at the first frame (:mod:`.partition`).
         halo: ``positions`` (as deep as the receptive field), ``latents`` (one radius deep, latents
             exchanged between message-passing steps), or ``auto``: latents where the processor
             exchanges them (:mod:`.halo`).
@@ -112,7 +115,7 @@ def partitioned_rollout(
         )
     rank, world = processes.rank, processes.world_size
     start = window(trajectory, 0, history, with_target=False)
-    partition, kind = slabs_for(simulator, start.position_sequence[:, -1], world, halo, axis)
+    partition, kind = partition_for(simulator, start.position_sequence[:, -1], world, halo, axis, cut)
     everyone = Particles(
         torch.arange(start.num_particles), start.position_sequence, start.particle_type, start.material_property
     )
@@ -216,8 +219,8 @@ def _gather_and_check(
     return found
 
 
-def _migrate(owned: Particles, partition: SlabPartition, rank: int, world: int) -> tuple[Particles, int]:
-    """Particles now in another slab sent to its process, those arriving appended; and how many left."""
+def _migrate(owned: Particles, partition: Partition, rank: int, world: int) -> tuple[Particles, int]:
+    """Particles now in another piece sent to its process, those arriving appended; and how many left."""
     owner = partition.owner(owned.sequence[:, -1])
     leaving = owner != rank
     arrived = Particles.of(send_rows(owner[leaving], owned.select(leaving).columns(), world))

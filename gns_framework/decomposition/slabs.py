@@ -36,6 +36,9 @@ class SlabPartition:
     def parts(self) -> int:
         return len(self.cuts) + 1
 
+    def describe(self) -> str:
+        return f"{self.parts} slabs along dimension {self.axis}"
+
     @classmethod
     def balanced(
         cls,

@@ -1,6 +1,6 @@
 """A training step of one scene split over several processes, with the gradients of the whole scene.
 
-Each process holds the particles of its slab (:func:`owned_share`), fetches its halo
+Each process holds the particles of its piece of the scene (:func:`owned_share`), fetches its halo
 (positions, noise and targets of the particles within the receptive field, from the
 processes that own them) and runs the model on owned plus halo particles. Only owned
 particles enter its part of the loss, the squared error of their normalised
@@ -29,13 +29,13 @@ from ..model.loss import masked_squared_error_sum
 from ..runtime.precision import Precision, autocast, backward_precision
 from .halo import latent_exchange, stand_in_exchanges, with_halo
 from .particles import Particles
-from .slabs import SlabPartition
+from .partition import Partition
 
 if TYPE_CHECKING:
     from ..training.processes import Processes
 
 
-def owned_share(window: ParticleBatch, position_noise: Tensor, partition: SlabPartition, rank: int) -> Particles:
+def owned_share(window: ParticleBatch, position_noise: Tensor, partition: Partition, rank: int) -> Particles:
     """The particles of a batch of training windows that process ``rank`` owns (by their last input position).
 
     The examples of a batch overlap in space; each keeps its own particles apart by its
@@ -60,7 +60,7 @@ def partitioned_gradients(
     simulator: LearnedSimulator,
     owned: Particles,
     scene: ParticleBatch,
-    partition: SlabPartition,
+    partition: Partition,
     processes: Processes,
     halo: Literal["positions", "latents"] = "positions",
     precision: Precision = "float32",
@@ -73,7 +73,7 @@ def partitioned_gradients(
     Args:
         owned: this process's particles, with ``next_position`` and ``noise``.
         scene: what the whole scene shares (``context``, ``bounds``, ``walls``); its particle fields are ignored.
-        partition, halo: from :func:`.halo.slabs_for`, the same on every process.
+        partition, halo: from :func:`.halo.partition_for`, the same on every process.
         precision: of the forward and backward (``training.precision``).
 
     Returns:

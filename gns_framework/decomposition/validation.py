@@ -2,9 +2,9 @@
 
 A scene too large for one device to train on is often too large to validate on one, too: a
 rollout holds the graph of the whole scene at every step. So a split run validates split, with
-the measures of :class:`gns_framework.training.validation.Validation` taken slab by slab:
+the measures of :class:`gns_framework.training.validation.Validation` taken piece by piece:
 
-- the one-step errors on the fixed windows: each process predicts its slab's particles from
+- the one-step errors on the fixed windows: each process predicts its piece's particles from
   them plus the halo (:mod:`.halo`), and the squared errors and predicted-particle counts are
   summed over the processes, so the means are the whole batch's;
 - the rollouts: :func:`.rollout.partitioned_rollout`, whose frames rank 0 gathers and scores.
@@ -26,7 +26,8 @@ from ..data.trajectory import Trajectory
 from ..errors import RolloutDiverged
 from ..model.learned_simulator import LearnedSimulator
 from ..model.loss import masked_squared_error_sum
-from .halo import HaloKind, latent_exchange, slabs_for, stand_in_exchanges, with_halo
+from .halo import HaloKind, latent_exchange, partition_for, stand_in_exchanges, with_halo
+from .partition import Cut
 from .rollout import partitioned_rollout
 from .training_step import owned_share
 
@@ -36,7 +37,11 @@ if TYPE_CHECKING:
 
 @torch.no_grad()
 def partitioned_one_step_errors(
-    simulator: LearnedSimulator, batch: ParticleBatch, processes: Processes, halo: HaloKind = "auto"
+    simulator: LearnedSimulator,
+    batch: ParticleBatch,
+    processes: Processes,
+    halo: HaloKind = "auto",
+    cut: Cut = "auto",
 ) -> tuple[float, float]:
     """(one-step loss, next-position MSE) of noise-free windows, the scenes split over ``processes``.
 
@@ -49,7 +54,7 @@ def partitioned_one_step_errors(
     """
     assert batch.next_position is not None, "validation windows have their target"
     world, rank = processes.world_size, processes.rank
-    partition, kind = slabs_for(simulator, batch.position_sequence[:, -1], world, halo)
+    partition, kind = partition_for(simulator, batch.position_sequence[:, -1], world, halo, cut=cut)
     owned = owned_share(batch, torch.zeros_like(batch.position_sequence), partition, rank)
     particles = with_halo(owned, partition, world)
     local, owned_rows = particles.local, particles.owned_rows
@@ -84,7 +89,7 @@ def partitioned_one_step_errors(
 
 
 def partitioned_positions(
-    processes: Processes, device: torch.device | str, halo: HaloKind = "auto"
+    processes: Processes, device: torch.device | str, halo: HaloKind = "auto", cut: Cut = "auto"
 ) -> Callable[[LearnedSimulator, Trajectory], np.ndarray | None]:
     """``positions(simulator, trajectory)``: on rank 0 the (S, N, d) positions of a rollout split over
     ``processes``, None on the others.
@@ -96,7 +101,7 @@ def partitioned_positions(
 
     def positions(simulator: LearnedSimulator, trajectory: Trajectory) -> np.ndarray | None:
         try:
-            result, _ = partitioned_rollout(simulator, trajectory, processes, device=device, halo=halo)
+            result, _ = partitioned_rollout(simulator, trajectory, processes, device=device, halo=halo, cut=cut)
         except RolloutDiverged:
             if not processes.is_chief:
                 return None

@@ -1,7 +1,7 @@
 """The optimisation step with each scene split over the processes (``training.partitions``).
 
 Every process takes the same windows of the step (the whole batch, with the same noise),
-owns the particles in its slab, rolls the windows on with the others where the step pushes
+owns the particles in its piece of the scene (a slab or a block), rolls the windows on with the others where the step pushes
 them forward (:func:`gns_framework.decomposition.pushforward.partitioned_pushed_forward`),
 and computes the gradients of the whole batch's loss with the others
 (:func:`gns_framework.decomposition.training_step.partitioned_gradients`).
@@ -15,28 +15,28 @@ import torch
 from torch import Tensor
 
 from ..data.batch import ParticleBatch
-from ..decomposition.halo import slabs_for
+from ..decomposition.halo import partition_for
 from ..decomposition.pushforward import partitioned_pushed_forward
 from ..decomposition.training_step import owned_share, partitioned_gradients
 from .step import TrainingStep
 
 
 class PartitionedTrainingStep(TrainingStep):
-    """:class:`TrainingStep` for scenes split into slabs, one per process: the same windows,
-    noise, push-forward and update, with the unrolled steps and the gradients computed slab by slab.
+    """:class:`TrainingStep` for scenes split into pieces, one per process: the same windows,
+    noise, push-forward and update, with the unrolled steps and the gradients computed piece by piece.
 
     Built as a TrainingStep whose ``model`` is the bare simulator and whose window order
     is the one of a single process (every process takes every window of the step).
     """
 
     def gradients(self, batch: ParticleBatch, noise: Tensor, mask: Tensor) -> Tensor:
-        """Fresh gradients of the whole batch's loss on every process, each computing its slab's share."""
-        partition, halo = slabs_for(self.simulator, batch.position_sequence[:, -1], self.processes.world_size)
+        """Fresh gradients of the whole batch's loss on every process, each computing its piece's share."""
+        partition, halo = partition_for(self.simulator, batch.position_sequence[:, -1], self.processes.world_size)
         owned = owned_share(batch, noise, partition, self.processes.rank)
         self.optimizer.zero_grad(set_to_none=True)
         loss = partitioned_gradients(self.simulator, owned, batch, partition, self.processes, halo, self.precision)
         return loss.to(torch.float64)
 
     def pushed_forward(self, batch: ParticleBatch, steps: int) -> ParticleBatch:
-        """The single process's push-forward, each unrolled step predicted slab by slab (the same batch on every process)."""
+        """The single process's push-forward, each unrolled step predicted piece by piece (the same batch on every process)."""
         return partitioned_pushed_forward(self.simulator, batch, steps, self.processes)

@@ -196,7 +196,7 @@ class Trainer:
             self.tracker = tracker if tracker is not None else JsonlTracker(self.run_dir)
 
     def _partitioned(self) -> bool:
-        """Whether scenes are split over the processes (``training.partitions``); refused unless one per slab."""
+        """Whether scenes are split over the processes (``training.partitions``); refused unless one process per piece."""
         partitions = self.recipe.training.partitions
         if partitions > 1 and partitions != self.world_size:
             raise RecipeError(
@@ -204,7 +204,7 @@ class Trainer:
                 [
                     (
                         "training.partitions",
-                        f"{partitions} slabs need {partitions} processes, one per slab, but WORLD_SIZE is "
+                        f"{partitions} pieces need {partitions} processes, one per piece, but WORLD_SIZE is "
                         f"{self.world_size}: launch as torchrun --nproc-per-node {partitions} -m gns_framework.cli train",
                     )
                 ],

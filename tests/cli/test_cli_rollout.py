@@ -183,7 +183,7 @@ def test_a_rollout_partitioned_over_two_processes_writes_what_one_process_writes
     command = ["-m", "gns_framework.cli", "rollout", *common, "--partitions", "2", "--out", str(tmp_path / "two")]
     two = subprocess.run(launcher + command, capture_output=True, text=True, timeout=600, env=env)
     assert two.returncode == 0, two.stderr
-    assert "2 slabs along dimension" in two.stdout and "moved between processes" in two.stdout
+    assert "2 slabs along dimension" in two.stdout and "moved between processes" in two.stdout  # P = 2: slabs
     with np.load(tmp_path / "one" / "test_0000.npz") as a, np.load(tmp_path / "two" / "test_0000.npz") as b:
         scale = np.abs(a["predicted_rollout"]).max()
         tolerance = np.finfo(np.float32).eps * scale * a["predicted_rollout"].shape[0]
@@ -196,3 +196,12 @@ def test_partitions_without_as_many_processes_is_refused(tiny_model, tmp_path):
     assert refused.returncode != 0
     assert "--partitions 2 needs 2 processes" in refused.stderr and "torchrun --nproc-per-node 2" in refused.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_partition_options_that_do_not_combine_are_refused(tiny_model, tmp_path):
+    without = gns("rollout", str(tiny_model), "--cut", "blocks", "--out", str(tmp_path / "a"))
+    assert without.returncode != 0 and "--partition-axis, --cut and --halo need --partitions P" in without.stderr
+    both = ["--partitions", "2", "--cut", "blocks", "--partition-axis", "0", "--out", str(tmp_path / "b")]
+    refused = gns("rollout", str(tiny_model), *both)
+    assert refused.returncode != 0 and "--cut blocks has no one axis" in refused.stderr
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

@@ -103,7 +103,14 @@ def _join(rank: int, world: int, port: int):
 
 
 def partitioned_worker(
-    rank: int, world: int, port: int, out: str, cases: list[str], depth_scale: float = 1.0, halo: str = "positions"
+    rank: int,
+    world: int,
+    port: int,
+    out: str,
+    cases: list[str],
+    depth_scale: float = 1.0,
+    halo: str = "positions",
+    cut: str = "auto",
 ) -> None:
     """Roll every case out over ``world`` gloo processes; rank 0 saves ``<case>.npy`` and ``<case>.json``.
 
@@ -119,7 +126,11 @@ def partitioned_worker(
     try:
         for name in cases:
             result, stats = decomposed.partitioned_rollout(
-                case_simulator(name), case_trajectory(name), processes, halo=halo
+                case_simulator(name),
+                case_trajectory(name),
+                processes,
+                halo=halo,  # type: ignore[arg-type]
+                cut=cut,  # type: ignore[arg-type]
             )
             if rank == 0:
                 assert result is not None
@@ -128,6 +139,7 @@ def partitioned_worker(
                     "migrations": stats.migrations,
                     "halo_fraction": stats.halo_fraction,
                     "kind": stats.halo_kind,
+                    "partition": stats.partition.describe(),
                 }
                 (Path(out) / f"{name}.json").write_text(json.dumps(summary))
     finally:
@@ -163,11 +175,18 @@ def single_process_gradients(name: str) -> tuple[float, dict[str, torch.Tensor]]
 
 
 def training_worker(
-    rank: int, world: int, port: int, out: str, cases: list[str], depth_scale: float = 1.0, halo: str = "positions"
+    rank: int,
+    world: int,
+    port: int,
+    out: str,
+    cases: list[str],
+    depth_scale: float = 1.0,
+    halo: str = "positions",
+    cut: str = "slabs",
 ) -> None:
     """One decomposed training step of every case over ``world`` gloo processes; rank 0 saves ``<case>.pt``."""
     from gns_framework.decomposition.halo import halo_depth
-    from gns_framework.decomposition.slabs import SlabPartition
+    from gns_framework.decomposition.partition import balanced_partition
     from gns_framework.decomposition.training_step import owned_share, partitioned_gradients
     from gns_framework.training.distributed import stop
 
@@ -177,10 +196,11 @@ def training_worker(
             simulator = case_simulator(name).double().train()
             batch, noise = training_window(name)
             scene = simulator.scene
-            partition = SlabPartition.balanced(
+            partition = balanced_partition(
                 batch.position_sequence[:, -1],
                 world,
-                depth_scale * halo_depth(simulator, halo),
+                depth_scale * halo_depth(simulator, halo),  # type: ignore[arg-type]
+                cut,  # type: ignore[arg-type]
                 periodic_dims=scene.periodic_dims,
                 bounds=scene.bounds,
             )
@@ -216,7 +236,14 @@ def single_process_pushed_forward(name: str):
 
 
 def pushforward_worker(
-    rank: int, world: int, port: int, out: str, cases: list[str], depth_scale: float = 1.0, halo: str = "positions"
+    rank: int,
+    world: int,
+    port: int,
+    out: str,
+    cases: list[str],
+    depth_scale: float = 1.0,
+    halo: str = "positions",
+    cut: str = "auto",
 ) -> None:
     """Every case's batch pushed forward over ``world`` gloo processes; each rank saves ``<case>-rank<r>.pt``."""
     from gns_framework.decomposition import halo as halos
@@ -230,7 +257,14 @@ def pushforward_worker(
     try:
         for name in cases:
             simulator = case_simulator(name).double()
-            pushed = partitioned_pushed_forward(simulator, pushforward_batch(name), PUSHED_STEPS, processes, halo)
+            pushed = partitioned_pushed_forward(
+                simulator,
+                pushforward_batch(name),
+                PUSHED_STEPS,
+                processes,
+                halo,  # type: ignore[arg-type]
+                cut,  # type: ignore[arg-type]
+            )
             saved = {"sequence": pushed.position_sequence, "target": pushed.next_position}
             torch.save(saved, Path(out) / f"{name}-rank{rank}.pt")
     finally:

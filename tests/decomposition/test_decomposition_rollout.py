@@ -22,9 +22,14 @@ def single_process() -> dict[str, np.ndarray]:
 
 
 def _partitioned(
-    tmp_path, processes: int, halo: str, depth_scale: float = 1.0, cases: tuple[str, ...] = tuple(CASES)
+    tmp_path,
+    processes: int,
+    halo: str,
+    depth_scale: float = 1.0,
+    cases: tuple[str, ...] = tuple(CASES),
+    cut: str = "slabs",
 ) -> dict[str, np.ndarray]:
-    arguments = (processes, free_loopback_port(), str(tmp_path), list(cases), depth_scale, halo)
+    arguments = (processes, free_loopback_port(), str(tmp_path), list(cases), depth_scale, halo, cut)
     run_processes(partitioned_worker, arguments, processes)
     return {name: np.load(tmp_path / f"{name}.npy") for name in cases}
 
@@ -53,9 +58,20 @@ def test_a_partitioned_rollout_equals_the_single_process_one(tmp_path, single_pr
 
 
 @pytest.mark.parametrize("halo", ["positions", "latents"])
-def test_a_halo_too_shallow_gives_different_positions(tmp_path, single_process, halo):
+def test_a_rollout_cut_into_blocks_equals_the_single_process_one(tmp_path, single_process, halo):
+    """Four blocks by recursive bisection: halos across corners, and through periodic faces in 2D and 3D."""
+    partitioned = _partitioned(tmp_path, 4, halo, cut="blocks")
+    for name, reference in single_process.items():
+        np.testing.assert_allclose(partitioned[name], reference, rtol=0, atol=_tolerance(reference), err_msg=name)
+        summary = json.loads((tmp_path / f"{name}.json").read_text())
+        assert summary["partition"] == "4 blocks (recursive bisection)" and summary["migrations"] > 0, name
+
+
+@pytest.mark.parametrize("cut", ["slabs", "blocks"])
+@pytest.mark.parametrize("halo", ["positions", "latents"])
+def test_a_halo_too_shallow_gives_different_positions(tmp_path, single_process, halo, cut):
     """The equality above is not luck: half the halo each kind needs changes the owned particles' predictions."""
-    partitioned = _partitioned(tmp_path, 2, halo, depth_scale=0.5)
+    partitioned = _partitioned(tmp_path, 2 if cut == "slabs" else 4, halo, depth_scale=0.5, cut=cut)
     for name, reference in single_process.items():
         assert np.abs(partitioned[name] - reference).max() > 10 * _tolerance(reference), name
 

@@ -22,10 +22,10 @@ def single_process() -> dict[str, torch.Tensor]:
 
 
 def _decomposed(
-    tmp_path, processes: int, halo: str, depth_scale: float = 1.0, scenes: list[str] = SCENES
+    tmp_path, processes: int, halo: str, depth_scale: float = 1.0, scenes: list[str] = SCENES, cut: str = "auto"
 ) -> dict[str, list[dict]]:
     run_processes(
-        pushforward_worker, (processes, free_loopback_port(), str(tmp_path), scenes, depth_scale, halo), processes
+        pushforward_worker, (processes, free_loopback_port(), str(tmp_path), scenes, depth_scale, halo, cut), processes
     )
     return {
         name: [torch.load(tmp_path / f"{name}-rank{rank}.pt", weights_only=True) for rank in range(processes)]
@@ -33,12 +33,13 @@ def _decomposed(
     }
 
 
+@pytest.mark.parametrize("cut", ["slabs", "blocks"])
 @pytest.mark.parametrize("halo", ["positions", "latents"])
 @pytest.mark.parametrize("processes", [2, 4])
-def test_split_push_forward_equals_the_single_process_push_forward(tmp_path, single_process, processes, halo):
+def test_split_push_forward_equals_the_single_process_push_forward(tmp_path, single_process, processes, halo, cut):
     """2D and 3D, walls and periodic boundaries, kinematic particles, material properties, two windows in the batch,
     and a scene that drifts out of its first slab; every process ends with the same batch."""
-    for name, ranks in _decomposed(tmp_path, processes, halo).items():
+    for name, ranks in _decomposed(tmp_path, processes, halo, cut=cut).items():
         batch = pushforward_batch(name)
         reference = single_process[name]
         for saved in ranks:

@@ -20,8 +20,8 @@ def single_process() -> dict[str, tuple[float, dict[str, torch.Tensor]]]:
     return {name: single_process_gradients(name) for name in CASES}
 
 
-def _decomposed(tmp_path, processes: int, halo: str, depth_scale: float = 1.0) -> dict[str, dict]:
-    arguments = (processes, free_loopback_port(), str(tmp_path), list(CASES), depth_scale, halo)
+def _decomposed(tmp_path, processes: int, halo: str, depth_scale: float = 1.0, cut: str = "slabs") -> dict[str, dict]:
+    arguments = (processes, free_loopback_port(), str(tmp_path), list(CASES), depth_scale, halo, cut)
     run_processes(training_worker, arguments, processes)
     return {name: torch.load(tmp_path / f"{name}.pt", weights_only=True) for name in CASES}
 
@@ -36,6 +36,14 @@ def _largest_relative_error(grads: dict[str, torch.Tensor], reference: dict[str,
 def test_decomposed_gradients_equal_the_single_process_gradients(tmp_path, single_process, processes, halo):
     """2D and 3D, walls and periodic boundaries, kinematic particles and material properties."""
     for name, run in _decomposed(tmp_path, processes, halo).items():
+        loss, reference = single_process[name]
+        assert run["loss"] == pytest.approx(loss, rel=RELATIVE), name
+        assert _largest_relative_error(run["grads"], reference) < RELATIVE, name
+
+
+@pytest.mark.parametrize("halo", ["positions", "latents"])
+def test_gradients_with_the_scene_cut_into_blocks_equal_the_single_process_gradients(tmp_path, single_process, halo):
+    for name, run in _decomposed(tmp_path, 4, halo, cut="blocks").items():
         loss, reference = single_process[name]
         assert run["loss"] == pytest.approx(loss, rel=RELATIVE), name
         assert _largest_relative_error(run["grads"], reference) < RELATIVE, name

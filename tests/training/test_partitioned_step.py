@@ -55,7 +55,7 @@ def test_two_processes_that_split_each_scene_train_as_one_process(uneven_dataset
 def test_partitions_other_than_the_processes_are_refused(uneven_dataset, tmp_path):
     registry = load_registry()
     recipe = validate_recipe(tiny_recipe(uneven_dataset, partitions=2), registry)
-    with pytest.raises(RecipeError, match="2 slabs need 2 processes, one per slab, but WORLD_SIZE is 1"):
+    with pytest.raises(RecipeError, match="2 pieces need 2 processes, one per piece, but WORLD_SIZE is 1"):
         Trainer(recipe, registry, run_dir=tmp_path / "run", processes=Processes(), progress=False)
 
 

@@ -1,0 +1,72 @@
+"""How a scene is cut into one piece per process: slabs or blocks, whichever leaves the smaller halo.
+
+Both cuts balance the particle count; they differ in the halo. A slab's halo is two faces
+as large as the domain's cross-section, whatever P; a block's shrinks as P grows. Which is
+smaller depends on the scene's shape and P, and costs one pass over the particles to
+count, so ``auto`` counts both and takes the smaller (slabs on a tie: at P = 2 they are the
+same cut).
+"""
+
+from __future__ import annotations
+
+from typing import Literal, Protocol
+
+from torch import Tensor
+
+from .blocks import BlockPartition
+from .slabs import SlabPartition
+
+Cut = Literal["auto", "slabs", "blocks"]
+
+
+class Partition(Protocol):
+    """One piece of space per process: who owns a particle, and which processes need it as halo."""
+
+    @property
+    def depth(self) -> float:
+        """Halo depth (dataset length units)."""
+        ...
+
+    @property
+    def parts(self) -> int: ...
+
+    def owner(self, position: Tensor) -> Tensor:
+        """(N,) int64 process owning each position (N, d)."""
+        ...
+
+    def halo_of(self, position: Tensor) -> Tensor:
+        """(N, P) bool: whether process r needs particle i as halo (never its owner)."""
+        ...
+
+    def describe(self) -> str:
+        """The cut in words, e.g. ``4 slabs along dimension 0``."""
+        ...
+
+
+def balanced_partition(
+    position: Tensor,
+    parts: int,
+    depth: float,
+    cut: Cut = "auto",
+    axis: int | None = None,
+    periodic_dims: tuple[int, ...] = (),
+    bounds: tuple[tuple[float, float], ...] | None = None,
+) -> Partition:
+    """``parts`` pieces of equal particle count of the scene at ``position`` (N, d), cut as ``cut`` says.
+
+    ``axis`` fixes the dimension slabs are cut across (so ``auto`` means slabs); ``bounds``
+    (d pairs) gives the periodic box of ``periodic_dims``.
+    """
+    if cut == "blocks" and axis is not None:
+        raise ValueError(f"a cut into blocks has no single axis, got axis {axis}: use slabs or leave the axis out")
+    slabs = blocks = None
+    if cut != "blocks":
+        slabs = SlabPartition.balanced(position, parts, depth, axis, periodic_dims=periodic_dims, bounds=bounds)
+    if cut == "blocks" or (cut == "auto" and axis is None and parts > 2):
+        blocks = BlockPartition.balanced(position, parts, depth, periodic_dims=periodic_dims, bounds=bounds)
+    if slabs is None:
+        assert blocks is not None
+        return blocks
+    if blocks is None or int(slabs.halo_of(position).sum()) <= int(blocks.halo_of(position).sum()):
+        return slabs
+    return blocks
