@@ -9,10 +9,11 @@ neighbours each, benchmarks/lattice_scene.py's spacing and radius), ``--aspect``
 times as wide as it is high, like a runout or a long channel. A randomly initialised
 interaction network of ``--hops`` message-passing steps and ``--latent`` width (the
 fast recipe's 5 x 64 by default) rolls it out for ``--steps`` steps and takes
-``--train-steps`` training steps, decomposed into P slabs across the width
-(:mod:`gns_framework.decomposition`), under P gloo processes of one thread each, once
-with each kind of halo (``--halo``: positions as deep as the receptive field, or
-latents one radius deep exchanged between message-passing steps).
+``--train-steps`` training steps, decomposed into P pieces (``--cut``: slabs across the
+width by default, or blocks by recursive bisection; :mod:`gns_framework.decomposition`),
+under P gloo processes of one thread each, once with each kind of halo (``--halo``:
+positions as deep as the receptive field, or latents one radius deep exchanged between
+message-passing steps).
 
 Per P and halo kind it prints: seconds per rollout step and per training step (the slowest process
 sets the pace), the time spent in all-to-all exchanges, the halo fraction (halo particles
@@ -21,9 +22,11 @@ before the first step (the model, the scene and torch itself are not counted).
 On a machine with fewer cores than processes they share the cores (oversubscribed):
 then times are not speed-ups, and the script says so; memory and halo are unaffected.
 
-The projection for 8-64 GPUs (:func:`projection`) applies the same terms, halo fraction
-growing with P for slabs, time per particle, exchange bytes and latency, with the per-particle
-times and bytes measured on the lent H200 (docs/performance.md) and an InfiniBand link.
+The projection for 8-64 GPUs (:func:`projection`) applies the same terms, the halo's share,
+time per particle, exchange bytes and latency, with the per-particle times and bytes measured
+on the lent H200 (docs/performance.md) and an InfiniBand link. The halo's share is counted on
+the projected 3D lattice itself, cut into slabs and into blocks by the framework's own
+partitions (:func:`lattice_halo_fractions`).
 """
 
 from __future__ import annotations
@@ -112,7 +115,7 @@ def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
     import torch.distributed as dist
 
     from gns_framework.data.batch import window
-    from gns_framework.decomposition.halo import slabs_for
+    from gns_framework.decomposition.halo import partition_for
     from gns_framework.decomposition.rollout import partitioned_rollout
     from gns_framework.decomposition.training_step import owned_share, partitioned_gradients
     from gns_framework.training.distributed import processes_from_environment, start, stop
@@ -144,12 +147,14 @@ def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
         )
         before = _resident_mb()
         halo = config["halo"]
-        partitioned_rollout(simulator, trajectory, processes, steps=1, halo=halo)  # warm-up: allocations, kernels
+        cut, axis = config["cut"], (0 if config["cut"] == "slabs" else None)
+        # Warm-up: allocations, kernels.
+        partitioned_rollout(simulator, trajectory, processes, steps=1, halo=halo, axis=axis, cut=cut)
         exchanged[0] = 0.0
         calls.update(count=0, bytes=0)
         processes.barrier()
         began = time.perf_counter()
-        _, stats = partitioned_rollout(simulator, trajectory, processes, steps=steps, halo=halo)
+        _, stats = partitioned_rollout(simulator, trajectory, processes, steps=steps, halo=halo, axis=axis, cut=cut)
         rollout_seconds = (time.perf_counter() - began) / steps
         rollout_exchange = exchanged[0] / steps
         rollout_calls = dict(calls)
@@ -157,7 +162,7 @@ def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
         simulator.train()
         batch = window(trajectory, 0, HISTORY, with_target=True)
         noise = torch.zeros_like(batch.position_sequence)
-        partition, kind = slabs_for(simulator, batch.position_sequence[:, -1], world, halo, axis=0)
+        partition, kind = partition_for(simulator, batch.position_sequence[:, -1], world, halo, axis, cut)
         owned = owned_share(batch, noise, partition, rank)
         times, train_exchange = [], []
         for _ in range(train_steps + 1):
@@ -180,7 +185,7 @@ def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
             "train_exchange_seconds": statistics.median(train_exchange[1:]),
             "train_peak_mb": _peak_mb() - before,
             "halo_fraction": stats.halo_fraction,
-            "axis": stats.partition.axis,
+            "partition": stats.partition.describe(),
         }
         (Path(out) / f"rank{rank}.json").write_text(json.dumps(result))
     finally:
@@ -213,6 +218,7 @@ def measure(processes: int, config: dict) -> dict:
         "rollout_peak_mb_per_process": max(r["rollout_peak_mb"] for r in ranks),
         "train_peak_mb_per_process": max(r["train_peak_mb"] for r in ranks),
         "halo_fraction": ranks[0]["halo_fraction"],
+        "partition": ranks[0]["partition"],
         "owned_per_process": [r["owned"] for r in ranks],
     }
 
@@ -231,22 +237,43 @@ RADIUS_IN_SITES_3D = 0.015 / 0.0085
 """The 3D lattice's connectivity radius in lattice spacings (benchmarks/lattice_scene.py)."""
 
 
-def projection(particles: float, aspect: float, hops: int, gpus: list[int]) -> list[dict]:
-    """Step time and memory per GPU of a 3D scene split into P slabs across its length, on P H200s.
+def lattice_halo_fractions(particles: float, aspect: float, depth: float, gpus: list[int], cut: str) -> list[float]:
+    """The halo's share of the particles (halo particle copies over particles) of a 3D lattice split into P pieces.
 
-    The scene is a lattice ``aspect`` times as long as its square cross-section. Each slab
-    holds N / P particles and a halo up to ``hops x R`` deep on each side:
-    h = 2 hops R P / length (capped at P - 1 once slabs are thinner than the halo). A step
-    costs the GPU's time per particle for N / P (1 + h) particles, plus the exchanges: the halo's
-    positions (C x 3 float32 each), the predicted frame gathered on rank 0 (rollout), the
-    gradients' all-reduce (training; ring: twice the parameters' bytes), at :data:`LINK`'s rate.
+    The lattice (unit spacing) is ``aspect`` times as long as its square cross-section and
+    holds about ``particles`` sites; ``depth`` is the halo's depth in lattice spacings. The
+    pieces are the framework's own (:func:`gns_framework.decomposition.partition.balanced_partition`,
+    ``cut`` slabs or blocks), counted in chunks so that 10M sites fit in memory.
     """
-    side = (particles / aspect) ** (1 / 3)
-    length = aspect * side
-    depth = hops * RADIUS_IN_SITES_3D
-    rows = []
+    from gns_framework.decomposition.partition import balanced_partition
+
+    side = max(1, round((particles / aspect) ** (1 / 3)))
+    length = max(1, round(particles / side**2))
+    axes = [torch.arange(n, dtype=torch.float32) for n in (length, side, side)]
+    position = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
+    shares = []
     for p in gpus:
-        halo = min(2 * depth * p / length, p - 1)
+        partition = balanced_partition(position, p, depth, cut)  # type: ignore[arg-type]
+        halo = sum(int(partition.halo_of(chunk).sum()) for chunk in position.split(100_000))
+        shares.append(halo / position.shape[0])
+    return shares
+
+
+def projection(particles: float, aspect: float, hops: int, gpus: list[int], cut: str = "slabs") -> list[dict]:
+    """Step time and memory per GPU of a 3D scene split into P pieces (``cut``: slabs or blocks) on P H200s.
+
+    The scene is a lattice ``aspect`` times as long as its square cross-section. Each piece
+    holds N / P particles and a halo ``hops x R`` deep (positions) or ``R`` deep (latents),
+    whose share h of the particles is counted on the lattice (:func:`lattice_halo_fractions`).
+    A step costs the GPU's time per particle for N / P (1 + h) particles, plus the exchanges:
+    the halo's positions (C x 3 float32 each), the predicted frame gathered on rank 0
+    (rollout), the gradients' all-reduce (training; ring: twice the parameters' bytes), at
+    :data:`LINK`'s rate; with a halo of latents, 128 bfloat16 per halo particle after each hop.
+    """
+    deep = lattice_halo_fractions(particles, aspect, hops * RADIUS_IN_SITES_3D, gpus, cut)
+    shallow = lattice_halo_fractions(particles, aspect, RADIUS_IN_SITES_3D, gpus, cut)
+    rows = []
+    for p, halo, thin in zip(gpus, deep, shallow):
         per_gpu = particles / p * (1 + halo)
         halo_bytes = particles / p * halo * HISTORY * 3 * 4
         rollout_link = 3 * LINK["latency_s"] + (halo_bytes + particles / p * 3 * 4) / LINK["bytes_per_s"]
@@ -254,14 +281,14 @@ def projection(particles: float, aspect: float, hops: int, gpus: list[int]) -> l
         train_bytes = per_gpu * H200["train_bytes_per_particle"]
         ideal = particles / p * H200["train_seconds_per_particle"]
         train_seconds = per_gpu * H200["train_seconds_per_particle"] + train_link
-        # Exchanging node latents (128 bfloat16) after each of the hops instead: a halo one radius deep.
-        shallow = halo / hops
-        latent_link = hops * (LINK["latency_s"] + particles / p * shallow * 128 * 2 / LINK["bytes_per_s"])
-        per_gpu_shallow = particles / p * (1 + shallow)
+        latent_link = hops * (LINK["latency_s"] + particles / p * thin * 128 * 2 / LINK["bytes_per_s"])
+        per_gpu_shallow = particles / p * (1 + thin)
         rows.append(
             {
                 "gpus": p,
+                "cut": cut,
                 "halo_fraction": halo,
+                "halo_fraction_latents": thin,
                 "rollout_seconds": per_gpu * H200["rollout_seconds_per_particle"] + rollout_link,
                 "train_seconds": train_seconds,
                 "train_efficiency": ideal / train_seconds,
@@ -272,6 +299,7 @@ def projection(particles: float, aspect: float, hops: int, gpus: list[int]) -> l
                 + train_link
                 + 2 * latent_link,
                 "train_gb_per_gpu": train_bytes / 1e9,
+                "train_gb_per_gpu_latents": per_gpu_shallow * H200["train_bytes_per_particle"] / 1e9,
                 "fits": train_bytes < H200["memory_bytes"],
             }
         )
@@ -288,6 +316,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--halo", nargs="+", default=["positions", "latents"], choices=["positions", "latents"], help="halo kinds"
     )
+    parser.add_argument(
+        "--cut",
+        default="slabs",
+        choices=["slabs", "blocks", "auto"],
+        help="how the measured scene is split: slabs across its width, blocks by recursive bisection, or auto",
+    )
     parser.add_argument("--steps", type=int, default=5, help="rollout steps timed")
     parser.add_argument("--train-steps", type=int, default=3, help="training steps timed (after one warm-up)")
     parser.add_argument(
@@ -299,7 +333,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--plot", type=Path, help="write a figure of time and memory per process against P")
     args = parser.parse_args(argv)
     cores = len(os.sched_getaffinity(0))
-    config = {k: getattr(args, k) for k in ("particles", "aspect", "hops", "latent", "steps", "train_steps")}
+    config = {k: getattr(args, k) for k in ("particles", "aspect", "hops", "latent", "steps", "train_steps", "cut")}
     across, up = scene_particles(args.particles, args.aspect)
     print(
         f"scene: {args.particles} particles, {across} x {up} lattice sites, halo depth {args.hops} x R = "
@@ -313,25 +347,31 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(row)
             note = " (oversubscribed: processes share cores)" if row["oversubscribed"] else ""
             print(
-                f"P={p} halo of {halo if p > 1 else '-'}: rollout step {row['rollout_seconds']:.3f} s "
+                f"P={p} ({row['partition']}) halo of {halo if p > 1 else '-'}: rollout step {row['rollout_seconds']:.3f} s "
                 f"(exchanges {row['rollout_exchange_seconds']:.3f} s), training step {row['train_seconds']:.3f} s "
                 f"(exchanges {row['train_exchange_seconds']:.3f} s), halo {row['halo_fraction']:.1%} of the "
                 f"particles, peak added memory per process: rollout {row['rollout_peak_mb_per_process']:.0f} MB, "
                 f"training {row['train_peak_mb_per_process']:.0f} MB{note}",
                 flush=True,
             )
-    projected = projection(args.project_particles, args.project_aspect, 10, args.project_gpus)
     print(
         f"\nprojection: the paper's model (10 x 128, bfloat16, recomputed activations) on a 3D scene of "
-        f"{args.project_particles:.3g} particles, {args.project_aspect:g}x as long as wide, in slabs on P H200s:"
+        f"{args.project_particles:.3g} particles, {args.project_aspect:g}x as long as wide, on P H200s:"
     )
-    for row in projected:
-        print(
-            f"  P={row['gpus']:3d}: halo {row['halo_fraction']:6.1%}, rollout step {row['rollout_seconds']:.3f} s, "
-            f"training step {row['train_seconds']:.3f} s (efficiency {row['train_efficiency']:.0%}), "
-            f"{row['train_gb_per_gpu']:.0f} GB per GPU{'' if row['fits'] else ' (does not fit)'}; exchanging "
-            f"latents instead: rollout {row['rollout_seconds_latents']:.3f} s, training {row['train_seconds_latents']:.3f} s"
-        )
+    projected = []
+    for cut in ("slabs", "blocks"):
+        rows_of_cut = projection(args.project_particles, args.project_aspect, 10, args.project_gpus, cut)
+        projected += rows_of_cut
+        for row in rows_of_cut:
+            print(
+                f"  {cut:6s} P={row['gpus']:3d}: halo {row['halo_fraction']:6.1%} deep / "
+                f"{row['halo_fraction_latents']:5.1%} one radius; halo of positions: rollout step "
+                f"{row['rollout_seconds']:.3f} s, training step {row['train_seconds']:.3f} s (efficiency "
+                f"{row['train_efficiency']:.0%}), {row['train_gb_per_gpu']:.0f} GB per GPU"
+                f"{'' if row['fits'] else ' (does not fit)'}; halo of latents: rollout {row['rollout_seconds_latents']:.3f} s, "
+                f"training {row['train_seconds_latents']:.3f} s, {row['train_gb_per_gpu_latents']:.0f} GB per GPU",
+                flush=True,
+            )
     if args.plot:
         plot(rows, args.plot)
     if args.json:
