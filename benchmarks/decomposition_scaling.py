@@ -245,7 +245,7 @@ def lattice_halo_fractions(particles: float, aspect: float, depth: float, gpus: 
     pieces are the framework's own (:func:`gns_framework.decomposition.partition.balanced_partition`,
     ``cut`` slabs or blocks), counted in chunks so that 10M sites fit in memory.
     """
-    from gns_framework.decomposition.partition import balanced_partition
+    from gns_framework.decomposition.partition import balanced_partition, halo_count
 
     side = max(1, round((particles / aspect) ** (1 / 3)))
     length = max(1, round(particles / side**2))
@@ -254,7 +254,7 @@ def lattice_halo_fractions(particles: float, aspect: float, depth: float, gpus: 
     shares = []
     for p in gpus:
         partition = balanced_partition(position, p, depth, cut)  # type: ignore[arg-type]
-        halo = sum(int(partition.halo_of(chunk).sum()) for chunk in position.split(100_000))
+        halo = halo_count(partition, position)
         shares.append(halo / position.shape[0])
     return shares
 

@@ -24,6 +24,10 @@ import torch
 from torch import Tensor
 
 
+CHUNK = 65_536
+"""Particles compared with every box at once: (CHUNK, P, d) float64 temporaries, 100 MB at P = 64 in 3D."""
+
+
 @dataclass(frozen=True)
 class BlockPartition:
     """P axis-aligned boxes that tile space.
@@ -73,13 +77,21 @@ class BlockPartition:
 
     def owner(self, position: Tensor) -> Tensor:
         """(N,) int64 box of each position (N, d)."""
-        x = position.to(torch.float64)[:, None, :]
         lower, upper = self._faces(position.device)
-        inside = ((x >= lower) & (x < upper)).all(dim=-1)
-        return inside.to(torch.uint8).argmax(dim=1)
+        owners = []
+        for rows in position.split(CHUNK):
+            x = rows.to(torch.float64)[:, None, :]
+            inside = ((x >= lower) & (x < upper)).all(dim=-1)
+            owners.append(inside.to(torch.uint8).argmax(dim=1))
+        return torch.cat(owners) if owners else torch.zeros(0, dtype=torch.long, device=position.device)
 
     def halo_of(self, position: Tensor) -> Tensor:
         """(N, P) bool: row i, column r is True when particle i lies within ``depth`` of box r but outside it."""
+        parts = [self._halo_of(rows) for rows in position.split(CHUNK)]
+        return torch.cat(parts) if parts else torch.zeros((0, self.parts), dtype=torch.bool, device=position.device)
+
+    def _halo_of(self, position: Tensor) -> Tensor:
+        """:meth:`halo_of` of at most :data:`CHUNK` particles: (n, P, d) distances in memory at once."""
         x = position.to(torch.float64)[:, None, :]
         lower, upper = self._faces(position.device)
         # The faces at a periodic box's edge: distances across them go through the wrap-around.

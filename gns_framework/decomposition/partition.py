@@ -67,6 +67,12 @@ def balanced_partition(
     if slabs is None:
         assert blocks is not None
         return blocks
-    if blocks is None or int(slabs.halo_of(position).sum()) <= int(blocks.halo_of(position).sum()):
+    if blocks is None or halo_count(slabs, position) <= halo_count(blocks, position):
         return slabs
     return blocks
+
+
+def halo_count(partition: Partition, position: Tensor, chunk: int = 65_536) -> int:
+    """Halo copies ``partition`` makes of the particles at ``position`` (N, d): a particle counts once per process
+    that needs it. Counted ``chunk`` particles at a time, so that N x P distances never sit in memory at once."""
+    return sum(int(partition.halo_of(rows).sum()) for rows in position.split(chunk))

@@ -105,3 +105,15 @@ def test_fewer_particles_than_blocks_still_tile_space():
 def test_fewer_than_one_block_is_refused():
     with pytest.raises(ValueError, match="partitions must be at least 1, got 0"):
         BlockPartition.balanced(torch.zeros(3, 2), 0, depth=0.1)
+
+
+def test_owners_and_halo_taken_in_chunks_are_those_taken_at_once(monkeypatch):
+    from gns_framework.decomposition import blocks
+
+    position = _cloud(3000, (1.0, 0.5, 0.7), seed=4)
+    partition = BlockPartition.balanced(position, 6, depth=0.08, periodic_dims=(1,), bounds=((0, 1),) * 3)
+    whole = partition.owner(position), partition.halo_of(position)
+    monkeypatch.setattr(blocks, "CHUNK", 113)
+    assert torch.equal(partition.owner(position), whole[0])
+    assert torch.equal(partition.halo_of(position), whole[1])
+    assert partition.owner(position[:0]).shape == (0,) and partition.halo_of(position[:0]).shape == (0, 6)

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from gns_framework.decomposition.blocks import BlockPartition
-from gns_framework.decomposition.partition import balanced_partition
+from gns_framework.decomposition.partition import balanced_partition, halo_count
 from gns_framework.decomposition.slabs import SlabPartition
 
 
@@ -35,6 +35,13 @@ def test_two_pieces_an_axis_or_slabs_asked_for_give_slabs():
     assert balanced_partition(square, 8, 0.02, axis=1).describe() == "8 slabs along dimension 1"
     assert isinstance(balanced_partition(square, 8, 0.02, "slabs"), SlabPartition)
     assert balanced_partition(square, 8, 0.02, "blocks").describe() == "8 blocks (recursive bisection)"
+
+
+def test_the_halo_counted_in_chunks_is_the_whole_count():
+    square = _cloud((1.0, 1.0))
+    for cut in ("slabs", "blocks"):
+        partition = balanced_partition(square, 8, 0.02, cut)
+        assert halo_count(partition, square, chunk=777) == _halo(partition, square) > 0
 
 
 def test_blocks_with_an_axis_are_refused():
