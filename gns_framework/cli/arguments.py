@@ -37,6 +37,19 @@ def non_negative_float(text: str) -> float:
     return value
 
 
+def ratio_above_one_or_never(text: str) -> float | None:
+    """A finite number > 1, or ``never`` (None): how far one process may hold more than its share."""
+    if text == "never":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number > 1 or 'never', got {text!r}") from None
+    if not 1 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number > 1 or 'never', got {text}")
+    return value
+
+
 def add_allow_pickle(parser: argparse.ArgumentParser) -> None:
     """``--allow-pickle FOLDER``: the per-command grant to unpickle anything from one dataset folder."""
     parser.add_argument(

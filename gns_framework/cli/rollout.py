@@ -33,7 +33,7 @@ from ..safe_names import ensure_inside, require_component, safe_component
 from ..training.distributed import from_chief, processes_from_environment, start, stop
 from ..training.mlflow_tracker import log_to_recorded_run
 from ..training.processes import Processes
-from .arguments import add_allow_pickle, non_negative_float, non_negative_int, positive_int
+from .arguments import add_allow_pickle, non_negative_float, non_negative_int, positive_int, ratio_above_one_or_never
 from .envelope_option import add_outside_envelope, enforce_envelope
 
 
@@ -96,6 +96,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "halo at the first frame (default)",
     )
     parser.add_argument(
+        "--rebalance",
+        type=ratio_above_one_or_never,
+        default=1.25,
+        metavar="RATIO",
+        help="with --partitions: cut the pieces afresh from the current frame when a process holds more than RATIO "
+        "times its share of the particles, as they crowd during a collapse or a runout; never: keep the first "
+        "frame's pieces (default 1.25)",
+    )
+    parser.add_argument(
         "--halo",
         choices=("auto", "positions", "latents"),
         default="auto",
@@ -124,8 +133,10 @@ def run(args: argparse.Namespace) -> int:
 def _processes(args: argparse.Namespace) -> Processes:
     """This process's place in a ``--partitions`` job (torchrun's environment), refused when it does not match."""
     processes = processes_from_environment()
-    if args.partitions == 1 and (args.partition_axis is not None or args.halo != "auto" or args.cut != "auto"):
-        raise GnsError("gns rollout: --partition-axis, --cut and --halo need --partitions P with P > 1")
+    if args.partitions == 1 and (
+        args.partition_axis is not None or args.halo != "auto" or args.cut != "auto" or args.rebalance != 1.25
+    ):
+        raise GnsError("gns rollout: --partition-axis, --cut, --rebalance and --halo need --partitions P with P > 1")
     if args.cut == "blocks" and args.partition_axis is not None:
         raise GnsError("gns rollout: --partition-axis cuts slabs across one dimension; --cut blocks has no one axis")
     if args.partitions > 1 and args.batch > 1:
@@ -224,12 +235,13 @@ def _rollouts(
                 args.partition_axis,
                 args.halo,
                 args.cut,
+                args.rebalance,
             )
             if result is not None:
                 print(
                     f"{trajectories[index].key or index}: {stats.partition.describe()}, "
                     f"halo of {stats.halo_kind} {stats.halo_fraction:.1%} of the particles, "
-                    f"{stats.migrations} moved between processes"
+                    f"{stats.migrations} moved between processes, cut afresh {stats.rebalances} times"
                 )
             yield index, result
         return

@@ -60,6 +60,21 @@ def send_rows(destination: Tensor, tensors: list[Tensor | None], world_size: int
     return [None if tensor is None else routing.send(tensor) for tensor in tensors]
 
 
+def rows_everywhere(ids: Tensor, rows: Tensor, total: int, world_size: int) -> Tensor:
+    """Every process's ``rows``, placed by their global ``ids``, on every process (an all-gather of rows).
+
+    Each global id in ``[0, total)`` must be held by exactly one process. Shapes: ids (n,)
+    int64; rows (n, ...) -> (total, ...).
+    """
+    destination = torch.arange(world_size, device=ids.device).repeat_interleave(ids.shape[0])
+    repeats = (world_size,) + (1,) * (rows.dim() - 1)
+    every_id, every_row = send_rows(destination, [ids.repeat(world_size), rows.repeat(repeats)], world_size)
+    assert every_id is not None and every_row is not None
+    placed = rows.new_empty((total,) + tuple(rows.shape[1:]))
+    placed[every_id] = every_row
+    return placed
+
+
 class _AllToAll(torch.autograd.Function):
     """All-to-all of rows whose backward sends each row's gradient back to the process it came from."""
 

@@ -27,7 +27,7 @@ from torch import Tensor
 from ..data.batch import ParticleBatch
 from ..model.history import advance_window
 from ..model.learned_simulator import LearnedSimulator
-from .exchange import send_rows
+from .exchange import rows_everywhere
 from .halo import HaloKind, latent_exchange, partition_for, stand_in_exchanges, with_halo
 from .particles import Particles
 from .partition import Cut
@@ -110,10 +110,4 @@ def _decomposed_next_frame(
         with latent_exchange(simulator, particles, kind):
             predicted = simulator.predict_next_position(mine, prescribed=prescribed[local.ids])
         predicted = predicted[particles.owned_rows]
-    # Every process sends each of its rows to every process, itself included.
-    destination = torch.arange(world, device=current.device).repeat_interleave(owned.count)
-    ids, rows = send_rows(destination, [owned.ids.repeat(world), predicted.repeat(world, 1)], world)
-    assert ids is not None and rows is not None
-    following = torch.empty_like(current)
-    following[ids] = rows.to(current.dtype)
-    return following
+    return rows_everywhere(owned.ids, predicted.to(current.dtype), batch.num_particles, world)

@@ -12,7 +12,11 @@ Every step, on every process (rank r of P):
    halo of latents the halo's node latents come from their owners between message-passing steps);
 3. **gather** the owned particles' next positions on rank 0, which checks the frame with the
    rollout guard as a single process does, and keeps it;
-4. **migrate**: particles whose new position lies in another piece move to that process.
+4. **migrate**: particles whose new position lies in another piece move to that process;
+5. **rebalance**: when a process now holds more than ``rebalance`` times its share of the
+   particles (they crowd as a column collapses or a flow runs out), every process receives
+   the whole frame, the pieces are cut afresh from it, and the particles migrate to them.
+   Ownership changes nothing in the predictions, only who computes them.
 
 With a halo of positions, its outermost particles miss some of their own neighbours, but what
 they get wrong travels one edge per message-passing step and never reaches an owned particle. Memory per
@@ -39,7 +43,7 @@ from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import check_simulates, rollout_step
 from ..model.rollout_guard import GuardViolation, RolloutGuard
 from ..runtime.precision import Precision
-from .exchange import send_rows
+from .exchange import rows_everywhere, send_rows
 from .halo import HaloKind, latent_exchange, partition_for, stand_in_exchanges, with_halo
 from .particles import Particles
 from .partition import Cut, Partition
@@ -56,6 +60,7 @@ class DecompositionStats:
         owned: particle-steps predicted (N x steps).
         halo: halo particle-steps held beside them; ``halo / owned`` is the halo fraction.
         migrations: particles that moved to another process.
+        rebalances: times the pieces were cut afresh.
         partition: the pieces (slabs or blocks).
         halo_kind: ``positions`` or ``latents`` (:mod:`.halo`).
     """
@@ -65,6 +70,7 @@ class DecompositionStats:
     migrations: int
     partition: Partition
     halo_kind: str
+    rebalances: int = 0
 
     @property
     def halo_fraction(self) -> float:
@@ -83,6 +89,7 @@ def partitioned_rollout(
     axis: int | None = None,
     halo: HaloKind = "auto",
     cut: Cut = "auto",
+    rebalance: float | None = 1.25,
 ) -> tuple[Rollout | None, DecompositionStats]:
     """Predict ``steps`` frames from the first C of ``trajectory``, the scene split over ``processes``.
 
@@ -99,7 +106,11 @@ def partitioned_rollout(
         halo: ``positions`` (as deep as the receptive field), ``latents`` (one radius deep, latents
             exchanged between message-passing steps), or ``auto``: latents where the processor
             exchanges them (:mod:`.halo`).
+        rebalance: cut the pieces afresh when a process holds more than this many times its share
+            of the particles (> 1; None: keep the first frame's pieces).
     """
+    if rebalance is not None and not rebalance > 1:
+        raise ValueError(f"rebalance must be more than 1 (a process's most particles over its share), got {rebalance}")
     check_simulates(simulator, trajectory)
     scene = simulator.scene
     guard = guard if guard is not None else RolloutGuard(scene)
@@ -130,7 +141,7 @@ def partitioned_rollout(
     predicted = torch.empty((steps, start.num_particles, scene.dim)) if chief else None
     last_input = torch.from_numpy(np.array(trajectory.position[history - 1])) if chief else None
     violations: list[GuardViolation] = []
-    halo_count = migrations = 0
+    halo_count = migrations = rebalances = 0
     for step in range(steps):
         particles = with_halo(owned, partition, world)
         local, owned_rows = particles.local, particles.owned_rows
@@ -162,10 +173,20 @@ def partitioned_rollout(
         owned = replace(owned, sequence=advance_window(owned.sequence, continued_owned))
         owned, moved = _migrate(owned, partition, rank, world)
         migrations += moved
+        if (
+            rebalance is not None
+            and world > 1
+            and _most_held(owned, processes) > rebalance * start.num_particles / world
+        ):
+            frame = rows_everywhere(owned.ids, owned.sequence[:, -1], start.num_particles, world)
+            partition, _ = partition_for(simulator, frame, world, kind, axis, cut)
+            owned, moved = _migrate(owned, partition, rank, world)
+            migrations += moved
+            rebalances += 1
     totals = torch.tensor([halo_count, migrations], dtype=torch.long, device=device)
     if processes.distributed:
         dist.all_reduce(totals)
-    stats = DecompositionStats(start.num_particles * steps, int(totals[0]), int(totals[1]), partition, kind)
+    stats = DecompositionStats(start.num_particles * steps, int(totals[0]), int(totals[1]), partition, kind, rebalances)
     if not chief:
         return None, stats
     assert predicted is not None
@@ -217,6 +238,13 @@ def _gather_and_check(
             f"rank 0 stopped the rollout of trajectory {key!r} at step {step} (its error says why)", key, step
         )
     return found
+
+
+def _most_held(owned: Particles, processes: Processes) -> int:
+    """The most particles any process holds (the same answer on every process)."""
+    held = torch.zeros(processes.world_size, dtype=torch.long, device=owned.ids.device)
+    held[processes.rank] = owned.count
+    return int(processes.sum(held).max())
 
 
 def _migrate(owned: Particles, partition: Partition, rank: int, world: int) -> tuple[Particles, int]:

@@ -8,7 +8,13 @@ from pathlib import Path
 
 import pytest
 
-from gns_framework.cli.arguments import add_allow_pickle, non_negative_float, non_negative_int, positive_int
+from gns_framework.cli.arguments import (
+    add_allow_pickle,
+    non_negative_float,
+    non_negative_int,
+    positive_int,
+    ratio_above_one_or_never,
+)
 
 
 def test_counts_start_at_1_and_seeds_at_0():
@@ -50,3 +56,12 @@ def test_allow_pickle_names_one_folder_and_is_off_by_default():
     add_allow_pickle(parser)
     assert parser.parse_args([]).allow_pickle is None
     assert parser.parse_args(["--allow-pickle", "data/old"]).allow_pickle == Path("data/old")
+
+
+def test_a_rebalance_ratio_is_a_number_above_one_or_never():
+    assert ratio_above_one_or_never("1.5") == 1.5 and ratio_above_one_or_never("never") is None
+    for text in ("1", "0.9", "-2", "inf", "nan"):
+        with pytest.raises(argparse.ArgumentTypeError, match=rf"^expected a number > 1 or 'never', got {text}$"):
+            ratio_above_one_or_never(text)
+    with pytest.raises(argparse.ArgumentTypeError, match=r"^expected a number > 1 or 'never', got 'often'$"):
+        ratio_above_one_or_never("often")

@@ -200,7 +200,10 @@ def test_partitions_without_as_many_processes_is_refused(tiny_model, tmp_path):
 
 def test_partition_options_that_do_not_combine_are_refused(tiny_model, tmp_path):
     without = gns("rollout", str(tiny_model), "--cut", "blocks", "--out", str(tmp_path / "a"))
-    assert without.returncode != 0 and "--partition-axis, --cut and --halo need --partitions P" in without.stderr
+    assert (
+        without.returncode != 0
+        and "--partition-axis, --cut, --rebalance and --halo need --partitions P" in without.stderr
+    )
     both = ["--partitions", "2", "--cut", "blocks", "--partition-axis", "0", "--out", str(tmp_path / "b")]
     refused = gns("rollout", str(tiny_model), *both)
     assert refused.returncode != 0 and "--cut blocks has no one axis" in refused.stderr

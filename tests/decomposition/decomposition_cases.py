@@ -28,7 +28,8 @@ CASES = {
     "3d_periodic": (3, (0, 2), 420, False, 0.15),
 }
 DRIFT = {"2d_drift": (2, (), 200, False, 0.1)}
-"""A scene whose particles all drift along x by 0.04 per frame: the first slab empties within a few steps."""
+"""A scene whose particles all drift along x by 0.04 per frame, in a band spread farthest along x (so slabs are cut
+across x): the first slab empties within a few steps."""
 FEW = {"2d_few": (2, (), 3, False, 0.5)}
 """Three particles for four processes: one process owns none (slabs cut at particle-count quantiles)."""
 
@@ -80,7 +81,9 @@ def case_trajectory(name: str) -> Trajectory:
     velocity = rng.uniform(-0.03, 0.03, (n, dim))
     if name in DRIFT:
         start[:, 0] *= 0.4
+        start[:, 1] = 0.1 + 0.2 * start[:, 1]
         velocity[:, 0] = 0.04
+        velocity[:, 1] *= 0.2
     position = np.stack([start + t * velocity for t in range(FRAMES)])
     for k in periodic:
         position[..., k] = np.mod(position[..., k], 1.0)
@@ -111,6 +114,7 @@ def partitioned_worker(
     depth_scale: float = 1.0,
     halo: str = "positions",
     cut: str = "auto",
+    rebalance: float | None = 1.25,
 ) -> None:
     """Roll every case out over ``world`` gloo processes; rank 0 saves ``<case>.npy`` and ``<case>.json``.
 
@@ -131,6 +135,7 @@ def partitioned_worker(
                 processes,
                 halo=halo,  # type: ignore[arg-type]
                 cut=cut,  # type: ignore[arg-type]
+                rebalance=rebalance,
             )
             if rank == 0:
                 assert result is not None
@@ -140,6 +145,7 @@ def partitioned_worker(
                     "halo_fraction": stats.halo_fraction,
                     "kind": stats.halo_kind,
                     "partition": stats.partition.describe(),
+                    "rebalances": stats.rebalances,
                 }
                 (Path(out) / f"{name}.json").write_text(json.dumps(summary))
     finally:

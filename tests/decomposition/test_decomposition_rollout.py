@@ -28,8 +28,9 @@ def _partitioned(
     depth_scale: float = 1.0,
     cases: tuple[str, ...] = tuple(CASES),
     cut: str = "slabs",
+    rebalance: float | None = 1.25,
 ) -> dict[str, np.ndarray]:
-    arguments = (processes, free_loopback_port(), str(tmp_path), list(cases), depth_scale, halo, cut)
+    arguments = (processes, free_loopback_port(), str(tmp_path), list(cases), depth_scale, halo, cut, rebalance)
     run_processes(partitioned_worker, arguments, processes)
     return {name: np.load(tmp_path / f"{name}.npy") for name in cases}
 
@@ -78,13 +79,30 @@ def test_a_halo_too_shallow_gives_different_positions(tmp_path, single_process, 
 
 @pytest.mark.parametrize("halo", ["positions", "latents"])
 def test_a_process_left_without_particles_keeps_taking_part(tmp_path, halo):
-    """Every particle drifts out of the first slab: its process then owns none, and the others still finish."""
+    """Every particle drifts out of the first slab (kept, not re-cut): its process then owns none, and the others
+    still finish."""
     name = "2d_drift"
     reference = rollout(case_simulator(name), case_trajectory(name)).predicted
-    partitioned = _partitioned(tmp_path, 4, halo, cases=(name,))[name]
+    partitioned = _partitioned(tmp_path, 4, halo, cases=(name,), rebalance=None)[name]
     np.testing.assert_allclose(partitioned, reference, rtol=0, atol=_tolerance(reference))
     first_cut = float(np.sort(case_trajectory(name).position[5, :, 0])[len(reference[0]) // 4])
     assert (reference[-1, :, 0] > first_cut + 0.2).all(), "every particle left the first slab, beyond its halo"
+
+
+@pytest.mark.parametrize("cut", ["slabs", "blocks"])
+def test_pieces_cut_afresh_as_the_particles_crowd_give_the_same_rollout(tmp_path, cut):
+    """The drifting scene again, re-cut whenever a process holds more than 1.25x its share."""
+    name = "2d_drift"
+    reference = rollout(case_simulator(name), case_trajectory(name)).predicted
+    partitioned = _partitioned(tmp_path, 4, "latents", cases=(name,), cut=cut)[name]
+    np.testing.assert_allclose(partitioned, reference, rtol=0, atol=_tolerance(reference))
+    summary = json.loads((tmp_path / f"{name}.json").read_text())
+    assert summary["rebalances"] >= 1 and summary["migrations"] > 0
+
+
+def test_a_rebalance_ratio_of_one_or_less_is_refused():
+    with pytest.raises(ValueError, match="rebalance must be more than 1"):
+        partitioned_rollout(case_simulator("2d_walls"), case_trajectory("2d_walls"), Processes(), rebalance=1.0)
 
 
 def test_one_process_is_the_plain_rollout(single_process):
