@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 from pathlib import Path
 
 from ..assembly.data import open_dataset
@@ -219,31 +220,19 @@ def _rollouts(
 ):
     """(index, rollout) of the first ``count`` trajectories, in order; ``--batch`` of one length at a time.
 
-    With ``--partitions`` every process rolls out its slab of each scene, and only rank 0 gets the rollout
+    With ``--partitions`` every process rolls out its piece of each scene, and only rank 0 gets the rollout
     (None elsewhere).
     """
     if args.partitions > 1:
-        for index in range(count):
-            result, stats = partitioned_rollout(
-                simulator,
-                trajectories[index],
-                processes,
-                steps,
-                device,
-                guard,
-                args.precision,
-                args.partition_axis,
-                args.halo,
-                args.cut,
-                args.rebalance,
+        # Rank 0 keeps each rollout's frames in a memory-mapped file (TMPDIR), not in memory, until it is written.
+        scratch = tempfile.TemporaryDirectory(prefix="gns-rollout-frames-") if processes.is_chief else None
+        try:
+            yield from _partitioned_rollouts(
+                simulator, trajectories, count, steps, device, guard, args, processes, scratch
             )
-            if result is not None:
-                print(
-                    f"{trajectories[index].key or index}: {stats.partition.describe()}, "
-                    f"halo of {stats.halo_kind} {stats.halo_fraction:.1%} of the particles, "
-                    f"{stats.migrations} moved between processes, cut afresh {stats.rebalances} times"
-                )
-            yield index, result
+        finally:
+            if scratch is not None:
+                scratch.cleanup()
         return
     if args.batch == 1:
         for index in range(count):
@@ -271,6 +260,49 @@ def _rollouts(
         results = rollout_batch(simulator, group, steps, device, guard=guard, precision=args.precision)
         yield from zip(range(start, stop), results)
         start = stop
+
+
+def _partitioned_rollouts(
+    simulator,
+    trajectories,
+    count: int,
+    steps: int | None,
+    device,
+    guard: RolloutGuard,
+    args,
+    processes: Processes,
+    scratch: tempfile.TemporaryDirectory | None,
+):
+    """(index, rollout) of each scene split over the processes (None except on rank 0, whose frames are in ``scratch``).
+
+    A rollout's frames file is removed once the caller has written it (when the next one starts).
+    """
+    for index in range(count):
+        frames = None if scratch is None else Path(scratch.name) / f"{index}.npy"
+        result, stats = partitioned_rollout(
+            simulator,
+            trajectories[index],
+            processes,
+            steps,
+            device,
+            guard,
+            args.precision,
+            args.partition_axis,
+            args.halo,
+            args.cut,
+            args.rebalance,
+            frames,
+        )
+        if result is not None:
+            print(
+                f"{trajectories[index].key or index}: {stats.partition.describe()}, "
+                f"halo of {stats.halo_kind} {stats.halo_fraction:.1%} of the particles, "
+                f"{stats.migrations} moved between processes, cut afresh {stats.rebalances} times"
+            )
+        yield index, result
+        del result
+        if frames is not None:
+            frames.unlink(missing_ok=True)
 
 
 def _only_rollouts(folder: Path) -> bool:

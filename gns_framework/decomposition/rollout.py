@@ -27,6 +27,7 @@ frames (as the rollout file does).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -90,6 +91,7 @@ def partitioned_rollout(
     halo: HaloKind = "auto",
     cut: Cut = "auto",
     rebalance: float | None = 1.25,
+    frames: Path | None = None,
 ) -> tuple[Rollout | None, DecompositionStats]:
     """Predict ``steps`` frames from the first C of ``trajectory``, the scene split over ``processes``.
 
@@ -108,6 +110,9 @@ def partitioned_rollout(
             exchanges them (:mod:`.halo`).
         rebalance: cut the pieces afresh when a process holds more than this many times its share
             of the particles (> 1; None: keep the first frame's pieces).
+        frames: where rank 0 keeps the predicted frames, a ``.npy`` file it memory-maps, so
+            that a long rollout of a large scene need not fit in its memory (steps x N x d
+            float32); None: in memory. The rollout's ``predicted`` is then backed by that file.
     """
     if rebalance is not None and not rebalance > 1:
         raise ValueError(f"rebalance must be more than 1 (a process's most particles over its share), got {rebalance}")
@@ -138,7 +143,7 @@ def partitioned_rollout(
     shared = replace(shared, material_property=None).to(device)
     context = None if trajectory.step_context is None else torch.from_numpy(trajectory.step_context).to(device)
     chief = rank == 0
-    predicted = torch.empty((steps, start.num_particles, scene.dim)) if chief else None
+    predicted = _frames(frames, (steps, start.num_particles, scene.dim)) if chief else None
     last_input = torch.from_numpy(np.array(trajectory.position[history - 1])) if chief else None
     violations: list[GuardViolation] = []
     halo_count = migrations = rebalances = 0
@@ -238,6 +243,13 @@ def _gather_and_check(
             f"rank 0 stopped the rollout of trajectory {key!r} at step {step} (its error says why)", key, step
         )
     return found
+
+
+def _frames(path: Path | None, shape: tuple[int, int, int]) -> Tensor:
+    """(steps, N, d) float32 frames: in memory, or in a memory-mapped ``.npy`` file at ``path``."""
+    if path is None:
+        return torch.empty(shape)
+    return torch.from_numpy(np.lib.format.open_memmap(path, mode="w+", dtype=np.float32, shape=shape))
 
 
 def _most_held(owned: Particles, processes: Processes) -> int:

@@ -178,12 +178,16 @@ def test_a_rollout_partitioned_over_two_processes_writes_what_one_process_writes
     common = [str(tiny_model), "--steps", "5", "--outside-envelope", "--no-progress"]
     one = gns("rollout", *common, "--out", str(tmp_path / "one"))
     assert one.returncode == 0, one.stderr
-    env = dict(os.environ, OMP_NUM_THREADS="1")
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    env = dict(os.environ, OMP_NUM_THREADS="1", TMPDIR=str(scratch))
     launcher = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2"]
     command = ["-m", "gns_framework.cli", "rollout", *common, "--partitions", "2", "--out", str(tmp_path / "two")]
     two = subprocess.run(launcher + command, capture_output=True, text=True, timeout=600, env=env)
     assert two.returncode == 0, two.stderr
     assert "2 slabs along dimension" in two.stdout and "moved between processes" in two.stdout  # P = 2: slabs
+    assert sorted(p.name for p in (tmp_path / "two").iterdir()) == sorted(p.name for p in (tmp_path / "one").iterdir())
+    assert not [p for p in scratch.rglob("*") if "frames" in p.name], "rank 0's frame files are removed"
     with np.load(tmp_path / "one" / "test_0000.npz") as a, np.load(tmp_path / "two" / "test_0000.npz") as b:
         scale = np.abs(a["predicted_rollout"]).max()
         tolerance = np.finfo(np.float32).eps * scale * a["predicted_rollout"].shape[0]

@@ -115,8 +115,10 @@ def partitioned_worker(
     halo: str = "positions",
     cut: str = "auto",
     rebalance: float | None = 1.25,
+    frames: bool = False,
 ) -> None:
-    """Roll every case out over ``world`` gloo processes; rank 0 saves ``<case>.npy`` and ``<case>.json``.
+    """Roll every case out over ``world`` gloo processes; rank 0 saves ``<case>.npy`` and ``<case>.json``
+    (with ``frames``, it keeps the frames in ``<case>-frames.npy`` as it goes).
 
     ``depth_scale`` < 1 shrinks the halo below what ``halo`` needs: a broken decomposition.
     """
@@ -136,6 +138,7 @@ def partitioned_worker(
                 halo=halo,  # type: ignore[arg-type]
                 cut=cut,  # type: ignore[arg-type]
                 rebalance=rebalance,
+                frames=Path(out) / f"{name}-frames.npy" if frames and rank == 0 else None,
             )
             if rank == 0:
                 assert result is not None

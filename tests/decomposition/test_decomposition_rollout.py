@@ -29,8 +29,9 @@ def _partitioned(
     cases: tuple[str, ...] = tuple(CASES),
     cut: str = "slabs",
     rebalance: float | None = 1.25,
+    frames: bool = False,
 ) -> dict[str, np.ndarray]:
-    arguments = (processes, free_loopback_port(), str(tmp_path), list(cases), depth_scale, halo, cut, rebalance)
+    arguments = (processes, free_loopback_port(), str(tmp_path), list(cases), depth_scale, halo, cut, rebalance, frames)
     run_processes(partitioned_worker, arguments, processes)
     return {name: np.load(tmp_path / f"{name}.npy") for name in cases}
 
@@ -98,6 +99,15 @@ def test_pieces_cut_afresh_as_the_particles_crowd_give_the_same_rollout(tmp_path
     np.testing.assert_allclose(partitioned, reference, rtol=0, atol=_tolerance(reference))
     summary = json.loads((tmp_path / f"{name}.json").read_text())
     assert summary["rebalances"] >= 1 and summary["migrations"] > 0
+
+
+def test_rank_0_can_keep_the_frames_in_a_memory_mapped_file(tmp_path, single_process):
+    name = "3d_periodic"
+    partitioned = _partitioned(tmp_path, 2, "latents", cases=(name,), frames=True)[name]
+    kept = np.load(tmp_path / f"{name}-frames.npy", mmap_mode="r")
+    np.testing.assert_array_equal(kept, partitioned)
+    reference = single_process[name]
+    np.testing.assert_allclose(partitioned, reference, rtol=0, atol=_tolerance(reference))
 
 
 def test_a_rebalance_ratio_of_one_or_less_is_refused():
