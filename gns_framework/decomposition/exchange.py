@@ -9,6 +9,7 @@ gradient back to its sender.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 import torch.distributed as dist
@@ -23,22 +24,25 @@ class Routing:
         order: (M,) the rows in the order they are sent.
         sent: rows sent to each process.
         received: rows received from each process.
+        group: the processes exchanging (None: the whole job).
     """
 
     order: Tensor
     sent: list[int]
     received: list[int]
+    group: Any = None
 
     @classmethod
-    def of(cls, destination: Tensor, world_size: int) -> "Routing":
-        """Row i goes to process ``destination[i]`` (M,); every process calls this at once."""
+    def of(cls, destination: Tensor, world_size: int, group: Any = None) -> "Routing":
+        """Row i goes to process ``destination[i]`` (M,) of ``group`` (None: the whole job); every process of it
+        calls this at once."""
         if world_size == 1:
             count = int(destination.shape[0])
             return cls(torch.arange(count, device=destination.device), [count], [count])
         sent = torch.bincount(destination, minlength=world_size)
         received = torch.empty_like(sent)
-        dist.all_to_all_single(received, sent)
-        return cls(torch.argsort(destination, stable=True), sent.tolist(), received.tolist())
+        dist.all_to_all_single(received, sent, group=group)
+        return cls(torch.argsort(destination, stable=True), sent.tolist(), received.tolist(), group)
 
     def send(self, rows: Tensor) -> Tensor:
         """``rows`` (M, ...) sent as routed; the rows received (M', ...), ordered by sender, then as sent."""
@@ -47,20 +51,22 @@ class Routing:
         wire = rows.index_select(0, self.order)
         # gloo has no bool all-to-all: masks travel as bytes.
         wire = wire.to(torch.uint8) if rows.dtype == torch.bool else wire.contiguous()
-        into = _AllToAll.apply(wire, self.received, self.sent)
+        into = _AllToAll.apply(wire, self.received, self.sent, self.group)
         return into.to(torch.bool) if rows.dtype == torch.bool else into
 
 
-def send_rows(destination: Tensor, tensors: list[Tensor | None], world_size: int) -> list[Tensor | None]:
-    """Send row i of every tensor to process ``destination[i]``; return the rows received (None stays None).
+def send_rows(
+    destination: Tensor, tensors: list[Tensor | None], world_size: int, group: Any = None
+) -> list[Tensor | None]:
+    """Send row i of every tensor to process ``destination[i]`` of ``group``; return the rows received (None stays None).
 
     Shapes: destination (M,) int64 in [0, world_size); each tensor (M, ...) -> (M', ...).
     """
-    routing = Routing.of(destination, world_size)
+    routing = Routing.of(destination, world_size, group)
     return [None if tensor is None else routing.send(tensor) for tensor in tensors]
 
 
-def rows_everywhere(ids: Tensor, rows: Tensor, total: int, world_size: int) -> Tensor:
+def rows_everywhere(ids: Tensor, rows: Tensor, total: int, world_size: int, group: Any = None) -> Tensor:
     """Every process's ``rows``, placed by their global ``ids``, on every process (an all-gather of rows).
 
     Each global id in ``[0, total)`` must be held by exactly one process. Shapes: ids (n,)
@@ -68,7 +74,7 @@ def rows_everywhere(ids: Tensor, rows: Tensor, total: int, world_size: int) -> T
     """
     destination = torch.arange(world_size, device=ids.device).repeat_interleave(ids.shape[0])
     repeats = (world_size,) + (1,) * (rows.dim() - 1)
-    every_id, every_row = send_rows(destination, [ids.repeat(world_size), rows.repeat(repeats)], world_size)
+    every_id, every_row = send_rows(destination, [ids.repeat(world_size), rows.repeat(repeats)], world_size, group)
     assert every_id is not None and every_row is not None
     placed = rows.new_empty((total,) + tuple(rows.shape[1:]))
     placed[every_id] = every_row
@@ -79,14 +85,22 @@ class _AllToAll(torch.autograd.Function):
     """All-to-all of rows whose backward sends each row's gradient back to the process it came from."""
 
     @staticmethod
-    def forward(ctx, rows: Tensor, received: list[int], sent: list[int]) -> Tensor:
-        ctx.received, ctx.sent = received, sent
+    def forward(ctx, rows: Tensor, received: list[int], sent: list[int], group: Any) -> Tensor:
+        ctx.received, ctx.sent, ctx.group = received, sent, group
         into = rows.new_empty((sum(received),) + tuple(rows.shape[1:]))
-        dist.all_to_all_single(into, rows.contiguous(), output_split_sizes=received, input_split_sizes=sent)
+        dist.all_to_all_single(
+            into, rows.contiguous(), output_split_sizes=received, input_split_sizes=sent, group=group
+        )
         return into
 
     @staticmethod
-    def backward(ctx, gradient: Tensor) -> tuple[Tensor, None, None]:
+    def backward(ctx, gradient: Tensor) -> tuple[Tensor, None, None, None]:
         back = gradient.new_empty((sum(ctx.sent),) + tuple(gradient.shape[1:]))
-        dist.all_to_all_single(back, gradient.contiguous(), output_split_sizes=ctx.sent, input_split_sizes=ctx.received)
-        return back, None, None
+        dist.all_to_all_single(
+            back,
+            gradient.contiguous(),
+            output_split_sizes=ctx.sent,
+            input_split_sizes=ctx.received,
+            group=ctx.group,
+        )
+        return back, None, None, None

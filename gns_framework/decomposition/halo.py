@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 from torch import Tensor
@@ -139,10 +139,11 @@ class Halo:
         return node_latent.index_copy(0, self.halo_rows, incoming.to(node_latent.dtype))
 
 
-def with_halo(owned: Particles, partition: Partition, world: int) -> Halo:
-    """This process's particles plus the halo ``partition`` gives it; every process calls it at once."""
+def with_halo(owned: Particles, partition: Partition, world: int, group: Any = None) -> Halo:
+    """This process's particles plus the halo ``partition`` gives it; every process of ``group`` (None: the whole
+    job, of ``world`` processes) calls it at once."""
     rows, destination = partition.halo_of(owned.sequence[:, -1]).nonzero(as_tuple=True)
-    routing = Routing.of(destination, world)
+    routing = Routing.of(destination, world, group)
     halo = Particles.of([None if c is None else routing.send(c[rows]) for c in owned.columns()])
     local = owned.cat(halo)
     order = torch.argsort(local.ids)

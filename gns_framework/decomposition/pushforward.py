@@ -89,7 +89,7 @@ def _decomposed_next_frame(
         example=batch.batch,
     )
     owned = everyone.select(partition.owner(current) == rank)
-    particles = with_halo(owned, partition, world)
+    particles = with_halo(owned, partition, world, processes.group)
     local = particles.local
     if local.count == 0 or (kind == "positions" and owned.count == 0):
         # Nothing to predict here; with a halo of latents the others' exchanges still need this process.
@@ -110,4 +110,4 @@ def _decomposed_next_frame(
         with latent_exchange(simulator, particles, kind):
             predicted = simulator.predict_next_position(mine, prescribed=prescribed[local.ids])
         predicted = predicted[particles.owned_rows]
-    return rows_everywhere(owned.ids, predicted.to(current.dtype), batch.num_particles, world)
+    return rows_everywhere(owned.ids, predicted.to(current.dtype), batch.num_particles, world, processes.group)

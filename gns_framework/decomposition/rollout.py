@@ -32,7 +32,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
-import torch.distributed as dist
 from torch import Tensor
 
 from ..data.batch import window
@@ -148,7 +147,7 @@ def partitioned_rollout(
     violations: list[GuardViolation] = []
     halo_count = migrations = rebalances = 0
     for step in range(steps):
-        particles = with_halo(owned, partition, world)
+        particles = with_halo(owned, partition, world, processes.group)
         local, owned_rows = particles.local, particles.owned_rows
         halo_count += particles.halo_count
         kinematic = owned_rows[~simulator.predicted_mask(owned.particle_type)]
@@ -176,21 +175,19 @@ def partitioned_rollout(
             owned.ids, next_owned, predicted, previous, step, guard, trajectory.key, processes
         )
         owned = replace(owned, sequence=advance_window(owned.sequence, continued_owned))
-        owned, moved = _migrate(owned, partition, rank, world)
+        owned, moved = _migrate(owned, partition, processes)
         migrations += moved
         if (
             rebalance is not None
             and world > 1
             and _most_held(owned, processes) > rebalance * start.num_particles / world
         ):
-            frame = rows_everywhere(owned.ids, owned.sequence[:, -1], start.num_particles, world)
+            frame = rows_everywhere(owned.ids, owned.sequence[:, -1], start.num_particles, world, processes.group)
             partition, _ = partition_for(simulator, frame, world, kind, axis, cut)
-            owned, moved = _migrate(owned, partition, rank, world)
+            owned, moved = _migrate(owned, partition, processes)
             migrations += moved
             rebalances += 1
-    totals = torch.tensor([halo_count, migrations], dtype=torch.long, device=device)
-    if processes.distributed:
-        dist.all_reduce(totals)
+    totals = processes.sum(torch.tensor([halo_count, migrations], dtype=torch.long, device=device))
     stats = DecompositionStats(start.num_particles * steps, int(totals[0]), int(totals[1]), partition, kind, rebalances)
     if not chief:
         return None, stats
@@ -222,7 +219,7 @@ def _gather_and_check(
     Returns what the guard clamped. A guard stop raises RolloutDiverged on every process: rank 0
     the guard's, the others one that points to it.
     """
-    gathered_ids, gathered = send_rows(torch.zeros_like(ids), [ids, next_owned], processes.world_size)
+    gathered_ids, gathered = send_rows(torch.zeros_like(ids), [ids, next_owned], processes.world_size, processes.group)
     found: list[GuardViolation] = []
     failure: GnsError | None = None
     if predicted is not None:
@@ -233,9 +230,8 @@ def _gather_and_check(
             predicted[step], found = guard.check(step, frame, previous, key)
         except GnsError as exc:
             failure = exc
-    stopped = torch.tensor([failure is not None], dtype=torch.long, device=next_owned.device)
-    if processes.distributed:
-        dist.broadcast(stopped, src=0)
+    # Only rank 0 checks, so the sum over the processes is its verdict, on every process.
+    stopped = processes.sum(torch.tensor([failure is not None], dtype=torch.long, device=next_owned.device))
     if failure is not None:
         raise failure
     if bool(stopped):
@@ -259,9 +255,10 @@ def _most_held(owned: Particles, processes: Processes) -> int:
     return int(processes.sum(held).max())
 
 
-def _migrate(owned: Particles, partition: Partition, rank: int, world: int) -> tuple[Particles, int]:
+def _migrate(owned: Particles, partition: Partition, processes: Processes) -> tuple[Particles, int]:
     """Particles now in another piece sent to its process, those arriving appended; and how many left."""
     owner = partition.owner(owned.sequence[:, -1])
-    leaving = owner != rank
-    arrived = Particles.of(send_rows(owner[leaving], owned.select(leaving).columns(), world))
+    leaving = owner != processes.rank
+    moving = owned.select(leaving).columns()
+    arrived = Particles.of(send_rows(owner[leaving], moving, processes.world_size, processes.group))
     return owned.select(~leaving).cat(arrived), int(leaving.sum())

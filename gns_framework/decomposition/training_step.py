@@ -64,6 +64,7 @@ def partitioned_gradients(
     processes: Processes,
     halo: Literal["positions", "latents"] = "positions",
     precision: Precision = "float32",
+    everyone: Processes | None = None,
 ) -> Tensor:
     """Forward and backward of this process's share, then the gradients summed over processes.
 
@@ -75,14 +76,19 @@ def partitioned_gradients(
         scene: what the whole scene shares (``context``, ``bounds``, ``walls``); its particle fields are ignored.
         partition, halo: from :func:`.halo.partition_for`, the same on every process.
         precision: of the forward and backward (``training.precision``).
+        everyone: the whole job when ``processes`` is one team of it, each team taking its own
+            windows (data-parallel over teams, :meth:`~gns_framework.training.processes.Processes.teams`):
+            the loss is then the mean over every team's predicted particles and the gradients
+            are summed over the job. Default: ``processes``.
 
     Returns:
         the whole scene's loss (a detached scalar, the same on every process).
     """
-    particles = with_halo(owned, partition, processes.world_size)
+    everyone = processes if everyone is None else everyone
+    particles = with_halo(owned, partition, processes.world_size, processes.group)
     local, owned_rows = particles.local, particles.owned_rows
     moving = simulator.predicted_mask(local.particle_type)[owned_rows]
-    predicted_count = processes.sum(moving.sum().to(torch.float64))
+    predicted_count = everyone.sum(moving.sum().to(torch.float64))
     share = torch.zeros((), device=owned.sequence.device)
     if local.count == 0 and halo == "latents":
         stand_in_exchanges(simulator, particles, backward=True)  # the others' exchanges still need this process
@@ -103,8 +109,8 @@ def partitioned_gradients(
         share = error / predicted_count.clamp(min=1).to(error.dtype)
         with backward_precision(precision, device):
             share.backward()
-    _sum_gradients(simulator, processes)
-    return processes.sum(share.detach())
+    _sum_gradients(simulator, everyone)
+    return everyone.sum(share.detach())
 
 
 def _sum_gradients(module: torch.nn.Module, processes: Processes) -> None:
@@ -116,4 +122,4 @@ def _sum_gradients(module: torch.nn.Module, processes: Processes) -> None:
             continue
         if parameter.grad is None:
             parameter.grad = torch.zeros_like(parameter)
-        dist.all_reduce(parameter.grad)
+        dist.all_reduce(parameter.grad, group=processes.group)

@@ -56,7 +56,7 @@ def partitioned_one_step_errors(
     world, rank = processes.world_size, processes.rank
     partition, kind = partition_for(simulator, batch.position_sequence[:, -1], world, halo, cut=cut)
     owned = owned_share(batch, torch.zeros_like(batch.position_sequence), partition, rank)
-    particles = with_halo(owned, partition, world)
+    particles = with_halo(owned, partition, world, processes.group)
     local, owned_rows = particles.local, particles.owned_rows
     # Summed over processes: the acceleration error, the position error, the predicted particles.
     sums = torch.zeros(3, dtype=torch.float64, device=batch.position_sequence.device)

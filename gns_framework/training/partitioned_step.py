@@ -18,25 +18,38 @@ from ..data.batch import ParticleBatch
 from ..decomposition.halo import partition_for
 from ..decomposition.pushforward import partitioned_pushed_forward
 from ..decomposition.training_step import owned_share, partitioned_gradients
+from .processes import Processes
 from .step import TrainingStep
 
 
 class PartitionedTrainingStep(TrainingStep):
-    """:class:`TrainingStep` for scenes split into pieces, one per process: the same windows,
-    noise, push-forward and update, with the unrolled steps and the gradients computed piece by piece.
+    """:class:`TrainingStep` for scenes split into pieces, one per process of a team: the same
+    windows, noise, push-forward and update, with the unrolled steps and the gradients computed
+    piece by piece.
 
     Built as a TrainingStep whose ``model`` is the bare simulator and whose window order
-    is the one of a single process (every process takes every window of the step).
+    is that of data-parallel teams (every process of a team takes its team's windows). With
+    one team, the job, it is a single process's order.
+
+    Args:
+        team: this process's team (:meth:`~.processes.Processes.teams`), one process per piece;
+            ``processes`` is the whole job, over which the gradients are summed.
     """
 
+    def __init__(self, *args, team: Processes, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.team = team
+
     def gradients(self, batch: ParticleBatch, noise: Tensor, mask: Tensor) -> Tensor:
-        """Fresh gradients of the whole batch's loss on every process, each computing its piece's share."""
-        partition, halo = partition_for(self.simulator, batch.position_sequence[:, -1], self.processes.world_size)
-        owned = owned_share(batch, noise, partition, self.processes.rank)
+        """Fresh gradients of the global batch's loss on every process, each computing its piece's share."""
+        partition, halo = partition_for(self.simulator, batch.position_sequence[:, -1], self.team.world_size)
+        owned = owned_share(batch, noise, partition, self.team.rank)
         self.optimizer.zero_grad(set_to_none=True)
-        loss = partitioned_gradients(self.simulator, owned, batch, partition, self.processes, halo, self.precision)
+        loss = partitioned_gradients(
+            self.simulator, owned, batch, partition, self.team, halo, self.precision, everyone=self.processes
+        )
         return loss.to(torch.float64)
 
     def pushed_forward(self, batch: ParticleBatch, steps: int) -> ParticleBatch:
-        """The single process's push-forward, each unrolled step predicted piece by piece (the same batch on every process)."""
-        return partitioned_pushed_forward(self.simulator, batch, steps, self.processes)
+        """The single process's push-forward, each unrolled step predicted piece by piece (the same batch in the team)."""
+        return partitioned_pushed_forward(self.simulator, batch, steps, self.team)

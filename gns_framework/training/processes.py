@@ -9,7 +9,7 @@ the state to the other ranks, so only rank 0 needs the run folder.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import torch
@@ -28,12 +28,16 @@ class Processes:
         world_size: processes in the job, over every node.
         local_rank: rank on this node; picks the GPU.
         restart_count: how many times torchrun restarted the workers (elastic restarts).
+        group: the process group the collectives run in; None: every process of the job. A
+            team of the job (:meth:`teams`) has its own, and ``rank`` and ``world_size`` are then
+            this process's place in the team.
     """
 
     rank: int = 0
     world_size: int = 1
     local_rank: int = 0
     restart_count: int = 0
+    group: Any = None
 
     @property
     def distributed(self) -> bool:
@@ -65,21 +69,39 @@ class Processes:
         device_ids = [device.index] if is_cuda(device) else None
         return nn.parallel.DistributedDataParallel(module, device_ids=device_ids)
 
+    def teams(self, size: int) -> "Processes":
+        """This process's team when the job is cut into teams of ``size`` consecutive ranks.
+
+        Every process of the job calls it at once (each team's group is made by all). Ranks
+        ``t * size .. (t + 1) * size - 1`` form team t; the result's rank and world size are
+        this process's place in its team, and its collectives stay inside the team.
+        """
+        if size < 1 or self.world_size % size:
+            raise ValueError(f"{self.world_size} processes do not split into teams of {size}")
+        if size == self.world_size:
+            return self
+        mine = None
+        for first in range(0, self.world_size, size):
+            group = dist.new_group(list(range(first, first + size)))
+            if first <= self.rank < first + size:
+                mine = group
+        return replace(self, rank=self.rank % size, world_size=size, group=mine)
+
     def sum(self, tensor: Tensor) -> Tensor:
         """Sum of ``tensor`` over every rank (a copy; the input is untouched)."""
         total = tensor.clone()
         if self.distributed:
-            dist.all_reduce(total, op=dist.ReduceOp.SUM)
+            dist.all_reduce(total, op=dist.ReduceOp.SUM, group=self.group)
         return total
 
     def barrier(self) -> None:
         if self.distributed:
-            dist.barrier()
+            dist.barrier(group=self.group)
 
     def broadcast(self, value: Any) -> Any:
         """Rank 0's ``value`` on every rank (any picklable object)."""
         if not self.distributed:
             return value
         box = [value]
-        dist.broadcast_object_list(box, src=0)
+        dist.broadcast_object_list(box, group=self.group, group_src=0)
         return box[0]

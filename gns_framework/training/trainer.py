@@ -129,9 +129,15 @@ class Trainer:
                 ],
             )
         self.windows = self._training_windows(shapes)
-        # Split scenes (training.partitions): every process takes every window of a step.
+        # Split scenes (training.partitions): teams of one process per piece, data-parallel over the teams;
+        # every process of a team takes its team's windows.
         partitioned = self._partitioned()
-        replicas, replica = (1, 0) if partitioned else (self.world_size, self.rank)
+        pieces = recipe.training.partitions
+        self.team: Processes | None = self.processes.teams(pieces) if partitioned else None
+        """This process's team of one process per piece (``training.partitions``), or None."""
+        replicas, replica = (
+            (self.world_size // pieces, self.rank // pieces) if partitioned else (self.world_size, self.rank)
+        )
         self.order = WindowOrder(len(self.windows), recipe.training.batch_size, recipe.seed, replica, replicas)
         envelope = (
             measure_envelope(
@@ -159,7 +165,8 @@ class Trainer:
             self.simulator.parameters(), recipe.training.optimizer, recipe.training.steps
         )
         decay = recipe.training.ema_decay
-        self.optimisation = (PartitionedTrainingStep if partitioned else TrainingStep)(
+        step_kind = TrainingStep if self.team is None else partial(PartitionedTrainingStep, team=self.team)
+        self.optimisation = step_kind(
             self.simulator,
             self.model,
             self.windows,
@@ -196,16 +203,18 @@ class Trainer:
             self.tracker = tracker if tracker is not None else JsonlTracker(self.run_dir)
 
     def _partitioned(self) -> bool:
-        """Whether scenes are split over the processes (``training.partitions``); refused unless one process per piece."""
+        """Whether scenes are split over the processes (``training.partitions``); refused unless the processes form
+        teams of one per piece."""
         partitions = self.recipe.training.partitions
-        if partitions > 1 and partitions != self.world_size:
+        if partitions > 1 and self.world_size % partitions:
             raise RecipeError(
                 None,
                 [
                     (
                         "training.partitions",
-                        f"{partitions} pieces need {partitions} processes, one per piece, but WORLD_SIZE is "
-                        f"{self.world_size}: launch as torchrun --nproc-per-node {partitions} -m gns_framework.cli train",
+                        f"{partitions} pieces need a multiple of {partitions} processes (teams of one process per "
+                        f"piece, data-parallel over the teams), but WORLD_SIZE is {self.world_size}: launch as "
+                        f"torchrun --nproc-per-node {partitions} -m gns_framework.cli train",
                     )
                 ],
             )
@@ -232,13 +241,13 @@ class Trainer:
         """Fixed one-step windows and the first ``validation_rollouts`` valid trajectories, on the bare model.
 
         Data-parallel, validation is rank 0's and the other ranks get an empty one. With the
-        scenes split (``training.partitions``) every process validates its slabs and rank 0
-        reports (:mod:`gns_framework.decomposition.validation`): a scene too large for one
-        device is validated as it is trained.
+        scenes split (``training.partitions``) every process of rank 0's team validates its
+        piece and rank 0 reports (:mod:`gns_framework.decomposition.validation`): a scene too
+        large for one device is validated as it is trained. The other teams get an empty one.
         """
         spec, valid = self.recipe.training, self.data.valid
         batches, trajectories = [], []
-        if self.processes.is_chief or partitioned:
+        if self.processes.is_chief or (partitioned and self.rank < spec.partitions):
             batches = validation_windows(
                 valid, self.recipe.model.history, spec.validation_windows, spec.batch_size, str(self.data.dataset.path)
             )
@@ -249,7 +258,8 @@ class Trainer:
         if not partitioned:
             score = validation_rollout_scorer(self.registry, scene, metadata, self.device)
             return Validation(batches, trajectories, score, spec.best_metric, self.run, self.device)
-        split = partitioned_positions(self.processes, self.device)
+        assert self.team is not None  # made with the partitions
+        split = partitioned_positions(self.team, self.device)
         score = validation_rollout_scorer(self.registry, scene, metadata, self.device, positions=split)
         return Validation(
             batches,
@@ -258,7 +268,7 @@ class Trainer:
             spec.best_metric,
             self.run,
             self.device,
-            one_step=partial(partitioned_one_step_errors, processes=self.processes),
+            one_step=partial(partitioned_one_step_errors, processes=self.team),
             reports=self.processes.is_chief,
         )
 

@@ -55,7 +55,10 @@ def test_two_processes_that_split_each_scene_train_as_one_process(uneven_dataset
 def test_partitions_other_than_the_processes_are_refused(uneven_dataset, tmp_path):
     registry = load_registry()
     recipe = validate_recipe(tiny_recipe(uneven_dataset, partitions=2), registry)
-    with pytest.raises(RecipeError, match="2 pieces need 2 processes, one per piece, but WORLD_SIZE is 1"):
+    with pytest.raises(
+        RecipeError,
+        match="2 pieces need a multiple of 2 processes .teams of one process per piece, data-parallel over the teams., but WORLD_SIZE is 1",
+    ):
         Trainer(recipe, registry, run_dir=tmp_path / "run", processes=Processes(), progress=False)
 
 
@@ -70,3 +73,41 @@ def test_a_split_scene_refuses_components_without_a_bounded_reach(uneven_dataset
         refused.value
     )
     assert "processor 'grid_cnn' does not bound how far" in str(refused.value)
+
+
+def test_two_teams_of_two_processes_train_as_one_process_on_both_teams_windows(uneven_dataset, tmp_path):
+    """4 processes, partitions 2: each team splits its own windows' scenes, the teams are data-parallel, and the run
+    is one process's with the global batch (both teams' windows), as for plain data-parallel training."""
+    recipe = tiny_recipe(
+        uneven_dataset,
+        name="teams",
+        steps=STEPS,
+        validate_every=1000,
+        checkpoint_every=1000,
+        pushforward_steps=1,
+        validation_rollouts=1,
+    )
+    split = dict(recipe, training=dict(recipe["training"], partitions=2))
+    run_processes(train_rank, (4, free_loopback_port(), split, str(tmp_path / "teams"), [STEPS], str(tmp_path)), 4)
+    ranks = [torch.load(tmp_path / f"rank{rank}-step{STEPS}.pt", weights_only=True) for rank in range(4)]
+    assert ranks[0]["windows"] == ranks[1]["windows"] and ranks[2]["windows"] == ranks[3]["windows"]
+    assert ranks[0]["windows"] != ranks[2]["windows"], "both teams trained on the same windows"
+    for rank in ranks[1:]:
+        assert rank["losses"] == ranks[0]["losses"]
+        for name, value in ranks[0]["params"].items():
+            assert torch.equal(value, rank["params"][name]), name
+    single = dict(recipe, training=dict(recipe["training"], batch_size=2 * recipe["training"]["batch_size"]))
+    registry = load_registry()
+    torch.set_num_threads(1)
+    alone = Trainer(validate_recipe(single, registry), registry, run_dir=tmp_path / "alone", progress=False)
+    losses = alone.train(STEPS)
+    alone.close()
+    assert sorted(alone.order.indices(0)) == sorted(ranks[0]["windows"] + ranks[2]["windows"])
+    assert ranks[0]["losses"] == pytest.approx(losses, rel=1e-5)
+    for name, value in alone.simulator.state_dict().items():
+        torch.testing.assert_close(ranks[0]["params"][name], value, rtol=1e-4, atol=1e-6, msg=name)
+    # Rank 0's team validated (its rollouts as one process's); the others report nothing.
+    assert all(rank["validation"] == {} for rank in ranks[1:])
+    rollout_scores = {k: v for k, v in alone.last_validation.items() if k.startswith("valid_rollout_")}
+    assert rollout_scores
+    assert {k: ranks[0]["validation"][k] for k in rollout_scores} == pytest.approx(rollout_scores, rel=1e-3)
