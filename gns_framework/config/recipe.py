@@ -190,9 +190,10 @@ class TrainingSpec(_Strict):
         1,
         ge=1,
         description="split each training step's scenes into this many pieces (slabs or blocks, whichever leaves the "
-        "smaller halo), one per process (launch under torchrun "
-        "with as many processes), for scenes too large for one device: every process takes the same windows and "
-        "the gradients are one process's (docs/domain_decomposition.md); 1: data-parallel over the processes",
+        "smaller halo), one per process, for scenes too large for one device (launch under torchrun with this many "
+        "processes, or a multiple: teams of one process per piece, data-parallel over the teams): every process of "
+        "a team takes the team's windows and the gradients are one process's on all the teams' windows "
+        "(docs/domain_decomposition.md); 1: data-parallel over the processes",
     )
     best_metric: str = Field(
         "valid_rollout_mse",
