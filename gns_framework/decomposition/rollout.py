@@ -21,7 +21,7 @@ Every step, on every process (rank r of P):
 With a halo of positions, its outermost particles miss some of their own neighbours, but what
 they get wrong travels one edge per message-passing step and never reaches an owned particle. Memory per
 process is its share of the scene plus the halo; rank 0 alone also holds the predicted
-frames (as the rollout file does).
+frames (as the rollout file does), in memory or in a memory-mapped file (``frames``).
 """
 
 from __future__ import annotations
