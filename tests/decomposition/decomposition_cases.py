@@ -105,6 +105,15 @@ def _join(rank: int, world: int, port: int):
     return processes
 
 
+def _scale_halo_depth(depth_scale: float) -> None:
+    """In this process, halos ``depth_scale`` times as deep as each kind needs (< 1: a broken decomposition)."""
+    from gns_framework.decomposition import halo as halos
+
+    if depth_scale != 1.0:
+        depth = halos.halo_depth
+        halos.halo_depth = lambda simulator, kind: depth_scale * depth(simulator, kind)  # type: ignore[assignment]
+
+
 def partitioned_worker(
     rank: int,
     world: int,
@@ -122,13 +131,11 @@ def partitioned_worker(
 
     ``depth_scale`` < 1 shrinks the halo below what ``halo`` needs: a broken decomposition.
     """
-    from gns_framework.decomposition import halo as halos, rollout as decomposed
+    from gns_framework.decomposition import rollout as decomposed
     from gns_framework.training.distributed import stop
 
     processes = _join(rank, world, port)
-    if depth_scale != 1.0:
-        depth = halos.halo_depth
-        halos.halo_depth = lambda simulator, kind: depth_scale * depth(simulator, kind)  # type: ignore[assignment]
+    _scale_halo_depth(depth_scale)
     try:
         for name in cases:
             result, stats = decomposed.partitioned_rollout(
@@ -255,14 +262,11 @@ def pushforward_worker(
     cut: str = "auto",
 ) -> None:
     """Every case's batch pushed forward over ``world`` gloo processes; each rank saves ``<case>-rank<r>.pt``."""
-    from gns_framework.decomposition import halo as halos
     from gns_framework.decomposition.pushforward import partitioned_pushed_forward
     from gns_framework.training.distributed import stop
 
     processes = _join(rank, world, port)
-    if depth_scale != 1.0:
-        depth = halos.halo_depth
-        halos.halo_depth = lambda simulator, kind: depth_scale * depth(simulator, kind)  # type: ignore[assignment]
+    _scale_halo_depth(depth_scale)
     try:
         for name in cases:
             simulator = case_simulator(name).double()
