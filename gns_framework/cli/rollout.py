@@ -15,7 +15,10 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
+
+import torch
 
 from ..assembly.data import open_dataset
 from ..assembly.trained import load_trained
@@ -79,8 +82,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=1,
         metavar="P",
         help="split each scene into P pieces (slabs or blocks) of about equal particle count, one per process, for "
-        "scenes too large for one device: launch as torchrun --nproc-per-node P -m gns_framework.cli rollout ... "
-        "(default 1)",
+        "scenes too large for one device: launch as torchrun --nproc-per-node P -m gns_framework.cli rollout ...; "
+        "under a multiple of P processes, teams of P roll out the scenes in turn (default 1)",
     )
     parser.add_argument(
         "--partition-axis",
@@ -142,10 +145,11 @@ def _processes(args: argparse.Namespace) -> Processes:
         raise GnsError("gns rollout: --partition-axis cuts slabs across one dimension; --cut blocks has no one axis")
     if args.partitions > 1 and args.batch > 1:
         raise GnsError("gns rollout: --partitions and --batch do not combine: a partitioned scene is rolled out alone")
-    if args.partitions != processes.world_size:
+    if processes.world_size % args.partitions:
         raise GnsError(
-            f"gns rollout: --partitions {args.partitions} needs {args.partitions} processes, one per piece, but "
-            f"WORLD_SIZE is {processes.world_size}: launch it as torchrun --nproc-per-node {args.partitions} "
+            f"gns rollout: --partitions {args.partitions} needs {args.partitions} processes, one per piece (or a "
+            f"multiple: teams of {args.partitions}, each rolling out its own scenes), but WORLD_SIZE is "
+            f"{processes.world_size}: launch it as torchrun --nproc-per-node {args.partitions} "
             "-m gns_framework.cli rollout ..."
         )
     return processes
@@ -189,13 +193,17 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
         args.on_violation or spec.guard.on_violation,
     )
     steps = args.steps or spec.steps
+
+    def claim() -> None:
+        claim_folder(out, "rollout", args.overwrite, own=_only_rollouts)
+
     for position, (index, result) in enumerate(
-        _rollouts(loaded.simulator, trajectories, count, steps, device, guard, args, processes)
+        _rollouts(loaded.simulator, trajectories, count, steps, device, guard, args, processes, claim)
     ):
         if result is None:
-            continue  # a partitioned rollout's frames are on rank 0
-        if position == 0:
-            claim_folder(out, "rollout", args.overwrite, own=_only_rollouts)
+            continue  # a partitioned rollout's frames are on its team's first process
+        if position == 0 and args.partitions == 1:
+            claim()
         file = ensure_inside(out / f"{safe_component(split_name)}_{index:04d}.npz", out)
         path = write_rollout(file, result, recorded)
         clamped = f", clamped at {len(result.guard_violations)} check(s)" if result.guard_violations else ""
@@ -203,6 +211,11 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
         for violation in result.guard_violations:
             print(f"gns rollout: warning: {path}: clamped {violation.describe()}", file=sys.stderr)
         errors.append(result.position_mse)
+    if args.partitions > 1:
+        # Each team's first process holds its scenes' errors; rank 0 logs the mean over all of them.
+        local = torch.tensor([sum(errors), len(errors)], dtype=torch.float64, device=device)
+        total, written = processes.sum(local).tolist()
+        errors = [total / written] if processes.is_chief and written else []
     if errors:
         tracked = log_to_recorded_run(
             run.root,
@@ -216,19 +229,29 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
 
 
 def _rollouts(
-    simulator, trajectories, count: int, steps: int | None, device, guard: RolloutGuard, args, processes: Processes
+    simulator,
+    trajectories,
+    count: int,
+    steps: int | None,
+    device,
+    guard: RolloutGuard,
+    args,
+    processes: Processes,
+    claim: Callable[[], None],
 ):
     """(index, rollout) of the first ``count`` trajectories, in order; ``--batch`` of one length at a time.
 
-    With ``--partitions`` every process rolls out its piece of each scene, and only rank 0 gets the rollout
-    (None elsewhere).
+    With ``--partitions`` every process rolls out its piece of each scene, and only its team's first
+    process gets the rollout (None elsewhere); ``claim`` is then run by rank 0 once the first scenes are
+    rolled out, before any is written.
     """
     if args.partitions > 1:
-        # Rank 0 keeps each rollout's frames in a memory-mapped file (TMPDIR), not in memory, until it is written.
-        scratch = tempfile.TemporaryDirectory(prefix="gns-rollout-frames-") if processes.is_chief else None
+        team = processes.teams(args.partitions)
+        # A team's first process keeps each rollout's frames in a memory-mapped file (TMPDIR) until it is written.
+        scratch = tempfile.TemporaryDirectory(prefix="gns-rollout-frames-") if team.is_chief else None
         try:
             yield from _partitioned_rollouts(
-                simulator, trajectories, count, steps, device, guard, args, processes, scratch
+                simulator, trajectories, count, steps, device, guard, args, processes, team, scratch, claim
             )
         finally:
             if scratch is not None:
@@ -271,28 +294,51 @@ def _partitioned_rollouts(
     guard: RolloutGuard,
     args,
     processes: Processes,
+    team: Processes,
     scratch: tempfile.TemporaryDirectory | None,
+    claim: Callable[[], None],
 ):
-    """(index, rollout) of each scene split over the processes (None except on rank 0, whose frames are in ``scratch``).
+    """(index, rollout) of each scene split over a team's processes (None except on the team's first process,
+    whose frames are in ``scratch``).
 
-    A rollout's frames file is removed once the caller has written it (when the next one starts).
+    Teams take the scenes in turn: in round k, team t rolls out scene ``k * teams + t``. After
+    each round every process learns whether any team's rollout stopped (then all stop, the team's
+    own error or one naming the other team), so no process waits for a team that is gone; after
+    the first, rank 0 runs ``claim`` before anything is written. A rollout's frames file is
+    removed once the caller has written it (when the next round starts).
     """
-    for index in range(count):
-        frames = None if scratch is None else Path(scratch.name) / f"{index}.npy"
-        result, stats = partitioned_rollout(
-            simulator,
-            trajectories[index],
-            processes,
-            steps,
-            device,
-            guard,
-            args.precision,
-            args.partition_axis,
-            args.halo,
-            args.cut,
-            args.rebalance,
-            frames,
-        )
+    teams, mine = processes.world_size // team.world_size, processes.rank // team.world_size
+    for first in range(0, count, teams):
+        index = first + mine
+        result, frames, failure = None, None, None
+        if index < count:
+            frames = None if scratch is None else Path(scratch.name) / f"{index}.npy"
+            try:
+                result, stats = partitioned_rollout(
+                    simulator,
+                    trajectories[index],
+                    team,
+                    steps,
+                    device,
+                    guard,
+                    args.precision,
+                    args.partition_axis,
+                    args.halo,
+                    args.cut,
+                    args.rebalance,
+                    frames,
+                )
+            except Exception as exc:
+                failure = exc
+        # On the processes' device: NCCL reduces CUDA tensors only.
+        if processes.sum(torch.tensor([failure is not None], dtype=torch.long, device=device)).item():
+            if failure is not None:
+                raise failure
+            raise GnsError(
+                f"gns rollout: another team's rollout stopped in round {first // teams} (its error says why)"
+            )
+        if first == 0:
+            from_chief(processes, claim)
         if result is not None:
             print(
                 f"{trajectories[index].key or index}: {stats.partition.describe()}, "

@@ -195,6 +195,74 @@ def test_a_rollout_partitioned_over_two_processes_writes_what_one_process_writes
         np.testing.assert_array_equal(b["ground_truth_rollout"], a["ground_truth_rollout"])
 
 
+def test_two_teams_of_two_processes_roll_out_the_scenes_in_turn(tiny_model, tmp_path):
+    """4 processes, --partitions 2: team 0 takes scenes 0 and 2, team 1 scene 1 (and waits in the second round)."""
+    import os
+    import subprocess
+    import sys
+
+    from synthetic import write_synthetic_dataset
+
+    data = write_synthetic_dataset(
+        tmp_path / "three",
+        train=1,
+        valid=1,
+        test=3,
+        particle_types=(5, 6),
+        kinematic_floor=True,
+        with_property=True,
+        frames=20,
+    )
+    common = [str(tiny_model), "--dataset", str(data), "--steps", "4", "--outside-envelope", "--no-progress"]
+    one = gns("rollout", *common, "--out", str(tmp_path / "one"))
+    assert one.returncode == 0, one.stderr
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    launcher = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "4"]
+    command = ["-m", "gns_framework.cli", "rollout", *common, "--partitions", "2", "--out", str(tmp_path / "teams")]
+    teams = subprocess.run(launcher + command, capture_output=True, text=True, timeout=600, env=env)
+    assert teams.returncode == 0, teams.stderr
+    assert teams.stdout.count("moved between processes") == 3
+    written = sorted(p.name for p in (tmp_path / "one").iterdir())
+    assert len(written) >= 3 and sorted(p.name for p in (tmp_path / "teams").iterdir()) == written
+    for index in range(3):
+        name = f"test_{index:04d}.npz"
+        with np.load(tmp_path / "one" / name) as a, np.load(tmp_path / "teams" / name) as b:
+            scale = np.abs(a["predicted_rollout"]).max()
+            tolerance = np.finfo(np.float32).eps * scale * a["predicted_rollout"].shape[0]
+            np.testing.assert_allclose(b["predicted_rollout"], a["predicted_rollout"], rtol=0, atol=tolerance)
+
+
+def test_a_team_whose_rollout_stops_stops_every_team_and_nothing_is_written(tiny_model, tmp_path):
+    """Scene 1 (team 1's) starts far outside the domain: the guard stops it at its first step, team 0 finishes
+    its scene and learns it, every process exits with an error, and no file or folder is written."""
+    import dataclasses
+    import os
+    import subprocess
+    import sys
+
+    from synthetic import soft_sphere_trajectory, synthetic_metadata
+
+    from gns_framework.plugins import load_registry
+
+    scene = dict(particle_types=(5, 6), kinematic_floor=True, with_property=True, frames=20)
+    train = [soft_sphere_trajectory(0, key="train_000", **scene)]
+    test = [soft_sphere_trajectory(seed, key=f"test_{seed:03d}", **scene) for seed in (1, 2)]
+    test[1] = dataclasses.replace(test[1], position=test[1].position + np.float32(50.0))
+    data = tmp_path / "stops"
+    load_registry().get("dataset", "safe").write(
+        data, synthetic_metadata(train, 2), {"train": train, "valid": train, "test": test}
+    )
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    launcher = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "4"]
+    options = ["--dataset", str(data), "--steps", "4", "--outside-envelope", "--no-progress", "--partitions", "2"]
+    guard = ["--guard-margin", "0.1", "--on-violation", "stop", "--out", str(tmp_path / "out")]
+    command = ["-m", "gns_framework.cli", "rollout", str(tiny_model), *options, *guard]
+    stopped = subprocess.run(launcher + command, capture_output=True, text=True, timeout=300, env=env)
+    assert stopped.returncode != 0
+    assert "another team's rollout stopped in round 0" in stopped.stderr, stopped.stderr[-2000:]
+    assert not (tmp_path / "out").exists()
+
+
 def test_partitions_without_as_many_processes_is_refused(tiny_model, tmp_path):
     refused = gns("rollout", str(tiny_model), "--partitions", "2", "--out", str(tmp_path / "out"))
     assert refused.returncode != 0
