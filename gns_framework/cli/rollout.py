@@ -37,6 +37,7 @@ from ..safe_names import ensure_inside, require_component, safe_component
 from ..training.distributed import from_chief, processes_from_environment, start, stop
 from ..training.mlflow_tracker import log_to_recorded_run
 from ..training.processes import Processes
+from ..training.teams import team_of
 from .arguments import add_allow_pickle, non_negative_float, non_negative_int, positive_int, ratio_above_one_or_never
 from .envelope_option import add_outside_envelope, enforce_envelope
 
@@ -246,7 +247,7 @@ def _rollouts(
     rolled out, before any is written.
     """
     if args.partitions > 1:
-        team = processes.teams(args.partitions)
+        team = team_of(processes, args.partitions)
         # A team's first process keeps each rollout's frames in a memory-mapped file (TMPDIR) until it is written.
         scratch = tempfile.TemporaryDirectory(prefix="gns-rollout-frames-") if team.is_chief else None
         try:

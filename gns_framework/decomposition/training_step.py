@@ -77,7 +77,7 @@ def partitioned_gradients(
         partition, halo: from :func:`.halo.partition_for`, the same on every process.
         precision: of the forward and backward (``training.precision``).
         everyone: the whole job when ``processes`` is one team of it, each team taking its own
-            windows (data-parallel over teams, :meth:`~gns_framework.training.processes.Processes.teams`):
+            windows (data-parallel over teams, :func:`~gns_framework.training.teams.team_of`):
             the loss is then the mean over every team's predicted particles and the gradients
             are summed over the job. Default: ``processes``.
 

@@ -32,7 +32,7 @@ class PartitionedTrainingStep(TrainingStep):
     one team, the job, it is a single process's order.
 
     Args:
-        team: this process's team (:meth:`~.processes.Processes.teams`), one process per piece;
+        team: this process's team (:func:`~.teams.team_of`), one process per piece;
             ``processes`` is the whole job, over which the gradients are summed.
     """
 

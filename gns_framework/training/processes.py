@@ -1,15 +1,14 @@
 """This process's place in a training job and the few collectives training needs.
 
-One plain process (``world_size == 1``) is the default: then every collective is
-the identity and nothing touches ``torch.distributed``. Under torchrun
-(:mod:`.distributed` starts the process group) global rank 0 alone writes
-checkpoints and talks to the tracker; on resume it reads the checkpoint and sends
-the state to the other ranks, so only rank 0 needs the run folder.
+One plain process (``world_size == 1``) is the default: then every collective is the identity and
+nothing touches ``torch.distributed``. Under torchrun (:mod:`.distributed` starts the process group)
+global rank 0 alone writes checkpoints and talks to the tracker; on resume it reads the checkpoint
+and sends the state to the other ranks, so only rank 0 needs the run folder.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -24,13 +23,11 @@ class Processes:
     """This process's place in the job; ``world_size == 1`` is a plain single-process run.
 
     Attributes:
-        rank: global rank (0 .. world_size - 1).
+        rank: rank in ``group`` (0 .. world_size - 1).
         world_size: processes in the job, over every node.
         local_rank: rank on this node; picks the GPU.
         restart_count: how many times torchrun restarted the workers (elastic restarts).
-        group: the process group the collectives run in; None: every process of the job. A
-            team of the job (:meth:`teams`) has its own, and ``rank`` and ``world_size`` are then
-            this process's place in the team.
+        group: the process group of the collectives; None: the whole job (a team's: :mod:`.teams`).
     """
 
     rank: int = 0
@@ -68,24 +65,6 @@ class Processes:
             return module
         device_ids = [device.index] if is_cuda(device) else None
         return nn.parallel.DistributedDataParallel(module, device_ids=device_ids)
-
-    def teams(self, size: int) -> "Processes":
-        """This process's team when the job is cut into teams of ``size`` consecutive ranks.
-
-        Every process of the job calls it at once (each team's group is made by all). Ranks
-        ``t * size .. (t + 1) * size - 1`` form team t; the result's rank and world size are
-        this process's place in its team, and its collectives stay inside the team.
-        """
-        if size < 1 or self.world_size % size:
-            raise ValueError(f"{self.world_size} processes do not split into teams of {size}")
-        if size == self.world_size:
-            return self
-        mine = None
-        for first in range(0, self.world_size, size):
-            group = dist.new_group(list(range(first, first + size)))
-            if first <= self.rank < first + size:
-                mine = group
-        return replace(self, rank=self.rank % size, world_size=size, group=mine)
 
     def sum(self, tensor: Tensor) -> Tensor:
         """Sum of ``tensor`` over every rank (a copy; the input is untouched)."""

@@ -36,6 +36,7 @@ from ..runtime.host_sync import avoids_read_backs, read_back
 from . import distributed
 from .checkpoints import Checkpoints
 from .processes import Processes
+from .teams import team_of
 from .ema import WeightAverage
 from .optim import make_optimizer
 from .provenance import git_commit
@@ -133,7 +134,7 @@ class Trainer:
         # every process of a team takes its team's windows.
         partitioned = self._partitioned()
         pieces = recipe.training.partitions
-        self.team: Processes | None = self.processes.teams(pieces) if partitioned else None
+        self.team: Processes | None = team_of(self.processes, pieces) if partitioned else None
         """This process's team of one process per piece (``training.partitions``), or None."""
         replicas, replica = (
             (self.world_size // pieces, self.rank // pieces) if partitioned else (self.world_size, self.rank)
