@@ -26,6 +26,7 @@ from pathlib import Path
 
 from .data.atomic import fsync_directory, process_umask
 from .errors import GnsError
+from .io.owned_files import LinkRefused, describe_link, write_owned_text
 
 MARKER = ".gns-output.json"
 """File recording which command wrote the folder it is in."""
@@ -74,14 +75,32 @@ def claim_folder(folder: str | Path, command: str, overwrite: bool, own: Callabl
     """:func:`check_folder`, then create ``folder`` and mark it as ``gns command``'s; says when it replaces something."""
     folder = Path(folder)
     if check_folder(folder, command, overwrite, own):
+        refuse_links_inside(folder, command)
         print(f"gns {command}: writing over the earlier contents of {folder}", file=sys.stderr)
     folder.mkdir(parents=True, exist_ok=True)
     write_marker(folder, command)
     return folder
 
 
+def refuse_links_inside(folder: Path, command: str) -> None:
+    """Refuse a folder about to be written over when anything inside it is a symbolic link.
+
+    A folder copied from elsewhere may hold ``report.md -> ~/notes.md``: the writers
+    (matplotlib, meshio, csv) would follow it out of the folder. Links are found by a
+    walk that never follows them; the first is named.
+    """
+    for root, directories, files in os.walk(folder, followlinks=False):
+        for name in sorted(directories + files):
+            path = Path(root) / name
+            if path.is_symlink():
+                raise LinkRefused(
+                    f"{path}: is {describe_link(path)}; gns {command} never writes through a link in a folder it "
+                    "owns (remove the link, or choose another folder)"
+                )
+
+
 def write_marker(folder: Path, command: str) -> None:
-    (Path(folder) / MARKER).write_text(json.dumps({"command": command}) + "\n")
+    write_owned_text(Path(folder) / MARKER, json.dumps({"command": command}) + "\n", "output folder's marker")
 
 
 def check_file(path: str | Path, command: str, overwrite: bool, option: str) -> None:

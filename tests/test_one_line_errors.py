@@ -249,7 +249,7 @@ def test_a_server_still_down_at_the_deadline_leaves_a_command_to_send_later(tmp_
     monkeypatch.setattr(client, "log_batch", real_log_batch)
     monkeypatch.setattr(client, "set_terminated", real_terminated)
     monkeypatch.setattr(mlflow_tracker, "_client", lambda _: client)
-    assert main(["track-sync", str(run_dir)]) == 0
+    assert main(["track-sync", str(run_dir), "--tracking-uri", uri]) == 0
     assert (
         f"sent 3 metric value(s) of {run_dir} to MLflow run {tracker.run_id}; marked FINISHED"
         in capsys.readouterr().out

@@ -15,7 +15,7 @@ from ..errors import GnsError
 from ..safe_names import safe_component
 from .arguments import add_allow_pickle
 from .envelope_option import add_outside_envelope
-from .tracking_options import add_tracking_arguments, with_mlflow
+from .tracking_options import add_tracking_arguments, check_tracking_arguments, with_mlflow
 
 OUTPUTS = ("result.json", "metrics.jsonl", "convergence.png", "rollout.npz", "rollout.gif")
 
@@ -39,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
     from ..plugins import load_registry
     from ..training.tracking import JsonlTracker
 
+    check_tracking_arguments(args)
     config, unknowns = load_invert_config(args.config)
     out = args.out or Path("runs/invert") / safe_component(args.config.stem)
     earlier = [name for name in OUTPUTS if (out / name).exists()]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import warnings
 from pathlib import Path
 
@@ -27,6 +28,17 @@ def add_tracking_arguments(parser: argparse.ArgumentParser, metrics_file: str, d
     tracking.add_argument("--no-tracking", action="store_true", help=f"no MLflow; metrics go to {metrics_file} only")
 
 
+def check_tracking_arguments(args: argparse.Namespace) -> None:
+    """Refuse a malformed tracking URI (--tracking-uri or $MLFLOW_TRACKING_URI) before anything is written."""
+    from ..training import mlflow_tracker
+
+    if args.no_tracking:
+        return
+    source = "--tracking-uri" if args.tracking_uri else "$MLFLOW_TRACKING_URI" if os.environ.get("MLFLOW_TRACKING_URI") else None
+    if source is not None:
+        mlflow_tracker.validate_tracking_uri(args.tracking_uri or mlflow_tracker.default_tracking_uri(), source)
+
+
 def with_mlflow(
     args: argparse.Namespace, experiment: str, run_dir: Path, local: Tracker, resume: bool, activity: str = "training"
 ) -> Tracker:
@@ -45,9 +57,11 @@ def with_mlflow(
     uri = args.tracking_uri or mlflow_tracker.default_tracking_uri()
     try:
         mlflow = mlflow_tracker.open_mlflow_tracker(run_dir, uri, args.experiment or experiment, resume)
+    except mlflow_tracker.TrackingError:
+        raise
     except Exception as error:
         if not mlflow_tracker.server_unreachable(error):
-            raise
+            raise mlflow_tracker.TrackingError(f"MLflow at {uri}: {mlflow_tracker.first_line(error)}") from None
         # The command never waits on tracking: without a server at the start, this run is not in MLflow.
         warnings.warn(
             f"tracking: MLflow at {uri} unreachable ({mlflow_tracker.first_line(error)}); {activity} goes on without it, "

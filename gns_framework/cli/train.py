@@ -15,7 +15,7 @@ from ..training.distributed import processes_from_environment
 from ..training.run_lock import run_folder_lock
 from ..training.trainer import Trainer
 from .arguments import add_allow_pickle, positive_int
-from .tracking_options import add_tracking_arguments, with_mlflow
+from .tracking_options import add_tracking_arguments, check_tracking_arguments, with_mlflow
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -64,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
             "--init-from and --resume: a resumed run continues from its own checkpoint; fine-tune into a new run "
             "folder (--out NEW) with --init-from alone"
         )
+    check_tracking_arguments(args)
     registry = load_registry()
     overrides: dict = {}
     if args.steps is not None:

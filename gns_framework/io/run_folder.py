@@ -20,6 +20,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from .owned_files import refuse_link
+
 CHECKPOINT_NAME = re.compile(r"^checkpoint-(\d{9})\.pt$")
 """A resumable checkpoint's file name; the step is group 1 (9 digits, so names sort by step)."""
 
@@ -96,6 +98,28 @@ class RunFolder:
     @property
     def rollouts(self) -> Path:
         return self.root / self.ROLLOUTS
+
+    def refuse_links(self) -> None:
+        """Refuse a run folder whose own files or folders are symbolic links (LinkRefused naming the first).
+
+        A run writes into these; through a link it would write outside the folder. The
+        open of each file refuses a link again (``owned_files``), so a link made after
+        this check is caught too.
+        """
+        owned = {
+            self.CHECKPOINTS: "checkpoints folder",
+            self.ROLLOUTS: "rollouts folder",
+            self.RECIPE: "recipe record",
+            self.PARAMS: "parameters file",
+            self.METRICS: "metrics file",
+            self.MLFLOW_RUN: "MLflow run record",
+            self.MLFLOW_UNSENT: "MLflow unsent record",
+        }
+        for name, what in owned.items():
+            refuse_link(self.root / name, f"run's {what}")
+        if self.checkpoints.is_dir():
+            for name in (self.BEST_CHECKPOINT, self.BEST_RECORD):
+                refuse_link(self.checkpoints / name, f"run's {name}")
 
     def earlier(self, number: int) -> Path:
         """``earlier-<number>/``: where ``--restart`` moves the ``number``-th earlier history."""

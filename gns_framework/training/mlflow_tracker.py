@@ -16,6 +16,7 @@ the run folder's ``metrics.jsonl`` whatever happens to the server.
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import math
 import os
@@ -59,6 +60,64 @@ class TrackingError(GnsError):
 def default_tracking_uri() -> str:
     """``MLFLOW_TRACKING_URI`` when set, else a SQLite database in the working directory (created on first use)."""
     return os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{Path.cwd() / DEFAULT_DATABASE}"
+
+
+TRACKING_SCHEMES = ("http", "https", "sqlite", "postgresql", "mysql", "mssql", "file")
+"""The tracking stores MLflow's client opens: a server (http, https), a database, or a local folder."""
+_MLFLOW_TABLES = {"experiments", "runs"}
+"""Tables every MLflow SQL store has: an SQLite file with other tables and not these belongs to something else."""
+
+
+def validate_tracking_uri(uri: str, source: str = "tracking URI") -> str:
+    """``uri`` when it is a tracking store MLflow can open, else a TrackingError naming ``source`` and the form.
+
+    Checked before any store is touched: a malformed URI never reaches MLflow (whose
+    errors are tracebacks), and an SQLite file that exists must be an MLflow store,
+    so MLflow never creates its tables inside an unrelated database.
+    """
+    from urllib.parse import urlsplit
+
+    forms = "http(s)://host[:port], sqlite:///path/to/mlflow.db, postgresql://..., mysql://..., file:///folder"
+    if not isinstance(uri, str) or not uri.strip() or any(c in uri for c in "\r\n\x00"):
+        raise TrackingError(f"{source} {uri!r}: not a URI; expected {forms}")
+    try:
+        parts = urlsplit(uri)
+        port = parts.port  # parsed here: a bad port or bracket raises ValueError
+    except ValueError as exc:
+        raise TrackingError(f"{source} {uri!r}: malformed ({exc}); expected {forms}") from None
+    scheme = parts.scheme.split("+")[0].lower()
+    if scheme not in TRACKING_SCHEMES:
+        raise TrackingError(f"{source} {uri!r}: unsupported scheme {parts.scheme or '(none)'!r}; expected {forms}")
+    if scheme in ("http", "https") and not parts.hostname:
+        raise TrackingError(f"{source} {uri!r}: no host; expected {scheme}://host[:port]")
+    del port
+    database = local_database(uri)
+    if scheme == "sqlite" and database is None:
+        raise TrackingError(f"{source} {uri!r}: expected sqlite:///path/to/mlflow.db (three slashes, then the path)")
+    if database is not None and database.exists():
+        _check_mlflow_database(database, source, uri)
+    return uri
+
+
+def _check_mlflow_database(database: Path, source: str, uri: str) -> None:
+    """Refuse an existing SQLite file that is not an MLflow store (or not a database at all)."""
+    import sqlite3
+
+    if not database.is_file():
+        raise TrackingError(f"{source} {uri!r}: {database} is not a file")
+    if database.stat().st_size == 0:
+        return  # an empty file: MLflow makes a new store in it
+    try:
+        with contextlib.closing(sqlite3.connect(f"{database.resolve().as_uri()}?mode=ro", uri=True)) as connection:
+            tables = {row[0] for row in connection.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    except sqlite3.Error as exc:
+        raise TrackingError(f"{source} {uri!r}: {database} is not an SQLite database ({exc})") from None
+    if tables and not _MLFLOW_TABLES <= tables:
+        shown = ", ".join(sorted(tables)[:5]) + (" ..." if len(tables) > 5 else "")
+        raise TrackingError(
+            f"{source} {uri!r}: {database} is a database of something else (tables {shown}), not an MLflow store; "
+            "MLflow would add its tables to it"
+        )
 
 
 def mlflow_available() -> bool:
@@ -428,10 +487,16 @@ class MlflowTracker:
 
 def open_mlflow_tracker(run_dir: Path, tracking_uri: str, experiment: str, resume: bool) -> MlflowTracker:
     """The MLflow run of ``run_dir``: the one it logged to before when resuming there, else a new one."""
+    validate_tracking_uri(tracking_uri)
     record = RunFolder(run_dir).mlflow_run
     kept_in = str(RunFolder(run_dir).metrics)
     if resume and record.is_file():
-        saved = json.loads(record.read_text())
+        try:
+            saved = json.loads(record.read_text())
+            if not isinstance(saved, dict):
+                raise TypeError("not a JSON object")
+        except (OSError, ValueError, TypeError) as exc:
+            raise TrackingError(f"{record}: not a record of an MLflow run ({type(exc).__name__}: {exc})") from None
         if saved.get("tracking_uri") == tracking_uri and saved.get("experiment") == experiment:
             return MlflowTracker(tracking_uri, experiment, run_id=saved["run_id"], kept_in=kept_in, run_dir=run_dir)
     tracker = MlflowTracker(tracking_uri, experiment, run_name=Path(run_dir).name, kept_in=kept_in, run_dir=run_dir)
@@ -456,10 +521,13 @@ def log_to_recorded_run(
     tracked with MLflow (or mlflow is missing), or when its server is unreachable: the
     caller's results are on disk by then, so that is a warning, not a failure.
     """
-    record = RunFolder(run_dir).mlflow_run
-    if not record.is_file() or not mlflow_available():
+    if not RunFolder(run_dir).mlflow_run.is_file() or not mlflow_available():
         return None
-    saved = json.loads(record.read_text())
+    try:
+        saved = read_run_record(run_dir, default_tracking_uri())
+    except TrackingError as error:
+        warnings.warn(f"tracking: {error}; nothing logged to MLflow", stacklevel=2)
+        return None
     from mlflow.entities import Metric
 
     now = int(time.time() * 1000)
@@ -473,7 +541,7 @@ def log_to_recorded_run(
             client.log_artifact(saved["run_id"], str(artifact), artifact_path)
     except Exception as error:
         if not server_unreachable(error):
-            raise
+            raise TrackingError(f"MLflow at {saved['tracking_uri']} refused run {saved['run_id']}: {first_line(error)}") from None
         warnings.warn(
             f"tracking: MLflow at {saved['tracking_uri']} unreachable ({first_line(error)}); "
             f"{', '.join(f'{k} {v:.6g}' for k, v in sorted(metrics.items()))} not logged to its run {saved['run_id']}",
@@ -483,11 +551,50 @@ def log_to_recorded_run(
     return saved["run_id"]
 
 
-def sync_run(run_dir: Path) -> tuple[str, int, str | None]:
+def read_run_record(run_dir: Path, tracking_uri: str) -> dict:
+    """The MLflow run record of ``run_dir`` when it names ``tracking_uri``, the user's store; else a TrackingError.
+
+    The record is data: a run folder from elsewhere may name any store (another
+    database, another server). Only the store the user configured is ever written to,
+    so a record naming another one is refused, naming both.
+    """
+    record = RunFolder(run_dir).mlflow_run
+    try:
+        saved = json.loads(record.read_text())
+        uri, run_id = saved["tracking_uri"], saved["run_id"]
+        if not isinstance(uri, str) or not isinstance(run_id, str):
+            raise TypeError("tracking_uri and run_id must be strings")
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise TrackingError(f"{record}: not a record of an MLflow run ({type(exc).__name__}: {exc})") from None
+    if uri != tracking_uri:
+        raise TrackingError(
+            f"{record}: the run was tracked in {uri}, but this command's store is {tracking_uri} "
+            "(--tracking-uri, else $MLFLOW_TRACKING_URI, else ./mlflow.db); gns writes only to the store you name: "
+            f"pass --tracking-uri {uri} if that is yours"
+        )
+    validate_tracking_uri(uri, f"{record}: tracking_uri")
+    return saved
+
+
+def _unsent_status(unsent: Path) -> str:
+    """The status an unsent record says the run ended with: FINISHED, FAILED or KILLED."""
+    try:
+        status = json.loads(unsent.read_text()).get("status", "FINISHED")
+    except (OSError, ValueError, AttributeError) as exc:
+        raise TrackingError(f"{unsent}: not a record of what MLflow missed ({type(exc).__name__}: {exc})") from None
+    if status not in ("FINISHED", "FAILED", "KILLED"):
+        raise TrackingError(f"{unsent}: status {status!r}: expected FINISHED, FAILED or KILLED")
+    return status
+
+
+def sync_run(run_dir: Path, tracking_uri: str | None = None) -> tuple[str, int, str | None]:
     """Send ``run_dir``'s metrics.jsonl entries its MLflow run lacks, and the status it ended with.
 
+    ``tracking_uri``: the user's store (default: $MLFLOW_TRACKING_URI, else ./mlflow.db);
+    a run record naming another store is refused (:func:`read_run_record`).
     Returns (run id, metrics sent, status set or None). Refused with a TrackingError
-    when the run was not tracked with MLflow or its server is still unreachable.
+    when the run was not tracked with MLflow, was tracked elsewhere, or its server is
+    still unreachable.
     """
     from .tracking import read_metrics
 
@@ -495,11 +602,9 @@ def sync_run(run_dir: Path) -> tuple[str, int, str | None]:
     record = RunFolder(run_dir).mlflow_run
     if not record.is_file():
         raise TrackingError(f"{run_dir}: no {RunFolder.MLFLOW_RUN}: this run was not tracked with MLflow")
-    try:
-        saved = json.loads(record.read_text())
-        uri, run_id = saved["tracking_uri"], saved["run_id"]
-    except (ValueError, KeyError, TypeError) as exc:
-        raise TrackingError(f"{record}: not a record of an MLflow run ({type(exc).__name__}: {exc})") from None
+    tracking_uri = validate_tracking_uri(tracking_uri or default_tracking_uri(), "--tracking-uri")
+    saved = read_run_record(run_dir, tracking_uri)
+    uri, run_id = saved["tracking_uri"], saved["run_id"]
     from mlflow.entities import Metric
 
     client = _client(uri)
@@ -519,7 +624,7 @@ def sync_run(run_dir: Path) -> tuple[str, int, str | None]:
         status = None
         unsent = RunFolder(run_dir).mlflow_unsent
         if unsent.is_file():
-            status = json.loads(unsent.read_text()).get("status", "FINISHED")
+            status = _unsent_status(unsent)
             client.set_terminated(run_id, status=status)
             unsent.unlink()
     except Exception as error:

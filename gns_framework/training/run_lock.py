@@ -22,6 +22,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from ..errors import GnsError
+from ..io.owned_files import open_owned_fd, refuse_link
 from ..io.run_folder import RunFolder
 
 
@@ -46,10 +47,8 @@ class RunFolderLock:
         except OSError as exc:
             raise GnsError(f"{self.run_dir}: cannot create the run folder: {exc.strerror or exc}") from None
         while True:
-            try:
-                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o666)
-            except OSError as exc:
-                raise GnsError(f"{self.path}: cannot open the run folder's lock: {exc.strerror or exc}") from None
+            # Never through a link: a lock linked to a user's file would be truncated and overwritten below.
+            fd = open_owned_fd(self.path, "r+", "run folder's lock")
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError as exc:
@@ -85,6 +84,11 @@ class RunFolderLock:
         os.pwrite(fd, (json.dumps(holder) + "\n").encode(), 0)
         os.fsync(fd)
         self._fd = fd
+        try:
+            RunFolder(self.run_dir).refuse_links()
+        except BaseException:
+            self.release()
+            raise
         return self
 
     def release(self) -> None:
@@ -118,10 +122,16 @@ def run_folder_lock(run_dir: str | Path, take: bool = True) -> Iterator[RunFolde
 
 def read_holder(path: Path) -> dict:
     try:
-        with open(path, "rb") as handle:
-            return _parse(handle.read(4096))
+        refuse_link(path, "run folder's lock")
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except (OSError, GnsError):
+        return {}
+    try:
+        return read_holder_fd(fd)
     except OSError:
         return {}
+    finally:
+        os.close(fd)
 
 
 def read_holder_fd(fd: int) -> dict:

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 from typing import Protocol
 
+from ..io.owned_files import open_owned, write_owned_text
 from ..io.run_folder import RunFolder
 
 
@@ -29,10 +30,10 @@ class JsonlTracker:
     def __init__(self, run_dir: Path):
         self.run = RunFolder(run_dir)
         self.run.root.mkdir(parents=True, exist_ok=True)
-        self._metrics = open(self.run.metrics, "a")
+        self._metrics = open_owned(self.run.metrics, "a", "metrics file")
 
     def log_params(self, params: dict) -> None:
-        self.run.params.write_text(json.dumps(params, indent=2, default=str) + "\n")
+        write_owned_text(self.run.params, json.dumps(params, indent=2, default=str) + "\n", "parameters file")
 
     def log_metrics(self, metrics: dict[str, float], step: int) -> None:
         self._metrics.write(json.dumps({"step": step, "time": time.time(), **metrics}) + "\n")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from gns_framework.cli.tracking_options import add_tracking_arguments, with_mlflow
+from gns_framework.cli.tracking_options import add_tracking_arguments, check_tracking_arguments, with_mlflow
 from gns_framework.training import mlflow_tracker
 from gns_framework.training.tracking import TrackerGroup
 
@@ -113,5 +113,25 @@ def test_a_server_that_refuses_the_request_is_an_error(opened):
     opened.error = Refused("403: not allowed")
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no warning first: the error alone
-        with pytest.raises(Refused, match="403"):
+        with pytest.raises(mlflow_tracker.TrackingError, match=r"^MLflow at sqlite:///default\.db: 403: not allowed$"):
             with_mlflow(parse(), "tiny", Path("run"), Local(), resume=False)
+
+
+@pytest.mark.parametrize("uri", ["http://[::1", "ftp://example.org/x", "sqlite://no-third-slash.db"])
+def test_train_refuses_a_malformed_tracking_uri_in_one_line_and_leaves_no_folder(tmp_path, capsys, uri):
+    from gns_framework.cli import main
+
+    recipe = tmp_path / "recipe.yaml"
+    recipe.write_text("name: x\n")
+    out = tmp_path / "run"
+    assert main(["train", str(recipe), "--out", str(out), "--tracking-uri", uri]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"gns train: error: --tracking-uri {uri!r}: ") and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_the_environment_s_tracking_uri_is_checked_too(monkeypatch):
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", "ftp://example.org/x")
+    with pytest.raises(mlflow_tracker.TrackingError, match=r"^\$MLFLOW_TRACKING_URI 'ftp://example.org/x': unsupported"):
+        check_tracking_arguments(parse())
+    check_tracking_arguments(parse("--no-tracking"))

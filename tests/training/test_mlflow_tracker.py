@@ -256,6 +256,7 @@ def test_rollout_and_evaluation_metrics_for_an_unreachable_server_are_a_warning(
 
     monkeypatch.setenv("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
     nobody = f"http://127.0.0.1:{free_loopback_port()}"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", nobody)  # the user's store: a record naming another is never written to
     (tmp_path / RunFolder.MLFLOW_RUN).write_text(
         json.dumps({"tracking_uri": nobody, "experiment": "x", "run_id": "abc"})
     )

@@ -152,3 +152,31 @@ def test_retention_never_deletes_a_damaged_checkpoint(uneven_dataset, tmp_path):
         )
     assert (run_dir / "checkpoints" / (damaged.name + ".damaged")).read_bytes() == data
     assert [s for s, _ in list_checkpoints(run_dir / "checkpoints")] == [8]
+
+
+# ---- links in a run folder (a folder copied from a colleague is enough) -----------------------------------------
+
+
+@pytest.mark.parametrize(
+    "name", [RunFolder.LOCK, RunFolder.METRICS, RunFolder.PARAMS, RunFolder.CHECKPOINTS, RunFolder.MLFLOW_RUN]
+)
+def test_a_run_folder_whose_files_link_elsewhere_is_refused_and_the_targets_are_untouched(
+    uneven_dataset, tmp_path, capsys, name
+):
+    run_dir = tmp_path / "run"
+    assert train_cli(tiny_recipe(uneven_dataset, steps=2), run_dir) == 0
+    capsys.readouterr()
+    target = tmp_path / "users_file"
+    if name == RunFolder.CHECKPOINTS:
+        shutil.move(run_dir / name, target)  # the checkpoints now live elsewhere, reached through the link
+    else:
+        target.write_text("precious\n")
+        (run_dir / name).unlink(missing_ok=True)
+    before = snapshot(target) if target.is_dir() else target.read_bytes()
+    (run_dir / name).symlink_to(target)
+    assert train_cli(tiny_recipe(uneven_dataset, steps=4), run_dir, "--resume") == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert f"{run_dir / name}: the run" in err and f"is a symbolic link to {target}" in err
+    assert (snapshot(target) if target.is_dir() else target.read_bytes()) == before
+    assert not (run_dir / RunFolder.LOCK).exists() or (run_dir / RunFolder.LOCK).is_symlink()
