@@ -9,6 +9,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from .npz_mapping import read_frames
 from .trajectory import Trajectory
 
 
@@ -66,7 +67,7 @@ def window(trajectory: Trajectory, start: int, history: int, with_target: bool =
     With a target, ``ahead`` > 0 also keeps the ``ahead`` true frames after it. Frames are copied: they may be
     a read-only memory map of the file (``dataset.memory: windows``).
     """
-    positions = np.array(trajectory.position[start : start + history + (1 + ahead if with_target else 0)])
+    positions = read_frames(trajectory.position[start : start + history + (1 + ahead if with_target else 0)])
     sequence = torch.from_numpy(np.ascontiguousarray(positions[:history].transpose(1, 0, 2)))
     n = sequence.shape[0]
     return ParticleBatch(

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from functools import lru_cache
 
+from .npz_mapping import DatasetChanged, FileIdentity, check_unchanged
 from .trajectory import Trajectory
 
 
@@ -27,6 +28,9 @@ class TrajectorySequence(Sequence[Trajectory]):
         self._source = source
         self._dim = dim
         self._get = lru_cache(maxsize=keep)(self._validated)
+        # The file as it was when the split was opened: every later read checks it is still that file, unchanged,
+        # so a split rewritten between two reads never mixes old and new trajectories.
+        self._identity = FileIdentity.of_path(source)
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -41,4 +45,19 @@ class TrajectorySequence(Sequence[Trajectory]):
         return self._get(index)
 
     def _validated(self, index: int) -> Trajectory:
-        return self._load(self.keys[index]).validated(self._source, dim=self._dim)
+        self._check_unchanged()
+        raw = self._load(self.keys[index])
+        check_unchanged(raw.position)  # a mapped member: checked before validation reads its every page
+        trajectory = raw.validated(self._source, dim=self._dim)
+        self._check_unchanged()
+        return trajectory
+
+    def _check_unchanged(self) -> None:
+        if self._identity is None:
+            return
+        change = self._identity.change(FileIdentity.of_path(self._source))
+        if change is not None:
+            raise DatasetChanged(
+                f"{self._source}: changed while it was being read ({change}); stopped rather than read it: put the "
+                "data back as it was (or train on a copy), then resume"
+            )

@@ -24,6 +24,7 @@ from ..data.metadata import DatasetMetadata
 from ..data.windows import WindowIndex, WindowOrder
 from ..decomposition.validation import partitioned_one_step_errors, partitioned_positions
 from ..errors import DatasetError, RecipeError
+from ..io.checkpoint import list_checkpoints
 from ..io.run_folder import RunFolder
 from ..model.envelope import measure_envelope
 from ..model.noise import training_noise_std
@@ -343,7 +344,10 @@ class Trainer:
             if window_started is None:
                 synchronize(self.device)
                 window_started = time.perf_counter()
-            loss, step_particles = self.train_step()
+            try:
+                loss, step_particles = self.train_step()
+            except DatasetError as error:
+                raise self._stopped_by_data(error, checkpoint) from None
             window_steps, window_particles = window_steps + 1, window_particles + step_particles
             unread.append((self.step, loss))
             logs = self.step % spec.log_every == 0 or self.step == total
@@ -388,6 +392,21 @@ class Trainer:
         if checkpoint is not None and self.tracker is not None:
             self.tracker.log_artifact(checkpoint)
         return losses
+
+    def _stopped_by_data(self, error: DatasetError, last: Path | None) -> DatasetError:
+        """The error that stops training when its data fails mid-run, with a checkpoint of the last whole step.
+
+        Windows, their order and their noise are drawn from the step number, so a
+        checkpoint of the step reached resumes exactly. Under several processes the
+        others may not have met the error, so none is written: the last one stays.
+        """
+        if not self.processes.distributed and self.step > 0 and not self.run.checkpoint(self.step).exists():
+            last = self.checkpoints.save()
+        elif self.run.checkpoints.is_dir():
+            written = list_checkpoints(self.run.checkpoints)
+            last = written[-1][1] if written else last
+        kept = f"{last} is the checkpoint to resume from" if last is not None else "no checkpoint was written yet"
+        return type(error)(f"{error}; training stopped at step {self.step}: {kept} (--resume)")
 
     def _track_run(self) -> None:
         """Parameters and resolved recipe of the run, for the tracker (rank 0)."""
