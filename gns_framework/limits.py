@@ -27,6 +27,15 @@ MAX_SEQUENCE_LENGTH = 1_000_000
 MAX_RECORD_BYTES = 1 << 34
 """Bytes of one tfrecord record (16 GiB); a record is also never longer than the rest of its file."""
 
+MAX_MEMBER_BYTES = 1 << 34
+"""Bytes one member of a zip archive (an ``.npz`` array) may inflate to (16 GiB)."""
+MAX_INFLATE_RATIO = 200
+"""How many times its stored size a large archive member may inflate to. Particle positions compress 1-5x;
+a member of zeros that inflates 1,000x from a few MB is a zip bomb, refused before it is inflated."""
+INFLATE_RATIO_ABOVE = 1 << 26
+"""Members that inflate to less than this (64 MiB) are not held to MAX_INFLATE_RATIO: a small constant array may
+compress as well as it likes."""
+
 PARTICLE_STATE_BYTES = {2: 4 * (2 * 2 + 2 * 4 + 4), 3: 4 * (2 * 3 + 2 * 9 + 4)}
 """Simulator state per particle, bytes: position, velocity, affine and deformation matrices, material (float32)."""
 GRID_NODE_BYTES = {2: 8 * 3, 3: 8 * 4}
@@ -149,3 +158,42 @@ def check_record_length(where: str, length: int, remaining: int) -> None:
     if length > MAX_RECORD_BYTES:
         raise LimitError(f"{where}: {length:,} bytes, more than the limit of {MAX_RECORD_BYTES:,} bytes per record")
     check_memory(where, length, "reading the record")
+
+
+def check_zip_member(where: str, info) -> None:
+    """Refuse a zip member (``zipfile.ZipInfo``) that would inflate beyond the limits, before it is inflated.
+
+    zipfile never returns more than the member's stated size (``file_size``), so the
+    stated size bounds what reading it allocates; a member that lies about it fails
+    its CRC at the end instead.
+    """
+    size, stored = int(info.file_size), max(1, int(info.compress_size))
+    if size > MAX_MEMBER_BYTES:
+        raise LimitError(f"{where}: inflates to {size:,} bytes, more than the limit of {MAX_MEMBER_BYTES:,} per member")
+    if size > INFLATE_RATIO_ABOVE and size > MAX_INFLATE_RATIO * stored:
+        raise LimitError(
+            f"{where}: {stored:,} stored bytes inflate to {size:,} ({size / stored:,.0f}x; a zip bomb?): more than "
+            f"the {MAX_INFLATE_RATIO}x any particle data compresses"
+        )
+    check_memory(where, size, "inflating the member")
+
+
+def check_array_header(where: str, shape: tuple, dtype, available: int) -> None:
+    """Refuse a ``.npy`` header whose shape x itemsize is more than the ``available`` bytes that follow it.
+
+    numpy allocates the whole array from the header before reading a byte of it: a
+    header claiming 6.4e10 particles asks for hundreds of GiB from a file of a few KB.
+    """
+    if getattr(dtype, "hasobject", False):
+        return
+    if any(not isinstance(n, int) or n < 0 for n in shape):
+        raise LimitError(f"{where}: the .npy header's shape {shape} is not a tuple of counts")
+    promised = math.prod(shape) * dtype.itemsize
+    if promised > available:
+        from .errors import DatasetError
+
+        raise DatasetError(
+            f"{where}: the .npy header promises {promised:,} bytes of {dtype} {shape}, but only {available:,} follow "
+            "(truncated or forged?)"
+        )
+    check_memory(where, promised, f"the array {shape}")

@@ -281,3 +281,76 @@ def test_a_record_may_fill_its_file_but_not_pass_its_end_nor_the_record_limit(mo
     limits.check_record_length("f: record 0", limits.MAX_RECORD_BYTES, remaining=2**40)
     with pytest.raises(limits.LimitError, match="f: record 0: 17,179,869,185 bytes, more than the limit"):
         limits.check_record_length("f: record 0", limits.MAX_RECORD_BYTES + 1, remaining=2**40)
+
+
+# ---- archive members: headers and inflation checked before numpy allocates (issue 47) ----------------------------
+
+
+def _replace_member(archive_path, member: str, raw: bytes, compress: int) -> None:
+    import zipfile
+
+    with zipfile.ZipFile(archive_path) as old:
+        kept = {info.filename: (info, old.read(info)) for info in old.infolist() if info.filename != member}
+    with zipfile.ZipFile(archive_path, "w") as new:
+        for name, (info, data) in kept.items():
+            new.writestr(info, data)
+        new.writestr(zipfile.ZipInfo(member), raw, compress_type=compress)
+
+
+def test_a_npy_header_claiming_6e10_particles_is_refused_before_numpy_allocates(tmp_path, capsys):
+    import io
+    import zipfile
+
+    from synthetic import write_synthetic_dataset
+
+    data = write_synthetic_dataset(tmp_path / "data", train=2, valid=1, test=1)
+    with np.load(data / "train.npz") as archive:
+        member = next(name for name in archive.files if name.endswith("/position"))
+    forged = io.BytesIO()
+    header = {"descr": "<f4", "fortran_order": False, "shape": (240, 64_000_000_000, 2)}
+    np.lib.format.write_array_header_1_0(forged, header)
+    forged.write(b"\0" * 4096)
+    _replace_member(data / "train.npz", f"{member}.npy", forged.getvalue(), zipfile.ZIP_STORED)
+    for memory in ("all", "windows"):
+        assert main(["convert", str(data), "--from", "safe", "--to", "npz", "--out", str(tmp_path / memory)]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1, err
+        assert f"train.npz: {member}: the .npy header promises 122,880,000,000,000 bytes of float32" in err
+        assert "but only 4,096 follow (truncated or forged?)" in err
+
+
+def test_a_zip_bomb_member_is_refused_before_it_is_inflated(tmp_path, monkeypatch):
+    import zipfile
+
+    from gns_builtins.datasets._formats.npz_common import open_npz, read_array_pickle
+
+    path = tmp_path / "train.npz"
+    with zipfile.ZipFile(path, "w") as archive:
+        with archive.open(zipfile.ZipInfo("simulation_trajectory_0.npy"), "w", force_zip64=True) as member:
+            member.write(b"")  # replaced below
+    raw = bytearray()
+    objects = np.empty(2, dtype=object)
+    objects[0], objects[1] = np.zeros((80, 200_000, 2), np.float32), np.zeros(200_000, np.int64)  # 128 MB + 1.6 MB
+    import io
+
+    buffer = io.BytesIO()
+    np.lib.format.write_array(buffer, objects, allow_pickle=True)
+    raw += buffer.getvalue()
+    _replace_member(path, "simulation_trajectory_0.npy", bytes(raw), zipfile.ZIP_DEFLATED)
+    assert path.stat().st_size < 1 << 20  # zeros: a thousandfold
+    inflated = []
+    real_read = zipfile.ZipExtFile.read
+    monkeypatch.setattr(zipfile.ZipExtFile, "read", lambda self, n=-1: inflated.append(n) or real_read(self, n))
+    archive = open_npz(path, allow_pickle=False)
+    with pytest.raises(limits.LimitError, match=r"train\.npz: simulation_trajectory_0: .* inflate to 129,\d+,\d+ .*zip bomb"):
+        read_array_pickle(archive, path, "simulation_trajectory_0")
+    assert all(n != -1 for n in inflated), "the payload was inflated before the check"
+
+
+def test_members_that_compress_well_but_are_small_are_not_bombs():
+    small = SimpleNamespace(file_size=limits.INFLATE_RATIO_ABOVE, compress_size=1000)
+    limits.check_zip_member("x", small)
+    large = SimpleNamespace(file_size=limits.INFLATE_RATIO_ABOVE * 2, compress_size=limits.INFLATE_RATIO_ABOVE // 50)
+    limits.check_zip_member("x", large)  # 100x: as well as anything real compresses
+    with pytest.raises(limits.LimitError, match="inflates to"):
+        limits.check_zip_member("x", SimpleNamespace(file_size=limits.MAX_MEMBER_BYTES + 1, compress_size=1 << 40))

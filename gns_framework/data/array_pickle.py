@@ -43,6 +43,7 @@ from typing import Any, Literal
 import numpy as np
 
 from ..errors import DatasetError
+from ..limits import check_zip_member
 
 ALLOWED_GLOBALS: dict[tuple[str, str], str] = {
     ("numpy.core.multiarray", "_reconstruct"): "reconstruct",
@@ -219,6 +220,8 @@ def read_npy_object_array(archive: zipfile.ZipFile, member: str) -> np.ndarray:
                 raise ArrayPickleError(file, key, None, found, "", "not a .npy file") from None
             if dtype != object:
                 raise ArrayPickleError(file, key, None, f"the header says dtype {dtype}", "an object array (a pickle)")
+            # The stated size bounds what zipfile inflates; checked before a byte of the payload is.
+            check_zip_member(f"{file}: {key}", archive.getinfo(member))
             payload = stream.read()
     except KeyError:
         raise ArrayPickleError(file, key, None, f"no member {member!r} in the archive", "") from None

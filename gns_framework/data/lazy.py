@@ -6,7 +6,7 @@ from collections.abc import Callable, Sequence
 from functools import lru_cache
 
 from .npz_mapping import DatasetChanged, FileIdentity, check_unchanged
-from .trajectory import Trajectory
+from .trajectory import DomainCheck, Trajectory
 
 
 class TrajectorySequence(Sequence[Trajectory]):
@@ -18,15 +18,23 @@ class TrajectorySequence(Sequence[Trajectory]):
         source: the file, for error messages.
         dim: spatial dimensions the metadata promises.
         keep: how many recently used trajectories stay in memory (None: every one read stays).
+        domain: where particles may be (``DatasetMetadata.domain_check()``); None: not checked.
     """
 
     def __init__(
-        self, keys: Sequence[str], load: Callable[[str], Trajectory], source: str, dim: int, keep: int | None = None
+        self,
+        keys: Sequence[str],
+        load: Callable[[str], Trajectory],
+        source: str,
+        dim: int,
+        keep: int | None = None,
+        domain: DomainCheck | None = None,
     ):
         self.keys = list(keys)
         self._load = load
         self._source = source
         self._dim = dim
+        self._domain = domain
         self._get = lru_cache(maxsize=keep)(self._validated)
         # The file as it was when the split was opened: every later read checks it is still that file, unchanged,
         # so a split rewritten between two reads never mixes old and new trajectories.
@@ -48,7 +56,7 @@ class TrajectorySequence(Sequence[Trajectory]):
         self._check_unchanged()
         raw = self._load(self.keys[index])
         check_unchanged(raw.position)  # a mapped member: checked before validation reads its every page
-        trajectory = raw.validated(self._source, dim=self._dim)
+        trajectory = raw.validated(self._source, dim=self._dim, domain=self._domain)
         self._check_unchanged()
         return trajectory
 

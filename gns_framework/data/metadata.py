@@ -11,7 +11,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from ..errors import DatasetError
-from .trajectory import Trajectory
+from .trajectory import DomainCheck, Trajectory
 
 
 MAX_METADATA_BYTES = 16 * 2**20
@@ -48,6 +48,10 @@ class DatasetMetadata(BaseModel):
         default=None,
         description="per dimension, whether the domain wraps around (LagrangeBench's key); none when absent",
     )
+
+    def domain_check(self) -> DomainCheck:
+        """Where this dataset's particles may be: its bounds widened by two connectivity radii (a few spacings)."""
+        return DomainCheck(np.asarray(self.bounds, dtype=np.float64), 2.0 * self.default_connectivity_radius)
 
     @model_validator(mode="after")
     def _dimensions_agree(self) -> "DatasetMetadata":

@@ -10,6 +10,24 @@ from ..errors import DatasetError
 
 
 @dataclass(frozen=True)
+class DomainCheck:
+    """Where a dataset's particles may be: its domain, widened by ``margin`` on every side.
+
+    A trajectory's own ``bounds`` (when it has them) replace the dataset's. Particles
+    50 m outside a 1 m box, or at 3e38, are not a scene a model can be judged on:
+    they are refused by name, not rolled out as if clean.
+
+    Attributes:
+        bounds: (d, 2) the dataset's lower and upper wall per axis (``metadata.bounds``).
+        margin: metres a particle may lie beyond a wall (a few particle spacings: MPM
+            and SPH particles sit up to about one spacing outside the walls they touch).
+    """
+
+    bounds: np.ndarray
+    margin: float
+
+
+@dataclass(frozen=True)
 class Trajectory:
     """One simulated scene.
 
@@ -51,10 +69,10 @@ class Trajectory:
         context = None if self.step_context is None else self.step_context[:count]
         return replace(self, position=self.position[:count], step_context=context)
 
-    def validated(self, source: str, dim: int | None = None) -> "Trajectory":
-        """Check shapes, dtypes and values (type ids >= 0); return a copy with canonical dtypes.
+    def validated(self, source: str, dim: int | None = None, domain: DomainCheck | None = None) -> "Trajectory":
+        """Check shapes, dtypes and values (type ids >= 0; inside ``domain`` when given); return a copy with canonical dtypes.
 
-        Raises DatasetError naming ``source``, the trajectory key and the field.
+        Raises DatasetError naming ``source``, the trajectory key and the field (and frame and particle).
         """
         where = f"{source}: trajectory {self.key!r}"
         pos = np.asarray(self.position)
@@ -117,4 +135,33 @@ class Trajectory:
                 raise DatasetError(
                     f"{where}: walls: expected friction >= 0 and a no-slip flag 0 or 1 per face, got {walls.tolist()}"
                 )
+        _check_placement(where, pos, bounds if bounds is not None else None, domain)
         return Trajectory(pos.astype(np.float32, copy=False), ptype, prop, ctx, self.key, bounds, walls)
+
+
+def _check_placement(where: str, pos: np.ndarray, own_bounds: np.ndarray | None, domain: DomainCheck | None) -> None:
+    """Refuse particles all at one point, or beyond the domain's walls by more than its margin (first one named).
+
+    Shapes: pos (T, N, d).
+    """
+    if pos.shape[1] > 1 and not np.ptp(pos[0], axis=0).any():
+        raise DatasetError(
+            f"{where}: position: all {pos.shape[1]} particles of frame 0 are at one point {pos[0, 0].tolist()}"
+        )
+    if domain is None:
+        return
+    bounds = np.asarray(own_bounds if own_bounds is not None else domain.bounds, dtype=np.float64)
+    if bounds.shape != (pos.shape[2], 2):
+        return  # the dimension check names it
+    lower, upper = bounds[:, 0] - domain.margin, bounds[:, 1] + domain.margin
+    for start in range(0, pos.shape[0], 64):  # in chunks of frames: a mapped trajectory is never copied whole
+        frames = pos[start : start + 64]
+        outside = (frames < lower) | (frames > upper)
+        if outside.any():
+            frame, particle, axis = (int(i) for i in np.argwhere(outside)[0])
+            value = float(frames[frame, particle, axis])
+            raise DatasetError(
+                f"{where}: position: particle {particle} at frame {start + frame} is at {value:.6g} on axis {axis}, "
+                f"outside the domain [{bounds[axis, 0]:.6g}, {bounds[axis, 1]:.6g}] by more than {domain.margin:.3g} "
+                "(the data contradicts its own bounds)"
+            )

@@ -20,7 +20,9 @@ class Loader:
     def __call__(self, key: str) -> Trajectory:
         self.reads.append(key)
         value = float(key.split("_")[1])
-        return Trajectory(np.full((3, 2, self.dim), value), np.array([5, 5]), key=key)
+        position = np.full((3, 2, self.dim), value)
+        position[:, 1] += 0.5  # two particles, apart
+        return Trajectory(position, np.array([5, 5]), key=key)
 
 
 KEYS = ["t_0", "t_1", "t_2", "t_3"]
@@ -69,3 +71,21 @@ def test_with_keep_only_the_most_recently_used_trajectories_stay_and_the_others_
     assert split[1] is again
     split[0]
     assert load.reads == ["t_0", "t_1", "t_2", "t_1", "t_3", "t_0"]
+
+
+def test_a_split_file_rewritten_between_two_reads_is_refused_before_the_second(tmp_path):
+    import os
+
+    from gns_framework.data.npz_mapping import DatasetChanged
+
+    source = tmp_path / "train.npz"
+    source.write_bytes(b"x" * 100)
+    split = TrajectorySequence(KEYS, Loader(), str(source), dim=2)
+    split[0]
+    stat = source.stat()
+    os.utime(source, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000))  # rewritten in place, the same size
+    with pytest.raises(DatasetChanged, match=rf"^{source}: changed while it was being read \(it was rewritten"):
+        split[1]
+    source.unlink()
+    with pytest.raises(DatasetChanged, match=r"\(it is gone\)"):
+        split[2]

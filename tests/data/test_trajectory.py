@@ -78,3 +78,65 @@ def test_a_rollout_file_keeps_the_trajectory_domain_and_walls(tmp_path):
         )
     )
     assert bare.truth.bounds is None and bare.truth.walls is None
+
+
+# ---- data that contradicts its own domain (issue 47) --------------------------------------------------------------
+
+
+def _box(frames: int = 5, particles: int = 6) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    return rng.uniform(0.2, 0.8, size=(frames, particles, 2)).astype(np.float32)
+
+
+@pytest.mark.parametrize(("value", "shown"), [(50.5, "50.5"), (3e38, r"3e\+38"), (-0.3, "-0.3")])
+def test_a_particle_beyond_the_walls_by_more_than_the_margin_is_named_with_its_frame(value, shown):
+    from gns_framework.data.trajectory import DomainCheck
+
+    domain = DomainCheck(np.array([[0.0, 1.0], [0.0, 1.0]]), margin=0.05)
+    position = _box()
+    position[3, 4, 1] = value
+    with pytest.raises(
+        DatasetError,
+        match=rf"^train\.npz: trajectory 'a': position: particle 4 at frame 3 is at {shown} on axis 1, outside the "
+        r"domain \[0, 1\] by more than 0\.05 \(the data contradicts its own bounds\)$",
+    ):
+        Trajectory(position, np.full(6, 6), key="a").validated("train.npz", domain=domain)
+    # Within the margin (a particle that touches a wall), and without a domain to check: accepted.
+    position[3, 4, 1] = 1.04
+    Trajectory(position, np.full(6, 6), key="a").validated("train.npz", domain=domain)
+
+
+def test_a_trajectory_s_own_bounds_replace_the_dataset_s():
+    from gns_framework.data.trajectory import DomainCheck
+
+    domain = DomainCheck(np.array([[0.0, 1.0], [0.0, 1.0]]), margin=0.01)
+    position = _box() * 2.0  # in [0.4, 1.6]: outside the dataset's box, inside its own
+    own = np.array([[0.0, 2.0], [0.0, 2.0]], np.float32)
+    Trajectory(position, np.full(6, 6), key="a", bounds=own).validated("f", domain=domain)
+    with pytest.raises(DatasetError, match="outside the domain"):
+        Trajectory(position, np.full(6, 6), key="a").validated("f", domain=domain)
+
+
+def test_all_particles_at_one_point_is_one_line():
+    position = np.full((4, 5, 2), 0.5, np.float32)
+    with pytest.raises(DatasetError, match=r"^f: trajectory 'a': position: all 5 particles of frame 0 are at one point"):
+        Trajectory(position, np.full(5, 6), key="a").validated("f")
+    Trajectory(position[:, :1], np.full(1, 6), key="a").validated("f")  # one particle is a point, rightly
+
+
+def test_every_command_refuses_such_data_in_one_line(tmp_path, capsys):
+    from synthetic import write_synthetic_dataset
+
+    from gns_framework.cli import main
+
+    data = write_synthetic_dataset(tmp_path / "data", train=2, valid=1, test=1)
+    with np.load(data / "test.npz") as archive:
+        arrays = {name: archive[name] for name in archive.files}
+    key = next(name for name in arrays if name.endswith("/position"))
+    arrays[key] = arrays[key].copy()
+    arrays[key][2, 1, 0] = 50.0
+    np.savez(data / "test.npz", **arrays)
+    assert main(["convert", str(data), "--from", "safe", "--to", "npz", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert f"test.npz: trajectory '{key.rpartition('/')[0]}': position: particle 1 at frame 2 is at 50 on axis 0" in err

@@ -123,7 +123,9 @@ class LagrangeBenchDataset(Dataset):
                 )
             return checked(trajectory, str(file), metadata.dim, frames, promise)
 
-        return TrajectorySequence(keys, load, str(file), metadata.dim, keep=self.keep_trajectories)
+        return TrajectorySequence(
+            keys, load, str(file), metadata.dim, keep=self.keep_trajectories, domain=metadata.domain_check()
+        )
 
     @classmethod
     def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:

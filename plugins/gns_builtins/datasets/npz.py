@@ -43,6 +43,7 @@ class GeoelementsNpzDataset(NpzSplitsDataset):
     def split(self, name: str) -> Sequence[Trajectory]:
         file = self.path / f"{name}.npz"
         archive = open_npz(file, allow_pickle=self.allow_pickle)
+        metadata = self.metadata()
 
         def load(key: str) -> Trajectory:
             item = read_array_pickle(archive, file, key)
@@ -56,7 +57,7 @@ class GeoelementsNpzDataset(NpzSplitsDataset):
             )
 
         return TrajectorySequence(
-            list(archive.files), load, str(file), self.metadata().dim, keep=self.keep_trajectories
+            list(archive.files), load, str(file), metadata.dim, keep=self.keep_trajectories, domain=metadata.domain_check()
         )
 
     @classmethod

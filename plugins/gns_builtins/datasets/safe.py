@@ -79,7 +79,10 @@ class SafeDataset(NpzSplitsDataset):
 
         # File order is the order the trajectories were written in (``gns generate``: seed order), which
         # re-simulating a test case relies on; sorting the keys would lose it.
-        return TrajectorySequence(list(groups), load, str(file), self.metadata().dim, keep=self.keep_trajectories)
+        metadata = self.metadata()
+        return TrajectorySequence(
+            list(groups), load, str(file), metadata.dim, keep=self.keep_trajectories, domain=metadata.domain_check()
+        )
 
     @classmethod
     def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:

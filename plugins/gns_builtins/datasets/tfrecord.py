@@ -75,7 +75,12 @@ class TfRecordDataset(Dataset):
             return checked(trajectory, str(file), metadata.dim, metadata.sequence_length, promise)
 
         return TrajectorySequence(
-            [str(i) for i in range(len(records))], load, str(file), metadata.dim, keep=self.keep_trajectories
+            [str(i) for i in range(len(records))],
+            load,
+            str(file),
+            metadata.dim,
+            keep=self.keep_trajectories,
+            domain=metadata.domain_check(),
         )
 
     @classmethod

@@ -11,6 +11,7 @@ from gns_framework.contracts import Dataset
 from gns_framework.data.array_pickle import RefusedGlobal, read_npy_object_array
 from gns_framework.data.metadata import DatasetMetadata, load_metadata
 from gns_framework.errors import DatasetError
+from gns_framework.limits import check_array_header, check_zip_member
 
 
 class NpzSplitsDataset(Dataset):
@@ -75,8 +76,38 @@ def read_array_pickle(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> np
         raise DatasetError(f"{path}: {key}: {reason}") from None
 
 
+def check_member_size(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> None:
+    """Refuse member ``key`` before numpy inflates or allocates it: a zip bomb, or a header promising more than it holds.
+
+    numpy's ``archive[key]`` allocates the array its header describes before reading
+    it; the stated shape is checked here against the bytes the member holds and the
+    limits (:func:`~gns_framework.limits.check_zip_member`, :func:`~gns_framework.limits.check_array_header`).
+    """
+    assert archive.zip is not None  # open (numpy drops it on close)
+    where = f"{path}: {key}"
+    try:
+        info = archive.zip.getinfo(f"{key}.npy")
+    except KeyError:
+        return  # numpy names the missing key
+    check_zip_member(where, info)
+    headers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+    try:
+        with archive.zip.open(info) as stream:
+            version = np.lib.format.read_magic(stream)
+            if version not in headers:
+                return  # numpy refuses a format it does not know, naming it
+            shape, _, dtype = headers[version](stream)
+            header_bytes = stream.tell()
+    except (zipfile.BadZipFile, EOFError, OSError) as exc:
+        raise DatasetError(f"{where}: truncated or corrupt member: {exc}") from None
+    except Exception as exc:  # numpy parses the header as a Python literal: ValueError, SyntaxError, TokenError
+        raise DatasetError(f"{where}: unreadable .npy header: {type(exc).__name__}: {exc}") from None
+    check_array_header(where, shape, dtype, info.file_size - header_bytes)
+
+
 def _read_plain(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> np.ndarray | None:
     """Member ``key`` as numpy reads it, or None for a pickled member numpy would not unpickle."""
+    check_member_size(archive, path, key)
     try:
         return archive[key]
     except ValueError as exc:
