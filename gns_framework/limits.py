@@ -36,6 +36,11 @@ INFLATE_RATIO_ABOVE = 1 << 26
 """Members that inflate to less than this (64 MiB) are not held to MAX_INFLATE_RATIO: a small constant array may
 compress as well as it likes."""
 
+MAX_MODEL_PARAMETERS = 2_000_000_000
+"""Learned parameters a recipe may ask for (the paper's model has 1.6 million; 2e9 is 32 GB to train with Adam)."""
+TRAINING_BYTES_PER_PARAMETER = 16
+"""Weights, gradients and Adam's two moments, float32."""
+
 PARTICLE_STATE_BYTES = {2: 4 * (2 * 2 + 2 * 4 + 4), 3: 4 * (2 * 3 + 2 * 9 + 4)}
 """Simulator state per particle, bytes: position, velocity, affine and deformation matrices, material (float32)."""
 GRID_NODE_BYTES = {2: 8 * 3, 3: 8 * 4}
@@ -197,3 +202,48 @@ def check_array_header(where: str, shape: tuple, dtype, available: int) -> None:
             "(truncated or forged?)"
         )
     check_memory(where, promised, f"the array {shape}")
+
+
+def mlp_parameters(inputs: float, hidden: float, layers: float, outputs: float) -> float:
+    """Weights and biases of an MLP of ``layers`` hidden layers of ``hidden`` units (a linear map when 0)."""
+    if layers <= 0:
+        return inputs * outputs + outputs
+    return inputs * hidden + hidden + (layers - 1) * (hidden * hidden + hidden) + hidden * outputs + outputs
+
+
+def estimate_model_parameters(latent: float, hidden: float, layers: float, steps: float) -> float:
+    """About how many parameters a GNS of this size has: ``steps`` message-passing steps, each an edge MLP
+    (sender, receiver and edge latents in) and a node MLP (node latent and the sum of messages in).
+
+    The encoder, decoder and a processor's own extras add less than one step; a grid
+    processor's convolutions are of the same order per step. The estimate is for
+    refusing sizes no machine can train, from the numbers alone, before anything is built.
+    """
+    per_step = mlp_parameters(3 * latent, hidden, layers, latent) + mlp_parameters(2 * latent, hidden, layers, latent)
+    return max(1.0, steps) * per_step
+
+
+def model_size_problems(latent: int, hidden: int, layers: int, steps: int | None) -> list[tuple[str, str]]:
+    """Recipe problems (field, why) for a model too large to build: beyond MAX_MODEL_PARAMETERS or this machine."""
+    parameters = estimate_model_parameters(latent, hidden, layers, steps or 1)
+    sizes = f"latent_size {latent}, mlp_hidden_size {hidden}, mlp_hidden_layers {layers}" + (
+        f", {steps} message-passing steps" if steps else ""
+    )
+    # Named after the number that makes it large: steps grow it linearly, widths quadratically.
+    if steps and steps > 1000:
+        field = "model.processor.message_passing_steps"
+    else:
+        field = "model.latent_size" if latent >= hidden else "model.mlp_hidden_size"
+    if parameters > MAX_MODEL_PARAMETERS:
+        return [(field, f"{sizes}: about {parameters:.3g} parameters, more than the limit of {MAX_MODEL_PARAMETERS:.3g}")]
+    memory = physical_memory()
+    needed = parameters * TRAINING_BYTES_PER_PARAMETER
+    if memory is not None and needed > memory:
+        return [
+            (
+                field,
+                f"{sizes}: about {parameters:.3g} parameters, whose training state (weights, gradients, Adam) needs "
+                f"about {gib(needed)}, more than this machine's {gib(memory)} of memory",
+            )
+        ]
+    return []

@@ -354,3 +354,56 @@ def test_members_that_compress_well_but_are_small_are_not_bombs():
     limits.check_zip_member("x", large)  # 100x: as well as anything real compresses
     with pytest.raises(limits.LimitError, match="inflates to"):
         limits.check_zip_member("x", SimpleNamespace(file_size=limits.MAX_MEMBER_BYTES + 1, compress_size=1 << 40))
+
+
+# ---- model sizes: estimated from the recipe's numbers before anything is built (issue 47) -------------------------
+
+
+@pytest.mark.parametrize(
+    ("edit", "field"),
+    [
+        ("message_passing_steps: 3,", "model.processor.message_passing_steps"),
+        ("latent_size: 64", "model.latent_size"),
+    ],
+)
+def test_gns_check_refuses_a_model_no_machine_can_train_without_building_it(tmp_path, capsys, monkeypatch, edit, field):
+    from gns_framework.model import learned_simulator
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("built before the size was checked")
+
+    monkeypatch.setattr(learned_simulator.LearnedSimulator, "__init__", refuse)
+    text = open("recipes/sand2d_general_grid.yaml").read()
+    huge = edit.replace("3,", "100000000,") if "steps" in edit else edit.replace("64", "1000000000")
+    assert edit in text
+    recipe = tmp_path / "huge.yaml"
+    recipe.write_text(text.replace(edit, huge, 1))
+    assert main(["check", str(recipe), "--no-data"]) == 1  # gns check: 1 when a recipe has problems
+    out = capsys.readouterr().err
+    assert f"  {field}: latent_size" in out and "parameters, more than the limit of 2e+09" in out
+
+
+def test_the_parameter_estimate_is_of_the_built_model_s_order():
+    """The estimate is within 2x of the interaction network's real count (the paper's sizes and a small one)."""
+    from tiny import tiny_recipe
+
+    from gns_framework.assembly.learned import processor_steps
+    from gns_framework.contracts import ModelSizes
+    from gns_framework.plugins import load_registry
+
+    registry = load_registry()
+    for latent, steps in ((128, 10), (16, 2)):
+        recipe = tiny_recipe(
+            __import__("pathlib").Path("unused"),
+            registry,
+            latent_size=latent,
+            mlp_hidden_size=latent,
+            processor={"name": "interaction_network", "message_passing_steps": steps},
+        )
+        processor, params = registry.resolve("processor", recipe.model.processor, ("model", "processor"))
+        sizes = ModelSizes(
+            node_in=30, edge_in=3, latent=latent, mlp_hidden=latent, mlp_hidden_layers=recipe.model.mlp_hidden_layers, output=2, dim=2
+        )
+        built = sum(p.numel() for p in processor(params, sizes).parameters())
+        estimate = limits.estimate_model_parameters(latent, latent, recipe.model.mlp_hidden_layers, processor_steps(recipe, registry))
+        assert built / 2 < estimate < built * 2, (latent, steps, built, estimate)

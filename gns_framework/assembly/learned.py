@@ -7,6 +7,7 @@ from ..contracts import ModelSizes, ModelSetup
 from ..data.metadata import DatasetMetadata
 from ..decomposition.halo import unbounded_reach
 from ..errors import GnsError, RecipeError
+from ..limits import model_size_problems
 from ..model.features import FeatureBuilder, edge_feature_size, node_feature_size
 from ..model.learned_simulator import LearnedSimulator
 from ..model.noise import training_noise_std
@@ -43,6 +44,7 @@ def training_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str
         return problems  # an unknown name is the schema's to report
     if recipe.training.partitions > 1:
         problems += [("training.partitions", why) for why in unbounded_reach(builder, processor)]
+    problems += size_problems(recipe, registry)
     same = integrator.same_position_map_as
     if same is not None:
         problems.append(
@@ -54,6 +56,26 @@ def training_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str
             )
         )
     return problems
+
+
+def size_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str]]:
+    """The recipe's model estimated from its numbers: refused when too large to build (``limits.model_size_problems``)."""
+    model = recipe.model
+    steps = processor_steps(recipe, registry)
+    return model_size_problems(model.latent_size, model.mlp_hidden_size, model.mlp_hidden_layers, steps)
+
+
+def processor_steps(recipe: Recipe, registry: Registry) -> int | None:
+    """The processor's message-passing steps (``message_passing_steps``, else its ``hops_param``), None without one."""
+    try:
+        processor, params = registry.resolve("processor", recipe.model.processor, ("model", "processor"))
+    except GnsError:
+        return None  # the schema reports the processor's own problems
+    for name in ("message_passing_steps", processor.hops_param):
+        value = getattr(params, name, None) if name else None
+        if isinstance(value, int):
+            return value
+    return None
 
 
 def build_learned_simulator(

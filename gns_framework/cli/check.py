@@ -24,7 +24,7 @@ import importlib
 import sys
 from pathlib import Path
 
-from ..assembly.learned import training_problems
+from ..assembly.learned import size_problems, training_problems
 from ..config.recipe import COMPONENT_SECTIONS, Recipe, load_recipe
 from ..errors import GnsError, RecipeError
 from ..plugins import Registry, load_registry
@@ -121,7 +121,7 @@ def check_recipe(file: Path, registry: Registry, with_data: bool = True) -> None
     """RecipeError listing every problem of ``file`` that stops training; returns when there is none."""
     recipe = load_recipe(file, registry)  # schema problems first: nothing else can be read without a valid recipe
     problems = component_problems(recipe, registry) + training_problems(recipe, registry)
-    if with_data:
+    if with_data and not size_problems(recipe, registry):  # the data checks build the model: never one too large to build
         problems += data_problems(recipe, registry)
     if problems:
         raise RecipeError(file, problems)
