@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 from ..config.recipe import load_recipe
@@ -87,12 +91,43 @@ def run(args: argparse.Namespace) -> int:
                 allow_pickle=args.allow_pickle,
             )
             try:
-                return _train(trainer, args)
+                with stopped_by_signals():
+                    return _train(trainer, args)
+            except KeyboardInterrupt as stop:
+                # Ctrl-C or SIGTERM: the run is KILLED in MLflow (or left in mlflow_unsent.json for track-sync), the
+                # lock is released on the way out, and every checkpoint written so far stays.
+                trainer.close(killed=True)
+                written = list_checkpoints(trainer.checkpoint_dir)
+                kept = f"the newest checkpoint is {written[-1][1]}" if written else "no checkpoint was written yet"
+                name = str(stop) or "SIGINT"
+                print(f"gns train: stopped by {name} at step {trainer.step}; {kept} (--resume)", file=sys.stderr)
+                return 128 + int(getattr(signal, name, signal.SIGINT))
             except BaseException:
                 trainer.close(failed=True)
                 raise
         finally:
             distributed.stop()
+
+
+class StoppedBySignal(KeyboardInterrupt):
+    """SIGTERM (a scheduler's or `kill`'s stop), raised where the main thread is, as Ctrl-C is."""
+
+
+@contextlib.contextmanager
+def stopped_by_signals() -> Iterator[None]:
+    """SIGTERM raises StoppedBySignal in the main thread for the block, so training ends as after Ctrl-C."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, frame):
+        raise StoppedBySignal(signal.Signals(signum).name)
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _train(trainer: Trainer, args: argparse.Namespace) -> int:

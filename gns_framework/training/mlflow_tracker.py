@@ -472,8 +472,8 @@ class MlflowTracker:
             Request(f"artifact {Path(path).name}", send=lambda: self.client.log_artifact(self.run_id, str(path)))
         )
 
-    def close(self, failed: bool = False) -> None:
-        status = "FAILED" if failed else "FINISHED"
+    def close(self, failed: bool = False, killed: bool = False) -> None:
+        status = "KILLED" if killed else "FAILED" if failed else "FINISHED"
         self.outbox.put(
             Request(f"the run's status {status}", send=lambda: self.client.set_terminated(self.run_id, status=status))
         )

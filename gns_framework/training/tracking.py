@@ -21,7 +21,9 @@ class Tracker(Protocol):
 
     def log_artifact(self, path: Path) -> None: ...
 
-    def close(self, failed: bool = False) -> None: ...
+    def close(self, failed: bool = False, killed: bool = False) -> None:
+        """End the run: FINISHED, FAILED (an error) or KILLED (stopped by a signal)."""
+        ...
 
 
 class JsonlTracker:
@@ -42,7 +44,7 @@ class JsonlTracker:
     def log_artifact(self, path: Path) -> None:
         """Artifacts already live in the run folder."""
 
-    def close(self, failed: bool = False) -> None:
+    def close(self, failed: bool = False, killed: bool = False) -> None:
         self._metrics.close()
 
 
@@ -64,9 +66,9 @@ class TrackerGroup:
         for tracker in self.trackers:
             tracker.log_artifact(path)
 
-    def close(self, failed: bool = False) -> None:
+    def close(self, failed: bool = False, killed: bool = False) -> None:
         for tracker in self.trackers:
-            tracker.close(failed)
+            tracker.close(failed, killed)
 
 
 def read_metrics(run_dir: Path) -> list[dict]:

@@ -424,9 +424,9 @@ class Trainer:
         write_text_atomic(recipe_file, yaml.safe_dump(self.recipe.resolved(), sort_keys=False))
         tracker.log_artifact(recipe_file)
 
-    def close(self, failed: bool = False) -> None:
+    def close(self, failed: bool = False, killed: bool = False) -> None:
         if self.tracker is not None:
-            self.tracker.close(failed)
+            self.tracker.close(failed, killed)
 
 
 def time_to_go(step: int, total: int, done: int, seconds: float) -> str:

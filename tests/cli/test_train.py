@@ -54,3 +54,43 @@ def test_the_last_step_is_validated_once_and_a_run_resumed_at_its_end_validates(
     assert main([*argv, "--resume"]) == 0
     assert calls == [2, 2], "nothing left to train: the summary validates"
     assert "trained tiny to step 2, valid_one_step_loss " in capsys.readouterr().out
+
+
+def test_sigterm_marks_the_mlflow_run_killed_releases_the_lock_and_keeps_the_checkpoints(dataset_2d, tmp_path):
+    """A scheduler's stop (SIGTERM) ends training as Ctrl-C does: exit 143 with one line naming the checkpoint to
+    resume from, the MLflow run KILLED (not left RUNNING), the lock gone, every checkpoint kept (issue 47)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import mlflow
+
+    from gns_framework.io.checkpoint import list_checkpoints
+    from gns_framework.io.run_folder import RunFolder
+
+    raw = tiny_recipe_mapping(dataset_2d)
+    raw["training"].update(steps=100_000, checkpoint_every=2, validate_every=100_000, log_every=1)
+    recipe = tmp_path / "tiny.yaml"
+    recipe.write_text(yaml.safe_dump(raw))
+    run, store = tmp_path / "run", f"sqlite:///{tmp_path / 'mlflow.db'}"
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MLFLOW_TRACKING_URI": store}
+    command = [sys.executable, "-m", "gns_framework.cli", "train", str(recipe), "--out", str(run), "--no-progress"]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        deadline = time.monotonic() + 300
+        while not list_checkpoints(run / "checkpoints") and time.monotonic() < deadline and process.poll() is None:
+            time.sleep(0.2)
+        assert process.poll() is None, process.communicate()
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert process.returncode == 128 + signal.SIGTERM, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("gns train: stopped by SIGTERM at step ") and "the newest checkpoint is" in last, err
+    assert not RunFolder(run).lock.exists()
+    assert list_checkpoints(run / "checkpoints")
+    run_id = __import__("json").loads(RunFolder(run).mlflow_run.read_text())["run_id"]
+    assert mlflow.MlflowClient(store).get_run(run_id).info.status == "KILLED"
