@@ -66,6 +66,26 @@ _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _m
 
 MAX_YAML_BYTES = 16 * 2**20
 """Largest recipe or scene file read."""
+MAX_YAML_DEPTH = 64
+"""Deepest nesting of mappings and lists read (recipes and scenes nest 4-6 deep): the YAML loader builds nested
+values recursively, and 100,000 brackets would end it in a RecursionError."""
+
+
+def _nesting_problem(text: str) -> tuple[str, str] | None:
+    """(where, why) when ``text`` nests deeper than MAX_YAML_DEPTH; read from the parser's events, without recursion."""
+    depth = 0
+    for event in yaml.parse(text, Loader=_StrictLoader):
+        if isinstance(event, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+            depth += 1
+            if depth > MAX_YAML_DEPTH:
+                mark = event.start_mark
+                return (
+                    f"line {mark.line + 1}, column {mark.column + 1}",
+                    f"nested more than {MAX_YAML_DEPTH} levels deep; recipes and scenes nest a few levels",
+                )
+        elif isinstance(event, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+            depth -= 1
+    return None
 
 
 def _one_line(path: Path, where: str, message: str) -> RecipeError:
@@ -94,6 +114,9 @@ def load_yaml_mapping(path: str | Path) -> dict:
             path, f"byte {exc.start}", f"not UTF-8 text (0x{data[exc.start]:02x}); save the file as UTF-8"
         ) from None
     try:
+        nested = _nesting_problem(text)
+        if nested is not None:
+            raise _one_line(path, *nested)
         raw = yaml.load(text, Loader=_StrictLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)

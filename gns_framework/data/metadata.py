@@ -148,7 +148,9 @@ def read_metadata_json(path: Path) -> dict:
     return raw
 
 
-def compute_statistics(trajectories: Iterable[Trajectory], kinematic_types: Collection[int]) -> dict[str, list[float]]:
+def compute_statistics(
+    trajectories: Iterable[Trajectory], kinematic_types: Collection[int], where: str = ""
+) -> dict[str, list[float]]:
     """Mean and std of per-frame velocity and acceleration over non-kinematic particles.
 
     ``kinematic_types`` are the particle types whose material is kinematic (the
@@ -158,6 +160,7 @@ def compute_statistics(trajectories: Iterable[Trajectory], kinematic_types: Coll
     Accumulates sums in float64 so long datasets do not lose precision; returns
     ``vel_mean``, ``vel_std``, ``acc_mean``, ``acc_std`` (and ``context_*`` when
     the trajectories carry a step context), each a list with one value per component.
+    ``where`` (the dataset and split) starts the error when there is nothing to measure.
     """
     sums: dict[str, list] = {}
 
@@ -168,7 +171,9 @@ def compute_statistics(trajectories: Iterable[Trajectory], kinematic_types: Coll
         acc[1] += values.sum(0)
         acc[2] += (values**2).sum(0)
 
+    counted = 0
     for traj in trajectories:
+        counted += 1
         moving = ~np.isin(traj.particle_type, list(kinematic_types))
         pos = traj.position[:, moving].astype(np.float64)
         if pos.shape[0] >= 3 and pos.shape[1] > 0:
@@ -178,7 +183,8 @@ def compute_statistics(trajectories: Iterable[Trajectory], kinematic_types: Coll
         if traj.step_context is not None:
             add("context", traj.step_context)
     if "vel" not in sums:
-        raise DatasetError("cannot compute statistics: no trajectory has 3 frames of non-kinematic particles")
+        holds = "holds 0 trajectories" if not counted else f"none of its {counted} trajectories has 3 frames of non-kinematic particles"
+        raise DatasetError(f"{where + ': ' if where else ''}cannot compute statistics: {holds}")
     stats: dict[str, list[float]] = {}
     for name, (count, total, total_sq) in sums.items():
         mean = total / count

@@ -65,9 +65,10 @@ class FrameStrideDataset(Dataset):
         if self._metadata is None:
             stored = self.inner.metadata()
             splits = self.splits()
+            measured = "train" if "train" in splits else splits[0] if splits else None
             statistics = (
-                compute_statistics(self.split("train" if "train" in splits else splits[0]), self.kinematic_types)
-                if splits
+                compute_statistics(self.split(measured), self.kinematic_types, f"{self.path} (split {measured})")
+                if measured is not None
                 else {}
             )
             frames = -(-stored.sequence_length // self.stride)

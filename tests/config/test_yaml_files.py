@@ -6,6 +6,7 @@ import pytest
 
 from gns_framework.config.recipe import load_recipe
 from gns_framework.config.yaml_files import load_yaml_mapping
+from gns_framework.errors import RecipeError
 from gns_framework.ground_truth.scene_spec import load_scene
 
 
@@ -67,3 +68,18 @@ def test_recipe_file_takes_exponent_numbers_and_keeps_numeric_looking_strings(tm
     assert recipe.training.steps == 1000 and recipe.training.optimizer.lr_init == pytest.approx(1e-4)
     assert recipe.model.noise_std == pytest.approx(3e-4)
     assert isinstance(recipe.resolved()["training"]["optimizer"]["lr_min"], float)
+
+
+@pytest.mark.parametrize(
+    ("text", "where"),
+    [
+        ("a: " + "[" * 100_000 + "]" * 100_000 + "\n", "line 1, column 67"),
+        ("a:\n" + "".join(" " * i + "b:\n" for i in range(1, 3000)), "line 65, column 65"),
+    ],
+)
+def test_nesting_100000_deep_is_one_line_not_a_recursion_error(tmp_path, text, where):
+    path = tmp_path / "deep.yaml"
+    path.write_text(text)
+    with pytest.raises(RecipeError) as error:
+        load_yaml_mapping(path)
+    assert str(error.value) == f"{path}: {where}: nested more than 64 levels deep; recipes and scenes nest a few levels"

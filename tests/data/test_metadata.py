@@ -152,5 +152,12 @@ def test_statistics_pool_trajectories_and_include_the_context():
 def test_statistics_need_three_frames_of_a_moving_particle():
     short = Trajectory(np.zeros((2, 2, 2), np.float32), np.array([5, 5]))
     only_kinematic = Trajectory(np.zeros((5, 2, 2), np.float32), np.array([3, 3]))
-    with pytest.raises(DatasetError, match="no trajectory has 3 frames of non-kinematic particles"):
+    with pytest.raises(DatasetError, match="none of its 2 trajectories has 3 frames of non-kinematic particles"):
         compute_statistics([short, only_kinematic], kinematic_types=[3])
+
+
+def test_statistics_of_no_trajectory_name_the_dataset_and_split():
+    from gns_framework.data.metadata import compute_statistics
+
+    with pytest.raises(DatasetError, match=r"^data/x \(split train\): cannot compute statistics: holds 0 trajectories$"):
+        compute_statistics([], (3,), "data/x (split train)")
