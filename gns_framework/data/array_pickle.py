@@ -225,7 +225,7 @@ def read_npy_object_array(archive: zipfile.ZipFile, member: str) -> np.ndarray:
             payload = stream.read()
     except KeyError:
         raise ArrayPickleError(file, key, None, f"no member {member!r} in the archive", "") from None
-    except (zipfile.BadZipFile, OSError, EOFError) as exc:
+    except (zipfile.BadZipFile, OSError, EOFError, NotImplementedError) as exc:
         raise ArrayPickleError(file, key, None, str(exc), "", "truncated or corrupt member") from None
     try:
         array = _Interpreter(payload).run()

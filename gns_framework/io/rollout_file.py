@@ -163,7 +163,7 @@ def load_rollout(path: str | Path) -> Rollout:
     try:
         with np.load(path, allow_pickle=False) as archive:
             fields = {name: archive[name] for name in archive.files}
-    except (zipfile.BadZipFile, OSError, EOFError) as exc:
+    except (zipfile.BadZipFile, OSError, EOFError, NotImplementedError) as exc:
         raise DatasetError(f"{src}: not a readable .npz rollout file ({exc})") from None
     except ValueError as exc:
         # np.load refuses object arrays without allow_pickle: a pickled file.

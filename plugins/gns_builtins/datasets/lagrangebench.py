@@ -25,10 +25,11 @@ each group; LagrangeBench ignores them.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -38,9 +39,10 @@ from gns_framework.data.atomic import atomic_path, write_text_atomic
 from gns_framework.data.consistency import checked
 from gns_framework.data.lazy import TrajectorySequence
 from gns_framework.data.metadata import DatasetMetadata, parse_metadata, read_metadata_json
+from gns_framework.limits import INFLATE_RATIO_ABOVE, MAX_INFLATE_RATIO, LimitError, check_memory
 from gns_framework.data.particle_spacing import particle_spacing
 from gns_framework.data.trajectory import Trajectory
-from gns_framework.errors import DatasetError
+from gns_framework.errors import DatasetError, GnsError
 
 from ._formats.numbering import trajectory_numbers
 
@@ -76,7 +78,8 @@ class LagrangeBenchDataset(Dataset):
         import h5py
 
         for split in self.splits():
-            with h5py.File(self.path / f"{split}.h5", "r") as handle:
+            file = self.path / f"{split}.h5"
+            with damaged_hdf5(file, "sequence length"), h5py.File(file, "r") as handle:
                 for key in sorted(handle):
                     return int(handle[key]["position"].shape[0])
         raise DatasetError(f"{self.path}: no split file with a trajectory to take the sequence length from")
@@ -98,25 +101,23 @@ class LagrangeBenchDataset(Dataset):
             )
         frames = None if steps is None else steps + 1
         promise = f"sequence_length_{name} = {steps} (steps between frames, as LagrangeBench counts)"
-        try:
-            with h5py.File(file, "r") as handle:
-                keys = sorted(handle)
-        except OSError as exc:
-            raise DatasetError(f"{file}: not a readable HDF5 file (truncated or corrupt?): {exc}") from None
+        with damaged_hdf5(file, "its trajectories"), h5py.File(file, "r") as handle:
+            keys = sorted(handle)
 
         def load(key: str) -> Trajectory:
-            with h5py.File(file, "r") as handle:
+            with damaged_hdf5(file, f"trajectory {key!r}"), h5py.File(file, "r") as handle:
                 group = handle[key]
                 if not isinstance(group, h5py.Group):
                     raise DatasetError(f"{file}: trajectory {key!r}: expected a group with position and particle_type")
                 for required in ("position", "particle_type"):
                     if required not in group:
                         raise DatasetError(f"{file}: trajectory {key!r}: {required}: missing")
-                optional = {f: group[f][()] for f in OPTIONAL_FIELDS if f in group}
+                read = lambda field: read_bounded(group, field, f"{file}: trajectory {key!r}")  # noqa: E731
+                optional = {f: read(f) for f in OPTIONAL_FIELDS if f in group}
                 name_attr = group.attrs.get("key", key)
                 trajectory = Trajectory(
-                    group["position"][()],
-                    group["particle_type"][()],
+                    read("position"),
+                    read("particle_type"),
                     optional.get("material_property"),
                     optional.get("step_context"),
                     name_attr.decode() if isinstance(name_attr, bytes) else str(name_attr),
@@ -147,6 +148,41 @@ class LagrangeBenchDataset(Dataset):
                         if traj.key and traj.key != group_name:
                             group.attrs["key"] = traj.key
         write_text_atomic(path / "metadata.json", json.dumps(document, indent=2) + "\n")
+
+
+@contextlib.contextmanager
+def damaged_hdf5(file: Path, reading: str) -> Iterator[None]:
+    """HDF5's errors on a damaged file (h5py raises OSError, RuntimeError, KeyError, ValueError or TypeError from
+    deep in the library) as one DatasetError naming the file and what was being read."""
+    try:
+        yield
+    except GnsError:
+        raise
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError, AttributeError, IndexError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise DatasetError(f"{file}: not a readable HDF5 file (truncated or corrupt?) reading {reading}: {first}") from None
+
+
+def read_bounded(group, field: str, where: str) -> np.ndarray:
+    """Dataset ``field`` of ``group``, its declared size checked against the limits before h5py allocates it.
+
+    An HDF5 dataset declares its shape; a chunked one may declare far more than the
+    file stores (unwritten chunks read as the fill value), so a few KB can ask for TB.
+    """
+    import h5py
+
+    dataset = group[field]
+    if not isinstance(dataset, h5py.Dataset):
+        raise DatasetError(f"{where}: {field}: expected an array, found a {type(dataset).__name__}")
+    nbytes = math.prod(dataset.shape or ()) * dataset.dtype.itemsize
+    stored = max(1, dataset.id.get_storage_size())
+    if nbytes > INFLATE_RATIO_ABOVE and nbytes > MAX_INFLATE_RATIO * stored:
+        raise LimitError(
+            f"{where}: {field}: declares {nbytes:,} bytes {dataset.shape} but stores {stored:,} "
+            f"({nbytes / stored:,.0f}x, more than the {MAX_INFLATE_RATIO}x any particle data compresses)"
+        )
+    check_memory(where, nbytes, f"{field} {dataset.shape}")
+    return dataset[()]
 
 
 def lagrangebench_metadata(path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> dict:

@@ -154,3 +154,34 @@ def test_a_split_of_several_lengths_is_refused(tmp_path):
     with pytest.raises(DatasetError, match=r"train\.h5: trajectories of \[3, 5\] frames, but LagrangeBench's layout"):
         LagrangeBenchDataset.write(tmp_path, metadata, {"train": [grid_trajectory(0.05), grid_trajectory(0.05, 5)]})
     assert not (tmp_path / "train.h5").exists()
+
+
+def test_a_dataset_declaring_terabytes_it_does_not_store_is_refused_before_h5py_allocates(tmp_path):
+    """A chunked HDF5 dataset may declare any shape: unwritten chunks read as the fill value (issue 47)."""
+    from gns_builtins.datasets.lagrangebench import read_bounded
+
+    from gns_framework.limits import LimitError
+
+    path = tmp_path / "train.h5"
+    with h5py.File(path, "w") as handle:
+        group = handle.create_group("00000")
+        group.create_dataset("position", shape=(10_000, 100_000_000, 3), dtype="f4", chunks=(1, 1000, 3))
+        group.create_dataset("particle_type", data=np.zeros(4, np.int64))
+    assert path.stat().st_size < 100_000
+    with h5py.File(path, "r") as handle:
+        with pytest.raises(LimitError, match=r"^x: position: declares 12,000,000,000,000 bytes \(10000, 100000000, 3\)"):
+            read_bounded(handle["00000"], "position", "x")
+        assert read_bounded(handle["00000"], "particle_type", "x").shape == (4,)
+
+
+def test_damaged_hdf5_is_one_line_naming_the_file_and_what_was_read():
+    from pathlib import Path
+
+    from gns_builtins.datasets.lagrangebench import damaged_hdf5
+
+    from gns_framework.errors import DatasetError
+
+    with pytest.raises(DatasetError, match=r"^f\.h5: not a readable HDF5 file \(truncated or corrupt\?\) reading "
+                       r"trajectory '3': Unable to get group info \(bad symbol table node signature\)$"):
+        with damaged_hdf5(Path("f.h5"), "trajectory '3'"):
+            raise RuntimeError("Unable to get group info (bad symbol table node signature)")

@@ -30,7 +30,7 @@ def open_npz(path: Path, allow_pickle: bool = False) -> np.lib.npyio.NpzFile:
         raise DatasetError(f"{path}: split file not found")
     try:
         return np.load(path, allow_pickle=allow_pickle)
-    except (zipfile.BadZipFile, EOFError, OSError, ValueError) as exc:
+    except (zipfile.BadZipFile, EOFError, OSError, ValueError, NotImplementedError) as exc:
         raise DatasetError(f"{path}: not a readable .npz archive (truncated or corrupt?): {exc}") from None
 
 
@@ -68,7 +68,7 @@ def read_array_pickle(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> np
         ) from None
     except DatasetError:
         raise  # already names the file, the member, the byte and what was found against what was expected
-    except (zipfile.BadZipFile, OSError) as exc:
+    except (zipfile.BadZipFile, OSError, NotImplementedError) as exc:
         raise DatasetError(f"{path}: {key}: truncated or corrupt member: {exc}") from None
     except Exception as exc:
         # A damaged pickle can fail anywhere in the unpickler (EOFError, KeyError, TypeError, ...).
@@ -98,7 +98,7 @@ def check_member_size(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> No
                 return  # numpy refuses a format it does not know, naming it
             shape, _, dtype = headers[version](stream)
             header_bytes = stream.tell()
-    except (zipfile.BadZipFile, EOFError, OSError) as exc:
+    except (zipfile.BadZipFile, EOFError, OSError, NotImplementedError) as exc:
         raise DatasetError(f"{where}: truncated or corrupt member: {exc}") from None
     except Exception as exc:  # numpy parses the header as a Python literal: ValueError, SyntaxError, TokenError
         raise DatasetError(f"{where}: unreadable .npy header: {type(exc).__name__}: {exc}") from None
@@ -114,5 +114,5 @@ def _read_plain(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> np.ndarr
         if "allow_pickle" in str(exc):
             return None
         raise DatasetError(f"{path}: {key}: unreadable array: {exc}") from None
-    except (zipfile.BadZipFile, EOFError, OSError, KeyError) as exc:
+    except (zipfile.BadZipFile, EOFError, OSError, KeyError, NotImplementedError) as exc:
         raise DatasetError(f"{path}: {key}: truncated or corrupt member: {exc}") from None
