@@ -235,7 +235,9 @@ def model_size_problems(latent: int, hidden: int, layers: int, steps: int | None
     else:
         field = "model.latent_size" if latent >= hidden else "model.mlp_hidden_size"
     if parameters > MAX_MODEL_PARAMETERS:
-        return [(field, f"{sizes}: about {parameters:.3g} parameters, more than the limit of {MAX_MODEL_PARAMETERS:.3g}")]
+        return [
+            (field, f"{sizes}: about {parameters:.3g} parameters, more than the limit of {MAX_MODEL_PARAMETERS:.3g}")
+        ]
     memory = physical_memory()
     needed = parameters * TRAINING_BYTES_PER_PARAMETER
     if memory is not None and needed > memory:

@@ -342,7 +342,9 @@ def test_a_zip_bomb_member_is_refused_before_it_is_inflated(tmp_path, monkeypatc
     real_read = zipfile.ZipExtFile.read
     monkeypatch.setattr(zipfile.ZipExtFile, "read", lambda self, n=-1: inflated.append(n) or real_read(self, n))
     archive = open_npz(path, allow_pickle=False)
-    with pytest.raises(limits.LimitError, match=r"train\.npz: simulation_trajectory_0: .* inflate to 129,\d+,\d+ .*zip bomb"):
+    with pytest.raises(
+        limits.LimitError, match=r"train\.npz: simulation_trajectory_0: .* inflate to 129,\d+,\d+ .*zip bomb"
+    ):
         read_array_pickle(archive, path, "simulation_trajectory_0")
     assert all(n != -1 for n in inflated), "the payload was inflated before the check"
 
@@ -402,8 +404,16 @@ def test_the_parameter_estimate_is_of_the_built_model_s_order():
         )
         processor, params = registry.resolve("processor", recipe.model.processor, ("model", "processor"))
         sizes = ModelSizes(
-            node_in=30, edge_in=3, latent=latent, mlp_hidden=latent, mlp_hidden_layers=recipe.model.mlp_hidden_layers, output=2, dim=2
+            node_in=30,
+            edge_in=3,
+            latent=latent,
+            mlp_hidden=latent,
+            mlp_hidden_layers=recipe.model.mlp_hidden_layers,
+            output=2,
+            dim=2,
         )
         built = sum(p.numel() for p in processor(params, sizes).parameters())
-        estimate = limits.estimate_model_parameters(latent, latent, recipe.model.mlp_hidden_layers, processor_steps(recipe, registry))
+        estimate = limits.estimate_model_parameters(
+            latent, latent, recipe.model.mlp_hidden_layers, processor_steps(recipe, registry)
+        )
         assert built / 2 < estimate < built * 2, (latent, steps, built, estimate)

@@ -11,7 +11,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from ..config.recipe import load_recipe
-from ..errors import GnsError
+from ..errors import GnsError, RecipeError
 from ..io.checkpoint import list_checkpoints
 from ..plugins import load_registry
 from ..training import distributed
@@ -81,15 +81,19 @@ def run(args: argparse.Namespace) -> int:
     # One writer per run folder, for the whole run (fresh, --resume, --restart): rank 0 holds the lock.
     with run_folder_lock(run_dir, take=processes.is_chief):
         try:
-            trainer = Trainer(
-                recipe,
-                registry,
-                run_dir=run_dir,
-                dataset_path=args.dataset,
-                processes=processes,
-                progress=not args.no_progress,
-                allow_pickle=args.allow_pickle,
-            )
+            try:
+                trainer = Trainer(
+                    recipe,
+                    registry,
+                    run_dir=run_dir,
+                    dataset_path=args.dataset,
+                    processes=processes,
+                    progress=not args.no_progress,
+                    allow_pickle=args.allow_pickle,
+                )
+            except RecipeError as refused:
+                # The trainer knows the recipe, not its file: name the file the user gave.
+                raise RecipeError(args.recipe, refused.problems) from None
             try:
                 with stopped_by_signals():
                     return _train(trainer, args)

@@ -9,7 +9,6 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .npz_mapping import read_frames
 from .trajectory import Trajectory
 
 
@@ -65,9 +64,9 @@ def window(trajectory: Trajectory, start: int, history: int, with_target: bool =
     """The window ``[start, start + history)`` of a trajectory as a batch of one example.
 
     With a target, ``ahead`` > 0 also keeps the ``ahead`` true frames after it. Frames are copied: they may be
-    a read-only memory map of the file (``dataset.memory: windows``).
+    a read-only memory map of the file (``dataset.memory: windows``), which checks its file is unchanged first.
     """
-    positions = read_frames(trajectory.position[start : start + history + (1 + ahead if with_target else 0)])
+    positions = np.array(trajectory.position[start : start + history + (1 + ahead if with_target else 0)])
     sequence = torch.from_numpy(np.ascontiguousarray(positions[:history].transpose(1, 0, 2)))
     n = sequence.shape[0]
     return ParticleBatch(

@@ -183,7 +183,11 @@ def compute_statistics(
         if traj.step_context is not None:
             add("context", traj.step_context)
     if "vel" not in sums:
-        holds = "holds 0 trajectories" if not counted else f"none of its {counted} trajectories has 3 frames of non-kinematic particles"
+        holds = (
+            "holds 0 trajectories"
+            if not counted
+            else f"none of its {counted} trajectories has 3 frames of non-kinematic particles"
+        )
         raise DatasetError(f"{where + ': ' if where else ''}cannot compute statistics: {holds}")
     stats: dict[str, list[float]] = {}
     for name, (count, total, total_sq) in sums.items():

@@ -12,10 +12,10 @@ Only plain arrays are mapped: an object (pickled) member is never mapped nor rea
 
 A mapped file that is truncated under its reader makes the kernel end the reader with
 SIGBUS at the first page past the new end, with no message; one rewritten in place
-feeds changed values. So a mapping carries the identity of the file it was made from
-(device, inode, size, modification time), and :func:`read_frames` (every window read)
-and the split's loads check it before reading: a file that changed is a DatasetError
-naming it and what changed, never a signal and never changed data.
+feeds changed values. So a map carries the identity of the file it was made from
+(:class:`~.file_identity.FileIdentity`) and checks it whenever a part of it is taken
+(every window): a file that changed is a DatasetError naming it and what changed,
+never a signal and never changed data.
 """
 
 from __future__ import annotations
@@ -24,58 +24,23 @@ import os
 import struct
 import zipfile
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
 from ..errors import DatasetError
+from .file_identity import FileIdentity
 
 _LOCAL_HEADER = struct.Struct("<4s22xHH")
 """A zip local file header's signature, then (after 22 bytes we do not need) its name and extra field lengths."""
 _LOCAL_SIGNATURE = b"PK\x03\x04"
 
 
-class FileIdentity(NamedTuple):
-    """What tells a file apart from a changed one: its device and inode, size and modification time (ns)."""
-
-    device: int
-    inode: int
-    size: int
-    modified_ns: int
-
-    @classmethod
-    def of(cls, info: os.stat_result) -> FileIdentity:
-        return cls(info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns)
-
-    @classmethod
-    def of_path(cls, path: str | Path) -> FileIdentity | None:
-        """The identity of the file at ``path`` now, None where there is none."""
-        try:
-            return cls.of(os.stat(path))
-        except OSError:
-            return None
-
-    def change(self, now: FileIdentity | None) -> str | None:
-        """How ``now`` differs from this identity, in words; None when it is the same file, unchanged."""
-        if now is None:
-            return "it is gone"
-        if (now.device, now.inode) != (self.device, self.inode):
-            return "another file replaced it"
-        if now.size != self.size:
-            return f"its size went from {self.size} to {now.size} bytes (truncated?)" if now.size < self.size else (
-                f"its size went from {self.size} to {now.size} bytes"
-            )
-        if now.modified_ns != self.modified_ns:
-            return "it was rewritten (modification time changed)"
-        return None
-
-
-class DatasetChanged(DatasetError):
-    """A data file changed under its reader (truncated, rewritten or replaced)."""
-
-
 class CheckedMemmap(np.memmap):
-    """A read-only map of a file that remembers the file's identity when it was mapped (slices keep it)."""
+    """A read-only map that checks its file is unchanged whenever a part of it is taken (a window, a stride).
+
+    ``identity`` is the file's when it was mapped; slices keep it. Reading a truncated
+    map ends the process with SIGBUS, so the check comes before the slice is read.
+    """
 
     identity: FileIdentity | None = None
 
@@ -83,35 +48,10 @@ class CheckedMemmap(np.memmap):
         super().__array_finalize__(obj)
         self.identity = getattr(obj, "identity", None)
 
-
-def check_unchanged(array, what: str = "") -> None:
-    """Raise DatasetError when ``array`` maps a file that changed since it was mapped; nothing for other arrays.
-
-    Called before the values of a map are read: reading a truncated map ends the process with SIGBUS.
-    """
-    mapping = array
-    while mapping is not None and not isinstance(mapping, CheckedMemmap):
-        mapping = getattr(mapping, "base", None)  # a view of a map (np.asarray of a memmap is a plain view of it)
-    if mapping is None or mapping.identity is None:
-        return
-    filename = mapping.filename
-    change = mapping.identity.change(FileIdentity.of_path(filename) if filename else None)
-    if change is not None:
-        raise DatasetChanged(
-            f"{filename}: changed while it was being read{what} ({change}); stopped rather than read it: put the data "
-            "back as it was (or train on a copy), then resume"
-        )
-
-
-def read_frames(frames) -> np.ndarray:
-    """A copy of ``frames`` (e.g. a window's slice of a trajectory's positions), checked unchanged before and after.
-
-    Shapes: whatever ``frames`` holds (e.g. (W, N, d)).
-    """
-    check_unchanged(frames)
-    copied = np.array(frames)
-    check_unchanged(frames)  # rewritten while it was copied: the copy may mix old and new values
-    return copied
+    def __getitem__(self, index):
+        if self.identity is not None and self.filename is not None:
+            self.identity.check(self.filename)
+        return super().__getitem__(index)
 
 
 def mapped_member(path: Path, archive: zipfile.ZipFile, key: str) -> CheckedMemmap | None:

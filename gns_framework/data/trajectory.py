@@ -75,7 +75,7 @@ class Trajectory:
         Raises DatasetError naming ``source``, the trajectory key and the field (and frame and particle).
         """
         where = f"{source}: trajectory {self.key!r}"
-        pos = np.asarray(self.position)
+        pos = np.asanyarray(self.position)  # a memory map stays one: it checks its file whenever a window is taken
         if pos.ndim != 3:
             raise DatasetError(f"{where}: position: expected shape (T, N, d), got {pos.shape}")
         t, n, d = pos.shape

@@ -84,9 +84,8 @@ def open_owned_fd(path: str | Path, mode: str, what: str, permissions: int = 0o6
 
 def open_owned(path: str | Path, mode: str, what: str) -> IO:
     """``open(path, mode)`` for a file the command owns ('w', 'a', 'wb', 'ab'), never through a link."""
-    binary = mode.endswith("b")
     fd = open_owned_fd(path, mode.rstrip("b"), what)
-    return os.fdopen(fd, mode, **({} if binary else {"encoding": "utf-8"}))
+    return os.fdopen(fd, mode) if mode.endswith("b") else os.fdopen(fd, mode, encoding="utf-8")
 
 
 def write_owned_text(path: str | Path, text: str, what: str) -> None:

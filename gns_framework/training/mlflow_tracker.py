@@ -137,7 +137,10 @@ def _client(tracking_uri: str):
         ) from None
     for name, value in REQUEST_LIMITS.items():
         os.environ.setdefault(name, value)
-    return MlflowClient(tracking_uri)
+    try:
+        return MlflowClient(tracking_uri)
+    except Exception as error:  # MLflow's refusals of a store (a file store it no longer opens, say) are long
+        raise TrackingError(f"MLflow cannot open the store {tracking_uri}: {first_line(error)}") from None
 
 
 def server_unreachable(error: BaseException) -> bool:
@@ -541,7 +544,9 @@ def log_to_recorded_run(
             client.log_artifact(saved["run_id"], str(artifact), artifact_path)
     except Exception as error:
         if not server_unreachable(error):
-            raise TrackingError(f"MLflow at {saved['tracking_uri']} refused run {saved['run_id']}: {first_line(error)}") from None
+            raise TrackingError(
+                f"MLflow at {saved['tracking_uri']} refused run {saved['run_id']}: {first_line(error)}"
+            ) from None
         warnings.warn(
             f"tracking: MLflow at {saved['tracking_uri']} unreachable ({first_line(error)}); "
             f"{', '.join(f'{k} {v:.6g}' for k, v in sorted(metrics.items()))} not logged to its run {saved['run_id']}",

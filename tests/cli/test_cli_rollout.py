@@ -251,7 +251,11 @@ def test_a_team_whose_rollout_stops_stops_every_team_and_nothing_is_written(tiny
     test[1] = dataclasses.replace(test[1], position=test[1].position + np.float32(50.0))
     data = tmp_path / "stops"
     load_registry().get("dataset", "safe").write(
-        data, synthetic_metadata(train, 2), {"train": train, "valid": train, "test": test}
+        # A connectivity radius of 30 widens the domain check of the data (two radii) past the 50 m the scene is moved:
+        # the data is read, and the rollout's guard (margin 0.1) stops it.
+        data,
+        synthetic_metadata(train, 2).model_copy(update={"default_connectivity_radius": 30.0}),
+        {"train": train, "valid": train, "test": test},
     )
     env = dict(os.environ, OMP_NUM_THREADS="1")
     launcher = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "4"]

@@ -85,3 +85,15 @@ def test_a_malformed_tracking_uri_is_one_line_before_any_store_is_touched(tmp_pa
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and says in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+def test_a_store_mlflow_will_not_open_is_one_line(tmp_path, capsys, monkeypatch):
+    """MLflow 3 refuses file stores unless told otherwise: its refusal is one line, not a traceback."""
+    monkeypatch.delenv("MLFLOW_ALLOW_FILE_STORE", raising=False)
+    uri = f"file://{tmp_path / 'mlruns'}"
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "mlflow_run.json").write_text(json.dumps({"tracking_uri": uri, "run_id": "abc"}))
+    assert main(["track-sync", str(run), "--tracking-uri", uri]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and f"MLflow cannot open the store {uri}: " in err, err

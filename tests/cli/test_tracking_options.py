@@ -132,6 +132,8 @@ def test_train_refuses_a_malformed_tracking_uri_in_one_line_and_leaves_no_folder
 
 def test_the_environment_s_tracking_uri_is_checked_too(monkeypatch):
     monkeypatch.setenv("MLFLOW_TRACKING_URI", "ftp://example.org/x")
-    with pytest.raises(mlflow_tracker.TrackingError, match=r"^\$MLFLOW_TRACKING_URI 'ftp://example.org/x': unsupported"):
+    with pytest.raises(
+        mlflow_tracker.TrackingError, match=r"^\$MLFLOW_TRACKING_URI 'ftp://example.org/x': unsupported"
+    ):
         check_tracking_arguments(parse())
     check_tracking_arguments(parse("--no-tracking"))

@@ -11,7 +11,9 @@ from gns_framework.errors import DatasetError
 
 
 def _trajectory(frames: int = 5, dim: int = 2) -> Trajectory:
-    return Trajectory(np.arange(frames * 3 * dim, dtype=np.float64).reshape(frames, 3, dim), np.array([5.0, 5.0, 3.0]), key="ex_7")
+    return Trajectory(
+        np.arange(frames * 3 * dim, dtype=np.float64).reshape(frames, 3, dim), np.array([5.0, 5.0, 3.0]), key="ex_7"
+    )
 
 
 def test_a_trajectory_of_the_promised_length_comes_back_validated():

@@ -76,7 +76,7 @@ def test_with_keep_only_the_most_recently_used_trajectories_stay_and_the_others_
 def test_a_split_file_rewritten_between_two_reads_is_refused_before_the_second(tmp_path):
     import os
 
-    from gns_framework.data.npz_mapping import DatasetChanged
+    from gns_framework.data.file_identity import DatasetChanged
 
     source = tmp_path / "train.npz"
     source.write_bytes(b"x" * 100)

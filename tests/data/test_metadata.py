@@ -159,5 +159,7 @@ def test_statistics_need_three_frames_of_a_moving_particle():
 def test_statistics_of_no_trajectory_name_the_dataset_and_split():
     from gns_framework.data.metadata import compute_statistics
 
-    with pytest.raises(DatasetError, match=r"^data/x \(split train\): cannot compute statistics: holds 0 trajectories$"):
+    with pytest.raises(
+        DatasetError, match=r"^data/x \(split train\): cannot compute statistics: holds 0 trajectories$"
+    ):
         compute_statistics([], (3,), "data/x (split train)")

@@ -119,7 +119,9 @@ def test_a_trajectory_s_own_bounds_replace_the_dataset_s():
 
 def test_all_particles_at_one_point_is_one_line():
     position = np.full((4, 5, 2), 0.5, np.float32)
-    with pytest.raises(DatasetError, match=r"^f: trajectory 'a': position: all 5 particles of frame 0 are at one point"):
+    with pytest.raises(
+        DatasetError, match=r"^f: trajectory 'a': position: all 5 particles of frame 0 are at one point"
+    ):
         Trajectory(position, np.full(5, 6), key="a").validated("f")
     Trajectory(position[:, :1], np.full(1, 6), key="a").validated("f")  # one particle is a point, rightly
 

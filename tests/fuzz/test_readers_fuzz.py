@@ -169,4 +169,6 @@ def test_every_reader_reads_or_refuses_damaged_input_in_one_line(seeds, tmp_path
     finally:
         worker.close()
     print("fuzz trials per reader:", trials)
-    assert not failures, f"{len(failures)} of {sum(trials.values())} damaged inputs failed:\n" + "\n".join(failures[:20])
+    assert not failures, f"{len(failures)} of {sum(trials.values())} damaged inputs failed:\n" + "\n".join(
+        failures[:20]
+    )

@@ -28,7 +28,9 @@ def test_a_symbolic_link_is_refused_and_its_target_is_untouched(tmp_path, mode):
     link = tmp_path / "run" / "metrics.jsonl"
     link.parent.mkdir()
     link.symlink_to(target)
-    with pytest.raises(LinkRefused, match=rf"^{link}: the metrics file is a symbolic link to {target}; gns never writes"):
+    with pytest.raises(
+        LinkRefused, match=rf"^{link}: the metrics file is a symbolic link to {target}; gns never writes"
+    ):
         open_owned(link, mode, "metrics file")
     assert target.read_text() == "precious\n"
     # A link to nowhere is refused too (creating its target would write outside the folder).

@@ -124,9 +124,7 @@ class LagrangeBenchDataset(Dataset):
                 )
             return checked(trajectory, str(file), metadata.dim, frames, promise)
 
-        return TrajectorySequence(
-            keys, load, str(file), metadata.dim, keep=self.keep_trajectories, domain=metadata.domain_check()
-        )
+        return TrajectorySequence(keys, load, str(file), metadata.domain_check(), keep=self.keep_trajectories)
 
     @classmethod
     def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:
@@ -160,7 +158,9 @@ def damaged_hdf5(file: Path, reading: str) -> Iterator[None]:
         raise
     except (OSError, RuntimeError, KeyError, ValueError, TypeError, AttributeError, IndexError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise DatasetError(f"{file}: not a readable HDF5 file (truncated or corrupt?) reading {reading}: {first}") from None
+        raise DatasetError(
+            f"{file}: not a readable HDF5 file (truncated or corrupt?) reading {reading}: {first}"
+        ) from None
 
 
 def read_bounded(group, field: str, where: str) -> np.ndarray:

@@ -57,7 +57,7 @@ class GeoelementsNpzDataset(NpzSplitsDataset):
             )
 
         return TrajectorySequence(
-            list(archive.files), load, str(file), metadata.dim, keep=self.keep_trajectories, domain=metadata.domain_check()
+            list(archive.files), load, str(file), metadata.domain_check(), keep=self.keep_trajectories
         )
 
     @classmethod

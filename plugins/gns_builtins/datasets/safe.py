@@ -80,9 +80,7 @@ class SafeDataset(NpzSplitsDataset):
         # File order is the order the trajectories were written in (``gns generate``: seed order), which
         # re-simulating a test case relies on; sorting the keys would lose it.
         metadata = self.metadata()
-        return TrajectorySequence(
-            list(groups), load, str(file), metadata.dim, keep=self.keep_trajectories, domain=metadata.domain_check()
-        )
+        return TrajectorySequence(list(groups), load, str(file), metadata.domain_check(), keep=self.keep_trajectories)
 
     @classmethod
     def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:

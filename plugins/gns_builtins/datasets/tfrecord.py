@@ -75,12 +75,7 @@ class TfRecordDataset(Dataset):
             return checked(trajectory, str(file), metadata.dim, metadata.sequence_length, promise)
 
         return TrajectorySequence(
-            [str(i) for i in range(len(records))],
-            load,
-            str(file),
-            metadata.dim,
-            keep=self.keep_trajectories,
-            domain=metadata.domain_check(),
+            [str(i) for i in range(len(records))], load, str(file), metadata.domain_check(), keep=self.keep_trajectories
         )
 
     @classmethod

@@ -169,7 +169,9 @@ def test_a_dataset_declaring_terabytes_it_does_not_store_is_refused_before_h5py_
         group.create_dataset("particle_type", data=np.zeros(4, np.int64))
     assert path.stat().st_size < 100_000
     with h5py.File(path, "r") as handle:
-        with pytest.raises(LimitError, match=r"^x: position: declares 12,000,000,000,000 bytes \(10000, 100000000, 3\)"):
+        with pytest.raises(
+            LimitError, match=r"^x: position: declares 12,000,000,000,000 bytes \(10000, 100000000, 3\)"
+        ):
             read_bounded(handle["00000"], "position", "x")
         assert read_bounded(handle["00000"], "particle_type", "x").shape == (4,)
 
@@ -181,7 +183,10 @@ def test_damaged_hdf5_is_one_line_naming_the_file_and_what_was_read():
 
     from gns_framework.errors import DatasetError
 
-    with pytest.raises(DatasetError, match=r"^f\.h5: not a readable HDF5 file \(truncated or corrupt\?\) reading "
-                       r"trajectory '3': Unable to get group info \(bad symbol table node signature\)$"):
+    with pytest.raises(
+        DatasetError,
+        match=r"^f\.h5: not a readable HDF5 file \(truncated or corrupt\?\) reading "
+        r"trajectory '3': Unable to get group info \(bad symbol table node signature\)$",
+    ):
         with damaged_hdf5(Path("f.h5"), "trajectory '3'"):
             raise RuntimeError("Unable to get group info (bad symbol table node signature)")
