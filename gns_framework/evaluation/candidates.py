@@ -18,6 +18,7 @@ from ..errors import DatasetError, RolloutDiverged
 from ..model.learned_simulator import LearnedSimulator
 from ..model.batched_rollout import rollout_batch
 from ..model.rollout import rollout
+from ..model.rollout_guard import RolloutGuard, held_particles
 from ..plugins import Registry
 from ..runtime.precision import Precision
 from .report import Candidate, Prediction, Report, evaluate
@@ -31,16 +32,31 @@ def cases_from_split(trajectories: Sequence[Trajectory]) -> list[Trajectory]:
 def learned_positions(
     simulator: LearnedSimulator, trajectory: Trajectory, device: torch.device | str, precision: Precision = "float32"
 ) -> np.ndarray:
-    """(S, N, d) positions ``simulator`` rolls out from the first C frames of ``trajectory``.
+    """(S, N, d) positions of :func:`learned_prediction` with the default guard (non-finite positions only)."""
+    return cast("np.ndarray", learned_prediction(simulator, trajectory, device, precision).position)
 
-    A diverged model is a result, not an error: its positions are NaN, which the
-    metrics count as diverged with infinite error.
+
+def learned_prediction(
+    simulator: LearnedSimulator,
+    trajectory: Trajectory,
+    device: torch.device | str,
+    precision: Precision = "float32",
+    guard: RolloutGuard | None = None,
+) -> Prediction:
+    """The (S, N, d) positions ``simulator`` rolls out from the first C frames of ``trajectory``, and the
+    particles a wall held.
+
+    ``guard`` is the one ``gns rollout`` uses (the model's ``rollout.guard``): under
+    ``clamp`` escaped particles are put back and counted, so every command reports the
+    same rollout. A diverged model is a result, not an error: its positions are NaN,
+    which the metrics count as diverged with infinite error.
     """
     try:
-        return rollout(simulator, trajectory, device=device, precision=precision).predicted
+        result = rollout(simulator, trajectory, device=device, precision=precision, guard=guard)
     except RolloutDiverged:
         shape = (trajectory.num_steps - simulator.scene.history, *trajectory.position.shape[1:])
-        return np.full(shape, np.nan, dtype=trajectory.position.dtype)
+        return Prediction(np.full(shape, np.nan, dtype=trajectory.position.dtype))
+    return Prediction(result.predicted, held=held_particles(result.guard_violations))
 
 
 def learned_positions_batch(
@@ -49,24 +65,36 @@ def learned_positions_batch(
     device: torch.device | str,
     precision: Precision = "float32",
 ) -> list[np.ndarray]:
-    """Each case's (S, N, d) rolled-out positions, the cases of one length stepped as one batch.
+    """Each case's (S, N, d) positions of :func:`learned_predictions_batch` with the default guard."""
+    return [cast("np.ndarray", p.position) for p in learned_predictions_batch(simulator, cases, device, precision)]
+
+
+def learned_predictions_batch(
+    simulator: LearnedSimulator,
+    cases: Sequence[Trajectory],
+    device: torch.device | str,
+    precision: Precision = "float32",
+    guard: RolloutGuard | None = None,
+) -> list[Prediction]:
+    """Each case's rolled-out positions and held particles, the cases of one length stepped as one batch.
 
     A batch in which some scene diverges is rolled out again one scene at a time, so
-    that only the diverged scenes come back NaN (as in :func:`learned_positions`).
+    that only the diverged scenes come back NaN (as in :func:`learned_prediction`).
     """
-    out: list[np.ndarray | None] = [None] * len(cases)
+    out: list[Prediction | None] = [None] * len(cases)
     lengths: dict[int, list[int]] = {}
     for index, case in enumerate(cases):
         lengths.setdefault(case.num_steps, []).append(index)
     for indices in lengths.values():
         try:
-            rolled = rollout_batch(simulator, [cases[i] for i in indices], device=device, precision=precision)
+            batch = [cases[i] for i in indices]
+            rolled = rollout_batch(simulator, batch, device=device, precision=precision, guard=guard)
             for i, result in zip(indices, rolled):
-                out[i] = result.predicted
+                out[i] = Prediction(result.predicted, held=held_particles(result.guard_violations))
         except RolloutDiverged:
             for i in indices:
-                out[i] = learned_positions(simulator, cases[i], device, precision)
-    return cast("list[np.ndarray]", out)  # every case is filled in
+                out[i] = learned_prediction(simulator, cases[i], device, precision, guard)
+    return cast("list[Prediction]", out)  # every case is filled in
 
 
 def learned_candidate(
@@ -81,11 +109,13 @@ def learned_candidate(
     named ``<name> [bfloat16]`` (``<name> [bfloat16, batch B]``).
     """
 
+    guard = RolloutGuard.from_spec(model.simulator.scene, model.recipe.rollout.guard)
+
     def simulate(case: Trajectory) -> Prediction:
-        return Prediction(learned_positions(model.simulator, case, device, precision))
+        return learned_prediction(model.simulator, case, device, precision, guard)
 
     def simulate_batch(cases: Sequence[Trajectory]) -> list[Prediction]:
-        return [Prediction(p) for p in learned_positions_batch(model.simulator, cases, device, precision)]
+        return learned_predictions_batch(model.simulator, cases, device, precision, guard)
 
     settings = f"{model.path.name} (step {model.step})"
     if precision != "float32":

@@ -51,11 +51,14 @@ class Prediction:
             (a NumPy array or a tensor on any device).
         particle_type: (N',) int64, or None for the case's particles.
         start: (N', d) the frame before the first one, L, or None for the case's last input frame.
+        held: see below.
     """
 
     position: np.ndarray | torch.Tensor
     particle_type: np.ndarray | None = None
     start: np.ndarray | torch.Tensor | None = None
+    held: int | None = None
+    """Particles a wall held: they left the domain and the rollout guard put them back (None: not guarded)."""
 
 
 @dataclass(frozen=True)
@@ -197,7 +200,10 @@ def evaluate(
                 kinematic_types=kinematic_types,
                 metrics=metrics,
             )
-            summaries.append(summarise(scores))
+            summary = summarise(scores)
+            if prediction.held is not None:
+                summary[WALL_HELD] = float(prediction.held)
+            summaries.append(summary)
             timings.append(timing)
             curves.append(None if scores["mse_per_step"] is None else scores["mse_per_step"][0].numpy())
             path = None
@@ -463,10 +469,34 @@ def markdown_table(report: Report) -> str:
         row += [_format(e.metrics.get(m)) for m in headline]
         lines.append("| " + " | ".join(row) + " |")
     lines += _spread_over_cases(report)
+    lines += _walls_held(report)
     lines += ["", "Metrics (L: the dataset's length unit, s: seconds):", ""]
     lines += [f"- `{name}`: {meaning}" for name, meaning in report.metric_units.items()]
     lines.append("")
     return "\n".join(lines)
+
+
+WALL_HELD = "wall_held_particles"
+"""Per case: the particles that left the domain in a learned rollout and were put back by the model's guard."""
+
+
+def _walls_held(report: Report) -> list[str]:
+    """Per learned model, the particles a wall held and in how many cases (none of this when nothing escaped)."""
+    lines = []
+    for e in report.entries:
+        held = [c[WALL_HELD] for c in e.cases.values() if c.get(WALL_HELD) is not None]
+        if held and any(held):
+            cases = sum(1 for h in held if h)
+            lines.append(
+                f"- {e.name}: {int(sum(held))} particle(s) in {cases} of {len(held)} case(s), at most {int(max(held))} "
+                "in one"
+            )
+    if not lines:
+        return []
+    intro = (
+        "Particles a wall held (they left the box; the model's `rollout.guard` put them back, as `gns rollout` does):"
+    )
+    return ["", intro, "", *lines]
 
 
 SPREAD_METRICS = ("runout_error_pct", "sinkhorn_final_pct")

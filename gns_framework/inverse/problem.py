@@ -30,6 +30,7 @@ from ..errors import RecipeError
 from ..evaluation.metrics import ParticleRollout, domain_size, runout_distance, sinkhorn_distance
 from ..model.learned_simulator import LearnedSimulator
 from .config import INITIAL_VELOCITY, InvertConfig, PropertyUnknown, VelocityUnknown
+from ..model.rollout_guard import RolloutGuard
 from .rollout import differentiable_rollout
 
 LOSS_UNITS = {
@@ -210,6 +211,7 @@ class InverseProblem:
         dtype: float32, or float64 for gradient checks.
         held_out: observed frame indices kept out of the loss; :meth:`losses` gives the same
             misfit on them, from the same rollout, to choose the best iterate by.
+        guard: the model's rollout guard: walls hold as in ``gns rollout`` (None: no walls).
     """
 
     def __init__(
@@ -225,8 +227,10 @@ class InverseProblem:
         device: torch.device | str = "cpu",
         dtype: torch.dtype = torch.float32,
         held_out: Sequence[int] = (),
+        guard: RolloutGuard | None = None,
     ):
         self.simulator = simulator.requires_grad_(False)
+        self.guard = guard.with_bounds(trajectory.bounds) if guard and trajectory.bounds is not None else guard
         self.trajectory = trajectory
         self.metadata = metadata
         self.unknowns = unknowns
@@ -313,7 +317,7 @@ class InverseProblem:
         state = self.model_inputs(u)
         starts = state.num_examples
         prescribed = self.prescribed.repeat(1, starts, 1) if starts > 1 else self.prescribed
-        return state, differentiable_rollout(self.simulator, state, prescribed, self.checkpoint_every)
+        return state, differentiable_rollout(self.simulator, state, prescribed, self.checkpoint_every, self.guard)
 
     def loss(self, u: Tensor) -> Tensor:
         """The scalar misfit (units in :data:`LOSS_UNITS`) of the rollout from ``u``; (M,) for M points."""

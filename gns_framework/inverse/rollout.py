@@ -20,6 +20,7 @@ from torch.utils.checkpoint import checkpoint
 from ..data.batch import ParticleBatch
 from ..model.learned_simulator import LearnedSimulator
 from ..model.history import advance_window
+from ..model.rollout_guard import RolloutGuard
 
 
 def _advance(
@@ -28,6 +29,7 @@ def _advance(
     sequence: Tensor,
     material_property: Tensor | None,
     prescribed: Tensor,
+    guard: RolloutGuard | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Roll ``len(prescribed)`` steps on from ``sequence``.
 
@@ -37,6 +39,9 @@ def _advance(
     for next_prescribed in prescribed:
         current = replace(state, position_sequence=sequence, material_property=material_property)
         next_position = simulator.predict_next_position(current, prescribed=next_prescribed)
+        if guard is not None:
+            # The walls hold as in gns rollout: a particle put back has no gradient along the wall's normal.
+            next_position = guard.continued(next_position, sequence[:, -1])
         frames.append(next_position)
         sequence = advance_window(sequence, next_position)
     return sequence, torch.stack(frames)
@@ -47,6 +52,7 @@ def differentiable_rollout(
     state: ParticleBatch,
     prescribed: Tensor,
     checkpoint_every: int = 0,
+    guard: RolloutGuard | None = None,
 ) -> Tensor:
     """Predicted positions of ``len(prescribed)`` steps, differentiable in ``state``'s tensors.
 
@@ -60,6 +66,8 @@ def differentiable_rollout(
             between during the backward; 0 keeps every activation. Run the forward
             and the backward inside :func:`~gns_framework.runtime.activation_memory.activations_recomputed`
             so that hand-written backwards do not keep their activations either.
+        guard: the model's rollout guard (``rollout.guard``), which puts particles that left the domain back
+            as ``gns rollout`` does (:meth:`~gns_framework.model.rollout_guard.RolloutGuard.continued`); None: none.
 
     Returns:
         (S, N, d) predicted positions.
@@ -72,9 +80,9 @@ def differentiable_rollout(
         chunk = prescribed[start : start + size]
         if checkpoint_every > 0 and torch.is_grad_enabled():
             sequence, predicted = checkpoint(
-                _advance, simulator, state, sequence, material_property, chunk, use_reentrant=False
+                _advance, simulator, state, sequence, material_property, chunk, guard, use_reentrant=False
             )
         else:
-            sequence, predicted = _advance(simulator, state, sequence, material_property, chunk)
+            sequence, predicted = _advance(simulator, state, sequence, material_property, chunk, guard)
         segments.append(predicted)
     return torch.cat(segments)

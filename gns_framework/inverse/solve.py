@@ -32,6 +32,7 @@ from ..data.trajectory import Trajectory
 from ..evaluation.candidates import granular_particle_types
 from ..io.rollout_file import write_rollout
 from ..model.envelope import PROPERTY_SLACK, SPEED_SLACK, OutsideEnvelope, envelope_message, outside_envelope
+from ..model.rollout_guard import RolloutGuard
 from ..plugins import Registry
 from ..runtime.activation_memory import activations_recomputed
 from .config import InvertConfig, PropertyUnknown, VelocityUnknown
@@ -105,6 +106,7 @@ def prepare(
         checkpoint_every=config.checkpoint_every,
         device=device,
         held_out=observed.held_out or (),
+        guard=RolloutGuard.from_spec(scene, model.recipe.rollout.guard),
     )
     truth = true_values(observed.dataset, trajectory, unknowns, model.simulator)
     return Inversion(config, problem, model, trajectory, warnings, truth)
@@ -452,7 +454,7 @@ def recovered_rollout(inversion: Inversion, result: InversionResult) -> Rollout:
     observed = torch.from_numpy(trajectory.position[history:]).to(device, problem.dtype)
     with torch.no_grad():
         state = problem.model_inputs(u)
-        predicted = differentiable_rollout(problem.simulator, state, observed)
+        predicted = differentiable_rollout(problem.simulator, state, observed, guard=problem.guard)
     initial = state.position_sequence.transpose(0, 1).cpu().numpy()
     recovered = None if state.material_property is None else state.material_property.cpu().numpy()
     truth = np.concatenate([initial, observed.cpu().numpy()])

@@ -30,12 +30,16 @@ SHOWN_PARTICLES = 5
 
 @dataclass(frozen=True)
 class GuardViolation:
-    """What one check found: the step (0-based, frame ``step + C``), the particles and the cause."""
+    """What one check found: the step (0-based, frame ``step + C``), the particles and the cause.
+
+    ``escaped``: the particles left the domain (under ``clamp``, a wall held them); else they were non-finite.
+    """
 
     step: int
     frame: int
     particles: np.ndarray
     cause: str
+    escaped: bool = False
 
     def describe(self) -> str:
         shown = ", ".join(str(int(i)) for i in self.particles[:SHOWN_PARTICLES])
@@ -107,7 +111,7 @@ class RolloutGuard:
                 f"left the domain by more than the margin {self.margin:g} "
                 f"(farthest: particle {farthest}, {float(excess[farthest]):.4g} beyond a wall)"
             )
-            violations.append(GuardViolation(step, frame, _indices(escaped), cause))
+            violations.append(GuardViolation(step, frame, _indices(escaped), cause, escaped=True))
         if self.on_violation == "stop":
             first = violations[0]
             where = f"rollout of trajectory {trajectory!r}" if trajectory else "rollout"
@@ -165,3 +169,9 @@ class RolloutGuard:
 
 def _indices(mask: Tensor) -> np.ndarray:
     return mask.nonzero()[:, 0].cpu().numpy()
+
+
+def held_particles(violations) -> int:
+    """How many particles a wall held (put back after they left the domain) in one rollout's ``violations``."""
+    held = [v.particles for v in violations if v.escaped]
+    return int(np.unique(np.concatenate(held)).size) if held else 0

@@ -65,3 +65,38 @@ def test_a_bfloat16_row_is_named_so_and_rolls_out_with_bfloat16_products(registr
     # bfloat16 keeps 8 bits of mantissa (relative rounding 2^-9 = 2e-3 per product): over a few steps the
     # positions differ by a small share of how far the particles moved, never by nothing.
     assert 0 < difference < 0.05 * moved, (difference, moved)
+
+
+def test_evaluate_rolls_out_as_gns_rollout_does_walls_holding_and_counting_the_particles_held(registry):
+    """One boundary treatment (issue 46): a learned row uses the model's rollout.guard, as ``gns rollout`` does, so
+    no particle ends beyond a wall's margin, the two commands report the same positions, and each case counts the
+    particles a wall held."""
+    import dataclasses
+
+    from inverse_cases import MODEL, SAND
+    from synthetic import soft_sphere_trajectory
+
+    from gns_framework.assembly.trained import load_trained
+    from gns_framework.evaluation.candidates import learned_candidate
+    from gns_framework.model.rollout import rollout
+    from gns_framework.model.rollout_guard import RolloutGuard
+
+    model = load_trained(MODEL, registry)
+    guard_spec = model.recipe.rollout.guard.model_copy(update={"margin": 0.0, "on_violation": "clamp"})
+    recipe = model.recipe.model_copy(update={"rollout": model.recipe.rollout.model_copy(update={"guard": guard_spec})})
+    model = dataclasses.replace(model, recipe=recipe)
+    trajectory = soft_sphere_trajectory(3, frames=14, block=5, particle_types=(SAND,), with_property=True, key="k")
+    # Walls just inside the cloud's first frame: every step some particles pass one and are put back.
+    first = trajectory.position[model.simulator.scene.history - 1]
+    box = np.stack([first.min(0) + 0.01, first.max(0) - 0.01], axis=1).astype(np.float32)
+    trajectory = dataclasses.replace(trajectory, bounds=box)
+
+    prediction = learned_candidate(model, "m", torch.device("cpu")).simulate(trajectory)
+    guard = RolloutGuard.from_spec(model.simulator.scene, guard_spec)
+    same = rollout(model.simulator, trajectory, guard=guard)
+    np.testing.assert_array_equal(prediction.position, same.predicted)
+    held = {int(i) for v in same.guard_violations if v.escaped for i in v.particles}
+    assert prediction.held == len(held) > 0
+    assert (prediction.position >= box[:, 0] - 1e-6).all() and (prediction.position <= box[:, 1] + 1e-6).all()
+    batched = learned_candidate(model, "m", torch.device("cpu"), batch=2).simulate_batch([trajectory, trajectory])
+    assert [p.held for p in batched] == [prediction.held] * 2

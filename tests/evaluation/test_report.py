@@ -262,3 +262,25 @@ def test_a_batched_candidate_is_charged_its_share_of_each_batch(scenes):
     assert by_name["gns [batch 2]"].seconds == pytest.approx(0.03)
     assert batches == [["case0", "case1"]] * 3, "one warm-up and two timed calls, each with both cases"
     assert by_name["gns [batch 2]"].metrics == pytest.approx(by_name["gns"].metrics)
+
+
+def test_the_particles_a_wall_held_are_counted_per_case_and_stated(scenes, tmp_path):
+    """A learned rollout's held particles go into cases.csv per case and into report.md per model (issue 46)."""
+    import dataclasses
+
+    states, cases, metadata = scenes
+    held = {"case0": 0, "case1": 7}
+
+    def guarded(case):
+        return dataclasses.replace(learned(case), held=held[case.key])
+
+    quiet = Candidate("quiet", "learned", learned)
+    report = evaluate([Candidate("gns", "learned", guarded), quiet], cases, metadata, HISTORY, repeats=1, warmup=0)
+    by_name = {e.name: e for e in report.entries}
+    assert [c["wall_held_particles"] for c in by_name["gns"].cases.values()] == [0.0, 7.0]
+    assert all("wall_held_particles" not in c for c in by_name["quiet"].cases.values())
+    paths = write_report(report, tmp_path)
+    text = paths["markdown"].read_text()
+    assert "- gns: 7 particle(s) in 1 of 2 case(s), at most 7 in one" in text and "- quiet:" not in text.split("held")[-1]
+    rows = list(csv.DictReader(paths["cases_csv"].open()))
+    assert [r["wall_held_particles"] for r in rows if r["name"] == "gns"] == ["0.0", "7.0"]

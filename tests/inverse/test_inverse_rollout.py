@@ -57,3 +57,36 @@ def test_every_segmentation_predicts_the_frames_of_single_steps(shipped_float64,
     )
     assert gradient.abs().min() > 0, "every unknown moves the last frame"
     np.testing.assert_allclose(gradient.numpy(), reference.numpy(), rtol=1e-10)
+
+
+@pytest.mark.parametrize("checkpoint_every", [0, 4])
+def test_walls_hold_as_in_gns_rollout_and_gradients_still_flow(shipped_float64, observed, checkpoint_every):
+    """With the model's guard (clamp), the differentiable rollout puts escaped particles back as the inference
+    rollout does (issue 46): equal frames, none beyond a wall, and a finite gradient for every unknown."""
+    from gns_framework.config.recipe import RolloutGuardSpec
+    from gns_framework.model.rollout_guard import RolloutGuard
+
+    problem = problem_of(shipped_float64, observed, "positions", frames=(11,))
+    u = torch.tensor(problem.start, dtype=torch.float64, requires_grad=True)
+    state = problem.model_inputs(u)
+    first = state.position_sequence[:, -1].detach()
+    # Walls just inside the cloud: particles pass them at every step and are put back.
+    walls = torch.stack([first.min(0).values + 0.01, first.max(0).values - 0.01], dim=1).numpy()
+    guard = RolloutGuard.from_spec(shipped_float64.scene, RolloutGuardSpec(margin=0.0, on_violation="clamp"))
+    guard = guard.with_bounds(walls)
+    predicted = differentiable_rollout(shipped_float64, state, problem.prescribed, checkpoint_every, guard)
+    sequence, frames = state.position_sequence.detach(), []
+    with torch.no_grad():
+        for next_prescribed in problem.prescribed:
+            position = shipped_float64.predict_next_position(
+                replace(state, position_sequence=sequence), prescribed=next_prescribed
+            )
+            position, _ = guard.check(len(frames), position, sequence[:, -1])
+            frames.append(position)
+            sequence = advance_window(sequence, position)
+    moving = problem.moving
+    torch.testing.assert_close(predicted.detach()[:, moving], torch.stack(frames)[:, moving], rtol=0, atol=1e-12)
+    lower, upper = torch.as_tensor(walls[:, 0]), torch.as_tensor(walls[:, 1])
+    assert ((predicted[:, moving] >= lower - 1e-12) & (predicted[:, moving] <= upper + 1e-12)).all()
+    (gradient,) = torch.autograd.grad(predicted[-1].square().sum(), u)
+    assert torch.isfinite(gradient).all() and gradient.abs().max() > 0
