@@ -48,3 +48,14 @@ class GroundTruthSimulator(ABC):
         float32 inside the scene's bounds, particle_type (N,), material_property
         (N, P) only when the scene sets properties.
         """
+
+    def simulate_at_resolution(self, scene: "SceneSpec", seed: int, variant: "SceneSpec") -> "Trajectory":
+        """Run the scene ``simulate(scene, seed)`` runs, as drawn, at ``variant``'s grid and time stepping.
+
+        The yardstick of a reduced-resolution simulator: the same box, walls, bodies
+        and properties refilled at the coarser spacing
+        (:func:`~gns_framework.ground_truth.sampling.at_resolution`). A simulator that
+        does not draw its scenes with :func:`~gns_framework.ground_truth.sampling.sample_scene`
+        raises NotImplementedError, and ``gns evaluate`` says its rows are scenes drawn anew.
+        """
+        raise NotImplementedError(f"{self.name} cannot run a drawn scene at another resolution")

@@ -179,24 +179,43 @@ def simulator_candidates(
                 }
             )
             simulator = build_ground_truth_simulator(variant, registry, "metadata.json: generated_from")
+            reference = grid == scene.domain.grid and substeps == scene.time.substeps
+            # Every row runs the scene the data holds, as drawn: a scene drawn anew at another grid would put
+            # its columns, frictions and obstacles elsewhere (sampling.at_resolution).
+            as_drawn = not reference and _runs_drawn_scenes(simulator)
 
-            def simulate(case: Trajectory, simulator=simulator, variant=variant) -> Prediction:
-                trajectory = strided(simulator.simulate(variant, seed_of[case.key]), stride)
+            def simulate(case: Trajectory, simulator=simulator, variant=variant, as_drawn=as_drawn) -> Prediction:
+                seed = seed_of[case.key]
+                run = (
+                    simulator.simulate_at_resolution(scene, seed, variant)
+                    if as_drawn
+                    else simulator.simulate(variant, seed)
+                )
+                trajectory = strided(run, stride)
                 return Prediction(
                     trajectory.position[history:], trajectory.particle_type, trajectory.position[history - 1]
                 )
 
-            reference = grid == scene.domain.grid and substeps == scene.time.substeps
+            settings = f"grid {grid}, dt {variant.time.frame_dt / substeps:.3g} s"
+            if not reference and not as_drawn:
+                settings += ", each scene drawn anew (this simulator cannot refill a drawn one)"
             candidates.append(
                 Candidate(
                     f"{simulator.name} grid {grid} x {substeps} substeps",
                     "simulator",
                     simulate,
                     reference=reference,
-                    settings=f"grid {grid}, dt {variant.time.frame_dt / substeps:.3g} s",
+                    settings=settings,
                 )
             )
     return candidates
+
+
+def _runs_drawn_scenes(simulator) -> bool:
+    """Whether ``simulator`` implements ``simulate_at_resolution`` (the contract's default raises)."""
+    from ..contracts import GroundTruthSimulator
+
+    return type(simulator).simulate_at_resolution is not GroundTruthSimulator.simulate_at_resolution
 
 
 def compare(

@@ -11,7 +11,7 @@ to one body leaves the draws of the bodies before it as they were.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -343,4 +343,56 @@ def sample_scene(scene: SceneSpec, seed: int) -> SceneSample:
         f"scene {scene.name!r}, seed {seed}: no_overlap could not place the bodies a particle spacing apart in "
         f"the drawn domain {drawn.domain.bounds} ({SCENE_TRIES} tries of {PLACEMENT_TRIES} per body): "
         "make the bodies smaller or fewer, or the domain larger"
+    )
+
+
+def at_resolution(sample: SceneSample, scene: SceneSpec, variant: SceneSpec, seed: int) -> SceneSample:
+    """The same drawn scene at another resolution: its box, walls and bodies as drawn, refilled at the spacing of
+    ``variant``'s grid and run with its time stepping.
+
+    A reduced-resolution simulator is a yardstick only on the scene the data holds. Drawing
+    the scene again at another grid would not give it: the draws after the first body's
+    particles (jitter and per-particle properties, one number per particle) shift with the
+    particle count, so columns, frictions and obstacles come out elsewhere. Here every body
+    keeps its drawn box, angle, velocity, friction and per-body properties; only its
+    particles are laid anew at the spacing of ``variant.domain.grid`` (cells along the
+    longest axis of the bounds, as always), with fresh jitter, and a property drawn per particle is drawn
+    again from the values the body had. The drawn box is rounded to whole cells of the new
+    grid, as every domain is, so its walls move by less than half a new cell.
+
+    Args:
+        sample: the scene as drawn for the data (:func:`sample_scene` of ``scene`` and ``seed``).
+        scene: the spec it was drawn from.
+        variant: ``scene`` with another ``domain.grid`` (and ``time.substeps``, say).
+        seed: the trajectory's seed (the new jitter is drawn from it and the grid).
+    """
+    assert sample.scene is not None  # sample_scene draws it
+    domain, grid = sample.scene.domain, variant.domain.grid
+    dx = max(hi - lo for lo, hi in scene.domain.bounds) / grid
+    bounds = [(lo, lo + max(1, round((hi - lo) / dx)) * dx) for lo, hi in domain.bounds]
+    resized = sample.scene.model_copy(
+        update={
+            "domain": domain.model_copy(update={"grid": grid, "bounds": bounds, "cell_size_override": dx}),
+            "time": variant.time,
+        }
+    )
+    specs = dict(scene.bodies_with_location())
+    rng = np.random.default_rng([seed, grid])
+
+    def refilled(body: BodySample) -> BodySample:
+        spec = specs.get(body.location) or specs[body.location.rsplit("[", 1)[0]]
+        position = _particles(spec, body.lower, body.size, body.angle, body.vertices, resized)
+        if resized.jitter > 0 and isinstance(spec, Block):
+            position = (
+                position + rng.uniform(-resized.jitter, resized.jitter, position.shape) * resized.particle_spacing
+            )
+        values = {
+            name: np.full(len(position), drawn[0]) if np.all(drawn == drawn[0]) else rng.choice(drawn, len(position))
+            for name, drawn in body.values.items()
+            if len(drawn)
+        }
+        return replace(body, position=position, values=values)
+
+    return SceneSample(
+        [refilled(b) for b in sample.blocks], [refilled(o) for o in sample.obstacles], sample.property_names, resized
     )

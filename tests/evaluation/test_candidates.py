@@ -100,3 +100,53 @@ def test_evaluate_rolls_out_as_gns_rollout_does_walls_holding_and_counting_the_p
     assert (prediction.position >= box[:, 0] - 1e-6).all() and (prediction.position <= box[:, 1] + 1e-6).all()
     batched = learned_candidate(model, "m", torch.device("cpu"), batch=2).simulate_batch([trajectory, trajectory])
     assert [p.held for p in batched] == [prediction.held] * 2
+
+
+DRAWN = """
+name: drawn_collapses
+dim: 2
+domain:
+  bounds: [[0.0, 1.0], [0.0, 0.5]]
+  grid: 32
+  extent: [{range: [0.6, 1.0]}, 0.5]
+  walls: {x_max: {one_of: [slip, {range: [0.3, 0.6]}]}}
+time: {frame_dt: 0.005, substeps: 10, frames: 8}
+seed: 4
+jitter: 0.2
+no_overlap: true
+blocks:
+  - material: sand
+    count: 2
+    position: [{span: [0, 1]}, 0.0]
+    size: [{range: [0.1, 0.2]}, {range: [0.1, 0.2]}]
+    properties: {friction: {range: [0.5, 0.9]}}
+"""
+
+
+def test_a_reduced_grid_row_simulates_the_scene_the_data_holds(tmp_path):
+    """Issue 46: the half-grid MPM row starts from the data's drawn scene (its box, columns and walls), refilled at
+    the coarse spacing: its first frame covers the same columns to a coarse spacing; drawn anew, it would not."""
+    registry = load_registry()
+    scene = parse_scene(yaml.safe_load(DRAWN), "scene")
+    simulator = build_ground_truth_simulator(scene, registry, "scene")
+    counts = {"train": 1, "valid": 0, "test": 4}
+    generate_dataset(scene, simulator, tmp_path, registry.get("dataset", "safe"), counts, progress=False)
+    dataset = open_dataset(DatasetSpec(path=str(tmp_path)), registry)
+    cases = cases_from_split(dataset.split("test"))
+    (half,) = simulator_candidates(dataset.metadata(), registry, cases, 3, [0.5], [1.0])
+    assert "drawn anew" not in half.settings
+    coarse = 2 * scene.particle_spacing
+
+    def same_columns(first: np.ndarray, case) -> bool:
+        """The leftmost and rightmost sand and the highest, within two coarse spacings of the data's."""
+        data = case.position[2]
+        ends = np.abs(np.sort(first[:, 0])[[0, -1]] - np.sort(data[:, 0])[[0, -1]]).max()
+        return bool(ends < 2 * coarse and abs(first[:, 1].max() - data[:, 1].max()) < 2 * coarse)
+
+    coarse_scene = scene.model_copy(update={"domain": scene.domain.model_copy(update={"grid": 16})})
+    drawn_anew = 0
+    for case in cases:
+        assert same_columns(np.asarray(half.simulate(case).start), case), case.key
+        redrawn = simulator.simulate(coarse_scene, int(case.key.split("_")[1]))
+        drawn_anew += not same_columns(redrawn.position[2], case) or not np.allclose(redrawn.bounds, case.bounds)
+    assert drawn_anew >= 2, "scenes drawn anew at the coarse grid differ: the check above would see the bug"

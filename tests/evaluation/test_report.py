@@ -281,6 +281,8 @@ def test_the_particles_a_wall_held_are_counted_per_case_and_stated(scenes, tmp_p
     assert all("wall_held_particles" not in c for c in by_name["quiet"].cases.values())
     paths = write_report(report, tmp_path)
     text = paths["markdown"].read_text()
-    assert "- gns: 7 particle(s) in 1 of 2 case(s), at most 7 in one" in text and "- quiet:" not in text.split("held")[-1]
+    assert (
+        "- gns: 7 particle(s) in 1 of 2 case(s), at most 7 in one" in text and "- quiet:" not in text.split("held")[-1]
+    )
     rows = list(csv.DictReader(paths["cases_csv"].open()))
     assert [r["wall_held_particles"] for r in rows if r["name"] == "gns"] == ["0.0", "7.0"]

@@ -115,3 +115,66 @@ def test_polygon_particles_fill_it_and_its_vertices_turn_counter_clockwise():
     spacing = parse_scene(mixed()).particle_spacing
     assert obstacle.num_particles == round(0.2 / spacing) ** 2
     assert (obstacle.position > 0.1).all() and (obstacle.position < 0.3).all()
+
+
+def _general_scene(grid: int = 96):
+    from gns_framework.config.yaml_files import load_yaml_mapping
+
+    raw = load_yaml_mapping("scenes/sand_general_2d.yaml")
+    raw["domain"]["grid"] = grid
+    return parse_scene(raw)
+
+
+def _layout(sample):
+    """What a scene is, apart from its particles: box, walls, and each body's place, size and properties."""
+    return (
+        np.round(sample.bounds, 6).tolist(),
+        sample.walls.tolist(),
+        [
+            (
+                b.location,
+                np.round(b.lower, 9).tolist(),
+                np.round(b.size, 9).tolist(),
+                b.friction,
+                {k: round(float(v.mean()), 9) for k, v in b.values.items()},
+            )
+            for b in sample.bodies
+        ],
+    )
+
+
+def test_a_drawn_scene_at_another_grid_is_the_same_scene_refilled(tmp_path):
+    """Issue 46: the half-grid yardstick runs the scene the data holds. Drawn again at grid 48 the general scene is
+    another scene (columns, frictions and box elsewhere); at_resolution keeps every body and the box (to half a
+    coarse cell) and refills it at the coarse spacing."""
+    from gns_framework.ground_truth.sampling import at_resolution
+
+    scene, coarse = _general_scene(96), _general_scene(48)
+    differs = 0
+    for seed in range(8):
+        data = sample_scene(scene, seed)
+        redrawn = sample_scene(coarse, seed)
+        differs += _layout(redrawn)[2] != _layout(data)[2]
+        same = at_resolution(data, scene, coarse, seed)
+        assert same.scene.particle_spacing == coarse.particle_spacing == 2 * scene.particle_spacing
+        kept, now = _layout(data), _layout(same)
+        assert now[1:] == kept[1:], "walls and every body as drawn"
+        # Bounds are stored in float32: half a coarse cell, to float32 rounding of ~1 m.
+        assert np.abs(np.array(now[0]) - np.array(kept[0])).max() <= coarse.domain.cell_size / 2 + 1e-6
+        for before, after in zip(data.blocks, same.blocks):
+            # A quarter of the particles (twice the spacing in 2D), filling the same box.
+            assert abs(after.num_particles - before.num_particles / 4) <= before.num_particles / 8 + 4
+            assert (after.position >= before.lower - coarse.particle_spacing).all()
+            assert (after.position <= before.lower + before.size + coarse.particle_spacing).all()
+    assert differs >= 6, "drawing anew at another grid gives other scenes: the test would not see the bug"
+
+
+def test_at_the_data_s_own_grid_the_bodies_and_box_are_the_data_s():
+    from gns_framework.ground_truth.sampling import at_resolution
+
+    scene = _general_scene(96)
+    data = sample_scene(scene, 3)
+    same = at_resolution(data, scene, scene, 3)
+    assert _layout(same) == _layout(data)
+    for before, after in zip(data.blocks, same.blocks):
+        assert after.num_particles == before.num_particles  # the jitter alone is drawn anew

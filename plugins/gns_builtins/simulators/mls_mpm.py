@@ -15,7 +15,7 @@ from pydantic import Field, ValidationError
 
 from gns_framework.contracts import GroundTruthSimulator, ComponentParams
 from gns_framework.data.trajectory import Trajectory
-from gns_framework.ground_truth.sampling import BodySample, SceneSample, sample_scene
+from gns_framework.ground_truth.sampling import BodySample, SceneSample, at_resolution, sample_scene
 from gns_framework.ground_truth.scene_spec import SceneSpec
 
 from ._mpm.models import MODELS, RIGID, ConstitutiveModel
@@ -123,9 +123,15 @@ class MlsMpm(GroundTruthSimulator):
         }
 
     def simulate(self, scene: SceneSpec, seed: int) -> Trajectory:
+        return self._run(sample_scene(scene, seed), seed)
+
+    def simulate_at_resolution(self, scene: SceneSpec, seed: int, variant: SceneSpec) -> Trajectory:
+        return self._run(at_resolution(sample_scene(scene, seed), scene, variant, seed), seed)
+
+    def _run(self, sample: SceneSample, seed: int) -> Trajectory:
+        """The trajectory of a drawn scene (``sample.scene``: its domain, grid and time stepping)."""
         from ._mpm.solver import MpmSolver
 
-        sample = sample_scene(scene, seed)
         assert sample.scene is not None  # sample_scene draws it
         scene = sample.scene  # this trajectory's domain: extent and face conditions drawn
         solver = MpmSolver(
