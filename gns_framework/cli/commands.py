@@ -69,6 +69,11 @@ BUILTIN_COMMANDS = (
         "gns_framework.cli.stability",
     ),
     Command(
+        "envelope",
+        "what a model was trained on, in a scene file's terms; check a scene file against it before generating data",
+        "gns_framework.cli.envelope",
+    ),
+    Command(
         "compare",
         "tracked runs of any experiments side by side: metrics, params and differing recipe fields, with a plot",
         "gns_framework.cli.compare",

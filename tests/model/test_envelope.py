@@ -57,6 +57,12 @@ def _column(
     ).validated("test")
 
 
+def _against_right(trajectory: Trajectory, width: float) -> Trajectory:
+    """The column moved from the left wall to the right one of its box."""
+    shift = np.array([trajectory.bounds[0, 1] - width, 0.0], np.float32)
+    return replace(trajectory, position=trajectory.position + shift)
+
+
 SCENE = ModelSetup(
     dim=2, bounds=((0.0, 2.0), (0.0, 1.0)), connectivity_radius=0.025, particle_types=(6,), property_names=("friction",)
 )
@@ -102,14 +108,14 @@ def test_data_inside_the_envelope_passes_even_in_a_box_never_seen():
             "friction 0.3 .. 0.4",
         ),
         (
-            _column(0.1, 0.2, walls=((0.3, 0), (0.9, 0), (0.5, 0), (0, 0)), key="k"),
+            _against_right(_column(0.1, 0.2, walls=((0.3, 0), (0.9, 0), (0.5, 0), (0, 0)), key="k"), 0.1),
             _metadata(),
             "wall x_max",
             "friction 0.9",
             "slip or friction 0.6 .. 0.6",
         ),
         (
-            _column(0.1, 0.2, walls=((0.3, 0), (0, 1), (0.5, 0), (0, 0)), key="k"),
+            _against_right(_column(0.1, 0.2, walls=((0.3, 0), (0, 1), (0.5, 0), (0, 0)), key="k"), 0.1),
             _metadata(),
             "wall x_max",
             "no-slip",
@@ -253,4 +259,15 @@ def test_an_envelope_without_boundary_spacing_does_not_judge_fixed_particles():
     coarse_block = _with_obstacle(_column(0.1, 0.2, key="coarse"), 0.3, 0.3, 2 * SPACING)
     assert outside_envelope(old, _metadata(), [coarse_block], history=6, kinematic_types=(OBSTACLE_TYPE,)) == [
         "particle types [3] in trajectory 'coarse' (trained: [6])"
+    ]
+
+
+def test_a_face_the_material_never_comes_near_is_not_judged():
+    """Issue 46: a rough top, or an unseen right wall a metre from a column that stays on the left, is no reason to
+    refuse; the same wall under the column is."""
+    far = _column(0.1, 0.2, walls=((0.3, 0), (0.9, 0), (0.5, 0), (0.5, 0)), key="k")
+    assert outside_envelope(ENVELOPE, _metadata(), [far], history=6) == []
+    near = _against_right(far, 0.1)
+    assert [p.split(" (")[0] for p in outside_envelope(ENVELOPE, _metadata(), [near], history=6)] == [
+        "wall x_max friction 0.9 in trajectory 'k'"
     ]
