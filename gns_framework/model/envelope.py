@@ -164,7 +164,7 @@ class Envelope:
         axes = "xyz"
         rows = [
             ("dimension", f"{self.dim}D"),
-            ("particle spacing", f"{self.particle_spacing:.4g} m (+-{SPACING_TOLERANCE:.0%})"),
+            ("nearest-neighbour distance (median)", f"{self.particle_spacing:.4g} m (+-{SPACING_TOLERANCE:.0%})"),
             (
                 "learned step",
                 f"{self.step_dt:.4g} s ({self.frame_stride} stored frame(s) of {self.step_dt / self.frame_stride:.4g} s)",
@@ -178,7 +178,7 @@ class Envelope:
         ]
         if self.boundary_spacing:
             lo, hi = self.boundary_spacing
-            rows.append(("boundary particle spacing", f"{lo:.4g} .. {hi:.4g} m (+-{SPACING_TOLERANCE:.0%})"))
+            rows.append(("boundary nearest-neighbour distance (median)", f"{lo:.4g} .. {hi:.4g} m (+-{SPACING_TOLERANCE:.0%})"))
         rows += [
             (f"refused: {self.materials.get(t, '?')} (type {t})", reason) for t, reason in self.refused_types.items()
         ]
@@ -344,7 +344,7 @@ def outside_envelope(
         spacing, boundary = _spacings(trajectory.position[0], moving)
         if abs(spacing / envelope.particle_spacing - 1) > SPACING_TOLERANCE:
             findings.add(
-                "particle spacing",
+                "nearest-neighbour distance (median)",
                 f"{spacing:.4g} m",
                 f"{envelope.particle_spacing:.4g} m +-{SPACING_TOLERANCE:.0%}",
                 key,
@@ -353,7 +353,7 @@ def outside_envelope(
             lo, hi = envelope.boundary_spacing
             if not lo * (1 - SPACING_TOLERANCE) <= boundary <= hi * (1 + SPACING_TOLERANCE):
                 findings.add(
-                    "boundary particle spacing",
+                    "boundary nearest-neighbour distance (median)",
                     f"{boundary:.4g} m",
                     f"{lo:.4g} .. {hi:.4g} m +-{SPACING_TOLERANCE:.0%}",
                     key,

@@ -95,7 +95,7 @@ def test_data_inside_the_envelope_passes_even_in_a_box_never_seen():
 @pytest.mark.parametrize(
     "trajectory, metadata, quantity, value, trained",
     [
-        (_column(0.1, 0.2, spacing=0.00625, key="k"), _metadata(), "particle spacing", "0.00625 m", "0.01 m"),
+        (_column(0.1, 0.2, spacing=0.00625, key="k"), _metadata(), "nearest-neighbour distance (median)", "0.00625 m", "0.01 m"),
         (_column(0.1, 0.2, key="k"), _metadata(dt=0.016), "learned step", "0.016 s", "0.01 s"),
         (_column(0.1, 0.2, friction=1.2, key="k"), _metadata(), "property friction", "1.2", "0.5 .. 0.9"),
         (_column(0.1, 0.2, extent=(2.5, 0.6), key="k"), _metadata(), "domain x extent", "2.5 m", "0.8 .. 2 m"),
@@ -245,9 +245,9 @@ def test_the_spacing_is_the_materials_when_a_fixed_block_outnumbers_the_sand():
     assert outside_envelope(envelope, _metadata(), [small_column], history=6, kinematic_types=(OBSTACLE_TYPE,)) == []
     coarse_block = _with_obstacle(_column(0.1, 0.2, key="coarse"), 0.3, 0.3, 2 * SPACING)
     (line,) = outside_envelope(envelope, _metadata(), [coarse_block], history=6, kinematic_types=(OBSTACLE_TYPE,))
-    assert line.startswith("boundary particle spacing 0.02 m in trajectory 'coarse'"), line
+    assert line.startswith("boundary nearest-neighbour distance (median) 0.02 m in trajectory 'coarse'"), line
     assert "(trained: 0.013 .. 0.013 m +-10%)" in line
-    assert ("boundary particle spacing", "0.013 .. 0.013 m (+-10%)") in envelope.rows()
+    assert ("boundary nearest-neighbour distance (median)", "0.013 .. 0.013 m (+-10%)") in envelope.rows()
 
 
 def test_an_envelope_without_boundary_spacing_does_not_judge_fixed_particles():
