@@ -9,9 +9,10 @@ For a trained model (default ``models/sand2d_general.pt``) on
 
 it prints per scene the final sand extent, pile height and runout errors of the learned
 rollout against the MPM that made the data (%), its final-cloud Sinkhorn error (% of the
-largest domain side), and the Sinkhorn error of the MPM at half resolution on the same
-scene, then the medians and worst cases against the goal: median <= 5 %, worst <= 15 %
-for extent and height, Sinkhorn below the half-resolution MPM's. Datasets are generated
+largest domain side), the particles a wall held, and the Sinkhorn error and time of the MPM
+at reduced resolutions (``--grid-scales``, default half) on the same drawn scene, then the
+medians and worst cases against the goal: median <= 5 %, worst <= 15 % for extent and
+height, Sinkhorn below the half-resolution MPM's, and the summed time against each MPM. Datasets are generated
 into ``--out`` on the first run (``gns generate``'s code, same seeds: reproducible) and
 reused afterwards. The learned model and the two MPMs run on the same scenes in one run.
 
@@ -55,8 +56,11 @@ def dataset(scene_path: Path, out: Path, test: int, seed: int | None, registry, 
     return out
 
 
-def evaluate(model_path: Path, data: Path, registry, device, gif: Path | None = None) -> dict[str, dict[str, dict]]:
-    """case key -> {"learned": metrics, "mpm_half": metrics} on the test split of ``data``.
+def evaluate(
+    model_path: Path, data: Path, registry, device, gif: Path | None = None, grid_scales=(0.5,)
+) -> dict[str, dict[str, dict]]:
+    """case key -> {"learned": metrics, "mpm_<scale>": metrics} on the test split of ``data``; each metrics
+    mapping holds the case's ``seconds_per_rollout`` and the learned one ``wall_held_particles``.
 
     With ``gif``, the learned rollout of the first case is drawn there beside the MPM's (every 4th frame).
     """
@@ -80,7 +84,7 @@ def evaluate(model_path: Path, data: Path, registry, device, gif: Path | None = 
             data_set.metadata(),
             registry,
             device,
-            grid_scales=(0.5,),
+            grid_scales=grid_scales,
             repeats=1,
             warmup=0,
             rollout_dir=Path(rollouts) if gif else None,
@@ -93,7 +97,10 @@ def evaluate(model_path: Path, data: Path, registry, device, gif: Path | None = 
             names = {t: registry.material_by_type(t).cls.name for t in model.simulator.scene.particle_types}
             animate_rollout(load_rollout(learned.rollout_files[0]), gif, every=4, material_names=names)
             print(f"animation: {gif}", file=sys.stderr)
-    by_kind = {("learned" if e.kind == "learned" else "mpm_half"): e for e in report.entries}
+    by_kind = {}
+    for entry in report.entries:
+        kind = "learned" if entry.kind == "learned" else f"mpm_{grid_scales[len(by_kind) - 1]:g}"
+        by_kind[kind] = entry
     return {key: {kind: entry.cases[key] for kind, entry in by_kind.items()} for key in by_kind["learned"].cases}
 
 
@@ -109,6 +116,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization", help="datasets are kept here")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument(
+        "--grid-scales",
+        default="0.5",
+        help="grids of the MPM yardsticks, as fractions of the data's (comma-separated; default 0.5): each runs the "
+        "data's drawn scene refilled at its spacing",
+    )
     parser.add_argument("--json", action="store_true", help="also print the per-scene figures as one JSON line")
     parser.add_argument(
         "--gifs",
@@ -118,6 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
+    scales = tuple(float(v) for v in args.grid_scales.split(","))
 
     from gns_framework.plugins import load_registry
 
@@ -133,12 +147,12 @@ def main(argv: list[str] | None = None) -> int:
             registry,
             obstacles=not args.without_obstacles,
         )
-        groups["held-out"] = evaluate(args.model, data, registry, device)
+        groups["held-out"] = evaluate(args.model, data, registry, device, grid_scales=scales)
     canonical = {}
     for scene_path in sorted((ROOT / "scenes" / "canonical").glob("*.yaml")):
         data = dataset(scene_path, args.out / "canonical" / scene_path.stem, 1, None, registry)
         gif = args.gifs / f"{scene_path.stem}.gif" if args.gifs else None
-        (case,) = evaluate(args.model, data, registry, device, gif).values()
+        (case,) = evaluate(args.model, data, registry, device, gif, scales).values()
         canonical[scene_path.stem] = case
     groups["canonical"] = canonical
 
@@ -146,20 +160,33 @@ def main(argv: list[str] | None = None) -> int:
         f"{m.replace('_error_pct', '').replace('_final_pct', ''):>9}" for m in MEASURES
     )
     print(f"{args.model}: errors against the MPM at the data's grid, % (sinkhorn: % of the largest domain side)")
-    print(header + f" {'mpm/2 sinkhorn':>15}")
+    yardsticks = [f"mpm_{scale:g}" for scale in scales]
+    print(
+        header
+        + " "
+        + " ".join(f"{y + ' sinkhorn':>17}" for y in yardsticks)
+        + f" {'held':>5} {'learned s':>9} "
+        + " ".join(f"{y + ' s':>9}" for y in yardsticks)
+    )
     rows = []
     for group, cases in groups.items():
         for key, case in cases.items():
-            learned, half = case["learned"], case["mpm_half"]
+            learned = case["learned"]
             values = [learned.get(m) for m in MEASURES]
             cells = " ".join(f"{v:>9.2f}" if v is not None else f"{'-':>9}" for v in values)
-            print(f"{group:<10} {key:<26} {cells} {half.get('sinkhorn_final_pct') or float('nan'):>15.2f}")
+            sticks = " ".join(f"{case[y].get('sinkhorn_final_pct') or float('nan'):>17.2f}" for y in yardsticks)
+            times = " ".join(f"{case[y]['seconds_per_rollout']:>9.2f}" for y in yardsticks)
+            held = int(learned.get("wall_held_particles") or 0)
+            print(f"{group:<10} {key:<26} {cells} {sticks} {held:>5} {learned['seconds_per_rollout']:>9.2f} {times}")
             rows.append(
                 {
                     "group": group,
                     "scene": key,
                     **{m: learned.get(m) for m in MEASURES},
-                    "mpm_half_sinkhorn_final_pct": half.get("sinkhorn_final_pct"),
+                    "wall_held_particles": held,
+                    "seconds": learned["seconds_per_rollout"],
+                    **{f"{y}_sinkhorn_final_pct": case[y].get("sinkhorn_final_pct") for y in yardsticks},
+                    **{f"{y}_seconds": case[y]["seconds_per_rollout"] for y in yardsticks},
                 }
             )
     print()
@@ -175,9 +202,15 @@ def main(argv: list[str] | None = None) -> int:
                 f"{group:<10} {measure:<18} median {median:6.2f} %  worst {worst:6.2f} %  "
                 f"goal <= {GOAL['median']:g} / {GOAL['worst']:g} %: {'met' if ok else 'NOT met'}"
             )
-        below = sum(r["sinkhorn_final_pct"] < r["mpm_half_sinkhorn_final_pct"] for r in chosen)
-        verdicts.append(below == len(chosen))
-        print(f"{group:<10} sinkhorn below the half-resolution MPM on {below} of {len(chosen)} scenes")
+        for y in yardsticks:
+            below = sum(r["sinkhorn_final_pct"] < r[f"{y}_sinkhorn_final_pct"] for r in chosen)
+            if y == "mpm_0.5":
+                verdicts.append(below == len(chosen))
+            learned_s, mpm_s = sum(r["seconds"] for r in chosen), sum(r[f"{y}_seconds"] for r in chosen)
+            print(
+                f"{group:<10} {y}: sinkhorn below it on {below} of {len(chosen)} scenes; time summed "
+                f"learned {learned_s:.1f} s against {mpm_s:.1f} s ({mpm_s / learned_s:.2f}x)"
+            )
     if args.json:
         print(json.dumps({"model": str(args.model), "rows": rows}))
     return 0 if all(verdicts) else 1

@@ -201,6 +201,7 @@ def evaluate(
                 metrics=metrics,
             )
             summary = summarise(scores)
+            summary["seconds_per_rollout"] = timing.median  # per case: time against scene size
             if prediction.held is not None:
                 summary[WALL_HELD] = float(prediction.held)
             summaries.append(summary)
@@ -389,7 +390,8 @@ def _entry(
     keys: list[str],
     rollout_files: list[Path | None],
 ) -> Entry:
-    names = list(dict.fromkeys(name for summary in summaries for name in summary))
+    # The mean of the cases' times is the entry's seconds; metrics are the errors (and counts) averaged.
+    names = list(dict.fromkeys(name for summary in summaries for name in summary if name != "seconds_per_rollout"))
     metrics = {name: _mean_over_cases([s.get(name) for s in summaries]) for name in names}
     same_length = curves and all(c is not None and c.shape == curves[0].shape for c in curves)
     return Entry(
