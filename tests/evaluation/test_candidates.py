@@ -28,14 +28,19 @@ blocks:
 """
 
 
-def test_the_reference_setting_reproduces_every_case_whatever_the_key_order(tmp_path):
+def _generated(text: str, folder, tests: int):
+    """(registry, scene, simulator, dataset, test cases) of the scene ``text`` generated into ``folder``."""
     registry = load_registry()
-    scene = parse_scene(yaml.safe_load(SCENE), "scene")
+    scene = parse_scene(yaml.safe_load(text), "scene")
     simulator = build_ground_truth_simulator(scene, registry, "scene")
-    counts = {"train": 1, "valid": 0, "test": 3}
-    generate_dataset(scene, simulator, tmp_path, registry.get("dataset", "safe"), counts, progress=False)
-    dataset = open_dataset(DatasetSpec(path=str(tmp_path)), registry)
-    cases = cases_from_split(dataset.split("test"))
+    counts = {"train": 1, "valid": 0, "test": tests}
+    generate_dataset(scene, simulator, folder, registry.get("dataset", "safe"), counts, progress=False)
+    dataset = open_dataset(DatasetSpec(path=str(folder)), registry)
+    return registry, scene, simulator, dataset, cases_from_split(dataset.split("test"))
+
+
+def test_the_reference_setting_reproduces_every_case_whatever_the_key_order(tmp_path):
+    registry, _, _, dataset, cases = _generated(SCENE, tmp_path, 3)
     # The seed-named keys of this scene do not sort in generation order: a test of file order, not luck.
     assert [c.key for c in cases] != sorted(c.key for c in cases)
     (reference,) = simulator_candidates(dataset.metadata(), registry, cases, 3, [1.0], [1.0])
@@ -126,13 +131,7 @@ blocks:
 def test_a_reduced_grid_row_simulates_the_scene_the_data_holds(tmp_path):
     """Issue 46: the half-grid MPM row starts from the data's drawn scene (its box, columns and walls), refilled at
     the coarse spacing: its first frame covers the same columns to a coarse spacing; drawn anew, it would not."""
-    registry = load_registry()
-    scene = parse_scene(yaml.safe_load(DRAWN), "scene")
-    simulator = build_ground_truth_simulator(scene, registry, "scene")
-    counts = {"train": 1, "valid": 0, "test": 4}
-    generate_dataset(scene, simulator, tmp_path, registry.get("dataset", "safe"), counts, progress=False)
-    dataset = open_dataset(DatasetSpec(path=str(tmp_path)), registry)
-    cases = cases_from_split(dataset.split("test"))
+    registry, scene, simulator, dataset, cases = _generated(DRAWN, tmp_path, 4)
     (half,) = simulator_candidates(dataset.metadata(), registry, cases, 3, [0.5], [1.0])
     assert "drawn anew" not in half.settings
     coarse = 2 * scene.particle_spacing
