@@ -92,5 +92,9 @@ def test_data_outside_the_envelope_is_refused_naming_what(tmp_path):
     assert made.returncode == 0, made.stderr
     result = gns("rollout", str(MODEL), "--dataset", str(out), "--out", str(tmp_path / "rollouts"))
     assert result.returncode != 0
-    assert "nearest-neighbour distance (median)" in result.stderr and "trained" in result.stderr and "--outside-envelope" in result.stderr
+    assert (
+        "nearest-neighbour distance (median)" in result.stderr
+        and "trained" in result.stderr
+        and "--outside-envelope" in result.stderr
+    )
     assert not (tmp_path / "rollouts").exists() or not any((tmp_path / "rollouts").iterdir())

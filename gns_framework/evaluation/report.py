@@ -486,7 +486,7 @@ def _walls_held(report: Report) -> list[str]:
     """Per learned model, the particles a wall held and in how many cases (none of this when nothing escaped)."""
     lines = []
     for e in report.entries:
-        held = [c[WALL_HELD] for c in e.cases.values() if c.get(WALL_HELD) is not None]
+        held = [float(value) for c in e.cases.values() if (value := c.get(WALL_HELD)) is not None]
         if held and any(held):
             cases = sum(1 for h in held if h)
             lines.append(

@@ -178,7 +178,9 @@ class Envelope:
         ]
         if self.boundary_spacing:
             lo, hi = self.boundary_spacing
-            rows.append(("boundary nearest-neighbour distance (median)", f"{lo:.4g} .. {hi:.4g} m (+-{SPACING_TOLERANCE:.0%})"))
+            rows.append(
+                ("boundary nearest-neighbour distance (median)", f"{lo:.4g} .. {hi:.4g} m (+-{SPACING_TOLERANCE:.0%})")
+            )
         rows += [
             (f"refused: {self.materials.get(t, '?')} (type {t})", reason) for t, reason in self.refused_types.items()
         ]

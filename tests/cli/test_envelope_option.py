@@ -61,7 +61,10 @@ def test_rollout_names_the_spacing_and_the_step_and_writes_nothing(fine_and_slow
     lines = result.stderr.strip().splitlines()
     assert lines[0].startswith("gns rollout: error: ") and "outside the envelope of" in lines[0]
     assert any(line.startswith("  - learned step 0.016 s (trained: 0.01 s)") for line in lines), result.stderr
-    assert any(line.startswith("  - nearest-neighbour distance (median) 0.005") and "(trained: 0.008707 m" in line for line in lines)
+    assert any(
+        line.startswith("  - nearest-neighbour distance (median) 0.005") and "(trained: 0.008707 m" in line
+        for line in lines
+    )
     assert "Traceback" not in result.stderr and not (tmp_path / "r").exists()
     allowed = gns(
         "rollout",

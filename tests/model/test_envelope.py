@@ -95,7 +95,13 @@ def test_data_inside_the_envelope_passes_even_in_a_box_never_seen():
 @pytest.mark.parametrize(
     "trajectory, metadata, quantity, value, trained",
     [
-        (_column(0.1, 0.2, spacing=0.00625, key="k"), _metadata(), "nearest-neighbour distance (median)", "0.00625 m", "0.01 m"),
+        (
+            _column(0.1, 0.2, spacing=0.00625, key="k"),
+            _metadata(),
+            "nearest-neighbour distance (median)",
+            "0.00625 m",
+            "0.01 m",
+        ),
         (_column(0.1, 0.2, key="k"), _metadata(dt=0.016), "learned step", "0.016 s", "0.01 s"),
         (_column(0.1, 0.2, friction=1.2, key="k"), _metadata(), "property friction", "1.2", "0.5 .. 0.9"),
         (_column(0.1, 0.2, extent=(2.5, 0.6), key="k"), _metadata(), "domain x extent", "2.5 m", "0.8 .. 2 m"),

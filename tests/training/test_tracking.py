@@ -64,8 +64,8 @@ class Recorder:
     def log_artifact(self, path):
         self.log.append((self.name, "artifact", path))
 
-    def close(self, failed=False):
-        self.log.append((self.name, "close", failed))
+    def close(self, failed=False, killed=False):
+        self.log.append((self.name, "close", failed) + (("killed",) if killed else ()))
 
 
 def test_a_group_sends_everything_to_each_tracker_in_order():
@@ -94,3 +94,9 @@ def test_the_run_folder_tracker_keeps_no_artifact_of_its_own(tmp_path):
     tracker.log_artifact(tmp_path / "checkpoints" / "best.pt")
     tracker.close()
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_a_run_stopped_by_a_signal_closes_every_tracker_as_killed():
+    log: list = []
+    TrackerGroup([Recorder("jsonl", log), Recorder("mlflow", log)]).close(killed=True)
+    assert log == [("jsonl", "close", False, "killed"), ("mlflow", "close", False, "killed")]
