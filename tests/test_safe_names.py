@@ -306,11 +306,9 @@ def test_train_and_compare_with_a_hostile_experiment_name(dataset_2d, tmp_path, 
     location = mlflow.MlflowClient(uri).get_experiment_by_name(experiment).artifact_location
     assert Path(location.removeprefix("file://")).is_relative_to((work / "store" / "mlartifacts").resolve())
 
-    assert main(["compare", experiment, "--tracking-uri", uri]) == 0, capsys.readouterr().err
-    from gns_framework.cli.compare import DEFAULT_METRICS, default_plot_name
-
-    plot = default_plot_name([experiment], DEFAULT_METRICS)
-    assert plot.parent == Path(".") and "/" not in plot.name and (work / plot).is_file()
+    assert main(["compare", experiment, "--tracking-uri", uri, "--plot"]) == 0, capsys.readouterr().err
+    plot = Path(capsys.readouterr().out.strip().splitlines()[-1].split("plot in ")[-1])
+    assert plot.name.startswith("compare-") and plot.parent == Path(".") and (work / plot).is_file()
     assert sorted(p.name for p in tmp_path.rglob("*") if not p.resolve().is_relative_to(work.resolve())) == ["a"]
 
 

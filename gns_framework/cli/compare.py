@@ -11,7 +11,18 @@ from pathlib import Path
 
 from ..safe_names import safe_component
 
-DEFAULT_METRICS = ["train_loss", "valid_one_step_position_mse", "steps_per_s"]
+DEFAULT_METRICS = [
+    "train_loss",
+    "valid_one_step_position_mse",
+    "valid_rollout_mse",
+    "valid_rollout_sinkhorn_pct",
+    "valid_rollout_deposit_error_pct",
+    "steps_per_s",
+]
+"""Shown when --metrics is not given: loss, one-step and rollout validation (what recipes are compared on), pace;
+those the runs did not log are left out without a word."""
+DEFAULT_PLOT = Path("-")
+"""--plot given without a file: the plot's default name."""
 DEFAULT_PARAMS = ["world_size"]
 
 
@@ -30,7 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "\"tags.team = 'geo'\"; alone, it searches every experiment",
     )
     parser.add_argument(
-        "--metrics", nargs="+", default=DEFAULT_METRICS, metavar="METRIC", help="metric columns and plot panels"
+        "--metrics",
+        nargs="+",
+        metavar="METRIC",
+        help=f"metric columns and plot panels (default: those of {', '.join(DEFAULT_METRICS)} the runs logged)",
     )
     parser.add_argument(
         "--params",
@@ -46,7 +60,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--plot",
         type=Path,
-        help="plot file (default: compare-<experiments>-<metrics>.png in the working directory, names joined by dots)",
+        nargs="?",
+        const=DEFAULT_PLOT,
+        metavar="FILE",
+        help="also plot the curves into FILE; --plot alone: compare-<experiments>-<metrics>.png in the working "
+        "directory (names joined by dots). Without --plot no file is written",
     )
     parser.add_argument("--tracking-uri", help="MLflow tracking URI (default: as gns train)")
 
@@ -65,18 +83,19 @@ def run(args: argparse.Namespace) -> int:
     from ..training.mlflow_tracker import default_tracking_uri
 
     uri = args.tracking_uri or default_tracking_uri()
-    runs = select_runs(uri, args.runs, args.metrics, args.filter)
+    asked = args.metrics or DEFAULT_METRICS
+    runs = select_runs(uri, args.runs, asked, args.filter)
     if not runs:
         raise GnsError(f"no runs match {' '.join(args.runs)} {args.filter or ''}".rstrip())
-    missing = unlogged(runs, args.metrics)
-    for metric in missing:
+    missing = unlogged(runs, asked)
+    for metric in missing if args.metrics else ():  # a default the runs did not log is no news
         print(
             f"gns compare: warning: no run logged metric {metric!r}; logged metrics: {', '.join(logged_metrics(runs))}",
             file=sys.stderr,
         )
-    metrics = [metric for metric in args.metrics if metric not in missing]
+    metrics = [metric for metric in asked if metric not in missing]
     if not metrics:
-        raise GnsError(f"none of the metrics {', '.join(args.metrics)} was logged by these runs")
+        raise GnsError(f"none of the metrics {', '.join(asked)} was logged by these runs")
     sort = args.sort or metrics[0]
     if sort in unlogged(runs, [sort]):
         raise GnsError(f"--sort {sort}: no run logged it; logged metrics: {', '.join(logged_metrics(runs))}")
@@ -84,8 +103,13 @@ def run(args: argparse.Namespace) -> int:
     print(format_table(sort_runs(runs, sort), metrics, params))
     title = " ".join(args.runs) or args.filter
     experiments = sorted({run.experiment for run in runs})
-    plot = plot_histories(runs, metrics, args.plot or default_plot_name(experiments, metrics), title)
-    print(f"{len(runs)} runs of {len(experiments)} experiment(s) ({', '.join(experiments)}); plot in {plot}")
+    summary = f"{len(runs)} runs of {len(experiments)} experiment(s) ({', '.join(experiments)})"
+    if args.plot is None:
+        print(summary)
+        return 0
+    path = default_plot_name(experiments, metrics) if args.plot == DEFAULT_PLOT else args.plot
+    plot = plot_histories(runs, metrics, path, title)
+    print(f"{summary}; plot in {plot}")
     return 0
 
 

@@ -50,7 +50,7 @@ def compare(capsys, *argv: str) -> tuple[int, list[str], str]:
 
 
 def test_the_table_adds_the_differing_recipe_fields_and_sorts_by_the_first_logged_metric(store, capsys):
-    code, lines, err = compare(capsys, "sand", "water", "--metrics", "valid_loss", "train_loss")
+    code, lines, err = compare(capsys, "sand", "water", "--metrics", "valid_loss", "train_loss", "--plot")
     assert code == 0, err
     # valid_loss is named but no run logged it: a warning listing what was logged, and no column for it.
     assert err.strip() == "gns compare: warning: no run logged metric 'valid_loss'; logged metrics: train_loss"
@@ -100,3 +100,19 @@ def test_the_default_plot_name_says_what_it_compares_and_stays_one_short_name():
     # An experiment name from the store is never a path: the plot stays in the working directory.
     odd = default_plot_name(["../team/sand"], ["train_loss"])
     assert odd.parent == Path(".") and "/" not in odd.name and odd.suffix == ".png"
+
+
+def test_by_default_the_validation_rollout_metrics_are_shown_silently_without_those_not_logged_and_no_file(
+    store, capsys, tmp_path, monkeypatch
+):
+    """Issue 48: recipes are compared on their validation rollouts; defaults the runs did not log are no warning;
+    without --plot nothing is written."""
+    from gns_framework.cli.compare import DEFAULT_METRICS
+
+    monkeypatch.chdir(tmp_path)
+    code, lines, err = compare(capsys, "sand", "water")
+    assert code == 0 and err == ""
+    assert {"valid_rollout_mse", "valid_rollout_sinkhorn_pct"} <= set(DEFAULT_METRICS)
+    assert store["select"][2] == DEFAULT_METRICS and lines[0].split()[-1] == "train_loss"
+    assert "plot" not in store and lines[-1] == "2 runs of 2 experiment(s) (sand, water)"
+    assert list(tmp_path.iterdir()) == []

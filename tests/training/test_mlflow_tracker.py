@@ -124,7 +124,7 @@ def test_training_tracks_to_a_sqlite_store_created_on_first_use_and_compare_read
     assert rows[run_a[:8]][4] == "4" and rows[run_b[:8]][4] == "2"
     assert plot.read_bytes().startswith(b"\x89PNG")
     # By default the plot is named after what it compares, by experiment name even when runs are given by id.
-    assert main(["compare", run_a[:8], "--metrics", "train_loss"]) == 0
+    assert main(["compare", run_a[:8], "--metrics", "train_loss", "--plot"]) == 0
     assert (tmp_path / "compare-tiny-exp-train_loss.png").is_file()
 
 
