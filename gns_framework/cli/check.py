@@ -121,9 +121,8 @@ def check_recipe(file: Path, registry: Registry, with_data: bool = True) -> None
     """RecipeError listing every problem of ``file`` that stops training; returns when there is none."""
     recipe = load_recipe(file, registry)  # schema problems first: nothing else can be read without a valid recipe
     problems = component_problems(recipe, registry) + training_problems(recipe, registry)
-    if with_data and not size_problems(
-        recipe, registry
-    ):  # the data checks build the model: never one too large to build
+    # The data checks build the model: never one too large to build.
+    if with_data and not size_problems(recipe, registry):
         problems += data_problems(recipe, registry)
     if problems:
         raise RecipeError(file, problems)

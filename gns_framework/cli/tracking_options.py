@@ -34,15 +34,10 @@ def check_tracking_arguments(args: argparse.Namespace) -> None:
 
     if args.no_tracking:
         return
-    source = (
-        "--tracking-uri"
-        if args.tracking_uri
-        else "$MLFLOW_TRACKING_URI"
-        if os.environ.get("MLFLOW_TRACKING_URI")
-        else None
-    )
-    if source is not None:
-        mlflow_tracker.validate_tracking_uri(args.tracking_uri or mlflow_tracker.default_tracking_uri(), source)
+    if args.tracking_uri:
+        mlflow_tracker.validate_tracking_uri(args.tracking_uri, "--tracking-uri")
+    elif os.environ.get("MLFLOW_TRACKING_URI"):
+        mlflow_tracker.validate_tracking_uri(os.environ["MLFLOW_TRACKING_URI"], "$MLFLOW_TRACKING_URI")
 
 
 def with_mlflow(

@@ -135,7 +135,7 @@ class Trajectory:
                 raise DatasetError(
                     f"{where}: walls: expected friction >= 0 and a no-slip flag 0 or 1 per face, got {walls.tolist()}"
                 )
-        _check_placement(where, pos, bounds if bounds is not None else None, domain)
+        _check_placement(where, pos, bounds, domain)
         return Trajectory(pos.astype(np.float32, copy=False), ptype, prop, ctx, self.key, bounds, walls)
 
 

@@ -29,8 +29,8 @@ from ..data.trajectory import Trajectory
 from ..errors import RecipeError
 from ..evaluation.metrics import ParticleRollout, domain_size, runout_distance, sinkhorn_distance
 from ..model.learned_simulator import LearnedSimulator
-from .config import INITIAL_VELOCITY, InvertConfig, PropertyUnknown, VelocityUnknown
 from ..model.rollout_guard import RolloutGuard
+from .config import INITIAL_VELOCITY, InvertConfig, PropertyUnknown, VelocityUnknown
 from .rollout import differentiable_rollout
 
 LOSS_UNITS = {

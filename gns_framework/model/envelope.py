@@ -424,7 +424,7 @@ REACH_SPACINGS = 4
 def _faces_reached(trajectory: Trajectory, metadata: DatasetMetadata, moving: np.ndarray, reach: float) -> list[bool]:
     """Per face (``FACES`` order), whether a moving particle comes within ``reach`` of it in any frame."""
     bounds = np.asarray(trajectory.bounds if trajectory.bounds is not None else metadata.bounds, dtype=np.float64)
-    position = np.asarray(trajectory.position[:, moving], dtype=np.float64)
+    position = np.asarray(trajectory.position)[:, moving]  # compared in the data's own precision: no float64 copy
     if position.size == 0:
         return [False] * (2 * bounds.shape[0])
     lowest, highest = position.min(axis=(0, 1)), position.max(axis=(0, 1))

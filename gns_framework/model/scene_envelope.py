@@ -15,14 +15,17 @@ Shapes are not judged beyond their boxes and counts; a top face the sand cannot 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
-
 from ..ground_truth.scene_spec import FACES, Block, OneOf, Range, SceneSpec, Span, WallChoice, WallRange
 from ..limits import scene_particles
-from .envelope import COUNT_SLACK, DT_TOLERANCE, PROPERTY_SLACK, SPACING_TOLERANCE, WALL_SLACK, Envelope
-
-REACH_SPACINGS = 4
-"""A top face counts as reachable when a block's top comes within this many particle spacings of it."""
+from .envelope import (
+    COUNT_SLACK,
+    DT_TOLERANCE,
+    PROPERTY_SLACK,
+    REACH_SPACINGS,
+    SPACING_TOLERANCE,
+    WALL_SLACK,
+    Envelope,
+)
 
 
 def value_range(value) -> tuple[float, float] | None:
@@ -58,10 +61,10 @@ def _box_extents(scene: SceneSpec) -> list[tuple[float, float]]:
     """(smallest, largest) edge length of the scene's box per axis."""
     if scene.domain.extent is None:
         return [(hi - lo, hi - lo) for lo, hi in scene.domain.bounds]
-    return [cast_range(e) for e in scene.domain.extent]
+    return [_length_range(e) for e in scene.domain.extent]
 
 
-def cast_range(value) -> tuple[float, float]:
+def _length_range(value) -> tuple[float, float]:
     found = value_range(value)
     assert found is not None  # extents are lengths, never spans (SceneSpec checks it)
     return found
@@ -69,8 +72,6 @@ def cast_range(value) -> tuple[float, float]:
 
 def _top_reachable(scene: SceneSpec) -> bool:
     """Whether a block may come near the box's top face: launched upwards, or its top near the lowest box top."""
-    if scene.dim < 2:
-        return True
     lowest_top = scene.domain.bounds[1][0] + _box_extents(scene)[1][0]
     for block in scene.blocks:
         velocity = value_range(block.velocity[1]) if block.velocity else (0.0, 0.0)
@@ -155,11 +156,11 @@ def _wall_problems(scene: SceneSpec, envelope: Envelope) -> list[tuple[str, str]
     if envelope.walls is None:
         return []
     problems = []
-    top = FACES[2 * scene.dim - 1] if scene.dim >= 2 else None
-    skip_top = top == "y_max" and not _top_reachable(scene)
+    # The top face (y_max, the last face of a 2D box) is left out when no block can reach it.
+    skip_top = scene.dim == 2 and not _top_reachable(scene)
     for face in FACES[: 2 * scene.dim]:
         seen = envelope.walls.get(face)
-        if seen is None or (face == top and skip_top):
+        if seen is None or (face == "y_max" and skip_top):
             continue
         for kind, friction in _face_kinds(getattr(scene.domain.walls, face), scene.domain.wall_friction):
             if kind == "friction":
@@ -190,7 +191,7 @@ def _body_problems(scene: SceneSpec, envelope: Envelope, trained: SceneSpec | No
             continue
         if not isinstance(body, Block):
             continue
-        for name, value in {**body.properties}.items():
+        for name, value in body.properties.items():
             asked, known = value_range(value), envelope.properties.get(name)
             if asked is None or known is None:
                 continue
@@ -216,15 +217,11 @@ def _body_problems(scene: SceneSpec, envelope: Envelope, trained: SceneSpec | No
                     )
                 )
     if trained is not None:
-        asked_blocks = _total(b.count.high for b in scene.blocks)
-        trained_blocks = _total(b.count.high for b in trained.blocks)
+        asked_blocks = float(sum(b.count.high for b in scene.blocks))
+        trained_blocks = float(sum(b.count.high for b in trained.blocks))
         if asked_blocks > trained_blocks:
             problems.append(("blocks", f"up to {asked_blocks:g} blocks per scene; trained up to {trained_blocks:g}"))
     return problems
-
-
-def _total(counts: Iterable[float]) -> float:
-    return float(sum(counts))
 
 
 def _shown(span: tuple[float, float]) -> str:

@@ -82,7 +82,7 @@ def validate_tracking_uri(uri: str, source: str = "tracking URI") -> str:
         raise TrackingError(f"{source} {uri!r}: not a URI; expected {forms}")
     try:
         parts = urlsplit(uri)
-        port = parts.port  # parsed here: a bad port or bracket raises ValueError
+        _ = parts.port  # parsed on access: a bad port or bracket raises ValueError
     except ValueError as exc:
         raise TrackingError(f"{source} {uri!r}: malformed ({exc}); expected {forms}") from None
     scheme = parts.scheme.split("+")[0].lower()
@@ -90,7 +90,6 @@ def validate_tracking_uri(uri: str, source: str = "tracking URI") -> str:
         raise TrackingError(f"{source} {uri!r}: unsupported scheme {parts.scheme or '(none)'!r}; expected {forms}")
     if scheme in ("http", "https") and not parts.hostname:
         raise TrackingError(f"{source} {uri!r}: no host; expected {scheme}://host[:port]")
-    del port
     database = local_database(uri)
     if scheme == "sqlite" and database is None:
         raise TrackingError(f"{source} {uri!r}: expected sqlite:///path/to/mlflow.db (three slashes, then the path)")
@@ -527,7 +526,7 @@ def log_to_recorded_run(
     if not RunFolder(run_dir).mlflow_run.is_file() or not mlflow_available():
         return None
     try:
-        saved = read_run_record(run_dir, default_tracking_uri())
+        saved = read_run_record(run_dir, validate_tracking_uri(default_tracking_uri()))
     except TrackingError as error:
         warnings.warn(f"tracking: {error}; nothing logged to MLflow", stacklevel=2)
         return None
@@ -561,7 +560,8 @@ def read_run_record(run_dir: Path, tracking_uri: str) -> dict:
 
     The record is data: a run folder from elsewhere may name any store (another
     database, another server). Only the store the user configured is ever written to,
-    so a record naming another one is refused, naming both.
+    so a record naming another one is refused, naming both. ``tracking_uri`` is
+    validated by the caller (:func:`validate_tracking_uri`).
     """
     record = RunFolder(run_dir).mlflow_run
     try:
@@ -577,7 +577,6 @@ def read_run_record(run_dir: Path, tracking_uri: str) -> dict:
             "(--tracking-uri, else $MLFLOW_TRACKING_URI, else ./mlflow.db); gns writes only to the store you name: "
             f"pass --tracking-uri {uri} if that is yours"
         )
-    validate_tracking_uri(uri, f"{record}: tracking_uri")
     return saved
 
 

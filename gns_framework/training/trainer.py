@@ -347,7 +347,7 @@ class Trainer:
             try:
                 loss, step_particles = self.train_step()
             except DatasetError as error:
-                raise self._stopped_by_data(error, checkpoint) from None
+                raise self._stopped_by_data(error) from None
             window_steps, window_particles = window_steps + 1, window_particles + step_particles
             unread.append((self.step, loss))
             logs = self.step % spec.log_every == 0 or self.step == total
@@ -393,7 +393,7 @@ class Trainer:
             self.tracker.log_artifact(checkpoint)
         return losses
 
-    def _stopped_by_data(self, error: DatasetError, last: Path | None) -> DatasetError:
+    def _stopped_by_data(self, error: DatasetError) -> DatasetError:
         """The error that stops training when its data fails mid-run, with a checkpoint of the last whole step.
 
         Windows, their order and their noise are drawn from the step number, so a
@@ -402,9 +402,9 @@ class Trainer:
         """
         if not self.processes.distributed and self.step > 0 and not self.run.checkpoint(self.step).exists():
             last = self.checkpoints.save()
-        elif self.run.checkpoints.is_dir():
+        else:
             written = list_checkpoints(self.run.checkpoints)
-            last = written[-1][1] if written else last
+            last = written[-1][1] if written else None
         kept = f"{last} is the checkpoint to resume from" if last is not None else "no checkpoint was written yet"
         return type(error)(f"{error}; training stopped at step {self.step}: {kept} (--resume)")
 
