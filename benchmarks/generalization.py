@@ -94,7 +94,7 @@ def evaluate(
             from gns_framework.viz.animation import animate_rollout
 
             learned = next(e for e in report.entries if e.kind == "learned")
-            names = {t: registry.material_by_type(t).cls.name for t in model.simulator.scene.particle_types}
+            names = registry.material_names(model.simulator.scene.particle_types)
             animate_rollout(load_rollout(learned.rollout_files[0]), gif, every=4, material_names=names)
             print(f"animation: {gif}", file=sys.stderr)
     by_kind = {}

@@ -264,6 +264,16 @@ class Registry:
         known = ", ".join(f"{e.cls.particle_type}={e.name}" for e in self.entries("material"))
         raise PluginError(f"no installed material has particle type {particle_type}; installed: {known}")
 
+    def material_names(self, particle_types) -> dict[int, str]:
+        """Legend labels: each type id's installed material name, ``type <id>`` where none is installed."""
+        names = {}
+        for particle_type in sorted({int(t) for t in particle_types}):
+            try:
+                names[particle_type] = self.material_by_type(particle_type).cls.name
+            except PluginError:
+                names[particle_type] = f"type {particle_type}"
+        return names
+
     def free_particle_types(self) -> list[int]:
         """The valid particle-type ids (``contracts.PARTICLE_TYPE_IDS``) no installed material has.
 

@@ -16,7 +16,13 @@ TINY_PROCESSORS = {
     "grid_cnn": {"message_passing_steps": 2, "conv_layers": 2},
 }
 """Parameters of each built-in processor at test size."""
-TINY_GRAPH_BUILDERS = {"radius": {}, "periodic_radius": {}, "knn": {"k": 6}, "radius_torch_cluster": {}}
+TINY_GRAPH_BUILDERS = {
+    "radius": {},
+    "periodic_radius": {},
+    "knn": {"k": 6},
+    "radius_torch_cluster": {},
+    "no_edges": {},
+}
 """Parameters of each built-in graph builder at test size."""
 
 

@@ -42,6 +42,7 @@ from ..plugins import load_registry
 from ..training.trainer import Trainer
 from .arguments import non_negative_int, positive_int
 from .envelope_option import add_outside_envelope, enforce_envelope
+from .progress import report_progress
 
 REPO = Path(__file__).resolve().parents[2]
 TRAINING_COUNTS = {"train": 10, "valid": 1, "test": 1}
@@ -168,10 +169,15 @@ def _roll_out_and_report(
             metadata = metadata.model_copy(update={"outside_envelope": warnings})
         path = write_rollout(out / "rollout_held_out_0000.npz", result, metadata)
         print(f"{name}: rollout of {result.num_steps} steps of a held-out collapse written to {path}")
-        gif = animate_rollout(load_rollout(path), out / "rollout.gif", every=1)
+        saved = load_rollout(path)
+        names = registry.material_names(saved.particle_type)
+        gif = animate_rollout(saved, out / "rollout.gif", every=1, material_names=names)
         print(f"animation (prediction | ground truth): {gif}")
     cases = cases_from_split(test)
-    report = compare(models, cases, dataset.metadata(), registry, torch.device("cpu"), repeats=repeats)
+    with report_progress(not progress) as bar:
+        report = compare(
+            models, cases, dataset.metadata(), registry, torch.device("cpu"), repeats=repeats, progress=bar
+        )
     report = dataclasses.replace(report, warnings=tuple(warnings))
     paths = write_report(report, out / ("report" if number == 0 else f"report_{number + 1}"))
     print(paths["markdown"].read_text())

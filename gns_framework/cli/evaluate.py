@@ -12,6 +12,7 @@ from ..io.run_folder import RunFolder
 from ..safe_names import ensure_inside, require_component, safe_component, unique_components
 from .arguments import add_allow_pickle, positive_int
 from .envelope_option import add_outside_envelope, enforce_envelope
+from .progress import report_progress
 
 
 def _scales(text: str) -> list[float]:
@@ -96,6 +97,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "bfloat16's error and speed beside float32's in one run; default float32)",
     )
     parser.add_argument("--vtk", action="store_true", help="also write VTK frames of each model's first rollout")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar while models are timed and scored")
     parser.add_argument(
         "--gif", action="store_true", help="also write a prediction-vs-truth GIF of each model's first rollout"
     )
@@ -151,22 +153,24 @@ def run(args: argparse.Namespace) -> int:
 
     names = model_labels([m.recipe.name for m in models], args.checkpoints)
     claim_folder(args.out, "evaluate", args.overwrite, own=_earlier_report)
-    report = compare(
-        list(zip(names, models)),
-        cases,
-        metadata,
-        registry,
-        device,
-        grid_scales=args.grid_scales,
-        substep_scales=args.substep_scales,
-        with_simulator=not args.no_simulator,
-        repeats=args.repeats,
-        warmup=args.warmup,
-        error_metric=args.error_metric,
-        rollout_dir=args.out / "rollouts" if (args.vtk or args.gif) else None,
-        batch=args.batch,
-        precisions=args.precisions,
-    )
+    with report_progress(args.no_progress) as progress:
+        report = compare(
+            list(zip(names, models)),
+            cases,
+            metadata,
+            registry,
+            device,
+            grid_scales=args.grid_scales,
+            substep_scales=args.substep_scales,
+            with_simulator=not args.no_simulator,
+            repeats=args.repeats,
+            warmup=args.warmup,
+            error_metric=args.error_metric,
+            rollout_dir=args.out / "rollouts" if (args.vtk or args.gif) else None,
+            batch=args.batch,
+            precisions=args.precisions,
+            progress=progress,
+        )
     report = dataclasses.replace(report, warnings=tuple(line for lines in warnings.values() for line in lines))
     paths = write_report(report, args.out)
     print(paths["markdown"].read_text())
@@ -237,10 +241,13 @@ def _render_first_rollouts(args: argparse.Namespace, names: list[str], report) -
             for part, pvd in write_rollout_vtk(rollout, folder).items():
                 print(f"vtk {name} {part}: {pvd}")
         if args.gif:
+            from ..plugins import load_registry
             from ..viz.animation import animate_rollout
 
             gif = ensure_inside(args.out / f"{safe_component(name)}.gif", args.out)
-            animations[name] = animate_rollout(rollout, gif, every=2)
+            animations[name] = animate_rollout(
+                rollout, gif, every=2, material_names=load_registry().material_names(rollout.particle_type)
+            )
             print(f"animation {name}: {animations[name]}")
     return animations
 

@@ -61,10 +61,14 @@ def run(args: argparse.Namespace) -> int:
         for name, pvd in written.items():
             print(f"{name}: {pvd}")
     if args.gif is not None:
+        from ..plugins import load_registry
         from ..viz.animation import animate_rollout
 
         with _progress("GIF frames", args.no_progress) as progress:
-            gif = animate_rollout(rollout, args.gif, every=args.every, fps=args.fps, progress=progress)
+            names = load_registry().material_names(rollout.particle_type)
+            gif = animate_rollout(
+                rollout, args.gif, every=args.every, fps=args.fps, material_names=names, progress=progress
+            )
         print(f"animation: {gif}")
     return 0
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import cast
 
@@ -234,6 +234,7 @@ def compare(
     rollout_dir=None,
     batch: int = 1,
     precisions: Sequence[Precision] = ("float32",),
+    progress: Callable[[str, int, int], None] | None = None,
 ) -> Report:
     """Error against run time of named trained models (and the ground-truth simulator) on ``cases``.
 
@@ -241,7 +242,7 @@ def compare(
     With ``batch`` > 1 each model has a second row, its cases rolled out ``batch`` at a time,
     beside the one-at-a-time row: the throughput gain measured in the same run. Each of
     ``precisions`` gives every model its rows in that precision, so the error and time
-    bfloat16 products change are measured side by side.
+    bfloat16 products change are measured side by side. ``progress`` is :func:`evaluate`'s.
     """
     scene = models[0][1].simulator.scene
     candidates = []
@@ -264,6 +265,7 @@ def compare(
         kinematic_types=scene.kinematic_types,
         metrics=registry.metrics(),
         rollout_dir=rollout_dir,
+        progress=progress,
     )
 
 

@@ -151,6 +151,7 @@ def evaluate(
     metrics: Sequence[Metric] | None = None,
     rollout_dir: str | Path | None = None,
     clock: Callable[[], float] = time.perf_counter,
+    progress: Callable[[str, int, int], None] | None = None,
 ) -> Report:
     """Roll every candidate out on every case, timing each rollout and scoring it.
 
@@ -168,6 +169,8 @@ def evaluate(
             safe file names, unique in their folder (:mod:`gns_framework.safe_names`); the
             entries' ``rollout_files`` say where.
         clock: the timings' clock, seconds (tests give one that runs with the work, not the wall).
+        progress: called as ``progress(candidate name, cases done, cases in all)`` after each
+            candidate's case is timed and scored (all candidates' cases counted together).
     """
     if not candidates or not cases:
         raise ValueError("evaluate needs at least one candidate and one case")
@@ -186,6 +189,7 @@ def evaluate(
     folders = dict(zip(names, unique_components(names)))
     files = [f"{name}.npz" for name in unique_components([case.key for case in cases])]
     entries = []
+    done, total = 0, len(candidates) * len(cases)
     for candidate in candidates:
         summaries, timings, curves, written = [], [], [], []
         for case, file_name, prediction, timing in _timed_rollouts(candidate, cases, files, repeats, warmup, clock):
@@ -212,6 +216,9 @@ def evaluate(
                 path = ensure_inside(Path(rollout_dir) / folders[candidate.name] / file_name, rollout_dir)
                 save_rollout(path, _as_rollout(prediction, case, history, metadata))
             written.append(path)
+            done += 1
+            if progress is not None:
+                progress(candidate.name, done, total)
         entries.append(_entry(candidate, summaries, timings, curves, [case.key for case in cases], written))
 
     reference = next((e for e in entries if e.reference), None)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -31,9 +32,16 @@ from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..evaluation.candidates import granular_particle_types
 from ..io.rollout_file import write_rollout
-from ..model.envelope import PROPERTY_SLACK, SPEED_SLACK, OutsideEnvelope, envelope_message, outside_envelope
+from ..model.envelope import (
+    PROPERTY_SLACK,
+    SPEED_SLACK,
+    Envelope,
+    OutsideEnvelope,
+    envelope_message,
+    outside_envelope,
+)
 from ..model.rollout_guard import RolloutGuard
-from ..plugins import Registry
+from ..plugins import Registry, load_registry
 from ..runtime.activation_memory import activations_recomputed
 from .config import InvertConfig, PropertyUnknown, VelocityUnknown
 from .optimize import Iterate, Solution, adam, best_iterate, lbfgs, spread_starts
@@ -149,6 +157,36 @@ def true_values(dataset: str | Path, trajectory: Trajectory, unknowns: dict, sim
     return truth or None
 
 
+def unknown_bounds_problems(envelope: Envelope, unknowns: Mapping[str, PropertyUnknown | VelocityUnknown]) -> list[str]:
+    """The unknowns whose search bounds leave what the model trained on, one line each (none: all inside).
+
+    A property searched over [low, high] must lie in the trained range (within
+    ``PROPERTY_SLACK`` of its width); an initial velocity's fastest corner within
+    ``SPEED_SLACK`` times the largest speed the model saw.
+    """
+    problems = []
+    searched = {name for name, unknown in unknowns.items() if isinstance(unknown, PropertyUnknown)}
+    velocity = [u for u in unknowns.values() if isinstance(u, VelocityUnknown)]
+    for name in sorted(searched):
+        low, high = unknowns[name].bounds
+        trained = envelope.properties.get(name)
+        if (
+            trained is None
+            or low < trained[0] - PROPERTY_SLACK * (trained[1] - trained[0]) - 1e-12
+            or (high > trained[1] + PROPERTY_SLACK * (trained[1] - trained[0]) + 1e-12)
+        ):
+            described = "not a model input" if trained is None else f"{trained[0]:.4g} .. {trained[1]:.4g}"
+            problems.append(f"unknowns.{name}.bounds [{low:.4g}, {high:.4g}] (trained: {described})")
+    for unknown in velocity:
+        fastest = math.sqrt(sum(max(abs(lo), abs(hi)) ** 2 for lo, hi in unknown.bounds))
+        if fastest > SPEED_SLACK * envelope.max_speed:
+            problems.append(
+                f"unknowns.initial_velocity.bounds up to {fastest:.3g} m/s "
+                f"(trained: up to {envelope.max_speed:.3g} m/s, accepted {SPEED_SLACK:g}x)"
+            )
+    return problems
+
+
 def _envelope_warnings(model, metadata, trajectory, unknowns, allowed: bool, source) -> tuple[str, ...]:
     """The observation checked against the envelope, its unknown quantities replaced by their search bounds.
 
@@ -167,23 +205,7 @@ def _envelope_warnings(model, metadata, trajectory, unknowns, allowed: bool, sou
         if not any(line.startswith(f"property {name} ") for name in searched)
         and not (velocity and line.startswith("input speed "))
     ]
-    for name in sorted(searched):
-        low, high = unknowns[name].bounds
-        trained = envelope.properties.get(name)
-        if (
-            trained is None
-            or low < trained[0] - PROPERTY_SLACK * (trained[1] - trained[0]) - 1e-12
-            or (high > trained[1] + PROPERTY_SLACK * (trained[1] - trained[0]) + 1e-12)
-        ):
-            described = "not a model input" if trained is None else f"{trained[0]:.4g} .. {trained[1]:.4g}"
-            problems.append(f"unknowns.{name}.bounds [{low:.4g}, {high:.4g}] (trained: {described})")
-    for unknown in velocity:
-        fastest = math.sqrt(sum(max(abs(lo), abs(hi)) ** 2 for lo, hi in unknown.bounds))
-        if fastest > SPEED_SLACK * envelope.max_speed:
-            problems.append(
-                f"unknowns.initial_velocity.bounds up to {fastest:.3g} m/s "
-                f"(trained: up to {envelope.max_speed:.3g} m/s, accepted {SPEED_SLACK:g}x)"
-            )
+    problems += unknown_bounds_problems(envelope, unknowns)
     if not problems:
         return ()
     if not allowed:
@@ -551,7 +573,9 @@ def write_outputs(inversion: Inversion, result: InversionResult, out: Path, gif:
         from ..io.rollout_file import load_rollout
         from ..viz.animation import animate_rollout
 
-        paths["animation"] = animate_rollout(load_rollout(paths["rollout"]), out / "rollout.gif", every=2)
+        saved = load_rollout(paths["rollout"])
+        names = load_registry().material_names(saved.particle_type)
+        paths["animation"] = animate_rollout(saved, out / "rollout.gif", every=2, material_names=names)
     paths["result"] = out / "result.json"
     write_text_atomic(paths["result"], json.dumps(result.as_json(inversion), indent=2) + "\n")
     return paths

@@ -37,6 +37,7 @@ def animate_side_by_side(
     every: int = 1,
     fps: int = 20,
     material_names: Mapping[int, str] | None = None,
+    length_unit: str | None = None,
     first_rolled_out_frame: int = 0,
     progress: Callable[[int, int], None] | None = None,
 ) -> Path:
@@ -50,7 +51,9 @@ def animate_side_by_side(
         dt: seconds between frames (shown in the title).
         every: draw every ``every``-th frame (the last is always drawn).
         fps: frames per second of the GIF.
-        material_names: legend labels per type id, else ``type <id>``.
+        material_names: legend labels per type id (:meth:`Registry.material_names`), else ``type <id>``.
+        length_unit: the positions' unit on the axes (``m`` for data our simulators made); None: the
+            dataset's own, unnamed.
         first_rolled_out_frame: frames before it are input frames (labelled as such).
         progress: called as ``progress(frames_drawn, frames_in_all)`` after each frame is drawn
             (drawing dominates: about 0.3 s a frame for a few thousand particles).
@@ -79,6 +82,9 @@ def animate_side_by_side(
     labels = {t: (material_names or {}).get(t, f"type {t}") for t in types}
     marker_size = float(np.clip(4000 / max(len(particle_type), 1), 0.5, 20))
 
+    def axis_label(axis: str) -> str:
+        return f"{axis} ({length_unit})" if length_unit else f"{axis} (dataset units)"
+
     projection = "3d" if dim == 3 else None
     fig = plt.figure(figsize=(10, 5))
     # Axes, or Axes3D for the 3d projection (which matplotlib's types do not tell apart): set_zlim, scatter(x, y, z).
@@ -97,8 +103,11 @@ def animate_side_by_side(
                 )
             ax.set_xlim(*bounds[0])
             ax.set_ylim(*bounds[1])
+            ax.set_xlabel(axis_label("x"), fontsize=8)
+            ax.set_ylabel(axis_label("y"), fontsize=8)
             if dim == 3:
                 ax.set_zlim(*bounds[2])
+                ax.set_zlabel(axis_label("z"), fontsize=8)
             else:
                 ax.set_aspect("equal")
         axes[1].legend(loc="upper right", fontsize=7, markerscale=max(1.0, 6 / marker_size))
@@ -121,8 +130,13 @@ def animate_rollout(
     material_names: Mapping[int, str] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> Path:
-    """GIF of a rollout with its metadata (as loaded from a file), input frames included (:func:`animate_side_by_side`)."""
+    """GIF of a rollout with its metadata (as loaded from a file), input frames included (:func:`animate_side_by_side`).
+
+    Positions are labelled in metres when the data came from ``gns generate`` (its
+    simulators work in SI units), else in the dataset's own units.
+    """
     assert rollout.metadata is not None  # a rollout file always has it
+    generated = getattr(rollout.metadata, "generated_from", None) is not None
     return animate_side_by_side(
         path,
         rollout.predicted_trajectory(),
@@ -133,6 +147,7 @@ def animate_rollout(
         every=every,
         fps=fps,
         material_names=material_names,
+        length_unit="m" if generated else None,
         first_rolled_out_frame=rollout.history,
         progress=progress,
     )

@@ -24,6 +24,7 @@ def test_the_built_in_components_declare_their_reach():
         "periodic_radius": True,
         "radius_torch_cluster": True,
         "knn": False,  # its edges depend on which other particles are near
+        "no_edges": False,  # a grid processor's grid spans the scene: no piece holds what it needs
     }
     processors = {e.name: (e.cls.hops_param, e.cls.exchanges_latents) for e in registry.entries("processor")}
     steps = "message_passing_steps"

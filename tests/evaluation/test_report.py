@@ -286,3 +286,19 @@ def test_the_particles_a_wall_held_are_counted_per_case_and_stated(scenes, tmp_p
     )
     rows = list(csv.DictReader(paths["cases_csv"].open()))
     assert [r["wall_held_particles"] for r in rows if r["name"] == "gns"] == ["0.0", "7.0"]
+
+
+def test_progress_is_reported_after_each_candidate_and_case(scenes):
+    """The report phase says what it is timing: every candidate's every case, counted over all of them."""
+    states, cases, metadata = scenes
+    seen = []
+    evaluate(
+        [Candidate("gns", "learned", learned), Candidate("other", "learned", learned)],
+        cases,
+        metadata,
+        HISTORY,
+        repeats=1,
+        warmup=0,
+        progress=lambda *call: seen.append(call),
+    )
+    assert seen == [("gns", 1, 4), ("gns", 2, 4), ("other", 3, 4), ("other", 4, 4)]

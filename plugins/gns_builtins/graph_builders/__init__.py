@@ -3,6 +3,7 @@
 from gns_framework.hookspecs import hookimpl
 
 from .knn import KnnGraphBuilder
+from .no_edges import NoEdgesGraphBuilder
 from .periodic_radius import PeriodicRadiusGraphBuilder
 from .radius import RadiusGraphBuilder
 from .radius_torch_cluster import TorchClusterRadiusGraphBuilder
@@ -10,4 +11,4 @@ from .radius_torch_cluster import TorchClusterRadiusGraphBuilder
 
 @hookimpl
 def gns_graph_builders():
-    return [RadiusGraphBuilder, TorchClusterRadiusGraphBuilder, KnnGraphBuilder, PeriodicRadiusGraphBuilder]
+    return [RadiusGraphBuilder, TorchClusterRadiusGraphBuilder, KnnGraphBuilder, PeriodicRadiusGraphBuilder, NoEdgesGraphBuilder]
