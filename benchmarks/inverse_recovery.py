@@ -173,6 +173,17 @@ print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
     return float(out.stdout.strip().splitlines()[-1])
 
 
+def trained_friction(model: Path) -> list[float]:
+    """The range of friction ``model`` trained on: the widest bounds ``gns invert`` searches without a warning."""
+    from gns_framework.assembly.trained import load_trained
+    from gns_framework.plugins import load_registry
+
+    envelope = load_trained(model, load_registry()).envelope
+    if envelope is None or "friction" not in envelope.properties:
+        return [0.4, 1.0]
+    return [float(v) for v in envelope.properties["friction"]]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", type=Path, default=Path("models/sand2d_fast.pt"))
@@ -182,7 +193,11 @@ def main() -> int:
     parser.add_argument("--split", default="test")
     parser.add_argument("--unknown", choices=("friction", "initial_velocity"), default="friction")
     parser.add_argument(
-        "--bounds", type=float, nargs=2, default=None, help="default: 0.4 1.0 (friction), 0 1.2 (velocity x)"
+        "--bounds",
+        type=float,
+        nargs=2,
+        default=None,
+        help="default: the friction range the model trained on (gns invert refuses wider), 0 1.2 (velocity x)",
     )
     parser.add_argument("--bounds-y", type=float, nargs=2, default=[-0.2, 1.2], help="velocity y bounds (2D scenes)")
     parser.add_argument(
@@ -214,8 +229,9 @@ def main() -> int:
     args = parser.parse_args()
     if args.frames not in ("last", "all"):
         args.frames = [int(frame) for frame in args.frames.split(",")]
-    args.bounds = args.bounds or ([0.4, 1.0] if args.unknown == "friction" else [0.0, 1.2])
     torch.set_num_threads(args.threads)
+    if args.bounds is None:
+        args.bounds = trained_friction(args.model) if args.unknown == "friction" else [0.0, 1.2]
 
     from gns_framework.assembly.data import open_dataset
     from gns_framework.assembly.ground_truth import build_ground_truth_simulator

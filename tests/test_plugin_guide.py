@@ -150,3 +150,17 @@ def test_the_guide_scene_is_simulated_with_the_guide_material(gravel_registry):
     types = trajectory.particle_type.tolist()
     assert set(types) == {3, 9} and types.count(9) == 512  # the comment's count of gravel particles
     assert trajectory.material_property.shape == (len(types), 1)  # friction, drawn for the trajectory
+
+
+def test_the_guides_whole_recipe_is_the_clay_swap_recipe_and_validates(registry):
+    """The complete recipe the guide gives is recipes/swaps/clay2d.yaml field for field, and trains as it is."""
+    from gns_framework.config.recipe import validate_recipe
+
+    pytest.importorskip("gns_example_clay", reason="install it: pip install -e plugins/examples/gns-clay")
+    guide = yaml.safe_load(guide_block("<!-- guide-whole-recipe -->", "yaml"))
+    shipped = yaml.safe_load((REPO / "recipes" / "swaps" / "clay2d.yaml").read_text())
+    assert {k: v for k, v in guide.items() if k != "description"} == {
+        k: v for k, v in shipped.items() if k != "description"
+    }
+    recipe = validate_recipe(guide, registry)
+    assert recipe.model.materials == ["clay", "rigid"] and recipe.model.material_properties == ["cohesion"]

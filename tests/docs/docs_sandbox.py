@@ -78,6 +78,7 @@ def make_sandbox(folder: Path, log: Path, data_cache: Path) -> dict[str, str]:
     env.update(
         PATH=f"{shims}{os.pathsep}{env.get('PATH', '')}",
         GNS_DOCS_PYTHON=sys.executable,
+        GNS_DOCS_REPO=str(ROOT),
         GNS_DOCS_LOG=str(log),
         GNS_DOCS_DATA_CACHE=str(data_cache),
         OMP_NUM_THREADS="1",

@@ -41,7 +41,6 @@ SCRIPT_CAPS: dict[str, dict[str, object]] = {
     "inverse_recovery.py": {"--cases": 1, "--iterations": 2},
     "step_time.py": {"--particles": [1000], "--repeat": 1, "--warmup": 0},
     "decomposition_scaling.py": {"--particles": 2000, "--processes": [1, 2], "--steps": 2, "--train-steps": 1},
-    "inclined_plane.py": {"--angles": [20]},
 }
 SCRIPT_ADD: dict[str, list[str]] = {
     "time_to_accuracy.py": ["--points", "2", "--trajectories", "1", "--seeds", "1"],
@@ -49,6 +48,11 @@ SCRIPT_ADD: dict[str, list[str]] = {
     "decomposition_scaling.py": ["--steps", "2", "--train-steps", "1"],
     "learned_vs_simulator.py": ["--repeats", "1", "--frames", "20"],
 }
+GOAL_VERDICT = {"generalization.py": "NOT met"}
+"""Benchmarks that exit 1 when the model misses its goal: at any scale that is a verdict, not a failure to run."""
+ENVELOPE_CHECKED = ("rollout", "evaluate")
+"""Commands that refuse data outside a model's envelope: a model trained here, for a few steps on one trajectory,
+has an envelope of that trajectory, so its rollouts on other scaled-down data run with --outside-envelope."""
 NOT_RUN = {
     ("-m", "pytest"): "the test suite this test belongs to (CI runs it)",
 }
@@ -156,6 +160,15 @@ def cached_generate(args: list[str], run) -> int:
     return code
 
 
+def trained_here(path: str) -> bool:
+    """A checkpoint this sandbox's scaled-down training wrote (not a model the repository ships)."""
+    file = Path(path)
+    if file.suffix != ".pt" or not file.is_file():
+        return False
+    shipped = Path(os.environ.get("GNS_DOCS_REPO", ".")) / "models" / file.name
+    return not (shipped.is_file() and shipped.read_bytes() == file.read_bytes())
+
+
 def scaled_gns(args: list[str]) -> tuple[list[str], list[str]]:
     if not args or FULL:
         return args, []
@@ -165,7 +178,11 @@ def scaled_gns(args: list[str]) -> tuple[list[str], list[str]]:
     else:
         out, notes = capped(args, GNS_CAPS.get(command, {}), GNS_ADD.get(command))
     out, more = newest_checkpoints(out)
-    return out, notes + more
+    notes += more
+    if command in ENVELOPE_CHECKED and "--outside-envelope" not in out and any(trained_here(a) for a in out):
+        out.append("--outside-envelope")
+        notes.append("--outside-envelope added (a model trained here for a few steps on one trajectory)")
+    return out, notes
 
 
 def check_outputs(args: list[str]) -> list[str]:
@@ -212,8 +229,18 @@ def run(tool: str, argv: list[str]) -> int:
         print(f"docs-test: scaled for CI: {'; '.join(notes)}")
     sys.stdout.flush()
 
+    verdict = GOAL_VERDICT.get(Path(argv[0]).name) if tool == "python" and argv else None
+
     def execute() -> int:
-        return subprocess.run(command).returncode
+        if verdict is None:
+            return subprocess.run(command).returncode
+        done = subprocess.run(command, stdout=subprocess.PIPE, text=True)
+        sys.stdout.write(done.stdout)
+        if done.returncode == 1 and verdict in done.stdout:
+            entry["verdict"] = f"goal {verdict} (exit 1): the command ran"
+            print(f"docs-test: the benchmark ran; its goal verdict is '{verdict}' (exit 1), counted as run")
+            return 0
+        return done.returncode
 
     code = cached_generate(named, execute) if tool == "gns" and named[:1] == ["generate"] else execute()
     missing = check_outputs(named) if code == 0 else []

@@ -1,0 +1,152 @@
+"""Does a second model's disagreement say when a learned rollout is wrong? Hit and false-alarm rates, measured.
+
+A learned simulator gives no sign of being wrong: its rollout looks like sand whether
+its deposit is 2 % or 40 % off. Two models trained apart (another architecture, another
+seed) tend to go wrong in different ways, so where their deposits disagree at least one of
+them is wrong. For a primary model and a second opinion, on held-out scenes drawn from the
+general envelope (``--seed``) and the four canonical scenes, this prints per scene the
+primary's extent and height errors against the MPM, the disagreement (the primary's extent
+and height against the second model's, %) and whether it is flagged (disagreement above
+``--threshold``); then, for a sweep of thresholds, the share of bad scenes (extent or
+height error above 15 %) that are flagged (the hit rate; goal >= 80 %) and of good scenes
+that are flagged (false alarms; goal <= 20 %). The datasets are generalization.py's
+(``--out``), made on the first run.
+
+Usage::
+
+    python benchmarks/second_opinion.py --model models/sand2d_general.pt \\
+        --second runs/sand2d_general_lean/checkpoints/best.pt --held-out 20 --seed 11 --threads 1 [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from generalization import ROOT, dataset  # noqa: E402
+
+BAD = 15.0
+THRESHOLDS = (5.0, 7.5, 10.0, 15.0, 20.0)
+
+
+def deposit(prediction, case, history, metadata, granular) -> dict[str, float]:
+    """Extent and height errors (%) of ``prediction`` against ``case`` beyond its first ``history`` frames."""
+    from gns_framework.evaluation.metrics import summarise
+    from gns_framework.evaluation.report import score_prediction
+
+    scores = summarise(score_prediction(prediction, case, history, metadata, granular_types=granular))
+    return {"extent": float(scores["extent_error_pct"]), "height": float(scores["height_error_pct"])}
+
+
+def scene_figures(primary, second, data: Path, registry) -> dict[str, dict]:
+    """Per case of ``data``'s test split: the primary's errors against the MPM and its disagreement with ``second``."""
+    from gns_framework.assembly.data import open_dataset
+    from gns_framework.evaluation.candidates import cases_from_split, granular_particle_types, learned_prediction
+    from gns_framework.model.rollout_guard import RolloutGuard
+
+    data_set = open_dataset(primary.recipe.dataset, registry, data)
+    metadata = data_set.metadata()
+    history = primary.simulator.scene.history
+    granular = granular_particle_types(primary.simulator.scene, registry)
+    out = {}
+    for case in cases_from_split(data_set.split("test")):
+        predictions = []
+        for model in (primary, second):
+            guard = RolloutGuard.from_spec(model.simulator.scene, model.recipe.rollout.guard)
+            predictions.append(learned_prediction(model.simulator, case, "cpu", guard=guard))
+        mine, theirs = predictions
+        # The second model's rollout in place of the truth: the same first frames, its prediction after them.
+        opinion = dataclasses.replace(
+            case, position=np.concatenate([case.position[:history], np.asarray(theirs.position, case.position.dtype)])
+        )
+        out[case.key] = {
+            "error": deposit(mine, case, history, metadata, granular),
+            "second_error": deposit(theirs, case, history, metadata, granular),
+            "disagreement": deposit(mine, opinion, history, metadata, granular),
+        }
+    return out
+
+
+def rates(rows: list[dict], threshold: float) -> dict[str, float | int]:
+    """Hit rate on bad scenes and false-alarm rate on good ones when a disagreement above ``threshold`` flags."""
+    bad = [r for r in rows if max(r["error"].values()) > BAD]
+    good = [r for r in rows if max(r["error"].values()) <= BAD]
+
+    def flagged(row) -> bool:
+        return max(row["disagreement"].values()) > threshold
+
+    return {
+        "threshold_pct": threshold,
+        "bad": len(bad),
+        "good": len(good),
+        "hit_rate": sum(map(flagged, bad)) / len(bad) if bad else float("nan"),
+        "false_alarm_rate": sum(map(flagged, good)) / len(good) if good else float("nan"),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", type=Path, default=ROOT / "models" / "sand2d_general.pt")
+    parser.add_argument("--second", type=Path, required=True, help="the second opinion: a model trained apart")
+    parser.add_argument("--held-out", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=7, help="scene seed of the held-out scenes (training used 0)")
+    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization", help="datasets are kept here")
+    parser.add_argument("--threshold", type=float, default=10.0, help="disagreement that flags a rollout, %")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+
+    from gns_framework.assembly.trained import load_trained
+    from gns_framework.plugins import load_registry
+
+    registry = load_registry()
+    primary, second = (load_trained(path, registry, torch.device("cpu")) for path in (args.model, args.second))
+    groups: dict[str, dict] = {}
+    if args.held_out:
+        data = dataset(
+            ROOT / "scenes" / "sand_general_2d.yaml", args.out / "held_out", args.held_out, args.seed, registry
+        )
+        groups["held-out"] = scene_figures(primary, second, data, registry)
+    canonical = {}
+    for scene_path in sorted((ROOT / "scenes" / "canonical").glob("*.yaml")):
+        data = dataset(scene_path, args.out / "canonical" / scene_path.stem, 1, None, registry)
+        canonical.update({scene_path.stem: v for v in scene_figures(primary, second, data, registry).values()})
+    groups["canonical"] = canonical
+
+    print(f"primary {args.model}, second opinion {args.second}; % against the MPM, disagreement against the second")
+    print(
+        f"{'group':<10} {'scene':<26} {'extent':>7} {'height':>7} {'2nd ext':>7} {'2nd hgt':>7} {'dis ext':>7} {'dis hgt':>7} flag"
+    )
+    rows = []
+    for group, cases in groups.items():
+        for key, row in cases.items():
+            e, s, d = row["error"], row["second_error"], row["disagreement"]
+            flag = max(d.values()) > args.threshold
+            bad = max(e.values()) > BAD
+            mark = ("FLAG" if flag else "    ") + (" (bad)" if bad else "")
+            print(
+                f"{group:<10} {key:<26} {e['extent']:7.1f} {e['height']:7.1f} {s['extent']:7.1f} {s['height']:7.1f} "
+                f"{d['extent']:7.1f} {d['height']:7.1f} {mark}"
+            )
+            rows.append({"group": group, "scene": key, **row})
+    sweep = [rates(rows, threshold) for threshold in sorted({args.threshold, *THRESHOLDS})]
+    for r in sweep:
+        print(
+            f"threshold {r['threshold_pct']:5.1f} %: flags {r['hit_rate']:.0%} of {r['bad']} bad scenes (goal >= 80 %), "
+            f"{r['false_alarm_rate']:.0%} of {r['good']} good ones (goal <= 20 %)"
+        )
+    if args.json:
+        print(json.dumps({"model": str(args.model), "second": str(args.second), "rows": rows, "sweep": sweep}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
