@@ -159,7 +159,7 @@ from gns_framework.inverse.solve import prepare
 from gns_framework.runtime.activation_memory import activations_recomputed
 from gns_framework.plugins import load_registry
 raw = {{"model": {str(args.model)!r}, "observed": {{"dataset": {str(args.data)!r}, "split": {args.split!r},
-       "trajectory": 0, "frames": "all"}}, "unknowns": {{"friction": {{"bounds": [0.4, 1.0]}}}},
+       "trajectory": 0, "frames": "all"}}, "unknowns": {{"friction": {{"bounds": {list(args.bounds)!r}}}}},
        "checkpoint_every": {checkpoint_every or 0}}}
 config, unknowns = parse_invert_config(raw, "memory")
 problem = prepare(config, unknowns, "memory", load_registry()).problem

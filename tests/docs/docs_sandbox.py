@@ -4,7 +4,7 @@ The recipes, scenes, inversion configs, models, benchmarks and scripts are copie
 (a command may write into models/, as a reproduction's ``cp`` does); data and runs are
 made there by the commands themselves. The copies of recipes and inversion configs are
 scaled down (a few training steps, validation and checkpoints every two, two
-optimiser iterations) unless ``GNS_DOCS_SCALE=full``; ``gns``, ``python`` and
+optimiser iterations, scenes of at most 60 frames) unless ``GNS_DOCS_SCALE=full``; ``gns``, ``python`` and
 ``torchrun`` are :mod:`shim` (first on PATH and at ``.venv/bin/``).
 """
 
@@ -20,6 +20,8 @@ import yaml
 
 from doc_blocks import ROOT
 
+SCENE_FRAMES = 60
+"""Frames of a scaled-down scene: 0.15-0.3 s of motion, past a learned model's 6 input frames at stride 2."""
 COPIED = ("recipes", "scenes", "inversions", "models", "benchmarks", "scripts")
 SHIMMED = ("gns", "python", "python3", "torchrun")
 SHIM = Path(__file__).resolve().parent / "shim.py"
@@ -45,6 +47,14 @@ def _scale_recipe(path: Path) -> None:
     path.write_text(yaml.safe_dump(recipe, sort_keys=False), encoding="utf-8")
 
 
+def _scale_scene(path: Path) -> None:
+    scene = yaml.safe_load(path.read_text(encoding="utf-8"))
+    timing = scene.get("time") if isinstance(scene, dict) else None
+    if isinstance(timing, dict) and "frames" in timing:
+        timing["frames"] = min(int(timing["frames"]), SCENE_FRAMES)
+        path.write_text(yaml.safe_dump(scene, sort_keys=False), encoding="utf-8")
+
+
 def _scale_inversion(path: Path) -> None:
     config = yaml.safe_load(path.read_text(encoding="utf-8"))
     config.setdefault("optimizer", {})["iterations"] = 2
@@ -65,6 +75,8 @@ def make_sandbox(folder: Path, log: Path, data_cache: Path) -> dict[str, str]:
     if not full_scale():
         for recipe in (folder / "recipes").rglob("*.yaml"):
             _scale_recipe(recipe)
+        for scene in (folder / "scenes").rglob("*.yaml"):
+            _scale_scene(scene)
         for config in (folder / "inversions").glob("*.yaml"):
             _scale_inversion(config)
     _executable(folder / "scripts" / "setup.sh", SETUP_STUB)

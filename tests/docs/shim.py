@@ -28,7 +28,7 @@ FULL = os.environ.get("GNS_DOCS_SCALE", "ci") == "full"
 GNS_CAPS: dict[str, dict[str, object]] = {
     "train": {"--steps": 4},
     "demo": {"--steps": 4, "--held-out": 1, "--repeats": 1},
-    "evaluate": {"--repeats": 1},
+    "evaluate": {"--repeats": 1, "--grid-scales": ["0.5"]},
 }
 GNS_ADD: dict[str, list[str]] = {"demo": ["--steps", "4", "--held-out", "1", "--repeats", "1"]}
 SCRIPT_CAPS: dict[str, dict[str, object]] = {
@@ -40,12 +40,28 @@ SCRIPT_CAPS: dict[str, dict[str, object]] = {
     "invert_starts.py": {"--starts": [1], "--repeats": 1},
     "inverse_recovery.py": {"--cases": 1, "--iterations": 2},
     "step_time.py": {"--particles": [1000], "--repeat": 1, "--warmup": 0},
-    "decomposition_scaling.py": {"--particles": 2000, "--processes": [1, 2], "--steps": 2, "--train-steps": 1},
+    "decomposition_scaling.py": {
+        "--particles": 2000,
+        "--processes": [1, 2],
+        "--steps": 2,
+        "--train-steps": 1,
+        "--project-particles": 20000,
+        "--project-gpus": [8],
+    },
 }
 SCRIPT_ADD: dict[str, list[str]] = {
     "time_to_accuracy.py": ["--points", "2", "--trajectories", "1", "--seeds", "1"],
     "step_time.py": ["--particles", "1000", "--repeat", "1", "--warmup", "0"],
-    "decomposition_scaling.py": ["--steps", "2", "--train-steps", "1"],
+    "decomposition_scaling.py": [
+        "--steps",
+        "2",
+        "--train-steps",
+        "1",
+        "--project-particles",
+        "20000",
+        "--project-gpus",
+        "8",
+    ],
     "learned_vs_simulator.py": ["--repeats", "1", "--frames", "20"],
 }
 GOAL_VERDICT = {"generalization.py": "NOT met"}
