@@ -134,11 +134,10 @@ def scaled_generate(args: list[str]) -> tuple[list[str], list[str]]:
     out, notes = capped(args, {"--valid": 1, "--test": 1})
     total = 1 + (1 if valid is None else min(valid, 1)) + (1 if test is None else min(test, 1))
     out, more = capped(out, {"--trajectories": total})
-    if valid is None:
-        out += ["--valid", "1"]
-    if test is None:
-        out += ["--test", "1"]
-    return out, notes + more + ([] if valid is not None and test is not None else ["--valid 1 --test 1 added"])
+    added = [f"{flag} 1" for flag, given in (("--valid", valid), ("--test", test)) if given is None]
+    for flag in added:
+        out += flag.split()
+    return out, notes + more + [f"{flag} added" for flag in added]
 
 
 def newest_checkpoints(args: list[str]) -> tuple[list[str], list[str]]:
