@@ -51,7 +51,9 @@ def test_particles_are_named_by_material_and_axes_carry_units(make_rollout, tmp_
     labels, axis_labels = set(), set()
     scatter, set_xlabel = Axes.scatter, Axes.set_xlabel
     monkeypatch.setattr(Axes, "scatter", lambda self, *a, **k: labels.add(k.get("label")) or scatter(self, *a, **k))
-    monkeypatch.setattr(Axes, "set_xlabel", lambda self, text, **k: axis_labels.add(text) or set_xlabel(self, text, **k))
+    monkeypatch.setattr(
+        Axes, "set_xlabel", lambda self, text, **k: axis_labels.add(text) or set_xlabel(self, text, **k)
+    )
     names = load_registry().material_names(rollout.particle_type)
     animate_rollout(rollout, tmp_path / "anim.gif", every=8, material_names=names)
     assert labels == {names[t] for t in set(rollout.particle_type.tolist())}

@@ -11,4 +11,10 @@ from .radius_torch_cluster import TorchClusterRadiusGraphBuilder
 
 @hookimpl
 def gns_graph_builders():
-    return [RadiusGraphBuilder, TorchClusterRadiusGraphBuilder, KnnGraphBuilder, PeriodicRadiusGraphBuilder, NoEdgesGraphBuilder]
+    return [
+        RadiusGraphBuilder,
+        TorchClusterRadiusGraphBuilder,
+        KnnGraphBuilder,
+        PeriodicRadiusGraphBuilder,
+        NoEdgesGraphBuilder,
+    ]
