@@ -226,6 +226,7 @@ def _render_first_rollouts(args: argparse.Namespace, names: list[str], report) -
     name inside ``--out`` (:mod:`gns_framework.safe_names`).
     """
     from ..io.rollout_file import load_rollout
+    from ..plugins import load_registry
 
     entries = {entry.name: entry for entry in report.entries}
     animations = {}
@@ -234,20 +235,18 @@ def _render_first_rollouts(args: argparse.Namespace, names: list[str], report) -
         if not written or written[0] is None:
             continue
         rollout = load_rollout(written[0])
+        materials = load_registry().material_names(rollout.particle_type)
         if args.vtk:
             from ..io.vtk import write_rollout_vtk
 
             folder = ensure_inside(args.out / "vtk" / safe_component(name), args.out)
-            for part, pvd in write_rollout_vtk(rollout, folder).items():
+            for part, pvd in write_rollout_vtk(rollout, folder, material_names=materials).items():
                 print(f"vtk {name} {part}: {pvd}")
         if args.gif:
-            from ..plugins import load_registry
             from ..viz.animation import animate_rollout
 
             gif = ensure_inside(args.out / f"{safe_component(name)}.gif", args.out)
-            animations[name] = animate_rollout(
-                rollout, gif, every=2, material_names=load_registry().material_names(rollout.particle_type)
-            )
+            animations[name] = animate_rollout(rollout, gif, every=2, material_names=materials)
             print(f"animation {name}: {animations[name]}")
     return animations
 

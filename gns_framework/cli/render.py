@@ -41,6 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..io.rollout_file import load_rollout
+    from ..plugins import load_registry
 
     if args.vtk is None and args.gif is None:
         print("gns render: error: nothing to do: give --vtk DIR and/or --gif FILE", file=sys.stderr)
@@ -52,22 +53,21 @@ def run(args: argparse.Namespace) -> int:
     if args.gif is not None:
         check_file(args.gif, "render", args.overwrite, "--gif")
     rollout = load_rollout(args.rollout)
+    materials = load_registry().material_names(rollout.particle_type)
     if args.vtk is not None:
         from ..io.vtk import write_rollout_vtk
 
         claim_folder(args.vtk, "render", args.overwrite)
         with _progress("VTK frames", args.no_progress) as progress:
-            written = write_rollout_vtk(rollout, args.vtk, progress=progress)
+            written = write_rollout_vtk(rollout, args.vtk, progress=progress, material_names=materials)
         for name, pvd in written.items():
             print(f"{name}: {pvd}")
     if args.gif is not None:
-        from ..plugins import load_registry
         from ..viz.animation import animate_rollout
 
         with _progress("GIF frames", args.no_progress) as progress:
-            names = load_registry().material_names(rollout.particle_type)
             gif = animate_rollout(
-                rollout, args.gif, every=args.every, fps=args.fps, material_names=names, progress=progress
+                rollout, args.gif, every=args.every, fps=args.fps, material_names=materials, progress=progress
             )
         print(f"animation: {gif}")
     return 0

@@ -1,14 +1,16 @@
 """VTK output for ParaView and friends: one ``.vtu`` per frame plus a ``.pvd`` collection.
 
 Each frame is an unstructured grid of vertex cells (one per particle) written by
-meshio, with point data ``velocity`` (L/s, always 3 components), ``particle_type``
-and one array per material property. 2D points get z = 0, so 2D and 3D scenes
+meshio, with point data ``velocity`` (L/s, always 3 components), ``particle_type``,
+one array per material property (named as the data names them), and, given the
+materials' names, one 0/1 array per material, ``material:<name>`` (ParaView's
+Threshold or colour by it: the particles of one material, by name). 2D points get z = 0, so 2D and 3D scenes
 open the same way. The ``.pvd`` file lists the frames with their time in seconds.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 from xml.etree import ElementTree
@@ -45,6 +47,7 @@ def write_vtk_series(
     material_property: np.ndarray | None = None,
     property_names: Sequence[str] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    material_names: Mapping[int, str] | None = None,
 ) -> Path:
     """Write ``<directory>/<name>/frame_<t>.vtu`` for every frame and ``<directory>/<name>.pvd``.
 
@@ -55,6 +58,8 @@ def write_vtk_series(
         material_property: (N, P) or None.
         property_names: P point-data names; ``material_property_<k>`` by default.
         progress: called as ``progress(frames_written, num_frames)`` after each frame.
+        material_names: type id -> material name (:meth:`Registry.material_names`); each becomes a
+            ``material:<name>`` array, 1 on that material's particles.
 
     Returns the path of the ``.pvd`` collection.
     """
@@ -71,6 +76,8 @@ def write_vtk_series(
         if len(names) != material_property.shape[1]:
             raise ValueError(f"property_names: {len(names)} names for {material_property.shape[1]} properties")
         point_data.update({n: material_property[:, k] for k, n in enumerate(names)})
+    for type_id, material in (material_names or {}).items():
+        point_data[f"material:{material}"] = (np.asarray(particle_type) == type_id).astype(np.uint8)
     velocities = _as_3d(frame_velocities(positions, dt))
     points = _as_3d(positions)
     cells = [("vertex", np.arange(num_particles, dtype=np.int64)[:, None])]
@@ -94,14 +101,28 @@ def write_vtk_series(
     return pvd
 
 
+def _named_properties(rollout: Rollout) -> list[str] | None:
+    """The dataset's names of the rollout's material property columns, when it names each of them."""
+    names = getattr(rollout.metadata, "material_properties", None)
+    columns = (
+        None
+        if rollout.material_property is None
+        else np.asarray(rollout.material_property).reshape(len(rollout.particle_type), -1).shape[1]
+    )
+    return list(names) if names and columns == len(names) else None
+
+
 def write_rollout_vtk(
     rollout: Rollout,
     directory: str | Path,
     property_names: Sequence[str] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    material_names: Mapping[int, str] | None = None,
 ) -> dict[str, Path]:
     """Write the predicted and the true trajectory of a rollout with its metadata (input frames included).
 
+    The property arrays take the names the dataset gives its material properties
+    (``metadata.material_properties``) unless ``property_names`` says otherwise.
     Returns ``{"predicted": <pvd>, "ground_truth": <pvd>}``; frame times count from
     the first input frame. ``progress(frames_written, frames_in_all)`` counts both series.
     """
@@ -110,7 +131,8 @@ def write_rollout_vtk(
         "dt": rollout.metadata.dt,
         "particle_type": rollout.particle_type,
         "material_property": rollout.material_property,
-        "property_names": property_names,
+        "property_names": property_names or _named_properties(rollout),
+        "material_names": material_names,
     }
     series = {"predicted": rollout.predicted_trajectory(), "ground_truth": rollout.ground_truth_trajectory()}
     total = sum(len(positions) for positions in series.values())

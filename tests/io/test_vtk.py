@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import meshio
 import numpy as np
 import pytest
@@ -52,3 +54,17 @@ def test_series_without_material_properties_and_default_names(tmp_path):
     assert set(mesh.point_data) == {"velocity", "particle_type", "material_property_0"}
     with pytest.raises(ValueError, match="2 names for 1 properties"):
         write_vtk_series(tmp_path, "bad", positions, 0.5, np.zeros(3), np.ones((3, 1)), ["a", "b"])
+
+
+def test_materials_are_named_and_properties_take_the_datasets_names(make_rollout, tmp_path):
+    """ParaView shows ``material:sand`` (1 on sand particles) and ``friction``, not type ids and column numbers."""
+    rollout = make_rollout(dim=2, steps=2, particles=12, history=6)
+    metadata = rollout.metadata.model_copy(update={"material_properties": ["friction", "density"]})
+    rollout = dataclasses.replace(rollout, metadata=metadata)
+    names = {int(t): f"m{int(t)}" for t in np.unique(rollout.particle_type)}
+    pvd = write_rollout_vtk(rollout, tmp_path, material_names=names)["predicted"]
+    mesh = meshio.read(read_pvd(pvd)[0][1])
+    for type_id, name in names.items():
+        np.testing.assert_array_equal(mesh.point_data[f"material:{name}"], rollout.particle_type == type_id)
+    np.testing.assert_allclose(mesh.point_data["friction"], rollout.material_property[:, 0])
+    assert "material_property_0" not in mesh.point_data
