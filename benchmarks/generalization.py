@@ -186,6 +186,11 @@ def main(argv: list[str] | None = None) -> int:
                     "wall_held_particles": held,
                     "seconds": learned["seconds_per_rollout"],
                     **{f"{y}_sinkhorn_final_pct": case[y].get("sinkhorn_final_pct") for y in yardsticks},
+                    # The yardsticks' own deposit errors: a scene on which a finer or coarser MPM also lands
+                    # elsewhere is one whose outcome turns on details (a front that may or may not reach a hump).
+                    **{
+                        f"{y}_{m}": case[y].get(m) for y in yardsticks for m in ("extent_error_pct", "height_error_pct")
+                    },
                     **{f"{y}_seconds": case[y]["seconds_per_rollout"] for y in yardsticks},
                 }
             )
