@@ -133,7 +133,8 @@ RITTER_TIME = 0.3
 
 def runup(viscosity: float, floor: str, registry) -> float:
     """Highest rise of water on the far wall of scenes/water_dam_break_2d.yaml (0.2 x 0.4 m column, 1 m tank),
-    metres: the 99.5th percentile height of the particles within 5 cm of the wall, over 0.75 s; 1 m is the lid."""
+    metres: the 99.5th percentile height of the particles within 5 cm of the wall, over 0.75 s; 1 m is the lid.
+    0 when the water never reaches the wall within the scene's frames (a scene cut short)."""
     scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "water_dam_break_2d.yaml")
     raw = scene.model_dump(mode="json", exclude_none=True)
     raw["blocks"][0].update(size=[0.2, 0.4], parameters={"viscosity": viscosity})
@@ -143,7 +144,7 @@ def runup(viscosity: float, floor: str, registry) -> float:
         build_ground_truth_simulator(parse_scene(raw), registry, "<runup>").simulate(parse_scene(raw), 0).position
     )
     near = position[:, :, 0] > raw["domain"]["bounds"][0][1] - 0.05
-    return max(float(np.quantile(y[m], 0.995)) for y, m in zip(position[:, :, 1], near) if m.sum() > 5)
+    return max((float(np.quantile(y[m], 0.995)) for y, m in zip(position[:, :, 1], near) if m.sum() > 5), default=0.0)
 
 
 def main() -> None:
