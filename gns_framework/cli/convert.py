@@ -52,6 +52,11 @@ def run(args: argparse.Namespace) -> int:
         splits = {name: [renumbered(t, args.map_types) for t in trajectories] for name, trajectories in splits.items()}
     if not splits:
         raise GnsError(f"{args.source}: no train, valid or test split in layout {args.source_layout!r}")
+    total = sum(len(trajectories) for trajectories in splits.values())
+    print(
+        f"converting {total} trajectories of {args.source} ({args.source_layout}) to {args.target_layout} ...",
+        flush=True,
+    )
     # Written whole beside --out and renamed into place: never a mix of the old dataset and this one.
     with replaced_whole(args.out, "convert") as tmp:
         target_cls.write(tmp, metadata, splits)
