@@ -165,10 +165,10 @@ def unknown_bounds_problems(envelope: Envelope, unknowns: Mapping[str, PropertyU
     ``SPEED_SLACK`` times the largest speed the model saw.
     """
     problems = []
-    searched = {name for name, unknown in unknowns.items() if isinstance(unknown, PropertyUnknown)}
+    searched = {name: unknown for name, unknown in unknowns.items() if isinstance(unknown, PropertyUnknown)}
     velocity = [u for u in unknowns.values() if isinstance(u, VelocityUnknown)]
     for name in sorted(searched):
-        low, high = unknowns[name].bounds
+        low, high = searched[name].bounds
         trained = envelope.properties.get(name)
         if (
             trained is None
