@@ -49,7 +49,6 @@ def scene_figures(primary, second, data: Path, registry) -> dict[str, dict]:
     """Per case of ``data``'s test split: the primary's errors against the MPM and its disagreement with ``second``."""
     from gns_framework.assembly.data import open_dataset
     from gns_framework.evaluation.candidates import cases_from_split, granular_particle_types, learned_prediction
-    from gns_framework.model.rollout_guard import RolloutGuard
 
     data_set = open_dataset(primary.recipe.dataset, registry, data)
     metadata = data_set.metadata()
@@ -59,8 +58,7 @@ def scene_figures(primary, second, data: Path, registry) -> dict[str, dict]:
     for case in cases_from_split(data_set.split("test")):
         predictions = []
         for model in (primary, second):
-            guard = RolloutGuard.from_spec(model.simulator.scene, model.recipe.rollout.guard)
-            predictions.append(learned_prediction(model.simulator, case, "cpu", guard=guard))
+            predictions.append(learned_prediction(model.simulator, case, "cpu", guard=model.rollout_guard()))
         mine, theirs = predictions
         # The second model's rollout in place of the truth: the same first frames, its prediction after them.
         opinion = dataclasses.replace(

@@ -15,6 +15,7 @@ from ..errors import CheckpointError
 from ..io.checkpoint import load_checkpoint
 from ..model.envelope import Envelope
 from ..model.learned_simulator import LearnedSimulator
+from ..model.rollout_guard import RolloutGuard
 from ..plugins import DISABLE_ENV, Registry
 from ..runtime.deterministic import set_deterministic_sums
 from .learned import build_learned_simulator
@@ -30,6 +31,10 @@ class LoadedModel:
     path: Path
     envelope: Envelope | None = None
     """What the model was trained on; None for checkpoints written before envelopes were recorded."""
+
+    def rollout_guard(self) -> RolloutGuard:
+        """The boundary treatment its recipe gives rollouts (``rollout.guard``), the same in every command."""
+        return RolloutGuard.from_spec(self.simulator.scene, self.recipe.rollout.guard)
 
 
 def load_trained(path: str | Path, registry: Registry, device: torch.device | str = "cpu") -> LoadedModel:

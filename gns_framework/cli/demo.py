@@ -37,7 +37,6 @@ from ..ground_truth.generate import generate_dataset, is_up_to_date, provenance
 from ..ground_truth.scene_spec import load_scene
 from ..io.rollout_file import write_rollout
 from ..model.rollout import rollout
-from ..model.rollout_guard import RolloutGuard
 from ..plugins import load_registry
 from ..training.trainer import Trainer
 from .arguments import non_negative_int, positive_int
@@ -162,7 +161,7 @@ def _roll_out_and_report(
         allowed = outside or model.path.resolve().is_relative_to(out.resolve())
         warnings += enforce_envelope(model, dataset.metadata(), list(test), allowed, f"{held_out} (split test)", "demo")
     if number == 0:
-        guard = RolloutGuard.from_spec(first.simulator.scene, first.recipe.rollout.guard)
+        guard = first.rollout_guard()
         result = rollout(first.simulator, test[0], progress=progress, guard=guard)
         metadata = dataset.metadata()
         if warnings:

@@ -176,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
     print(paths["markdown"].read_text())
     for kind, path in paths.items():
         print(f"{kind}: {path}")
-    animations = _render_first_rollouts(args, names, report) if (args.vtk or args.gif) else {}
+    animations = _render_first_rollouts(args, names, report, registry) if (args.vtk or args.gif) else {}
     _log_to_training_runs(report, models, names, [*paths.values()], animations, warnings)
     return 0
 
@@ -219,14 +219,13 @@ def _log_to_training_runs(
             print(f"logged the evaluation report of {name} to MLflow run {tracked}")
 
 
-def _render_first_rollouts(args: argparse.Namespace, names: list[str], report) -> dict[str, Path]:
+def _render_first_rollouts(args: argparse.Namespace, names: list[str], report, registry) -> dict[str, Path]:
     """VTK and/or GIF of each model's first rollout; returns the GIFs by model name.
 
     The rollout is the file the report says it wrote; every output is a safe file
     name inside ``--out`` (:mod:`gns_framework.safe_names`).
     """
     from ..io.rollout_file import load_rollout
-    from ..plugins import load_registry
 
     entries = {entry.name: entry for entry in report.entries}
     animations = {}
@@ -235,7 +234,7 @@ def _render_first_rollouts(args: argparse.Namespace, names: list[str], report) -
         if not written or written[0] is None:
             continue
         rollout = load_rollout(written[0])
-        materials = load_registry().material_names(rollout.particle_type)
+        materials = registry.material_names(rollout.particle_type)
         if args.vtk:
             from ..io.vtk import write_rollout_vtk
 

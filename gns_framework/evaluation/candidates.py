@@ -109,7 +109,7 @@ def learned_candidate(
     named ``<name> [bfloat16]`` (``<name> [bfloat16, batch B]``).
     """
 
-    guard = RolloutGuard.from_spec(model.simulator.scene, model.recipe.rollout.guard)
+    guard = model.rollout_guard()
 
     def simulate(case: Trajectory) -> Prediction:
         return learned_prediction(model.simulator, case, device, precision, guard)
@@ -261,7 +261,7 @@ def compare(
         warmup=warmup,
         error_metric=error_metric,
         granular_types=granular_particle_types(scene, registry),
-        material_names={t: registry.material_by_type(t).cls.name for t in scene.particle_types},
+        material_names=registry.material_names(scene.particle_types),
         kinematic_types=scene.kinematic_types,
         metrics=registry.metrics(),
         rollout_dir=rollout_dir,

@@ -40,7 +40,6 @@ from ..model.envelope import (
     envelope_message,
     outside_envelope,
 )
-from ..model.rollout_guard import RolloutGuard
 from ..plugins import Registry, load_registry
 from ..runtime.activation_memory import activations_recomputed
 from .config import InvertConfig, PropertyUnknown, VelocityUnknown
@@ -114,7 +113,7 @@ def prepare(
         checkpoint_every=config.checkpoint_every,
         device=device,
         held_out=observed.held_out or (),
-        guard=RolloutGuard.from_spec(scene, model.recipe.rollout.guard),
+        guard=model.rollout_guard(),
     )
     truth = true_values(observed.dataset, trajectory, unknowns, model.simulator)
     return Inversion(config, problem, model, trajectory, warnings, truth)

@@ -4,8 +4,8 @@ Each frame is an unstructured grid of vertex cells (one per particle) written by
 meshio, with point data ``velocity`` (L/s, always 3 components), ``particle_type``,
 one array per material property (named as the data names them), and, given the
 materials' names, one 0/1 array per material, ``material:<name>`` (ParaView's
-Threshold or colour by it: the particles of one material, by name). 2D points get z = 0, so 2D and 3D scenes
-open the same way. The ``.pvd`` file lists the frames with their time in seconds.
+Threshold or colour by it: the particles of one material, by name). 2D points get
+z = 0, so 2D and 3D scenes open the same way. The ``.pvd`` file lists the frames with their time in seconds.
 """
 
 from __future__ import annotations
