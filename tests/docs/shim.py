@@ -19,6 +19,7 @@ import re
 import shutil
 import subprocess
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 PYTHON = os.environ.get("GNS_DOCS_PYTHON", sys.executable)
@@ -30,7 +31,8 @@ GNS_CAPS: dict[str, dict[str, object]] = {
     "demo": {"--steps": 4, "--held-out": 1, "--repeats": 1},
     "evaluate": {"--repeats": 1, "--grid-scales": ["0.5"]},
 }
-GNS_ADD: dict[str, list[str]] = {"demo": ["--steps", "4", "--held-out", "1", "--repeats", "1"]}
+GNS_ADD: dict[str, tuple[str, ...]] = {"demo": ("--steps", "--held-out", "--repeats")}
+"""Capped flags also given, at their cap, when the command leaves them to a larger default."""
 SCRIPT_CAPS: dict[str, dict[str, object]] = {
     "learned_vs_simulator.py": {"--particles": [1000], "--repeats": 1, "--frames": 20},
     "rollout_profile.py": {"--particles": [300], "--repeats": 1},
@@ -49,20 +51,11 @@ SCRIPT_CAPS: dict[str, dict[str, object]] = {
         "--project-gpus": [8],
     },
 }
-SCRIPT_ADD: dict[str, list[str]] = {
-    "time_to_accuracy.py": ["--points", "2", "--trajectories", "1", "--seeds", "1"],
-    "step_time.py": ["--particles", "1000", "--repeat", "1", "--warmup", "0"],
-    "decomposition_scaling.py": [
-        "--steps",
-        "2",
-        "--train-steps",
-        "1",
-        "--project-particles",
-        "20000",
-        "--project-gpus",
-        "8",
-    ],
-    "learned_vs_simulator.py": ["--repeats", "1", "--frames", "20"],
+SCRIPT_ADD: dict[str, tuple[str, ...]] = {
+    "time_to_accuracy.py": ("--points", "--trajectories", "--seeds"),
+    "step_time.py": ("--particles", "--repeat", "--warmup"),
+    "decomposition_scaling.py": ("--steps", "--train-steps", "--project-particles", "--project-gpus"),
+    "learned_vs_simulator.py": ("--repeats", "--frames"),
 }
 GOAL_VERDICT = {"generalization.py": "NOT met"}
 """Benchmarks that exit 1 when the model misses its goal: at any scale that is a verdict, not a failure to run."""
@@ -93,8 +86,9 @@ def _value_count(args: list[str], index: int) -> int:
     return count
 
 
-def capped(args: list[str], caps: dict[str, object], add: list[str] | None = None) -> tuple[list[str], list[str]]:
-    """``args`` with every capped flag's value at most its cap; the flags added when absent; what changed."""
+def capped(args: list[str], caps: dict[str, object], add: Sequence[str] = ()) -> tuple[list[str], list[str]]:
+    """``args`` with every capped flag's value at most its cap, the ``add`` flags given at their cap when absent,
+    and what changed."""
     out, notes, seen = [], [], set()
     i = 0
     while i < len(args):
@@ -108,7 +102,7 @@ def capped(args: list[str], caps: dict[str, object], add: list[str] | None = Non
             if isinstance(cap, list):
                 new = [str(v) for v in cap]
             else:
-                new = [str(min(type(cap)(float(v)), cap)) if values else str(cap) for v in values[:1]] or [str(cap)]
+                new = [str(min(type(cap)(float(values[0])), cap))] if values else [str(cap)]
             if new != values:
                 notes.append(f"{flag} {' '.join(values)} -> {' '.join(new)}")
             out += [flag, *new]
@@ -116,11 +110,12 @@ def capped(args: list[str], caps: dict[str, object], add: list[str] | None = Non
             continue
         out.append(arg)
         i += 1
-    for j in range(0, len(add or []), 2):
-        flag = add[j]
-        if flag not in seen and flag not in args:
-            out += [flag, add[j + 1]]
-            notes.append(f"{flag} {add[j + 1]} added")
+    for flag in add:
+        if flag not in seen:
+            cap = caps[flag]
+            given = [str(v) for v in cap] if isinstance(cap, list) else [str(cap)]
+            out += [flag, *given]
+            notes.append(f"{flag} {' '.join(given)} added")
     return out, notes
 
 
@@ -191,7 +186,7 @@ def scaled_gns(args: list[str]) -> tuple[list[str], list[str]]:
     if command == "generate":
         out, notes = scaled_generate(args)
     else:
-        out, notes = capped(args, GNS_CAPS.get(command, {}), GNS_ADD.get(command))
+        out, notes = capped(args, GNS_CAPS.get(command, {}), GNS_ADD.get(command, ()))
     out, more = newest_checkpoints(out)
     notes += more
     if command in ENVELOPE_CHECKED and "--outside-envelope" not in out and any(trained_here(a) for a in out):
@@ -224,19 +219,15 @@ def run(tool: str, argv: list[str]) -> int:
         script = Path(argv[0]).name if argv else ""
         rest = argv[1:]
         if not FULL and script in SCRIPT_CAPS:
-            rest, notes = capped(rest, SCRIPT_CAPS[script], SCRIPT_ADD.get(script))
+            rest, notes = capped(rest, SCRIPT_CAPS[script], SCRIPT_ADD.get(script, ()))
         command = [PYTHON, *argv[:1], *rest]
-        named = rest
     elif tool == "gns":
         rest, notes = scaled_gns(argv)
         command = [PYTHON, "-m", "gns_framework.cli", *rest]
-        named = rest
     elif tool == "torchrun":
         split = argv.index("gns_framework.cli") + 1 if "gns_framework.cli" in argv else len(argv)
         rest, notes = scaled_gns(argv[split:])
-        launcher = [a for a in argv[:split]]
-        command = [PYTHON, "-m", "torch.distributed.run", *launcher, *rest]
-        named = rest
+        command = [PYTHON, "-m", "torch.distributed.run", *argv[:split], *rest]
     else:
         raise SystemExit(f"shim: unknown tool {tool}")
     entry.update(run=command[1:], scaled=notes)
@@ -257,8 +248,8 @@ def run(tool: str, argv: list[str]) -> int:
             return 0
         return done.returncode
 
-    code = cached_generate(named, execute) if tool == "gns" and named[:1] == ["generate"] else execute()
-    missing = check_outputs(named) if code == 0 else []
+    code = cached_generate(rest, execute) if tool == "gns" and rest[:1] == ["generate"] else execute()
+    missing = check_outputs(rest) if code == 0 else []
     entry.update(exit=code, missing=missing)
     log(entry)
     if missing:

@@ -37,7 +37,7 @@ def test_flags_are_capped_and_lists_replaced():
     assert shim.capped(["--steps", "2"], {"--steps": 4})[0] == ["--steps", "2"], "a smaller value stays"
     out, notes = shim.capped(["--particles", "1000", "10000", "--json"], {"--particles": [300]})
     assert out == ["--particles", "300", "--json"] and notes == ["--particles 1000 10000 -> 300"]
-    assert shim.capped(["--json"], {"--repeats": 1}, ["--repeats", "1"])[0] == ["--json", "--repeats", "1"]
+    assert shim.capped(["--json"], {"--repeats": 1}, ("--repeats",))[0] == ["--json", "--repeats", "1"]
 
 
 def test_generation_keeps_one_trajectory_per_split():
