@@ -253,6 +253,7 @@ def check_graph_builder(
     _expect(bool((batch[graph.senders] == batch[graph.receivers]).all()), f"{name}: an edge connects two examples")
     key = graph.receivers * n + graph.senders
     _expect(bool((key[1:] > key[:-1]).all()), f"{name}: edges not sorted by (receiver, sender) or duplicated")
+    _expect(graph.receivers_sorted, f"{name}: sorted edges must say so: Graph(..., receivers_sorted=True)")
     box = PeriodicBox(scene)
     expected = box.minimum_image(position[graph.senders] - position[graph.receivers])
     _expect(_close(graph.displacement, expected, 1e-9), f"{name}: displacement != p_sender - p_receiver")

@@ -16,7 +16,7 @@ stage() {
 stage "virtual environment .venv" python3 -m venv .venv
 stage "pip upgrade" .venv/bin/python -m pip install -q --upgrade pip
 stage "torch 2.13.0 (CPU build)" .venv/bin/python -m pip install -q torch==2.13.0
-stage "gns-framework with every extra (tests, evaluation, formats, MLflow)" .venv/bin/python -m pip install -q -e '.[all]'
+stage "gns-framework with every extra (tests, evaluation, formats, MLflow, Triton)" .venv/bin/python -m pip install -q -e '.[all]'
 stage "example plugin gns-clay (a material)" .venv/bin/python -m pip install -q -e plugins/examples/gns-clay
 stage "example plugin gns-processor (a processor)" .venv/bin/python -m pip install -q -e plugins/examples/gns-processor
 echo "setup: done in $((SECONDS - started)) s; run .venv/bin/gns demo, or .venv/bin/python -m pytest -q"

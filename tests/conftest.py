@@ -2,10 +2,17 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 import torch
+
+# Without a GPU, Triton runs its kernels on the CPU (the kernels' tests need it); it reads this when
+# triton is first imported, so it is set before anything imports it. CPU models take the Triton path
+# only where a test sets GNS_TRITON=interpret.
+if not torch.cuda.is_available():
+    os.environ.setdefault("TRITON_INTERPRET", "1")
 
 from rollouts import small_metadata, small_rollout
 from synthetic import write_synthetic_dataset

@@ -26,6 +26,9 @@ class Graph:
         batch: (N,) int64 example index of each particle (non-decreasing), or None
             (one example), so such processors keep the examples of a batch apart.
         num_examples: B.
+        receivers_sorted: the builder guarantees ``receivers`` non-decreasing (every built-in builder does), so
+            sums at receivers can run over contiguous runs of edges without sorting or a read-back to check;
+            keeping a subset of the edges keeps it.
         exchange: in a domain-decomposed step with a halo of latents, refreshes the (N, L) node latents of
             the particles other processes own; a processor that declares ``exchanges_latents`` calls it
             between message-passing steps. None otherwise.
@@ -38,6 +41,7 @@ class Graph:
     position: Tensor | None = None
     batch: Tensor | None = None
     num_examples: int = 1
+    receivers_sorted: bool = False
     exchange: Callable[[Tensor], Tensor] | None = None
 
     @property

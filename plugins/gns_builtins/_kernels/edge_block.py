@@ -35,7 +35,7 @@ from torch.autograd.function import once_differentiable
 from gns_framework.runtime.activation_memory import recompute_activations
 from gns_framework.runtime.host_sync import avoids_read_backs
 
-from . import fused_kernels
+from . import fused_kernels, triton_edge_block
 from .chunked import (
     add_product,
     chunk_size,
@@ -47,6 +47,7 @@ from .chunked import (
     product_into,
     widest_dtype,
 )
+from .edge_order import EdgeOrder
 from .segment_sum import needs_ordered_sums, segment_sum_, sorted_segment_sum_
 
 
@@ -284,6 +285,11 @@ class _EdgeBlock(torch.autograd.Function):
         )
 
 
+def uses_triton(latent: Tensor, hidden: int, num_weights: int) -> bool:
+    """Whether :func:`edge_block` on tensors like ``latent`` runs as Triton kernels (given the graph's order)."""
+    return latent.dtype == torch.float32 and triton_edge_block.applies(latent, hidden, num_weights)
+
+
 def edge_block(
     e: Tensor,
     table: Tensor,
@@ -293,6 +299,7 @@ def edge_block(
     biases: list[Tensor],
     norm: torch.nn.LayerNorm,
     in_place: bool = False,
+    order: EdgeOrder | None = None,
 ) -> tuple[Tensor, Tensor]:
     """The edge update of one interaction step: ``(e + u, aggregate of u at receivers)``.
 
@@ -304,7 +311,9 @@ def edge_block(
         weights: the edge MLP's weights; ``weights[0]`` is the (H, L) edge columns of the first layer.
         biases: the biases of the layers after the first.
         norm: the LayerNorm after the MLP.
-        in_place: write ``e + u`` into ``e`` (allowed only without autograd).
+        in_place: write ``e + u`` into ``e`` (allowed only without autograd; the Triton kernels write anew).
+        order: the graph's :class:`~.edge_order.EdgeOrder`, given where the Triton kernels take the block
+            (:func:`uses_triton`): on CUDA they run it in one pass per step.
 
     Under autocast to a lower precision (bfloat16 or float16) the products run in that
     dtype, as autocast would run the unsplit MLP's Linears; LayerNorm, the residual,
@@ -317,6 +326,11 @@ def edge_block(
     weights, biases = [w.to(dtype) for w in weights], [b.to(dtype) for b in biases]
     norm_weight, norm_bias = norm.weight.to(dtype), norm.bias.to(dtype)
     with torch.autocast(device_type, enabled=False):
+        if order is not None and dtype == torch.float32:
+            return triton_edge_block.triton_edge_block(
+                e, table.to(dtype), rows, order, weights, biases, norm_weight, norm_bias, norm.eps, products,
+                allow_tf32=torch.backends.cuda.matmul.allow_tf32,
+            )
         if torch.is_grad_enabled() and any(t.requires_grad for t in (e, table, *weights, *biases, norm_weight)):
             if in_place:
                 raise ValueError("in_place edge updates cannot be differentiated")

@@ -51,9 +51,9 @@ class KnnGraphBuilder(GraphBuilder):
             start += count
         if not senders_out:
             empty = torch.empty(0, dtype=torch.long, device=position.device)
-            return Graph(empty, empty, position.new_zeros(0, position.shape[1]), n)
+            return Graph(empty, empty, position.new_zeros(0, position.shape[1]), n, receivers_sorted=True)
         senders, receivers = torch.cat(senders_out), torch.cat(receivers_out)
-        return Graph(senders, receivers, position[senders] - position[receivers], n)
+        return Graph(senders, receivers, position[senders] - position[receivers], n, receivers_sorted=True)
 
     def _example_edges(self, position: Tensor) -> tuple[Tensor, Tensor]:
         n = position.shape[0]

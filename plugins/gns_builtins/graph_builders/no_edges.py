@@ -29,4 +29,4 @@ class NoEdgesGraphBuilder(GraphBuilder):
 
     def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:
         empty = torch.empty(0, dtype=torch.long, device=position.device)
-        return Graph(empty, empty, position.new_zeros(0, position.shape[1]), position.shape[0])
+        return Graph(empty, empty, position.new_zeros(0, position.shape[1]), position.shape[0], receivers_sorted=True)

@@ -61,7 +61,7 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
         n = position.shape[0]
         if not self.box.active:
             senders, receivers = radius_pairs(position, batch, self.scene.connectivity_radius)
-            return Graph(senders, receivers, position[senders] - position[receivers], n)
+            return Graph(senders, receivers, position[senders] - position[receivers], n, receivers_sorted=True)
         position = self.box.wrap(position)
         ghost_position, ghost_of, ghost_batch = self._ghosts(position, batch)
         all_position = torch.cat([position, ghost_position])
@@ -73,7 +73,7 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
         owner = torch.cat([torch.arange(n, device=position.device), ghost_of])
         senders = owner[senders]
         order = torch.argsort(receivers * n + senders)
-        return Graph(senders[order], receivers[order], displacement[order], n)
+        return Graph(senders[order], receivers[order], displacement[order], n, receivers_sorted=True)
 
     def _ghosts(self, position: Tensor, batch: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """Images of the particles within R of a periodic face, shifted across it.

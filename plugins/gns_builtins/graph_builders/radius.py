@@ -45,4 +45,5 @@ class RadiusGraphBuilder(GraphBuilder):
             receivers=receivers,
             displacement=position[senders] - position[receivers],
             num_nodes=position.shape[0],
+            receivers_sorted=True,
         )

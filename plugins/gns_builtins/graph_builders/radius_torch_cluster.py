@@ -69,4 +69,4 @@ class TorchClusterRadiusGraphBuilder(GraphBuilder):
         senders, receivers = senders[keep], receivers[keep]
         order = torch.argsort(receivers * n + senders)
         senders, receivers = senders[order], receivers[order]
-        return Graph(senders, receivers, position[senders] - position[receivers], n)
+        return Graph(senders, receivers, position[senders] - position[receivers], n, receivers_sorted=True)

@@ -23,7 +23,8 @@ from torch import Tensor, nn
 from gns_framework.contracts import Graph, ModelSizes, ComponentParams, Processor
 from gns_framework.layers import NormedMLP
 
-from .._kernels.edge_block import edge_block, node_table, table_rows
+from .._kernels.edge_block import edge_block, node_table, table_rows, uses_triton
+from .._kernels.edge_order import EdgeOrder
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -32,22 +33,36 @@ if TYPE_CHECKING:
 EdgeBlock = Literal["fused", "plain"]
 """How the edge update runs: ``plain`` is the paper's three lines in torch, the code to read; ``fused``
 (default) evaluates it in cache-sized chunks of edges with fused CPU loops and a hand-written backward
-(``_kernels/edge_block.py``): faster, less memory, equal within float rounding (its mirror test)."""
+(``_kernels/edge_block.py``), and on CUDA with Triton as one kernel pass per step
+(``_kernels/triton_edge_block.py``): faster, less memory, equal within float rounding (their mirror tests)."""
 
 
 class InteractionStep(nn.Module):
-    """One message-passing step. Shapes: x (N, L), e (E, L), senders and receivers (E,) int64."""
+    """One message-passing step. Shapes: x (N, L), e (E, L), senders and receivers (E,) int64.
+
+    ``order``: the graph's :class:`EdgeOrder` where :meth:`edge_order` gives one (the Triton path).
+    """
 
     def __init__(self, latent: int, hidden: int, hidden_layers: int, edge_block: EdgeBlock = "fused"):
         super().__init__()
-        self.latent = latent
+        self.latent, self.hidden, self.edge_linears = latent, hidden, hidden_layers + 1
         self.edge_block = edge_block
         self.edge_mlp = NormedMLP(3 * latent, hidden, hidden_layers, latent)
         self.node_mlp = NormedMLP(2 * latent, hidden, hidden_layers, latent)
 
-    def forward(self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor) -> tuple[Tensor, Tensor]:
+    def edge_order(self, e: Tensor, graph: Graph) -> EdgeOrder | None:
+        """The graph's edge orders, made once for all steps, where this step runs as Triton kernels; else None."""
+        if self.edge_block != "fused" or not graph.receivers_sorted:
+            return None
+        if not uses_triton(e, self.hidden, self.edge_linears):
+            return None
+        return EdgeOrder.of(graph.senders, graph.receivers, graph.num_nodes)
+
+    def forward(
+        self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor, order: EdgeOrder | None = None
+    ) -> tuple[Tensor, Tensor]:
         if self.edge_block == "fused":
-            return self._fused(x, e, senders, receivers)
+            return self._fused(x, e, senders, receivers, order)
         # The edge update: each edge sees its own latent and the two particles it joins.
         edge_update = self.edge_mlp(torch.cat([e, x[receivers], x[senders]], dim=-1))
         # Aggregation: every particle sums the messages of the edges it receives.
@@ -56,7 +71,9 @@ class InteractionStep(nn.Module):
         node_update = self.node_mlp(torch.cat([x, aggregate], dim=-1))
         return x + node_update, e + edge_update
 
-    def _fused(self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor) -> tuple[Tensor, Tensor]:
+    def _fused(
+        self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor, order: EdgeOrder | None
+    ) -> tuple[Tensor, Tensor]:
         """The same step with the edge update and aggregation in one chunked, fused pass."""
         mlp = self.edge_mlp.mlp
         linears = cast("Sequence[nn.Linear]", mlp.linears)  # layers.MLP: a ModuleList of nn.Linear
@@ -67,7 +84,7 @@ class InteractionStep(nn.Module):
         rows = table_rows(senders, receivers, x.shape[0])
         weights = [first.weight[:, : self.latent]] + [linear.weight for linear in linears[1:]]
         biases: list[Tensor] = [linear.bias for linear in linears[1:]]
-        e_new, aggregate = edge_block(e, table, rows, receivers, weights, biases, self.edge_mlp.norm)
+        e_new, aggregate = edge_block(e, table, rows, receivers, weights, biases, self.edge_mlp.norm, order=order)
         node_update = self.node_mlp(torch.cat([x, aggregate], dim=-1))
         return x + node_update, e_new
 
@@ -93,8 +110,9 @@ class InteractionNetwork(Processor):
         )
 
     def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:
+        order = cast("InteractionStep", self.steps[0]).edge_order(edge_latent, graph)
         for k, step in enumerate(self.steps):
             if k and graph.exchange is not None:  # a domain-decomposed step: the halo's latents from their owners
                 node_latent = graph.exchange(node_latent)
-            node_latent, edge_latent = step(node_latent, edge_latent, graph.senders, graph.receivers)
+            node_latent, edge_latent = step(node_latent, edge_latent, graph.senders, graph.receivers, order)
         return node_latent, edge_latent

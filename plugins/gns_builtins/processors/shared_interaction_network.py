@@ -34,8 +34,9 @@ class SharedInteractionNetwork(Processor):
         self.step = InteractionStep(sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers, params.edge_block)
 
     def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:
+        order = self.step.edge_order(edge_latent, graph)
         for k in range(self.params.message_passing_steps):
             if k and graph.exchange is not None:  # a domain-decomposed step: the halo's latents from their owners
                 node_latent = graph.exchange(node_latent)
-            node_latent, edge_latent = self.step(node_latent, edge_latent, graph.senders, graph.receivers)
+            node_latent, edge_latent = self.step(node_latent, edge_latent, graph.senders, graph.receivers, order)
         return node_latent, edge_latent

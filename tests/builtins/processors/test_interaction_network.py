@@ -136,3 +136,26 @@ def test_the_comparison_catches_a_step_that_swaps_senders_and_receivers():
     wrong = _values_and_gradients(plain, swapped, x, e)
     with pytest.raises(AssertionError):
         assert_close_to_reference(wrong[0], reference[0])
+
+
+def test_the_triton_path_meets_the_float64_step(monkeypatch):
+    """Where the Triton kernels take the fused block (CUDA; here their CPU interpreter), the processor's values and
+    input gradients meet the float64 plain step as the other paths do; the graph's edge order is made once."""
+    pytest.importorskip("triton")
+    from gns_builtins._kernels import edge_order, triton_edge_block
+
+    if not triton_edge_block.interpreted():
+        pytest.skip("Triton's interpreter is off (tests/conftest.py sets TRITON_INTERPRET=1 without a GPU)")
+    monkeypatch.setenv("GNS_TRITON", "interpret")
+    made = []
+    monkeypatch.setattr(edge_order.EdgeOrder, "of", lambda *args, f=edge_order.EdgeOrder.of: made.append(1) or f(*args))
+    fused, plain = _processors(latent=16)
+    graph, x, e = _graph_and_latents(n=40)
+    sorted_graph = Graph(graph.senders, graph.receivers, graph.displacement, graph.num_nodes, receivers_sorted=True)
+    reference = _values_and_gradients(copy.deepcopy(plain).double(), graph, x.double(), e.double())[:4]
+    got = _values_and_gradients(fused, sorted_graph, x, e)[:4]
+    assert len(made) == 1, "the edge order is made once per graph, for every step"
+    for name, value, expected in zip(("x", "e", "grad x", "grad e"), got, reference):
+        assert_close_to_reference(value, expected, msg=f"triton: {name}")
+    _values_and_gradients(fused, graph, x, e)
+    assert len(made) == 1, "a graph that does not say its receivers are sorted keeps the chunked path"

@@ -1,0 +1,161 @@
+"""The Triton edge block equals the edge update written out with concatenation, forward and backward.
+
+Triton runs the kernels on the CPU under ``TRITON_INTERPRET=1`` (set by tests/conftest.py
+before triton is first imported), so these run in CI without a GPU; the device script
+times them on one (benchmarks/gpu_check.sh).
+"""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from float_tolerances import FLOAT32_EPS, assert_close_to_reference
+from gns_builtins._kernels import triton_edge_block as triton_module
+from gns_builtins._kernels.edge_block import node_table, table_rows
+from gns_builtins._kernels.edge_order import EdgeOrder
+from gns_framework.layers import NormedMLP
+
+pytest.importorskip("triton")
+
+
+@pytest.fixture(autouse=True)
+def interpreted(monkeypatch):
+    if not triton_module.interpreted():
+        pytest.skip("Triton's interpreter is off (TRITON_INTERPRET=1 is set by tests/conftest.py without a GPU)")
+    monkeypatch.setenv("GNS_TRITON", "interpret")
+
+
+def edges(num_nodes: int, num_edges: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Random edges sorted by receiver; node 3 receives 150 of them, so its run crosses edge tiles
+    (``BLOCK_EDGES``), and nodes past 16 fall in a second receiver block (``BLOCK_NODES``)."""
+    generator = torch.Generator().manual_seed(seed)
+    receivers = torch.cat([torch.randint(0, num_nodes, (num_edges,), generator=generator), torch.full((150,), 3)])
+    senders = torch.randint(0, num_nodes, (receivers.numel(),), generator=generator)
+    order = torch.argsort(receivers * num_nodes + senders)
+    return senders[order], receivers[order]
+
+
+def reference(mlp: NormedMLP, x, e, senders, receivers):
+    """``(e + u, sum of u at receivers)`` with ``u = LN(MLP([e, x_r, x_s]))``: the paper's lines."""
+    update = mlp(torch.cat([e, x[receivers], x[senders]], dim=-1))
+    return e + update, torch.zeros_like(x).index_add(0, receivers, update)
+
+
+def kernel_inputs(mlp: NormedMLP, x, senders, receivers):
+    linears = mlp.mlp.linears
+    weights = [linears[0].weight[:, : x.shape[1]]] + [linear.weight for linear in linears[1:]]
+    biases = [linear.bias for linear in linears[1:]]
+    table = node_table(x, linears[0].weight, linears[0].bias)
+    rows = table_rows(senders, receivers, x.shape[0])
+    return table, rows, EdgeOrder.of(senders, receivers, x.shape[0]), weights, biases
+
+
+def run_kernels(mlp, x, e, senders, receivers, products=torch.float32):
+    table, rows, order, weights, biases = kernel_inputs(mlp, x, senders, receivers)
+    norm = mlp.norm
+    return triton_module.triton_edge_block(
+        e, table, rows, order, weights, biases, norm.weight, norm.bias, norm.eps, products
+    )
+
+
+def model(hidden_layers: int, latent: int = 16, hidden: int = 32, seed: int = 0) -> NormedMLP:
+    torch.manual_seed(seed)
+    mlp = NormedMLP(3 * latent, hidden, hidden_layers, latent)
+    with torch.no_grad():
+        mlp.norm.weight.normal_()
+        mlp.norm.bias.normal_()
+    return mlp
+
+
+@pytest.mark.parametrize("hidden_layers", [1, 2])
+@pytest.mark.parametrize("outputs", ["both", "edges", "aggregate"])
+def test_values_and_gradients_match_float64(hidden_layers, outputs):
+    mlp = model(hidden_layers)
+    n, latent = 37, 16
+    senders, receivers = edges(n, 120, seed=hidden_layers)
+    x = torch.randn(n, latent)
+    e = torch.randn(senders.numel(), latent)
+    weight_out, weight_agg = torch.randn_like(e), torch.randn_like(x)
+
+    def loss(e_new, aggregate):
+        edge_part = (e_new * weight_out).sum() if outputs != "aggregate" else 0
+        return edge_part + ((aggregate * weight_agg).sum() if outputs != "edges" else 0)
+
+    mlp64 = model(hidden_layers).double()
+    x64, e64 = x.double().requires_grad_(), e.double().requires_grad_()
+    want = reference(mlp64, x64, e64, senders, receivers)
+    loss(*want).backward()
+    x32, e32 = x.clone().requires_grad_(), e.clone().requires_grad_()
+    got = run_kernels(mlp, x32, e32, senders, receivers)
+    loss(*got).backward()
+    for value, expected in zip(got, want):
+        assert_close_to_reference(value.detach(), expected.detach())
+    assert_close_to_reference(e32.grad, e64.grad, msg="e")
+    assert_close_to_reference(x32.grad, x64.grad, msg="x")
+    for (name, p32), p64 in zip(mlp.named_parameters(), mlp64.parameters()):
+        assert_close_to_reference(p32.grad, p64.grad, msg=name)
+
+
+def test_the_comparison_catches_a_wrong_receiver():
+    """The tolerance above is tight enough: one edge summed at the wrong node fails it."""
+    mlp = model(2)
+    n = 37
+    senders, receivers = edges(n, 120, seed=5)
+    x, e = torch.randn(n, 16), torch.randn(senders.numel(), 16)
+    with torch.no_grad():
+        _, aggregate = run_kernels(mlp, x, e, senders, receivers)
+        wrong = receivers.clone()
+        wrong[40] = wrong[40] + 1  # still sorted: the next run begins there or later
+        _, want = reference(model(2).double(), x.double(), e.double(), senders, wrong)
+    with pytest.raises(AssertionError):
+        assert_close_to_reference(aggregate, want)
+
+
+def test_same_bits_every_run():
+    mlp = model(2)
+    senders, receivers = edges(37, 120, seed=2)
+    x, e = torch.randn(37, 16, requires_grad=True), torch.randn(senders.numel(), 16, requires_grad=True)
+    runs = []
+    for _ in range(2):
+        out, aggregate = run_kernels(mlp, x, e, senders, receivers)
+        (out.sum() + aggregate.square().sum()).backward()
+        runs.append([out.detach(), aggregate.detach(), x.grad.clone(), e.grad.clone()])
+        x.grad, e.grad = None, None
+    for name, first, second in zip(["edges", "aggregate", "x grad", "e grad"], *runs):
+        assert torch.equal(first, second), (name, (first - second).abs().max())
+
+
+def test_bfloat16_products_within_their_rounding():
+    """Products in bfloat16 (as under autocast) with float32 sums: within a few bfloat16 epsilons of float64."""
+    mlp = model(2)
+    senders, receivers = edges(37, 120, seed=3)
+    x, e = torch.randn(37, 16), torch.randn(senders.numel(), 16)
+    with torch.no_grad():
+        out, aggregate = run_kernels(mlp, x, e, senders, receivers, products=torch.bfloat16)
+        want_out, want_aggregate = reference(model(2).double(), x.double(), e.double(), senders, receivers)
+    bfloat16_eps = torch.finfo(torch.bfloat16).eps
+    ulps = 16 * bfloat16_eps / FLOAT32_EPS
+    assert_close_to_reference(out, want_out, ulps=ulps)
+    assert_close_to_reference(aggregate, want_aggregate, ulps=ulps)
+    assert (out.double() - want_out).abs().max() > 16 * FLOAT32_EPS, "bfloat16 products were not used"
+
+
+def test_no_edges():
+    mlp = model(2)
+    x = torch.randn(5, 16)
+    empty = torch.zeros(0, dtype=torch.long)
+    with torch.no_grad():
+        out, aggregate = run_kernels(mlp, x, torch.zeros(0, 16), empty, empty)
+    assert out.shape == (0, 16) and torch.equal(aggregate, torch.zeros(5, 16))
+
+
+def test_applies_only_where_it_can(monkeypatch):
+    e = torch.zeros(3, 16)
+    assert triton_module.applies(e, 32, 3)
+    assert not triton_module.applies(torch.zeros(3, 12), 32, 3), "widths must be powers of two"
+    assert not triton_module.applies(e, 32, 4), "at most two hidden layers"
+    monkeypatch.setenv("GNS_TRITON", "0")
+    assert not triton_module.applies(e, 32, 3)
+    monkeypatch.delenv("GNS_TRITON")
+    assert not triton_module.applies(e, 32, 3), "on the CPU only when asked for"
