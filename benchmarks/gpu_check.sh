@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The GPU check: install what the machine lacks, imports, CUDA tests, training + resume, rollout,
-# DDP, node sums, a chunked step against the CPU, step time and peak memory by scene size and
-# precision, and the MPM on CUDA. Every part has its own time limit and the whole run a budget
+# DDP, node sums, a chunked step against the CPU, the Triton edge block against the chunked one, step
+# time and peak memory by scene size and precision, and the MPM on CUDA. Every part has its own time limit and the whole run a budget
 # (450 s, install included), so it ends within 8 minutes on one GPU; exits non-zero when any part fails.
 #
 # Usage: benchmarks/gpu_check.sh --prepare                 # here, with network: fill gpu_wheels/
@@ -122,12 +122,14 @@ if [ "$DRY" = 1 ]; then
   SCALE=(--sizes 500 --precisions float32 bfloat16 --repeat 1)
   SUMS=(--rows 20000 --chunk-rows 2000 --repeat 3)
   CHUNKS=(--particles 500)
+  KERNELS=(--small --sizes 64 --precisions float32 --repeat 1 --profile-rows 3)
   MPM=(--grid 24 --frames 3)
 else
   STEPS=30; MORE=40; ROLLOUT_STEPS=15
   SCALE=(--sizes 10000 100000 1000000 --repeat 5)
   SUMS=(--rows 4194304 --chunk-rows 262144 --repeat 10)
   CHUNKS=(--particles 10000)
+  KERNELS=(--sizes 10000 100000 --precisions float32 bfloat16 --repeat 5 --profile-rows 15)
   MPM=(--grid 96 --frames 10)
 fi
 
@@ -152,7 +154,8 @@ part imports 40 "$PYTHON" benchmarks/gpu_check.py imports
 part info 30 "$PYTHON" benchmarks/gpu_check.py info --device "$DEVICE"
 if [ "$DEVICE" = cuda ]; then
   # The CUDA tests, and the precision getters under this machine's torch.
-  part cuda_tests 90 "$PYTHON" benchmarks/gpu_check.py tests tests/test_cuda.py tests/runtime/test_precision.py tests/runtime/test_tf32.py
+  part cuda_tests 90 "$PYTHON" benchmarks/gpu_check.py tests tests/test_cuda.py tests/runtime/test_precision.py tests/runtime/test_tf32.py \
+    tests/builtins/_kernels/test_triton_edge_block.py tests/builtins/_kernels/test_triton_kernels.py
 else
   skip cuda_tests "--device cpu (the cuda-marked tests need a GPU; the test suite runs the rest)"
 fi
@@ -173,6 +176,13 @@ else
 fi
 part sums 30 "$PYTHON" benchmarks/gpu_check.py sums --device "$DEVICE" "${SUMS[@]}"
 part chunks 40 "$PYTHON" benchmarks/gpu_check.py chunks --device "$DEVICE" "${CHUNKS[@]}"
+# The Triton edge block against the chunked path, bitwise repeatability, a kernel table per path. On the
+# CPU (the dry run) the kernels run in Triton's interpreter, which must be on before triton is imported.
+if [ "$DEVICE" = cpu ]; then
+  part kernels 120 env TRITON_INTERPRET=1 "$PYTHON" benchmarks/edge_kernels.py --device cpu "${KERNELS[@]}"
+else
+  part kernels 100 "$PYTHON" benchmarks/edge_kernels.py --device cuda "${KERNELS[@]}"
+fi
 part scale 130 "$PYTHON" benchmarks/gpu_check.py scale --device "$DEVICE" "${SCALE[@]}"
 part mpm 40 "$PYTHON" benchmarks/gpu_check.py mpm --device "$DEVICE" "${MPM[@]}"
 

@@ -56,6 +56,7 @@ def test_the_dry_run_passes_every_cpu_part_and_reports_in_the_documented_format(
             "ddp",
             "sums",
             "chunks",
+            "kernels",
             "scale",
             "mpm",
         )
@@ -63,6 +64,8 @@ def test_the_dry_run_passes_every_cpu_part_and_reports_in_the_documented_format(
     expected["cuda_tests"] = "skip"
     if importlib.util.find_spec("warp") is None:
         expected["mpm"] = "skip"
+    if importlib.util.find_spec("triton") is None:
+        expected["kernels"] = "skip"
     assert parts == expected
     assert all(int(line["seconds"]) <= int(line["limit"]) + 10 for line in lines if line["part"] == "part")
     skips = [line for line in lines if line["part"] == "part" and line["status"] == "skip"]
@@ -75,6 +78,12 @@ def test_the_dry_run_passes_every_cpu_part_and_reports_in_the_documented_format(
     assert ddp["ranks"] == "1" and ddp["backend"] == "gloo" and ddp["collectives"] == "ok"
     assert {line["path"] for line in lines if line["part"] == "sums"} >= {"index_add", "ordered"}
     assert next(line for line in lines if line["part"] == "chunks")["status"] == "ok"
+    if expected["kernels"] == "pass":  # the Triton edge block in Triton's interpreter: equal to the chunked path, the same bits twice
+        kernels = [line for line in lines if line["part"] == "kernels"]
+        assert {k["phase"] for k in kernels} == {"rollout", "train"}
+        assert all(float(k["max_rel_diff"]) < 1e-4 and k["finite"] == "True" for k in kernels)
+        assert [line["equal"] for line in lines if line["part"] == "kernels_bitwise"] == ["True"]
+        assert {line["path"] for line in lines if line["part"] == "kernels_profile"} == {"chunked", "triton"}
     steps = [line for line in lines if line["part"] == "step"]
     assert {(s["precision"], s["phase"]) for s in steps} == {
         (p, phase) for p in ("float32", "bfloat16") for phase in ("rollout", "train")

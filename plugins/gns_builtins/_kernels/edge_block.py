@@ -285,9 +285,10 @@ class _EdgeBlock(torch.autograd.Function):
         )
 
 
-def uses_triton(latent: Tensor, hidden: int, num_weights: int) -> bool:
-    """Whether :func:`edge_block` on tensors like ``latent`` runs as Triton kernels (given the graph's order)."""
-    return latent.dtype == torch.float32 and triton_edge_block.applies(latent, hidden, num_weights)
+def uses_triton(latent: Tensor, weight: Tensor, num_weights: int) -> bool:
+    """Whether :func:`edge_block` on edge latents like ``latent`` (any float dtype: they are summed in the
+    weights') and float32 weights like ``weight`` (H, L) runs as Triton kernels, given the graph's order."""
+    return weight.dtype == torch.float32 and triton_edge_block.applies(latent, weight.shape[0], num_weights)
 
 
 def edge_block(

@@ -45,7 +45,7 @@ class InteractionStep(nn.Module):
 
     def __init__(self, latent: int, hidden: int, hidden_layers: int, edge_block: EdgeBlock = "fused"):
         super().__init__()
-        self.latent, self.hidden, self.edge_linears = latent, hidden, hidden_layers + 1
+        self.latent, self.edge_linears = latent, hidden_layers + 1
         self.edge_block = edge_block
         self.edge_mlp = NormedMLP(3 * latent, hidden, hidden_layers, latent)
         self.node_mlp = NormedMLP(2 * latent, hidden, hidden_layers, latent)
@@ -54,7 +54,8 @@ class InteractionStep(nn.Module):
         """The graph's edge orders, made once for all steps, where this step runs as Triton kernels; else None."""
         if self.edge_block != "fused" or not graph.receivers_sorted:
             return None
-        if not uses_triton(e, self.hidden, self.edge_linears):
+        first = cast("nn.Linear", self.edge_mlp.mlp.linears[0])
+        if not uses_triton(e, first.weight, self.edge_linears):
             return None
         return EdgeOrder.of(graph.senders, graph.receivers, graph.num_nodes)
 
