@@ -293,7 +293,8 @@ def _median_seconds(function, device, repeat: int, deadline: float) -> tuple[flo
 
 
 def sums(args) -> None:
-    """ms per node-sum call and GB/s: the edge block's ordered sum (and any other path) against ``index_add_``.
+    """ms per node-sum call and GB/s: the edge block's ordered sum (and any other path) against ``index_add_``,
+    and whether each path gives the same bits twice (the ordered ones sum float32 in a fixed order).
 
     Each path at ``--chunk-rows`` rows (one call of the edge block: a chunk of edges) and
     then at ``--rows`` (a whole graph), the larger only when the smaller says it fits in
@@ -301,7 +302,8 @@ def sums(args) -> None:
     """
     import torch
 
-    from gns_builtins._kernels import segment_sum
+    from gns_builtins._kernels import segment_sum, triton_edge_block
+    from gns_builtins._kernels.edge_order import run_offsets
 
     deadline = part_deadline()
     device = torch.device(args.device)
@@ -322,6 +324,12 @@ def sums(args) -> None:
             "ordered": lambda: segment_sum.segment_sum_(out.zero_(), keys, rows),
             "ordered_sorted": lambda: segment_sum.sorted_segment_sum_(out.zero_(), sorted_keys, sorted_rows),
         }
+        if is_cuda(device) and triton_edge_block.triton_module() is not None:
+            # triton_sorted: the Triton edge block's own CSR sum (its backward's node-table gradient).
+            offsets = run_offsets(sorted_keys, nodes)
+            paths["triton_sorted"] = lambda: triton_edge_block.segment_sum_into(
+                out.zero_(), 0, sorted_rows, offsets, None
+            )
         reference = paths["index_add"]().clone()
         for name, function in paths.items():
             label = dict(path=name, rows=rows_n, nodes=nodes, features=args.features)
@@ -331,7 +339,8 @@ def sums(args) -> None:
                 continue
             seconds, repeats = _median_seconds(function, device, args.repeat, deadline)
             estimates[name] = seconds / rows_n
-            error = float((function() - reference).abs().max() / reference.abs().max().clamp(min=1e-30))
+            first = function().clone()
+            error = float((first - reference).abs().max() / reference.abs().max().clamp(min=1e-30))
             emit(
                 "sums",
                 **label,
@@ -340,6 +349,7 @@ def sums(args) -> None:
                 ms=1e3 * seconds,
                 gb_s=moved / seconds / 1e9,
                 max_rel_diff_vs_index_add=error,
+                same_bits_twice=bool(torch.equal(function(), first)),
             )
 
 

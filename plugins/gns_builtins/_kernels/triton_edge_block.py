@@ -130,12 +130,12 @@ def forward(e, table, rows, order: EdgeOrder, weights, biases, gamma, beta, eps,
     return out, aggregate
 
 
-def segment_sum_into(out: Tensor, first_row: int, rows: Tensor, offsets: Tensor, permutation: Tensor | None) -> None:
-    """``out[first_row + i] += `` the sum of node i's run of ``rows`` (through ``permutation`` when given)."""
+def segment_sum_into(out: Tensor, first_row: int, rows: Tensor, offsets: Tensor, permutation: Tensor | None) -> Tensor:
+    """``out[first_row + i] += `` the sum of node i's run of ``rows`` (through ``permutation`` when given); returns ``out``."""
     kernels = triton_module()
     num_nodes = offsets.shape[0] - 1
     if num_nodes == 0:
-        return
+        return out
     kernels.segment_sum_kernel[(num_nodes,)](
         rows,
         offsets if permutation is None else permutation,
@@ -147,6 +147,7 @@ def segment_sum_into(out: Tensor, first_row: int, rows: Tensor, offsets: Tensor,
         PERMUTED=permutation is not None,
         BE=BLOCK_EDGES,
     )
+    return out
 
 
 class _TritonEdgeBlock(torch.autograd.Function):
