@@ -117,20 +117,23 @@ def radius_pairs(position: Tensor, batch: Tensor, radius: float) -> tuple[Tensor
 
     sorted_keys, order = torch.sort(combine(ranks), stable=True)
 
-    per_axis = [[axes[k + 1].rank_of(cell[:, k] + o) for o in (-1, 0, 1)] for k in range(dim)]
-    starts, counts = [], []
-    for offsets in itertools.product(range(3), repeat=dim):
-        parts = [ranks[0]] + [per_axis[k][o][0] for k, o in enumerate(offsets)]
-        exists = torch.ones(n, dtype=torch.bool, device=device)
-        for k, o in enumerate(offsets):
-            exists &= per_axis[k][o][1]
-        key = combine(parts)
-        lo = torch.searchsorted(sorted_keys, key, right=False)
-        hi = torch.searchsorted(sorted_keys, key, right=True)
-        starts.append(lo)
-        counts.append(torch.where(exists, hi - lo, torch.zeros_like(lo)))
-    starts_t = torch.stack(starts, 1)
-    counts_t = torch.stack(counts, 1)
+    # All 3^d neighbour cells at once (a few dozen operations, not a few dozen per cell: on a GPU each is a
+    # launch). Row c of ``offsets`` is the c-th of itertools.product(range(3), repeat=d): the candidates of
+    # a receiver come cell by cell in that order, as the sort below expects nothing of it.
+    offsets = _neighbour_offsets(dim, device)  # (3^d, d) in {0, 1, 2}, i.e. cell offsets -1, 0, +1
+    key = ranks[0].expand(offsets.shape[0], n)
+    exists = torch.ones(offsets.shape[0], n, dtype=torch.bool, device=device)
+    for k in range(dim):
+        shifted = cell[:, k] + torch.arange(-1, 2, device=device)[:, None]  # (3, N): the axis' three cells
+        axis_ranks, axis_exists = axes[k + 1].rank_of(shifted.reshape(-1))
+        key = key * sizes[k + 1] + axis_ranks.view(3, n)[offsets[:, k]]
+        exists = exists & axis_exists.view(3, n)[offsets[:, k]]
+    flat_key = key.reshape(-1)
+    lo = torch.searchsorted(sorted_keys, flat_key, right=False)
+    hi = torch.searchsorted(sorted_keys, flat_key, right=True)
+    # (N, 3^d): each receiver's range of sorted particles in each neighbour cell.
+    starts_t = lo.view(-1, n).T
+    counts_t = torch.where(exists.reshape(-1), hi - lo, torch.zeros_like(lo)).view(-1, n).T
 
     # Filled on the device: torch.tensor(value, device=...) would copy it from the host on every call.
     r2 = torch.full((), radius * radius, dtype=position.dtype, device=device)
@@ -147,6 +150,17 @@ def radius_pairs(position: Tensor, batch: Tensor, radius: float) -> tuple[Tensor
         senders_out.append(s[perm])
         receivers_out.append(r[perm])
     return torch.cat(senders_out), torch.cat(receivers_out)
+
+
+_OFFSETS: dict[tuple[int, torch.device], Tensor] = {}
+
+
+def _neighbour_offsets(dim: int, device: torch.device) -> Tensor:
+    """(3^d, d) int64 rows of ``itertools.product(range(3), repeat=d)``, made once per device."""
+    key = (dim, device)
+    if key not in _OFFSETS:
+        _OFFSETS[key] = torch.tensor(list(itertools.product(range(3), repeat=dim)), dtype=torch.long, device=device)
+    return _OFFSETS[key]
 
 
 def _chunk_bounds(per_receiver: Tensor, size: int) -> tuple[list[int], list[int]]:
@@ -180,7 +194,9 @@ def _expand(starts: Tensor, counts: Tensor, order: Tensor, first_receiver: int, 
     """
     rows, cells = counts.shape
     flat_counts = counts.reshape(-1)
-    receiver_of_range = torch.arange(rows, device=counts.device).repeat_interleave(cells) + first_receiver
+    receiver_of_range = (
+        torch.arange(rows, device=counts.device)[:, None].expand(rows, cells).reshape(-1) + first_receiver
+    )
     receivers = receiver_of_range.repeat_interleave(flat_counts, output_size=total)
     range_start = (torch.cumsum(flat_counts, 0) - flat_counts).repeat_interleave(flat_counts, output_size=total)
     within = torch.arange(total, device=counts.device) - range_start

@@ -1,0 +1,254 @@
+"""Operations dispatched and host read-backs per rollout step and per training step, on the GPU code path run on the CPU.
+
+Usage:
+    python benchmarks/step_budget.py [--particles 10000] [--dim 3] [--top 15] [--json]
+
+On a GPU every operation is at least one kernel launch (a few microseconds of host
+time each) and every read-back makes the host wait for the device: a scene of 10k
+particles whose step launches a thousand operations is bound by the launches, not by
+the arithmetic (issue 45). This counts both where no GPU is needed: the paper's model
+(latent 128, 10 steps) on the lattice scene, with every choice a GPU run makes taken
+on the CPU (no read-back where the accelerators avoid one, ordered sums, the Triton
+edge block), under a ``TorchDispatchMode`` that sees every ATen operation torch
+dispatches. A Triton kernel is one launch: here its launches are counted and not run
+(the interpreter would take minutes at this size), so values are not computed and the
+figures are counts only. Read-backs are the synchronising operations of
+:class:`~gns_framework.runtime.sync_counter.SyncCounter` plus the explicit
+``host_sync.read_back`` calls (the graph builder's edge count).
+
+One line per phase (graph build, whole rollout step, whole training step): every
+dispatched operation (``ops``), those that launch a kernel on a GPU (``launching``: not
+views, dtype queries, same-dtype conversions or allocations), read-backs, and the most
+frequent launching operations; the last line (``--json``) is one JSON object with
+``ops_per_rollout_step``, ``syncs_per_rollout_step``, ``ops_per_training_step``,
+``syncs_per_training_step``, and the graph build's ``ops_per_graph_build``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import sys
+from collections import Counter
+from pathlib import Path
+from types import SimpleNamespace
+
+import torch
+from torch.utils._python_dispatch import TorchDispatchMode
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from lattice_scene import lattice_scene  # noqa: E402
+
+from gns_framework.runtime.sync_counter import SyncCounter  # noqa: E402
+
+
+NO_KERNEL = frozenset(
+    {
+        "aten.view",
+        "aten._unsafe_view",
+        "aten.reshape",
+        "aten.slice",
+        "aten.select",
+        "aten.t",
+        "aten.transpose",
+        "aten.permute",
+        "aten.expand",
+        "aten.unsqueeze",
+        "aten.squeeze",
+        "aten.as_strided",
+        "aten.detach",
+        "aten.alias",
+        "aten.unbind",
+        "aten.split",
+        "aten.split_with_sizes",
+        "aten.chunk",
+        "aten.narrow",
+        "aten.promote_types",
+        "aten.result_type",
+        "aten.is_same_size",
+        "aten.sym_size",
+        "aten.sym_stride",
+        "aten.to",
+        "aten.lift_fresh",
+        "aten.empty",
+        "aten.empty_like",
+        "aten.empty_strided",
+    }
+)
+"""Operations that launch no kernel: views, dtype queries, conversions to the same dtype (a real conversion
+shows as ``aten._to_copy``) and allocations (the caching allocator hands out memory without a launch)."""
+
+
+class OperationCounter(TorchDispatchMode):
+    """Counts every ATen operation dispatched while inside, by name, and the synchronising ones apart."""
+
+    def __init__(self):
+        super().__init__()
+        self.operations: Counter[str] = Counter()
+        self.syncs = SyncCounter()
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        self.operations[str(func.overloadpacket)] += 1
+        return self.syncs.__torch_dispatch__(func, types, args, kwargs)
+
+
+class Launches:
+    """Stand-ins for the Triton kernels that count launches instead of running them."""
+
+    def __init__(self, counter: OperationCounter | None = None):
+        self.counter = counter
+
+    def kernel(self, name: str):
+        budget = self
+
+        class Kernel:
+            def __getitem__(self, grid):
+                def launch(*args, **kwargs):
+                    if budget.counter is not None:
+                        budget.counter.operations[f"triton.{name}"] += 1
+
+                return launch
+
+        return Kernel()
+
+    def module(self):
+        return SimpleNamespace(
+            forward_kernel=self.kernel("forward_kernel"),
+            backward_kernel=self.kernel("backward_kernel"),
+            segment_sum_kernel=self.kernel("segment_sum_kernel"),
+        )
+
+
+@contextlib.contextmanager
+def gpu_choices(launches: Launches, read_backs: list):
+    """Inside: the accelerators' choices on the CPU, Triton launches counted, explicit read-backs recorded."""
+    from gns_builtins._kernels import cell_list, edge_block, triton_edge_block
+
+    from gns_framework.model import learned_simulator, rollout
+    from gns_framework.training import optim, trainer
+
+    def counted_read_back(tensor):
+        read_backs.append(tuple(tensor.shape))
+        return tensor.tolist()
+
+    patches = [
+        (module, "avoids_read_backs", lambda device: True) for module in (learned_simulator, rollout, trainer, optim)
+    ]
+    patches += [
+        (edge_block, "avoids_read_backs", lambda device: True),
+        (edge_block, "needs_ordered_sums", lambda device: True),
+        (triton_edge_block, "applies", lambda e, hidden, num_weights: num_weights in (2, 3)),
+        (triton_edge_block, "triton_module", launches.module),
+        (cell_list, "read_back", counted_read_back),
+    ]
+    saved = [(module, name, getattr(module, name)) for module, name, _ in patches]
+    try:
+        for module, name, value in patches:
+            setattr(module, name, value)
+        yield
+    finally:
+        for module, name, value in saved:
+            setattr(module, name, value)
+
+
+def count(step, launches: Launches, read_backs: list) -> tuple[Counter[str], int]:
+    """Operations of one ``step()`` and its read-backs (synchronising operations plus explicit reads)."""
+    counter = OperationCounter()
+    launches.counter = counter
+    read_backs.clear()
+    with counter:
+        step()
+    launches.counter = None
+    return counter.operations, counter.syncs.total + len(read_backs)
+
+
+def measure(particles: int, dim: int) -> dict:
+    from gns_framework.assembly.learned import build_learned_simulator
+    from gns_framework.config.recipe import ModelSpec, OptimizerSpec
+    from gns_framework.model.loss import masked_acceleration_loss
+    from gns_framework.model.noise import random_walk_noise
+    from gns_framework.model.rollout import rollout_step
+    from gns_framework.model.rollout_guard import RolloutGuard
+    from gns_framework.plugins import load_registry
+    from gns_framework.training.optim import make_optimizer
+
+    torch.manual_seed(0)
+    scene = lattice_scene(particles, dim=dim)
+    simulator = build_learned_simulator(scene.scene, scene.metadata, ModelSpec(), load_registry())
+    batch = scene.batch
+    guard = RolloutGuard(simulator.scene)
+    kinematic = torch.zeros(0, dtype=torch.long)
+    kinematic_next = torch.zeros(0, dim)
+    mask = simulator.predicted_mask(batch.particle_type)
+    noise = random_walk_noise(batch.position_sequence, 6.7e-4, torch.Generator().manual_seed(0))
+    noise = noise * mask[:, None, None]
+
+    def graph():
+        with torch.no_grad():
+            simulator.build_graph(batch.position_sequence, batch)
+
+    def rollout():
+        with torch.inference_mode():
+            rollout_step(simulator, guard, batch, kinematic, kinematic_next, "float32")
+
+    def training():
+        optimizer.zero_grad(set_to_none=True)
+        prediction, target = simulator(batch, noise)
+        masked_acceleration_loss(prediction, target, mask).backward()
+        optimizer.step()
+        scheduler.step()
+
+    launches, read_backs = Launches(), []
+    figures: dict = {"particles": particles, "dim": dim}
+    with gpu_choices(launches, read_backs):
+        optimizer, scheduler = make_optimizer(simulator.parameters(), OptimizerSpec(), total_steps=10)
+        with torch.no_grad():
+            figures["edges"] = int(simulator.build_graph(batch.position_sequence, batch).num_edges)
+        for name, step in (("graph_build", graph), ("rollout_step", rollout), ("training_step", training)):
+            step()  # warm-up: lazily made constants, optimizer state
+            operations, syncs = count(step, launches, read_backs)
+            launching = {op: n for op, n in operations.items() if op not in NO_KERNEL}
+            figures[name] = {
+                "ops": sum(operations.values()),
+                "launching": sum(launching.values()),
+                "syncs": syncs,
+                "top": Counter(launching).most_common(),
+            }
+    return figures
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--particles", type=int, default=10_000)
+    parser.add_argument("--dim", type=int, choices=(2, 3), default=3)
+    parser.add_argument("--top", type=int, default=15, help="operations listed per phase")
+    parser.add_argument("--json", action="store_true", help="end with one JSON line")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    figures = measure(args.particles, args.dim)
+    print(f"{figures['particles']} particles, {figures['edges']} edges, {figures['dim']}D; GPU path on the CPU")
+    for phase in ("graph_build", "rollout_step", "training_step"):
+        entry = figures[phase]
+        top = ", ".join(f"{name} {n}" for name, n in entry["top"][: args.top])
+        print(f"{phase:14s} ops={entry['ops']:5d} launching={entry['launching']:5d} syncs={entry['syncs']}  {top}")
+    if args.json:
+        summary = {
+            "particles": figures["particles"],
+            "edges": figures["edges"],
+            "ops_per_graph_build": figures["graph_build"]["ops"],
+            "launching_ops_per_graph_build": figures["graph_build"]["launching"],
+            "launching_ops_per_rollout_step": figures["rollout_step"]["launching"],
+            "launching_ops_per_training_step": figures["training_step"]["launching"],
+            "syncs_per_graph_build": figures["graph_build"]["syncs"],
+            "ops_per_rollout_step": figures["rollout_step"]["ops"],
+            "syncs_per_rollout_step": figures["rollout_step"]["syncs"],
+            "ops_per_training_step": figures["training_step"]["ops"],
+            "syncs_per_training_step": figures["training_step"]["syncs"],
+        }
+        print(json.dumps(summary))
+
+
+if __name__ == "__main__":
+    main()
