@@ -142,6 +142,7 @@ def gpu_choices(launches: Launches, read_backs: list):
         (triton_edge_block, "applies", lambda e, hidden, num_weights: num_weights in (2, 3)),
         (triton_edge_block, "triton_module", launches.module),
         (cell_list, "read_back", counted_read_back),
+        (cell_list, "candidates_per_chunk", lambda device: cell_list.CANDIDATES_PER_CHUNK_ACCELERATOR),
     ]
     saved = [(module, name, getattr(module, name)) for module, name, _ in patches]
     try:
