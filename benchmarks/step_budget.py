@@ -1,7 +1,7 @@
 """Operations dispatched and host read-backs per rollout step and per training step, on the GPU code path run on the CPU.
 
 Usage:
-    python benchmarks/step_budget.py [--particles 10000] [--dim 3] [--top 15] [--json]
+    python benchmarks/step_budget.py [--particles 10000] [--dim 3] [--top 15] [--chunked] [--json]
 
 On a GPU every operation is at least one kernel launch (a few microseconds of host
 time each) and every read-back makes the host wait for the device: a scene of 10k
@@ -122,9 +122,9 @@ class Launches:
 
 
 @contextlib.contextmanager
-def gpu_choices(launches: Launches, read_backs: list):
+def gpu_choices(launches: Launches, read_backs: list, triton: bool = True):
     """Inside: the accelerators' choices on the CPU, Triton launches counted, explicit read-backs recorded."""
-    from gns_builtins._kernels import cell_list, edge_block, triton_edge_block
+    from gns_builtins._kernels import cell_list, chunked, edge_block, fused_kernels, triton_edge_block
 
     from gns_framework.model import learned_simulator, rollout
     from gns_framework.training import optim, trainer
@@ -139,10 +139,13 @@ def gpu_choices(launches: Launches, read_backs: list):
     patches += [
         (edge_block, "avoids_read_backs", lambda device: True),
         (edge_block, "needs_ordered_sums", lambda device: True),
-        (triton_edge_block, "applies", lambda e, hidden, num_weights: num_weights in (2, 3)),
+        (triton_edge_block, "applies", lambda e, hidden, num_weights: triton and num_weights in (2, 3)),
         (triton_edge_block, "triton_module", launches.module),
         (cell_list, "read_back", counted_read_back),
         (cell_list, "candidates_per_chunk", lambda device: cell_list.CANDIDATES_PER_CHUNK_ACCELERATOR),
+        # The chunked edge block as on a GPU (--chunked): chunks of the accelerators' size, no CPU C loops.
+        (edge_block, "chunk_size", lambda device: chunked.ROWS_PER_CHUNK_ACCELERATOR),
+        (fused_kernels, "applies", lambda *tensors: False),
     ]
     saved = [(module, name, getattr(module, name)) for module, name, _ in patches]
     try:
@@ -165,7 +168,7 @@ def count(step, launches: Launches, read_backs: list) -> tuple[Counter[str], int
     return counter.operations, counter.syncs.total + len(read_backs)
 
 
-def measure(particles: int, dim: int) -> dict:
+def measure(particles: int, dim: int, triton: bool = True) -> dict:
     from gns_framework.assembly.learned import build_learned_simulator
     from gns_framework.config.recipe import ModelSpec, OptimizerSpec
     from gns_framework.model.loss import masked_acceleration_loss
@@ -203,7 +206,7 @@ def measure(particles: int, dim: int) -> dict:
 
     launches, read_backs = Launches(), []
     figures: dict = {"particles": particles, "dim": dim}
-    with gpu_choices(launches, read_backs):
+    with gpu_choices(launches, read_backs, triton):
         optimizer, scheduler = make_optimizer(simulator.parameters(), OptimizerSpec(), total_steps=10)
         with torch.no_grad():
             figures["edges"] = int(simulator.build_graph(batch.position_sequence, batch).num_edges)
@@ -226,9 +229,10 @@ def main() -> None:
     parser.add_argument("--dim", type=int, choices=(2, 3), default=3)
     parser.add_argument("--top", type=int, default=15, help="operations listed per phase")
     parser.add_argument("--json", action="store_true", help="end with one JSON line")
+    parser.add_argument("--chunked", action="store_true", help="the chunked edge block instead of the Triton one")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    figures = measure(args.particles, args.dim)
+    figures = measure(args.particles, args.dim, triton=not args.chunked)
     print(f"{figures['particles']} particles, {figures['edges']} edges, {figures['dim']}D; GPU path on the CPU")
     for phase in ("graph_build", "rollout_step", "training_step"):
         entry = figures[phase]
