@@ -14,14 +14,11 @@ when the plots are drawn.
 
 from __future__ import annotations
 
-import csv
 import math
 import time
 from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import torch
@@ -34,105 +31,31 @@ from ..safe_names import ensure_inside, unique_components
 from ..plugin_types import Metric
 from ..runtime.device import is_cuda
 from .metrics import DEFAULT_HORIZONS, ParticleRollout, RolloutPair, metric_units, rollout_metrics, summarise
-from .timing import Timing, format_hardware, hardware_description, time_call
+from .timing import Timing, hardware_description, time_call
+from .records import WALL_HELD, Candidate, Entry, Kind, Prediction, Report
+from .report_files import write_report
+from .tables import markdown_table, write_cases_csv, write_csv
+from .plots import case_range, plot_error_over_rollout, plot_error_vs_time
 
-Kind = Literal["learned", "simulator"]
-
-
-@dataclass(frozen=True)
-class Prediction:
-    """A candidate's rollout of a case.
-
-    A learned model predicts the case's own particles; a simulator at another
-    resolution has its own particles, so it brings their types and start frame.
-
-    Attributes:
-        position: (S, N', d) positions of the S frames after the case's C input frames, L
-            (a NumPy array or a tensor on any device).
-        particle_type: (N',) int64, or None for the case's particles.
-        start: (N', d) the frame before the first one, L, or None for the case's last input frame.
-        held: see below.
-    """
-
-    position: np.ndarray | torch.Tensor
-    particle_type: np.ndarray | None = None
-    start: np.ndarray | torch.Tensor | None = None
-    held: int | None = None
-    """Particles a wall held: they left the domain and the rollout guard put them back (None: not guarded)."""
-
-
-@dataclass(frozen=True)
-class Candidate:
-    """A way of producing rollouts whose error and run time are reported.
-
-    Attributes:
-        name: row label in the report.
-        kind: ``learned`` or ``simulator``.
-        simulate: case (a test trajectory) -> its rollout; called once per warm-up and repeat, and timed.
-        reference: the simulator setting that produced the ground truth (at most one).
-        settings: resolution, time step or checkpoint, for the table.
-        device: where ``simulate`` computes (synchronised around each timing).
-        simulate_batch: cases -> their rollouts in order, computed together; when given,
-            the cases are rolled out ``batch`` at a time and each is charged its share of
-            the batch's time (the throughput a parametric study gets).
-        batch: cases per ``simulate_batch`` call.
-    """
-
-    name: str
-    kind: Kind
-    simulate: Callable[[Trajectory], Prediction]
-    reference: bool = False
-    settings: str = ""
-    device: str | None = None
-    simulate_batch: Callable[[Sequence[Trajectory]], list[Prediction]] | None = None
-    batch: int = 1
-
-
-@dataclass(frozen=True)
-class Entry:
-    """One row of the report: a candidate's mean error over the cases and its run time.
-
-    Attributes:
-        seconds: mean over cases of the median wall-clock time of one rollout, s.
-        spread: mean over cases of (slowest - fastest) repeat, s.
-        metrics: metric name -> mean over cases (None when missing), see ``Report.metric_units``.
-        mse_per_step: (S,) position MSE per rolled-out frame averaged over cases, or None.
-        speedup: reference seconds / these seconds, or None without a reference.
-        cases: case key -> that case's metrics (the spread a mean hides: the worst collapse matters).
-        rollout_files: per case, in order, the rollout file written for it (``rollout_dir``), or None.
-    """
-
-    name: str
-    kind: Kind
-    settings: str
-    device: str
-    reference: bool
-    seconds: float
-    spread: float
-    metrics: dict[str, float | None]
-    mse_per_step: np.ndarray | None
-    speedup: float | None = None
-    cases: dict[str, dict[str, float | None]] = field(default_factory=dict)
-    rollout_files: tuple[Path | None, ...] = ()
-
-
-@dataclass(frozen=True)
-class Report:
-    entries: list[Entry]
-    error_metric: str
-    num_cases: int
-    repeats: int
-    warmup: int
-    dt: float
-    hardware: dict[str, str | int] = field(default_factory=dict)
-    metric_units: dict[str, str] = field(default_factory=dict)
-    """Name (or family pattern) -> unit and meaning of every metric reported."""
-    warnings: tuple[str, ...] = ()
-    """What the reader must know before trusting the figures (data outside a model's training envelope)."""
-
-    @property
-    def reference(self) -> Entry | None:
-        return next((e for e in self.entries if e.reference), None)
+__all__ = [
+    "Candidate",
+    "Entry",
+    "Kind",
+    "Prediction",
+    "Report",
+    "WALL_HELD",
+    "case_range",
+    "evaluate",
+    "installed",
+    "markdown_table",
+    "plot_error_over_rollout",
+    "plot_error_vs_time",
+    "score_prediction",
+    "score_rollout",
+    "write_cases_csv",
+    "write_csv",
+    "write_report",
+]
 
 
 def evaluate(
@@ -418,271 +341,3 @@ def _entry(
 
 def _with_speedup(entry: Entry, reference_seconds: float) -> Entry:
     return Entry(**{**entry.__dict__, "speedup": reference_seconds / entry.seconds if entry.seconds > 0 else math.inf})
-
-
-HEADLINE_METRICS = ("mse_1", "mse_20", "mse_full", "sinkhorn_final", "kinetic_energy_error_pct", "runout_error_pct")
-"""Columns of the Markdown table besides time, speed-up and error (the CSV has all)."""
-
-
-def _format(value: float | None, digits: int = 3) -> str:
-    if value is None:
-        return "-"
-    if math.isinf(value):
-        return "inf"
-    return f"{value:.{digits}g}"
-
-
-def markdown_table(report: Report) -> str:
-    """The report as Markdown: header with hardware and protocol, table, metric legend."""
-    reference = report.reference
-    speedup_header = f"speed-up vs {reference.name}" if reference else "speed-up"
-    headline = [m for m in HEADLINE_METRICS if any(e.metrics.get(m) is not None for e in report.entries)]
-    if any(e.metrics.get("diverged") for e in report.entries):
-        headline.append("diverged")
-    columns = [
-        "model",
-        "kind",
-        "settings",
-        "time per rollout (s)",
-        speedup_header,
-        f"error (%) [{report.error_metric}]",
-    ]
-    lines = [
-        "# Error against run time",
-        "",
-        f"Hardware: {format_hardware(report.hardware)}.",
-        (
-            f"Timing: median of {report.repeats} repeats per rollout after {report.warmup} warm-up run(s), "
-            f"device synchronised; mean over {report.num_cases} test case(s)."
-        ),
-        *(
-            ["", "**Warning: data outside a model's training envelope (the model extrapolates here):**", ""]
-            + [f"- {line}" for line in report.warnings]
-            if report.warnings
-            else []
-        ),
-        "",
-        "| " + " | ".join(columns + headline) + " |",
-        "|" + "|".join(["---"] * 3 + ["---:"] * (len(columns) - 3 + len(headline))) + "|",
-    ]
-    for e in report.entries:
-        name = f"{e.name} (reference)" if e.reference else e.name
-        row = [
-            name,
-            e.kind,
-            e.settings or "-",
-            _format(e.seconds),
-            _format(e.speedup),
-            _format(e.metrics.get(report.error_metric)),
-        ]
-        row += [_format(e.metrics.get(m)) for m in headline]
-        lines.append("| " + " | ".join(row) + " |")
-    lines += _spread_over_cases(report)
-    lines += _walls_held(report)
-    lines += ["", "Metrics (L: the dataset's length unit, s: seconds):", ""]
-    lines += [f"- `{name}`: {meaning}" for name, meaning in report.metric_units.items()]
-    lines.append("")
-    return "\n".join(lines)
-
-
-WALL_HELD = "wall_held_particles"
-"""Per case: the particles that left the domain in a learned rollout and were put back by the model's guard."""
-
-
-def _walls_held(report: Report) -> list[str]:
-    """Per learned model, the particles a wall held and in how many cases (none of this when nothing escaped)."""
-    lines = []
-    for e in report.entries:
-        held = [float(value) for c in e.cases.values() if (value := c.get(WALL_HELD)) is not None]
-        if held and any(held):
-            cases = sum(1 for h in held if h)
-            lines.append(
-                f"- {e.name}: {int(sum(held))} particle(s) in {cases} of {len(held)} case(s), at most {int(max(held))} "
-                "in one"
-            )
-    if not lines:
-        return []
-    intro = (
-        "Particles a wall held (they left the box; the model's `rollout.guard` put them back, as `gns rollout` does):"
-    )
-    return ["", intro, "", *lines]
-
-
-SPREAD_METRICS = ("runout_error_pct", "sinkhorn_final_pct")
-"""Metrics whose median and worst case over the test cases the Markdown report states (cases.csv has all)."""
-
-
-def _spread_over_cases(report: Report) -> list[str]:
-    """Median and worst case of the headline errors over the cases, when there are several."""
-    if report.num_cases < 2:
-        return []
-    lines = ["", f"Spread over the {report.num_cases} cases (median / worst):", ""]
-    for e in report.entries:
-        parts = []
-        for metric in SPREAD_METRICS:
-            values = [c.get(metric) for c in e.cases.values()]
-            present = [v for v in values if v is not None]
-            if values and len(present) == len(values):
-                parts.append(f"{metric} {_format(float(np.median(present)))} / {_format(max(present))}")
-        if parts:
-            lines.append(f"- {e.name}: " + "; ".join(parts))
-    return lines if len(lines) > 3 else []
-
-
-def write_cases_csv(report: Report, path: Path) -> None:
-    """One row per entry and case with every metric of that case; missing values are empty cells."""
-    metric_names = list(dict.fromkeys(name for e in report.entries for c in e.cases.values() for name in c))
-    with path.open("w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(["name", "case"] + metric_names)
-        for e in report.entries:
-            for key, metrics in e.cases.items():
-                row = [metrics.get(name) for name in metric_names]
-                writer.writerow([e.name, key] + ["" if v is None else v for v in row])
-
-
-def write_csv(report: Report, path: Path) -> None:
-    """One row per entry with every metric; missing values are empty cells."""
-    metric_names = list(dict.fromkeys(name for e in report.entries for name in e.metrics))
-    columns = ["name", "kind", "settings", "device", "reference", "seconds_per_rollout", "seconds_spread", "speedup"]
-    with path.open("w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(columns + metric_names)
-        for e in report.entries:
-            row = [e.name, e.kind, e.settings, e.device, e.reference, e.seconds, e.spread, e.speedup]
-            row += [e.metrics.get(name) for name in metric_names]
-            writer.writerow(["" if v is None else v for v in row])
-
-
-def case_range(entry: Entry, metric: str) -> tuple[float, float] | None:
-    """(best, worst) of ``metric`` over the entry's cases with a finite value, or None when none has one."""
-    values = [v for v in (case.get(metric) for case in entry.cases.values()) if v is not None and math.isfinite(v)]
-    return (min(values), max(values)) if values else None
-
-
-def _log_axis_ticks(axis, low: float, high: float) -> None:
-    """Plain-number labels on a log axis, only as many as fit: 1-2-5 steps over up to three decades, else decades."""
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
-
-    decades = math.log10(high / low) if low > 0 and high > low else 0.0
-    axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0) if decades <= 3 else (1.0,)))
-    axis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
-    axis.set_minor_formatter(NullFormatter())
-
-
-def plot_error_vs_time(report: Report, path: Path) -> None:
-    """Log-log scatter of the error metric against run time per rollout, with the spread behind each point.
-
-    Vertical bars run from the best to the worst case (the mean hides the worst
-    collapse); horizontal bars span the mean spread of the timed repeats (slowest
-    minus fastest). The reference simulator has no error against itself: it is drawn
-    as a vertical line at its run time. Entries with no finite positive error are
-    listed in the title instead of silently dropped.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(9.6, 4.8))
-    left_out, drawn_x, drawn_y = [], [], []
-    # Points are numbered and named in a key beside the axes: names written at the points
-    # overlap as soon as a few models (precisions, batch rows) sit at similar times.
-    key: list[str] = []
-    for kind, marker in (("simulator", "s"), ("learned", "o")):
-        points = []
-        for e in report.entries:
-            if e.kind != kind or e.reference:
-                continue
-            error = e.metrics.get(report.error_metric)
-            if error is None or not math.isfinite(error) or error <= 0:
-                left_out.append(e.name)
-                continue
-            low, high = case_range(e, report.error_metric) or (error, error)
-            points.append((e.seconds, error, e.name, min(low, error), max(high, error), e.spread))
-        if not points:
-            continue
-        xs, ys, names, lows, highs, spreads = zip(*points)
-        # Markers and bars only: settings may vary along different axes (resolution, time
-        # step), so a line through them would suggest a trade-off curve that was not measured.
-        ax.errorbar(
-            xs,
-            ys,
-            yerr=[[y - lo for y, lo in zip(ys, lows)], [hi - y for y, hi in zip(ys, highs)]],
-            xerr=[[min(s / 2, 0.9 * x) for x, s in zip(xs, spreads)], [s / 2 for s in spreads]],
-            marker=marker,
-            linestyle="none",
-            capsize=2,
-            elinewidth=0.8,
-            label="ground-truth simulator" if kind == "simulator" else "learned simulator",
-        )
-        for x, y, name in zip(xs, ys, names):
-            key.append(f"{len(key) + 1}  {name}")
-            ax.annotate(str(len(key)), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
-        drawn_x += [x for x in xs] + [x + s / 2 for x, s in zip(xs, spreads)]
-        drawn_y += [v for v in (*lows, *highs) if v > 0]
-    if report.reference is not None:
-        ax.axvline(report.reference.seconds, color="k", linestyle="--", label=f"{report.reference.name} (reference)")
-        drawn_x.append(report.reference.seconds)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    if drawn_x and drawn_y:
-        _log_axis_ticks(ax.xaxis, min(drawn_x), max(drawn_x))
-        _log_axis_ticks(ax.yaxis, min(drawn_y), max(drawn_y))
-    ax.set_xlabel("wall-clock time per rollout (s); bars: spread of the timed repeats")
-    ax.set_ylabel(f"{report.error_metric} (%), mean; bars: best to worst case")
-    title = f"Error against run time ({report.num_cases} cases)"
-    if left_out:
-        title += f"\n(no finite error: {', '.join(left_out)})"
-    ax.set_title(title, fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout(rect=(0.0, 0.0, 0.6, 1.0))
-    fig.text(0.61, 0.5, "\n".join(key), va="center", ha="left", fontsize=8)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
-def plot_error_over_rollout(report: Report, path: Path) -> None:
-    """Position MSE per frame against simulated time, one line per entry that has it."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.8))
-    for e in report.entries:
-        if e.mse_per_step is None or e.reference:
-            continue
-        time_s = report.dt * np.arange(1, len(e.mse_per_step) + 1)
-        finite = np.isfinite(e.mse_per_step) & (e.mse_per_step > 0)
-        ax.plot(time_s[finite], e.mse_per_step[finite], label=e.name)
-    ax.set_yscale("log")
-    ax.set_xlabel("simulated time since the last input frame (s)")
-    ax.set_ylabel("position MSE (L^2)")
-    ax.set_title("Error over rollout time", fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
-def write_report(report: Report, out_dir: str | Path) -> dict[str, Path]:
-    """Write ``report.md``, ``report.csv``, ``cases.csv``, ``error_vs_time.png`` and ``error_over_rollout.png``."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths = {
-        "markdown": out_dir / "report.md",
-        "csv": out_dir / "report.csv",
-        "cases_csv": out_dir / "cases.csv",
-        "error_vs_time": out_dir / "error_vs_time.png",
-        "error_over_rollout": out_dir / "error_over_rollout.png",
-    }
-    paths["markdown"].write_text(markdown_table(report))
-    write_csv(report, paths["csv"])
-    write_cases_csv(report, paths["cases_csv"])
-    plot_error_vs_time(report, paths["error_vs_time"])
-    plot_error_over_rollout(report, paths["error_over_rollout"])
-    return paths
