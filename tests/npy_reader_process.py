@@ -3,7 +3,7 @@
 :class:`ReaderProcess` starts one worker and sends it ``.npy`` files one after another
 (length-prefixed on its stdin); the worker wraps each in an ``.npz`` named
 ``fuzz.npz`` with the member ``m.npy``, reads it with
-:func:`gns_framework.data.array_pickle.read_npy_object_array`, touches every array it
+:func:`gns_builtins.datasets._formats.array_pickle.read_npy_object_array`, touches every array it
 got (sum, copy, repr), and answers one line: ``ok <summary>``, ``refused <message>``
 (a :class:`~gns_framework.errors.DatasetError`) or ``other <type>: <message>`` (any
 other exception). A worker that dies is reported with its signal and the input that
@@ -27,7 +27,7 @@ import numpy as np
 WORKER = r"""
 import io, struct, sys, zipfile
 import numpy as np
-from gns_framework.data.array_pickle import read_npy_object_array
+from gns_builtins.datasets._formats.array_pickle import read_npy_object_array
 from gns_framework.errors import DatasetError
 
 def touch(value, depth=0):

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..config.recipe import DatasetSpec, Recipe
 from ..contracts import Dataset, ModelSetup
-from ..data.array_pickle import pickle_granted
+from ..data.pickle_grant import pickle_granted
 from ..data.metadata import DatasetMetadata
 from ..data.stride import FrameStrideDataset
 from ..data.trajectory import Trajectory

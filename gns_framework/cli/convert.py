@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..data.array_pickle import pickle_granted
+from ..data.pickle_grant import pickle_granted
 from ..errors import GnsError, RecipeError
 from ..outputs import check_folder, replaced_whole
 from ..plugins import load_registry

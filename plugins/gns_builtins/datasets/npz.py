@@ -2,7 +2,7 @@
 
 Each member (``simulation_trajectory_<i>``) is a NumPy object array, stored as a
 pickle, and unpickling can run code stored in the file. geoelements' pickles hold
-numpy arrays only, so they are never unpickled: :mod:`gns_framework.data.array_pickle`
+numpy arrays only, so they are never unpickled: :mod:`._formats.array_pickle`
 reads the pickle's opcodes itself, builds each plain numeric array from a checked
 dtype, shape and byte count, and refuses everything else. A file that needs more is
 read by numpy only when the user grants it for its folder on the command line

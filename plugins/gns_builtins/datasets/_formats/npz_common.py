@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from gns_framework.contracts import Dataset
-from gns_framework.data.array_pickle import RefusedGlobal, read_npy_object_array
+from .array_pickle import RefusedGlobal, read_npy_object_array
 from gns_framework.data.metadata import DatasetMetadata, load_metadata
 from gns_framework.errors import DatasetError
 from gns_framework.limits import check_array_header, check_zip_member
@@ -48,7 +48,7 @@ def read_member(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> np.ndarr
 def read_array_pickle(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> np.ndarray:
     """Member ``key``, an object array of numpy arrays, rebuilt without running code from the file.
 
-    :func:`~gns_framework.data.array_pickle.read_npy_object_array` reads the pickle
+    :func:`~.array_pickle.read_npy_object_array` reads the pickle
     without unpickling it and refuses anything but plain numeric arrays. Plain
     arrays, and any pickle when ``archive`` was opened with the user's
     ``--allow-pickle`` grant, are read by numpy itself; the caller checks the form.

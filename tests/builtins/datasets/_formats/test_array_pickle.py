@@ -23,7 +23,7 @@ from synthetic import soft_sphere_trajectory, synthetic_metadata
 from tiny import tiny_recipe, tiny_recipe_mapping, tiny_trainer
 
 from gns_framework.cli import build_parser, main
-from gns_framework.data.array_pickle import RefusedGlobal, read_npy_object_array
+from gns_builtins.datasets._formats.array_pickle import RefusedGlobal, read_npy_object_array
 from gns_framework.errors import DatasetError
 from gns_framework.io.checkpoint import save_checkpoint
 
@@ -280,7 +280,7 @@ from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 from npy_reader_process import ReaderProcess, npy_bytes, npy_header, npz_bytes  # noqa: E402
 
-from gns_framework.data.array_pickle import PLAIN_DTYPES, ArrayPickleError  # noqa: E402
+from gns_builtins.datasets._formats.array_pickle import PLAIN_DTYPES, ArrayPickleError  # noqa: E402
 
 READABLE = {
     "positions, particle_type": lambda: object_array(
