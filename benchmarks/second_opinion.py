@@ -7,7 +7,12 @@ them is wrong. For a primary model and a second opinion, on held-out scenes draw
 general envelope (``--seed``) and the four canonical scenes, this prints per scene the
 primary's extent and height errors against the MPM, the disagreement (the primary's extent
 and height against the second model's, %) and whether it is flagged (disagreement above
-``--threshold``); then, for a sweep of thresholds, the share of bad scenes (extent or
+``--threshold``); with ``--perturb METRES`` instead of ``--second`` the second opinion is the
+primary model itself on the same scene with every moving particle shifted by a random offset
+of that standard deviation (the same offset in every input frame, so velocities are kept):
+a deposit that moves more than the perturbation explains is one the scene does not settle
+(sensitive to its initial state, as the MPM's deposits that move with resolution are).
+Then, for a sweep of thresholds, the share of bad scenes (extent or
 height error above 15 %) that are flagged (the hit rate; goal >= 80 %) and of good scenes
 that are flagged (false alarms; goal <= 20 %). The datasets are generalization.py's
 (``--out``), made on the first run.
@@ -16,6 +21,7 @@ Usage::
 
     python benchmarks/second_opinion.py --model models/sand2d_general.pt \\
         --second runs/sand2d_general_lean/checkpoints/best.pt --held-out 20 --seed 11 --threads 1 [--json]
+    python benchmarks/second_opinion.py --model models/sand2d_general.pt --perturb 0.001 --held-out 20 --seed 11
 """
 
 from __future__ import annotations
@@ -45,8 +51,19 @@ def deposit(prediction, case, history, metadata, granular) -> dict[str, float]:
     return {"extent": float(scores["extent_error_pct"]), "height": float(scores["height_error_pct"])}
 
 
-def scene_figures(primary, second, data: Path, registry) -> dict[str, dict]:
-    """Per case of ``data``'s test split: the primary's errors against the MPM and its disagreement with ``second``."""
+def perturbed(case, simulator, history: int, sigma: float, seed: int):
+    """``case`` with each moving particle's first ``history`` frames shifted by one N(0, sigma^2) offset per axis."""
+    generator = np.random.default_rng(seed)
+    moving = simulator.predicted_mask(torch.as_tensor(case.particle_type)).numpy()
+    offset = generator.normal(0.0, sigma, size=case.position.shape[1:]) * moving[:, None]
+    position = case.position.copy()
+    position[:history] += offset.astype(position.dtype)
+    return dataclasses.replace(case, position=position)
+
+
+def scene_figures(primary, second, data: Path, registry, perturb: float | None = None) -> dict[str, dict]:
+    """Per case of ``data``'s test split: the primary's errors against the MPM and its disagreement with ``second``
+    (with ``perturb``: with the primary's rollout of the case perturbed, :func:`perturbed`)."""
     from gns_framework.assembly.data import open_dataset
     from gns_framework.evaluation.candidates import cases_from_split, granular_particle_types, learned_prediction
 
@@ -57,8 +74,10 @@ def scene_figures(primary, second, data: Path, registry) -> dict[str, dict]:
     out = {}
     for case in cases_from_split(data_set.split("test")):
         predictions = []
-        for model in (primary, second):
-            predictions.append(learned_prediction(model.simulator, case, "cpu", guard=model.rollout_guard()))
+        for model, start in ((primary, case), (second, case)):
+            if perturb is not None:
+                start = perturbed(case, primary.simulator, history, perturb, seed=len(out)) if model is second else case
+            predictions.append(learned_prediction(model.simulator, start, "cpu", guard=model.rollout_guard()))
         mine, theirs = predictions
         # The second model's rollout in place of the truth: the same first frames, its prediction after them.
         opinion = dataclasses.replace(
@@ -92,7 +111,11 @@ def rates(rows: list[dict], threshold: float) -> dict[str, float | int]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "sand2d_general.pt")
-    parser.add_argument("--second", type=Path, required=True, help="the second opinion: a model trained apart")
+    opinion = parser.add_mutually_exclusive_group(required=True)
+    opinion.add_argument("--second", type=Path, help="the second opinion: a model trained apart")
+    opinion.add_argument(
+        "--perturb", type=float, help="the second opinion: the model itself from input frames shifted by this std, m"
+    )
     parser.add_argument("--held-out", type=int, default=20)
     parser.add_argument("--seed", type=int, default=7, help="scene seed of the held-out scenes (training used 0)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization", help="datasets are kept here")
@@ -106,20 +129,23 @@ def main(argv: list[str] | None = None) -> int:
     from gns_framework.plugins import load_registry
 
     registry = load_registry()
-    primary, second = (load_trained(path, registry, torch.device("cpu")) for path in (args.model, args.second))
+    primary = load_trained(args.model, registry, torch.device("cpu"))
+    second = primary if args.second is None else load_trained(args.second, registry, torch.device("cpu"))
     groups: dict[str, dict] = {}
     if args.held_out:
         data = dataset(
             ROOT / "scenes" / "sand_general_2d.yaml", args.out / "held_out", args.held_out, args.seed, registry
         )
-        groups["held-out"] = scene_figures(primary, second, data, registry)
+        groups["held-out"] = scene_figures(primary, second, data, registry, args.perturb)
     canonical = {}
     for scene_path in sorted((ROOT / "scenes" / "canonical").glob("*.yaml")):
         data = dataset(scene_path, args.out / "canonical" / scene_path.stem, 1, None, registry)
-        canonical.update({scene_path.stem: v for v in scene_figures(primary, second, data, registry).values()})
+        figures = scene_figures(primary, second, data, registry, args.perturb)
+        canonical.update({scene_path.stem: v for v in figures.values()})
     groups["canonical"] = canonical
 
-    print(f"primary {args.model}, second opinion {args.second}; % against the MPM, disagreement against the second")
+    what = args.second if args.second is not None else f"itself from inputs shifted by {args.perturb} m"
+    print(f"primary {args.model}, second opinion {what}; % against the MPM, disagreement against the second")
     print(
         f"{'group':<10} {'scene':<26} {'extent':>7} {'height':>7} {'2nd ext':>7} {'2nd hgt':>7} {'dis ext':>7} {'dis hgt':>7} flag"
     )
@@ -142,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{r['false_alarm_rate']:.0%} of {r['good']} good ones (goal <= 20 %)"
         )
     if args.json:
-        print(json.dumps({"model": str(args.model), "second": str(args.second), "rows": rows, "sweep": sweep}))
+        print(json.dumps({"model": str(args.model), "second": str(what), "rows": rows, "sweep": sweep}))
     return 0
 
 

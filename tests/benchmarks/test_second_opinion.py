@@ -1,0 +1,45 @@
+"""benchmarks/second_opinion.py: the perturbed second opinion moves only moving particles' inputs; the rates."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+
+import second_opinion  # noqa: E402
+
+
+@dataclass(frozen=True)
+class Case:
+    """What the perturbation reads of a trajectory."""
+
+    position: np.ndarray
+    particle_type: np.ndarray
+
+
+def test_the_perturbation_shifts_each_moving_particle_alike_in_every_input_frame():
+    position = np.random.default_rng(0).random((8, 5, 2)).astype(np.float32)
+    case = Case(position=position, particle_type=np.array([6, 6, 3, 6, 3]))
+    simulator = SimpleNamespace(predicted_mask=lambda types: types != 3)
+    moved = second_opinion.perturbed(case, simulator, history=6, sigma=0.01, seed=1)
+    shift = moved.position - position
+    assert np.allclose(shift[:6], shift[0], atol=1e-7), "one offset per particle: velocities are kept"
+    assert not shift[:6, [2, 4]].any(), "kinematic particles follow their prescribed path"
+    assert np.abs(shift[0, [0, 1, 3]]).min() > 0 and np.abs(shift[0]).max() < 0.1
+    assert not shift[6:].any(), "the truth after the inputs is not touched"
+
+
+def test_hit_and_false_alarm_rates():
+    rows = [
+        {"error": {"extent": 30.0, "height": 1.0}, "disagreement": {"extent": 12.0, "height": 0.0}},
+        {"error": {"extent": 20.0, "height": 1.0}, "disagreement": {"extent": 2.0, "height": 0.0}},
+        {"error": {"extent": 2.0, "height": 1.0}, "disagreement": {"extent": 11.0, "height": 0.0}},
+        {"error": {"extent": 2.0, "height": 1.0}, "disagreement": {"extent": 1.0, "height": 0.0}},
+    ]
+    rates = second_opinion.rates(rows, 10.0)
+    assert (rates["bad"], rates["good"], rates["hit_rate"], rates["false_alarm_rate"]) == (2, 2, 0.5, 0.5)
