@@ -59,7 +59,7 @@ COMPONENT_KINDS: dict[str, type] = {
 """Every component kind, by its recipe key, with its contract."""
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> type[ModelSetup]:
     # Plugins written against 0.1 import the model's setup as ``Scene``: one release of grace.
     if name == "Scene":
         warnings.warn(

@@ -8,9 +8,7 @@ from __future__ import annotations
 
 import torch
 
-from gns_framework.evaluation.metrics import RolloutPair, horizon_mse, per_material_mse
-from gns_framework.hookspecs import hookimpl
-from gns_framework.plugin_types import Metric
+from gns_framework.api import Metric, RolloutPair, hookimpl, horizon_mse, per_material_mse
 
 
 def _mse_full(pair: RolloutPair):

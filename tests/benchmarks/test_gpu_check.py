@@ -78,7 +78,9 @@ def test_the_dry_run_passes_every_cpu_part_and_reports_in_the_documented_format(
     assert ddp["ranks"] == "1" and ddp["backend"] == "gloo" and ddp["collectives"] == "ok"
     assert {line["path"] for line in lines if line["part"] == "sums"} >= {"index_add", "ordered"}
     assert next(line for line in lines if line["part"] == "chunks")["status"] == "ok"
-    if expected["kernels"] == "pass":  # the Triton edge block in Triton's interpreter: equal to the chunked path, the same bits twice
+    if (
+        expected["kernels"] == "pass"
+    ):  # the Triton edge block in Triton's interpreter: equal to the chunked path, the same bits twice
         kernels = [line for line in lines if line["part"] == "kernels"]
         assert {k["phase"] for k in kernels} == {"rollout", "train"}
         assert all(float(k["max_rel_diff"]) < 1e-4 and k["finite"] == "True" for k in kernels)

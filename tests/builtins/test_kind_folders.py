@@ -64,5 +64,15 @@ def test_a_helper_among_the_components_is_named(registry):
     # The kernels folder, read as if it were processors/, holds helpers only: each is named.
     assert modules_without_a_component(registry, "processor", "_kernels") == [
         f"gns_builtins._kernels.{name}"
-        for name in ("cell_list", "chunked", "edge_block", "fused_kernels", "segment_sum", "verlet_list")
+        for name in (
+            "cell_list",
+            "chunked",
+            "edge_block",
+            "edge_order",
+            "fused_kernels",
+            "segment_sum",
+            "triton_edge_block",
+            "triton_kernels",
+            "verlet_list",
+        )
     ]

@@ -13,7 +13,7 @@ import itertools
 import torch
 from torch import Tensor
 
-from gns_framework.runtime.host_sync import read_back
+from gns_framework.api import read_back
 
 CANDIDATES_PER_CHUNK_CPU = 1 << 20
 """Bounds the memory of candidate pairs (each costs ~50 bytes across the work arrays).

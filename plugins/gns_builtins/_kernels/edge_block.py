@@ -32,8 +32,7 @@ import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
-from gns_framework.runtime.activation_memory import recompute_activations
-from gns_framework.runtime.host_sync import avoids_read_backs
+from gns_framework.api import avoids_read_backs, recompute_activations
 
 from . import fused_kernels, triton_edge_block
 from .chunked import (
@@ -329,7 +328,16 @@ def edge_block(
     with torch.autocast(device_type, enabled=False):
         if order is not None and dtype == torch.float32:
             return triton_edge_block.triton_edge_block(
-                e, table.to(dtype), rows, order, weights, biases, norm_weight, norm_bias, norm.eps, products,
+                e,
+                table.to(dtype),
+                rows,
+                order,
+                weights,
+                biases,
+                norm_weight,
+                norm_bias,
+                norm.eps,
+                products,
                 allow_tf32=torch.backends.cuda.matmul.allow_tf32,
             )
         if torch.is_grad_enabled() and any(t.requires_grad for t in (e, table, *weights, *biases, norm_weight)):

@@ -26,7 +26,7 @@ import os
 import torch
 from torch import Tensor
 
-from gns_framework.runtime.deterministic import deterministic_sums
+from gns_framework.api import deterministic_sums
 
 
 def needs_ordered_sums(device: torch.device) -> bool:

@@ -1,6 +1,6 @@
 """Built-in dataset layouts."""
 
-from gns_framework.hookspecs import hookimpl
+from gns_framework.api import hookimpl
 
 from .lagrangebench import LagrangeBenchDataset
 from .npz import GeoelementsNpzDataset

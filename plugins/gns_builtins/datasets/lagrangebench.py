@@ -35,14 +35,23 @@ from pathlib import Path
 import numpy as np
 
 from gns_framework.contracts import Dataset
-from gns_framework.data.atomic import atomic_path, write_text_atomic
-from gns_framework.data.consistency import checked
-from gns_framework.data.lazy import TrajectorySequence
-from gns_framework.data.metadata import DatasetMetadata, parse_metadata, read_metadata_json
-from gns_framework.limits import INFLATE_RATIO_ABOVE, MAX_INFLATE_RATIO, LimitError, check_memory
-from gns_framework.data.particle_spacing import particle_spacing
-from gns_framework.data.trajectory import Trajectory
-from gns_framework.errors import DatasetError, GnsError
+from gns_framework.api import (
+    INFLATE_RATIO_ABOVE,
+    MAX_INFLATE_RATIO,
+    DatasetError,
+    DatasetMetadata,
+    GnsError,
+    LimitError,
+    Trajectory,
+    TrajectorySequence,
+    atomic_path,
+    check_memory,
+    checked,
+    parse_metadata,
+    particle_spacing,
+    read_metadata_json,
+    write_text_atomic,
+)
 
 from ._formats.numbering import trajectory_numbers
 

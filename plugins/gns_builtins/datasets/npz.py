@@ -21,11 +21,14 @@ from typing import Any
 
 import numpy as np
 
-from gns_framework.data.atomic import atomic_path, write_text_atomic
-from gns_framework.data.lazy import TrajectorySequence
-from gns_framework.data.metadata import DatasetMetadata
-from gns_framework.data.trajectory import Trajectory
-from gns_framework.errors import DatasetError
+from gns_framework.api import (
+    DatasetError,
+    DatasetMetadata,
+    Trajectory,
+    TrajectorySequence,
+    atomic_path,
+    write_text_atomic,
+)
 
 from ._formats.npz_common import NpzSplitsDataset, open_npz, read_array_pickle
 

@@ -28,12 +28,16 @@ import numpy as np
 from pydantic import Field
 
 from gns_framework.contracts import Dataset, ComponentParams
-from gns_framework.data.atomic import atomic_path, write_text_atomic
-from gns_framework.data.consistency import checked
-from gns_framework.data.lazy import TrajectorySequence
-from gns_framework.data.metadata import DatasetMetadata, load_metadata
-from gns_framework.data.trajectory import Trajectory
-from gns_framework.errors import DatasetError
+from gns_framework.api import (
+    DatasetError,
+    DatasetMetadata,
+    Trajectory,
+    TrajectorySequence,
+    atomic_path,
+    checked,
+    load_metadata,
+    write_text_atomic,
+)
 
 from ._formats.numbering import trajectory_numbers
 from ._formats.tfrecord_format import Feature, SequenceExample, read_records, write_records

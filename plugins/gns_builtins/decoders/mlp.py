@@ -5,7 +5,7 @@ from __future__ import annotations
 from torch import Tensor
 
 from gns_framework.contracts import Decoder, ModelSizes, ComponentParams
-from gns_framework.layers import MLP
+from gns_framework.api import MLP
 
 
 class MLPDecoder(Decoder):

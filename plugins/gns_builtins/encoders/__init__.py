@@ -1,6 +1,6 @@
 """Built-in encoders."""
 
-from gns_framework.hookspecs import hookimpl
+from gns_framework.api import hookimpl
 
 from .mlp import MLPEncoder
 

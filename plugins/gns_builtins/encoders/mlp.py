@@ -7,8 +7,7 @@ from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
 from gns_framework.contracts import Encoder, ModelSizes, ComponentParams
-from gns_framework.layers import NormedMLP
-from gns_framework.runtime.activation_memory import recompute_activations
+from gns_framework.api import NormedMLP, recompute_activations
 
 
 class MLPEncoder(Encoder):

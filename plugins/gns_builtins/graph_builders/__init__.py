@@ -1,6 +1,6 @@
 """Built-in graph builders."""
 
-from gns_framework.hookspecs import hookimpl
+from gns_framework.api import hookimpl
 
 from .knn import KnnGraphBuilder
 from .no_edges import NoEdgesGraphBuilder

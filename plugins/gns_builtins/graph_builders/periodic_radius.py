@@ -8,9 +8,7 @@ import torch
 from torch import Tensor
 
 from gns_framework.contracts import Graph, GraphBuilder, ComponentParams, ModelSetup
-from gns_framework.errors import RecipeError
-from gns_framework.model.periodic import PeriodicBox
-from gns_framework.runtime.host_sync import PerDevice
+from gns_framework.api import PerDevice, PeriodicBox, RecipeError
 
 from .._kernels.cell_list import radius_pairs
 

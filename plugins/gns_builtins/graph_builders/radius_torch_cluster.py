@@ -9,7 +9,7 @@ from pydantic import Field
 from torch import Tensor
 
 from gns_framework.contracts import Graph, GraphBuilder, ComponentParams, ModelSetup
-from gns_framework.errors import PluginError
+from gns_framework.api import PluginError
 
 from .._kernels.cell_list import squared_distance
 

@@ -1,6 +1,6 @@
 """Built-in integrators."""
 
-from gns_framework.hookspecs import hookimpl
+from gns_framework.api import hookimpl
 
 from .explicit_euler import ExplicitEuler
 from .semi_implicit_euler import SemiImplicitEuler

@@ -1,6 +1,6 @@
 """Built-in materials, one per file, with the particle-type ids of the public GNS datasets."""
 
-from gns_framework.hookspecs import hookimpl
+from gns_framework.api import hookimpl
 
 from .goop import Goop
 from .rigid import RigidBoundary

@@ -1,6 +1,6 @@
 """Built-in processors."""
 
-from gns_framework.hookspecs import hookimpl
+from gns_framework.api import hookimpl
 
 from .egnn import EquivariantProcessor
 from .graph_attention import GraphAttentionProcessor

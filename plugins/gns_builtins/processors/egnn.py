@@ -24,7 +24,7 @@ from pydantic import Field
 from torch import Tensor, nn
 
 from gns_framework.contracts import Graph, ModelSizes, ComponentParams, Processor
-from gns_framework.layers import MLP, NormedMLP
+from gns_framework.api import MLP, NormedMLP
 
 
 class EquivariantStep(nn.Module):

@@ -29,7 +29,7 @@ from pydantic import Field
 from torch import Tensor, nn
 
 from gns_framework.contracts import Graph, ModelSizes, ComponentParams, Processor
-from gns_framework.layers import NormedMLP
+from gns_framework.api import NormedMLP
 
 
 class ParticleGrid:

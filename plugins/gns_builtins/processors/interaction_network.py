@@ -21,7 +21,7 @@ from pydantic import Field
 from torch import Tensor, nn
 
 from gns_framework.contracts import Graph, ModelSizes, ComponentParams, Processor
-from gns_framework.layers import NormedMLP
+from gns_framework.api import NormedMLP
 
 from .._kernels.edge_block import edge_block, node_table, table_rows, uses_triton
 from .._kernels.edge_order import EdgeOrder

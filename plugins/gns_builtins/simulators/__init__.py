@@ -1,6 +1,6 @@
 """Built-in ground-truth simulators (Warp is imported only when one runs)."""
 
-from gns_framework.hookspecs import hookimpl
+from gns_framework.api import hookimpl
 
 from .mls_mpm import MlsMpm
 

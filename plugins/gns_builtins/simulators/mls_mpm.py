@@ -14,9 +14,7 @@ import numpy as np
 from pydantic import Field, ValidationError
 
 from gns_framework.contracts import GroundTruthSimulator, ComponentParams
-from gns_framework.data.trajectory import Trajectory
-from gns_framework.ground_truth.sampling import BodySample, SceneSample, at_resolution, sample_scene
-from gns_framework.ground_truth.scene_spec import SceneSpec
+from gns_framework.api import BodySample, SceneSample, SceneSpec, Trajectory, at_resolution, sample_scene
 
 from ._mpm.models import MODELS, RIGID, ConstitutiveModel
 

@@ -36,8 +36,7 @@ import zipfile
 
 import numpy as np
 
-from gns_framework.errors import DatasetError
-from gns_framework.limits import check_zip_member
+from gns_framework.api import DatasetError, check_zip_member
 from .pickle_opcodes import (
     ALLOWED_GLOBALS,
     MAX_ELEMENTS,

@@ -9,9 +9,7 @@ import numpy as np
 
 from gns_framework.contracts import Dataset
 from .array_pickle import RefusedGlobal, read_npy_object_array
-from gns_framework.data.metadata import DatasetMetadata, load_metadata
-from gns_framework.errors import DatasetError
-from gns_framework.limits import check_array_header, check_zip_member
+from gns_framework.api import DatasetError, DatasetMetadata, check_array_header, check_zip_member, load_metadata
 
 
 class NpzSplitsDataset(Dataset):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from gns_framework.data.trajectory import Trajectory
+from gns_framework.api import Trajectory
 
 
 def trajectory_numbers(trajectories: Sequence[Trajectory]) -> list[int]:

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gns_framework.errors import DatasetError
+from gns_framework.api import DatasetError
 
 VARINT, FIXED64, LENGTH_DELIMITED, FIXED32 = 0, 1, 2, 5
 
@@ -67,7 +67,7 @@ def masked_crc32c(data: bytes) -> int:
 
 def read_records(path: Path, verify: bool = True) -> Iterator[bytes]:
     """Yield the data of every record; a short or corrupt record is a DatasetError naming its index."""
-    from gns_framework.limits import check_record_length
+    from gns_framework.api import check_record_length
 
     with open(path, "rb") as handle:
         size = os.fstat(handle.fileno()).st_size

@@ -10,9 +10,7 @@ import tempfile
 import numpy as np
 import warp as wp
 
-from gns_framework.ground_truth.sampling import BodySample
-from gns_framework.runtime.device import choose_device
-from gns_framework.ground_truth.scene_spec import SceneSpec
+from gns_framework.api import BodySample, SceneSpec, choose_device
 
 from .kernels import BOX, ELLIPSOID, PLANE, POLYGON, kernels
 

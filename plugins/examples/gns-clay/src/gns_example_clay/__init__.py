@@ -4,7 +4,7 @@ Registered through the ``gns_framework`` entry-point group in this package's
 pyproject.toml; gns-framework finds it when the package is installed.
 """
 
-from gns_framework.hookspecs import hookimpl
+from gns_framework.api import hookimpl
 
 from .clay import Clay
 

@@ -18,7 +18,7 @@ from pydantic import Field
 from torch import Tensor, nn
 
 from gns_framework.contracts import ComponentParams, Graph, ModelSizes, Processor
-from gns_framework.layers import NormedMLP
+from gns_framework.api import NormedMLP
 
 
 class MeanInteractionStep(nn.Module):
