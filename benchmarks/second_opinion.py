@@ -73,11 +73,12 @@ def scene_figures(primary, second, data: Path, registry, perturb: float | None =
     granular = granular_particle_types(primary.simulator.scene, registry)
     out = {}
     for case in cases_from_split(data_set.split("test")):
-        predictions = []
-        for model, start in ((primary, case), (second, case)):
-            if perturb is not None:
-                start = perturbed(case, primary.simulator, history, perturb, seed=len(out)) if model is second else case
-            predictions.append(learned_prediction(model.simulator, start, "cpu", guard=model.rollout_guard()))
+        # The primary on the case; the second opinion on it, or the primary on the case perturbed.
+        second_start = case if perturb is None else perturbed(case, primary.simulator, history, perturb, len(out))
+        predictions = [
+            learned_prediction(model.simulator, start, "cpu", guard=model.rollout_guard())
+            for model, start in ((primary, case), (second, second_start))
+        ]
         mine, theirs = predictions
         # The second model's rollout in place of the truth: the same first frames, its prediction after them.
         opinion = dataclasses.replace(
