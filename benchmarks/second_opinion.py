@@ -61,6 +61,14 @@ def perturbed(case, simulator, history: int, sigma: float, seed: int):
     return dataclasses.replace(case, position=position)
 
 
+def rollouts(case, primary, second, history: int, perturb: float | None, seed: int) -> list[tuple]:
+    """The two (model, start) rollouts of a case: the primary on it, and the second opinion on it or, with
+    ``perturb``, the primary (``second`` is then the primary) on the case perturbed."""
+    if perturb is None:
+        return [(primary, case), (second, case)]
+    return [(primary, case), (primary, perturbed(case, primary.simulator, history, perturb, seed))]
+
+
 def scene_figures(primary, second, data: Path, registry, perturb: float | None = None) -> dict[str, dict]:
     """Per case of ``data``'s test split: the primary's errors against the MPM and its disagreement with ``second``
     (with ``perturb``: with the primary's rollout of the case perturbed, :func:`perturbed`)."""
@@ -73,11 +81,9 @@ def scene_figures(primary, second, data: Path, registry, perturb: float | None =
     granular = granular_particle_types(primary.simulator.scene, registry)
     out = {}
     for case in cases_from_split(data_set.split("test")):
-        # The primary on the case; the second opinion on it, or the primary on the case perturbed.
-        second_start = case if perturb is None else perturbed(case, primary.simulator, history, perturb, len(out))
         predictions = [
             learned_prediction(model.simulator, start, "cpu", guard=model.rollout_guard())
-            for model, start in ((primary, case), (second, second_start))
+            for model, start in rollouts(case, primary, second, history, perturb, seed=len(out))
         ]
         mine, theirs = predictions
         # The second model's rollout in place of the truth: the same first frames, its prediction after them.

@@ -43,3 +43,13 @@ def test_hit_and_false_alarm_rates():
     ]
     rates = second_opinion.rates(rows, 10.0)
     assert (rates["bad"], rates["good"], rates["hit_rate"], rates["false_alarm_rate"]) == (2, 2, 0.5, 0.5)
+
+
+def test_only_the_second_rollout_starts_perturbed():
+    case = Case(position=np.zeros((8, 3, 2), np.float32), particle_type=np.array([6, 6, 6]))
+    primary = SimpleNamespace(simulator=SimpleNamespace(predicted_mask=lambda types: types == 6))
+    (first_model, first), (second_model, second) = second_opinion.rollouts(case, primary, primary, 6, 0.01, seed=0)
+    assert first_model is primary and second_model is primary
+    assert first is case and np.abs(second.position[:6]).max() > 0
+    other = SimpleNamespace()
+    assert second_opinion.rollouts(case, primary, other, 6, None, seed=0) == [(primary, case), (other, case)]
