@@ -28,10 +28,10 @@ def _activations(
     rows_ptr,
     edges,
     mask,
-    w1t,
-    wmt,
+    w1,
+    wm,
     bm,
-    wlt,
+    wl,
     bl,
     H: tl.constexpr,
     HAS_MIDDLE: tl.constexpr,
@@ -42,33 +42,37 @@ def _activations(
     hcols = tl.arange(0, H)
     receiver_rows = tl.load(rows_ptr + 2 * edges, mask=mask, other=0)
     sender_rows = tl.load(rows_ptr + 2 * edges + 1, mask=mask, other=0)
-    a1 = _dot(e.to(w1t.dtype), w1t, PRECISION, UPCAST)
+    a1 = _dot(e.to(w1.dtype), tl.trans(w1), PRECISION, UPCAST)
     a1 += tl.load(table_ptr + receiver_rows[:, None] * H + hcols[None, :], mask=mask[:, None], other=0.0)
     a1 += tl.load(table_ptr + sender_rows[:, None] * H + hcols[None, :], mask=mask[:, None], other=0.0)
     h = tl.maximum(a1, 0.0)
     a_middle = a1
     if HAS_MIDDLE:
-        a_middle = _dot(h.to(wmt.dtype), wmt, PRECISION, UPCAST) + bm[None, :]
+        a_middle = _dot(h.to(wm.dtype), tl.trans(wm), PRECISION, UPCAST) + bm[None, :]
         h = tl.maximum(a_middle, 0.0)
-    a_last = _dot(h.to(wlt.dtype), wlt, PRECISION, UPCAST) + bl[None, :]
+    a_last = _dot(h.to(wl.dtype), tl.trans(wl), PRECISION, UPCAST) + bl[None, :]
     return a1, a_middle, h, a_last
 
 
 @triton.jit
 def _load_weights(w1_ptr, wm_ptr, bm_ptr, wl_ptr, bl_ptr, L: tl.constexpr, H: tl.constexpr, HAS_MIDDLE: tl.constexpr):
-    """The weights transposed for row-major products: W_e^T (L, H), W_2^T (H, H), W_3^T (H, L), and biases."""
+    """The weights as stored (rows contiguous, so loads coalesce): W_e (H, L), W_2 (H, H), W_3 (L, H), and biases.
+
+    The forward multiplies by their transposes (``tl.trans``, a layout change in shared memory), the
+    backward by the weights themselves.
+    """
     lcols = tl.arange(0, L)
     hcols = tl.arange(0, H)
-    w1t = tl.load(w1_ptr + hcols[None, :] * L + lcols[:, None])
-    wlt = tl.load(wl_ptr + lcols[None, :] * H + hcols[:, None])
+    w1 = tl.load(w1_ptr + hcols[:, None] * L + lcols[None, :])
+    wl = tl.load(wl_ptr + lcols[:, None] * H + hcols[None, :])
     bl = tl.load(bl_ptr + lcols).to(tl.float32)
     if HAS_MIDDLE:
-        wmt = tl.load(wm_ptr + hcols[None, :] * H + hcols[:, None])
+        wm = tl.load(wm_ptr + hcols[:, None] * H + hcols[None, :])
         bm = tl.load(bm_ptr + hcols).to(tl.float32)
     else:
-        wmt = wlt
+        wm = wl
         bm = bl
-    return w1t, wmt, bm, wlt, bl
+    return w1, wm, bm, wl, bl
 
 
 @triton.jit
@@ -101,7 +105,6 @@ def forward_kernel(
     lcols = tl.arange(0, L)
     lo = tl.load(offsets_ptr + first)
     hi = tl.load(offsets_ptr + tl.minimum(first + BN, num_nodes))
-    w1t, wmt, bm, wlt, bl = _load_weights(w1_ptr, wm_ptr, bm_ptr, wl_ptr, bl_ptr, L, H, HAS_MIDDLE)
     gamma = tl.load(gamma_ptr + lcols)
     beta = tl.load(beta_ptr + lcols)
     aggregate = tl.zeros((BN, L), dtype=tl.float32)
@@ -109,8 +112,11 @@ def forward_kernel(
         edges = start + tl.arange(0, BE)
         mask = edges < hi
         e = tl.load(e_ptr + edges[:, None] * L + lcols[None, :], mask=mask[:, None], other=0.0)
+        # Loaded per tile (from L2 after the first): held across the loop, three 128 x 128 weights would
+        # not fit a program's registers.
+        w1, wm, bm, wl, bl = _load_weights(w1_ptr, wm_ptr, bm_ptr, wl_ptr, bl_ptr, L, H, HAS_MIDDLE)
         _, _, _, a = _activations(
-            e, table_ptr, rows_ptr, edges, mask, w1t, wmt, bm, wlt, bl, H, HAS_MIDDLE, PRECISION, UPCAST
+            e, table_ptr, rows_ptr, edges, mask, w1, wm, bm, wl, bl, H, HAS_MIDDLE, PRECISION, UPCAST
         )
         mean = tl.sum(a, 1) / L
         centred = a - mean[:, None]
@@ -164,11 +170,11 @@ def backward_kernel(
     lcols = tl.arange(0, L)
     hcols = tl.arange(0, H)
     lmask = mask[:, None]
-    w1t, wmt, bm, wlt, bl = _load_weights(w1_ptr, wm_ptr, bm_ptr, wl_ptr, bl_ptr, L, H, HAS_MIDDLE)
+    w1, wm, bm, wl, bl = _load_weights(w1_ptr, wm_ptr, bm_ptr, wl_ptr, bl_ptr, L, H, HAS_MIDDLE)
     gamma = tl.load(gamma_ptr + lcols)
     e = tl.load(e_ptr + edges[:, None] * L + lcols[None, :], mask=lmask, other=0.0)
     a1, a_middle, h_last_in, a = _activations(
-        e, table_ptr, rows_ptr, edges, mask, w1t, wmt, bm, wlt, bl, H, HAS_MIDDLE, PRECISION, UPCAST
+        e, table_ptr, rows_ptr, edges, mask, w1, wm, bm, wl, bl, H, HAS_MIDDLE, PRECISION, UPCAST
     )
     mean = tl.sum(a, 1) / L
     centred = a - mean[:, None]
@@ -196,8 +202,8 @@ def backward_kernel(
     tl.store(
         h_last_in_ptr + edges[:, None] * H + hcols[None, :], h_last_in.to(h_last_in_ptr.dtype.element_ty), mask=lmask
     )
-    # Back through the last product and ReLU (wlt is W_3^T (H, L): grad_h = grad_a W_3).
-    grad_h = _dot(grad_a.to(wlt.dtype), tl.trans(wlt), PRECISION, UPCAST)
+    # Back through the last product and ReLU: grad_h = grad_a W_3, W_3 (L, H).
+    grad_h = _dot(grad_a.to(wl.dtype), wl, PRECISION, UPCAST)
     if HAS_MIDDLE:
         grad_a_middle = tl.where(a_middle > 0.0, grad_h, 0.0)
         tl.store(
@@ -209,11 +215,11 @@ def backward_kernel(
         tl.store(
             h_first_ptr + edges[:, None] * H + hcols[None, :], h_first.to(h_first_ptr.dtype.element_ty), mask=lmask
         )
-        grad_h = _dot(grad_a_middle.to(wmt.dtype), tl.trans(wmt), PRECISION, UPCAST)
+        grad_h = _dot(grad_a_middle.to(wm.dtype), wm, PRECISION, UPCAST)
     grad_a1 = tl.where(a1 > 0.0, grad_h, 0.0)
     tl.store(grad_a1_ptr + edges[:, None] * H + hcols[None, :], grad_a1.to(grad_a1_ptr.dtype.element_ty), mask=lmask)
-    # The edge latent's gradient: the residual's share plus the first product's (w1t is W_e^T (L, H)).
-    grad_e = _dot(grad_a1.to(w1t.dtype), tl.trans(w1t), PRECISION, UPCAST)
+    # The edge latent's gradient: the residual's share plus the first product's, grad_a1 W_e, W_e (H, L).
+    grad_e = _dot(grad_a1.to(w1.dtype), w1, PRECISION, UPCAST)
     if HAS_GRAD_OUT:
         grad_e += grad_out
     tl.store(grad_e_ptr + edges[:, None] * L + lcols[None, :], grad_e, mask=lmask)
