@@ -100,7 +100,7 @@ def forward_kernel(
     BN: tl.constexpr,
     BE: tl.constexpr,
 ):
-    first = tl.program_id(0) * BN
+    first = tl.program_id(0).to(tl.int64) * BN
     nodes = first + tl.arange(0, BN)
     lcols = tl.arange(0, L)
     lo = tl.load(offsets_ptr + first)
@@ -165,7 +165,8 @@ def backward_kernel(
     BE: tl.constexpr,
 ):
     tile = tl.program_id(0)
-    edges = tile * BE + tl.arange(0, BE)
+    # int64: edge offsets times L pass 2^31 from ~17M edges (a 1M-particle 3D scene has 23M).
+    edges = tile.to(tl.int64) * BE + tl.arange(0, BE)
     mask = edges < num_edges
     lcols = tl.arange(0, L)
     hcols = tl.arange(0, H)
@@ -239,7 +240,7 @@ def segment_sum_kernel(
 ):
     """``out[i] += sum of rows[p[k]]`` over k in node i's run ``[offsets[i], offsets[i + 1])`` (p the
     permutation when ``PERMUTED``, else the identity), tile by tile in run order."""
-    node = tl.program_id(0)
+    node = tl.program_id(0).to(tl.int64)
     cols = tl.arange(0, F)
     lo = tl.load(offsets_ptr + node)
     hi = tl.load(offsets_ptr + node + 1)
