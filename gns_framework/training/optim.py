@@ -7,7 +7,6 @@ import math
 import torch
 
 from ..config.recipe import OptimizerSpec
-from ..runtime.host_sync import avoids_read_backs
 
 
 def learning_rate(spec: OptimizerSpec, step: int, total_steps: int) -> float:
@@ -28,24 +27,12 @@ def learning_rate(spec: OptimizerSpec, step: int, total_steps: int) -> float:
 
 
 def make_optimizer(
-    parameters, spec: OptimizerSpec, total_steps: int
+    parameters, spec: OptimizerSpec, total_steps: int, fused: bool | None = None
 ) -> tuple[torch.optim.Optimizer, torch.optim.lr_scheduler.LambdaLR]:
-    """Adam and its schedule as a LambdaLR factor of ``lr_init``; ``total_steps`` is the run's step budget.
-
-    On accelerators Adam is torch's fused one (:func:`fused_adam`): one kernel per step for every
-    parameter instead of a dozen per parameter, and no host read of the step count.
-    """
+    """Adam (fused by default on accelerators: one kernel, no step read) and its schedule as a LambdaLR factor."""
     parameters = list(parameters)
-    optimizer = torch.optim.Adam(parameters, lr=spec.lr_init, fused=fused_adam(parameters) or None)
+    fused = fused if fused is not None else all(p.device.type != "cpu" for p in parameters) and bool(parameters)
+    optimizer = torch.optim.Adam(parameters, lr=spec.lr_init, fused=fused or None)
     return optimizer, torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda step: learning_rate(spec, step, total_steps) / spec.lr_init
     )
-
-
-def fused_adam(parameters: list) -> bool:
-    """Whether Adam runs fused: all parameters (or parameter groups' ``params``) on an accelerator.
-
-    On the CPU the per-parameter loop stays: it is the reference path, bit for bit as before.
-    """
-    tensors = [t for p in parameters for t in (p["params"] if isinstance(p, dict) else [p])]
-    return bool(tensors) and all(avoids_read_backs(t.device) for t in tensors)

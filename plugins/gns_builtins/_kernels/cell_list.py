@@ -8,8 +8,6 @@ far particles spread (no overflow on exploding rollouts).
 
 from __future__ import annotations
 
-import itertools
-
 import torch
 from torch import Tensor
 
@@ -117,10 +115,8 @@ def radius_pairs(position: Tensor, batch: Tensor, radius: float) -> tuple[Tensor
 
     sorted_keys, order = torch.sort(combine(ranks), stable=True)
 
-    # All 3^d neighbour cells at once (a few dozen operations, not a few dozen per cell: on a GPU each is a
-    # launch). Row c of ``offsets`` is the c-th of itertools.product(range(3), repeat=d): the candidates of
-    # a receiver come cell by cell in that order, as the sort below expects nothing of it.
-    offsets = _neighbour_offsets(dim, device)  # (3^d, d) in {0, 1, 2}, i.e. cell offsets -1, 0, +1
+    # All 3^d neighbour cells at once (on a GPU each operation is a launch); row c: cell offsets - 1 per axis.
+    offsets = torch.cartesian_prod(*[torch.arange(3, device=device)] * dim).view(-1, dim)
     key = ranks[0].expand(offsets.shape[0], n)
     exists = torch.ones(offsets.shape[0], n, dtype=torch.bool, device=device)
     for k in range(dim):
@@ -150,17 +146,6 @@ def radius_pairs(position: Tensor, batch: Tensor, radius: float) -> tuple[Tensor
         senders_out.append(s[perm])
         receivers_out.append(r[perm])
     return torch.cat(senders_out), torch.cat(receivers_out)
-
-
-_OFFSETS: dict[tuple[int, torch.device], Tensor] = {}
-
-
-def _neighbour_offsets(dim: int, device: torch.device) -> Tensor:
-    """(3^d, d) int64 rows of ``itertools.product(range(3), repeat=d)``, made once per device."""
-    key = (dim, device)
-    if key not in _OFFSETS:
-        _OFFSETS[key] = torch.tensor(list(itertools.product(range(3), repeat=dim)), dtype=torch.long, device=device)
-    return _OFFSETS[key]
 
 
 def _chunk_bounds(per_receiver: Tensor, size: int) -> tuple[list[int], list[int]]:

@@ -290,6 +290,20 @@ def uses_triton(latent: Tensor, weight: Tensor, num_weights: int) -> bool:
     return weight.dtype == torch.float32 and triton_edge_block.applies(latent, weight.shape[0], num_weights)
 
 
+def edge_order(step, e: Tensor, graph) -> EdgeOrder | None:
+    """The graph's edge orders, made once for all the message-passing steps of a processor call, where an
+    interaction step like ``step`` (``InteractionStep``) runs its edge block as Triton kernels; else None.
+
+    Shapes: e (E, L) edge latents; ``graph`` a :class:`~gns_framework.contracts.Graph`.
+    """
+    if step.edge_block != "fused" or not graph.receivers_sorted:
+        return None
+    linears = step.edge_mlp.mlp.linears
+    if not uses_triton(e, linears[0].weight, len(linears)):
+        return None
+    return EdgeOrder.of(graph.senders, graph.receivers, graph.num_nodes)
+
+
 def edge_block(
     e: Tensor,
     table: Tensor,

@@ -40,10 +40,4 @@ class RadiusGraphBuilder(GraphBuilder):
     def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:
         search = self.verlet.pairs if self.verlet else partial(radius_pairs, radius=self.scene.connectivity_radius)
         senders, receivers = search(position, batch)
-        return Graph(
-            senders=senders,
-            receivers=receivers,
-            displacement=position[senders] - position[receivers],
-            num_nodes=position.shape[0],
-            receivers_sorted=True,
-        )
+        return Graph(senders, receivers, position[senders] - position[receivers], len(position), receivers_sorted=True)

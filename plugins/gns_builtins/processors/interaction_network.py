@@ -23,8 +23,7 @@ from torch import Tensor, nn
 from gns_framework.contracts import Graph, ModelSizes, ComponentParams, Processor
 from gns_framework.api import NormedMLP
 
-from .._kernels.edge_block import edge_block, node_table, table_rows, uses_triton
-from .._kernels.edge_order import EdgeOrder
+from .._kernels.edge_block import edge_block, edge_order, node_table, table_rows
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -32,36 +31,21 @@ if TYPE_CHECKING:
 
 EdgeBlock = Literal["fused", "plain"]
 """How the edge update runs: ``plain`` is the paper's three lines in torch, the code to read; ``fused``
-(default) evaluates it in cache-sized chunks of edges with fused CPU loops and a hand-written backward
-(``_kernels/edge_block.py``), and on CUDA with Triton as one kernel pass per step
-(``_kernels/triton_edge_block.py``): faster, less memory, equal within float rounding (their mirror tests)."""
+(default) runs it in cache-sized chunks with fused CPU loops and a hand-written backward (``_kernels/edge_block.py``),
+on CUDA as Triton kernels (``triton_edge_block.py``): faster, less memory, equal within rounding (mirror tests)."""
 
 
 class InteractionStep(nn.Module):
-    """One message-passing step. Shapes: x (N, L), e (E, L), senders and receivers (E,) int64.
-
-    ``order``: the graph's :class:`EdgeOrder` where :meth:`edge_order` gives one (the Triton path).
-    """
+    """One message-passing step. Shapes: x (N, L), e (E, L), senders and receivers (E,) int64; ``order``: edge_order."""
 
     def __init__(self, latent: int, hidden: int, hidden_layers: int, edge_block: EdgeBlock = "fused"):
         super().__init__()
-        self.latent, self.edge_linears = latent, hidden_layers + 1
+        self.latent = latent
         self.edge_block = edge_block
         self.edge_mlp = NormedMLP(3 * latent, hidden, hidden_layers, latent)
         self.node_mlp = NormedMLP(2 * latent, hidden, hidden_layers, latent)
 
-    def edge_order(self, e: Tensor, graph: Graph) -> EdgeOrder | None:
-        """The graph's edge orders, made once for all steps, where this step runs as Triton kernels; else None."""
-        if self.edge_block != "fused" or not graph.receivers_sorted:
-            return None
-        first = cast("nn.Linear", self.edge_mlp.mlp.linears[0])
-        if not uses_triton(e, first.weight, self.edge_linears):
-            return None
-        return EdgeOrder.of(graph.senders, graph.receivers, graph.num_nodes)
-
-    def forward(
-        self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor, order: EdgeOrder | None = None
-    ) -> tuple[Tensor, Tensor]:
+    def forward(self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor, order=None) -> tuple[Tensor, Tensor]:
         if self.edge_block == "fused":
             return self._fused(x, e, senders, receivers, order)
         # The edge update: each edge sees its own latent and the two particles it joins.
@@ -72,9 +56,7 @@ class InteractionStep(nn.Module):
         node_update = self.node_mlp(torch.cat([x, aggregate], dim=-1))
         return x + node_update, e + edge_update
 
-    def _fused(
-        self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor, order: EdgeOrder | None
-    ) -> tuple[Tensor, Tensor]:
+    def _fused(self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor, order) -> tuple[Tensor, Tensor]:
         """The same step with the edge update and aggregation in one chunked, fused pass."""
         mlp = self.edge_mlp.mlp
         linears = cast("Sequence[nn.Linear]", mlp.linears)  # layers.MLP: a ModuleList of nn.Linear
@@ -111,7 +93,8 @@ class InteractionNetwork(Processor):
         )
 
     def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:
-        order = cast("InteractionStep", self.steps[0]).edge_order(edge_latent, graph)
+        first = cast("InteractionStep", self.steps[0])
+        order = edge_order(first, edge_latent, graph) if first.edge_block == "fused" else None
         for k, step in enumerate(self.steps):
             if k and graph.exchange is not None:  # a domain-decomposed step: the halo's latents from their owners
                 node_latent = graph.exchange(node_latent)

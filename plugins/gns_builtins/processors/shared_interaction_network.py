@@ -7,6 +7,7 @@ from torch import Tensor
 
 from gns_framework.contracts import Graph, ModelSizes, ComponentParams, Processor
 
+from .._kernels.edge_block import edge_order
 from .interaction_network import EdgeBlock, InteractionStep
 
 
@@ -34,7 +35,7 @@ class SharedInteractionNetwork(Processor):
         self.step = InteractionStep(sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers, params.edge_block)
 
     def forward(self, node_latent: Tensor, edge_latent: Tensor, graph: Graph) -> tuple[Tensor, Tensor]:
-        order = self.step.edge_order(edge_latent, graph)
+        order = edge_order(self.step, edge_latent, graph) if self.params.edge_block == "fused" else None
         for k in range(self.params.message_passing_steps):
             if k and graph.exchange is not None:  # a domain-decomposed step: the halo's latents from their owners
                 node_latent = graph.exchange(node_latent)
