@@ -58,8 +58,8 @@ def test_no_residual_on_edges_fails(smallest_case, monkeypatch):
     """Edge latents replaced by their update (the residual kept on nodes only)."""
     original = InteractionStep.forward
 
-    def without_edge_residual(self, x, e, senders, receivers):
-        x_new, e_new = original(self, x, e, senders, receivers)
+    def without_edge_residual(self, x, e, senders, receivers, order=None):
+        x_new, e_new = original(self, x, e, senders, receivers, order)
         return x_new, e_new - e
 
     monkeypatch.setattr(InteractionStep, "forward", without_edge_residual)
