@@ -39,6 +39,7 @@ from functools import cache
 import torch
 from torch import Tensor
 
+from .chunked import for_products
 from .edge_order import EdgeOrder
 
 BLOCK_NODES = 16
@@ -154,7 +155,7 @@ class _TritonEdgeBlock(torch.autograd.Function):
     @staticmethod
     def forward(ctx, e, table, rows, order, eps, allow_tf32, products, num_weights, gamma, beta, *parameters):
         weights, biases = list(parameters[:num_weights]), list(parameters[num_weights:])
-        product_weights = [w.to(products).contiguous() for w in weights]
+        product_weights = for_products(products, weights)
         out, aggregate = forward(e, table, rows, order, product_weights, biases, gamma, beta, eps, allow_tf32)
         ctx.save_for_backward(e, table, rows, *order, gamma, beta, *weights, *biases)
         ctx.eps, ctx.allow_tf32, ctx.products, ctx.num_weights = eps, allow_tf32, products, len(weights)
@@ -168,7 +169,7 @@ class _TritonEdgeBlock(torch.autograd.Function):
         )
         weights, biases = parameters[: ctx.num_weights], parameters[ctx.num_weights :]
         products = ctx.products
-        product_weights = [w.to(products).contiguous() for w in weights]
+        product_weights = for_products(products, weights)
         middle_weight, middle_bias, has_middle = _middle(product_weights, biases)
         kernels = triton_module()
         num_edges, latent = e.shape

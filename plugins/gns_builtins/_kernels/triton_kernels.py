@@ -55,6 +55,15 @@ def _activations(
 
 
 @triton.jit
+def _normalised(a, eps, L: tl.constexpr):
+    """LayerNorm's normalisation of each row of ``a`` (BE, L), before its scale and shift: ``(normed, rstd)``."""
+    mean = tl.sum(a, 1) / L
+    centred = a - mean[:, None]
+    rstd = 1.0 / tl.sqrt(tl.sum(centred * centred, 1) / L + eps)
+    return centred * rstd[:, None], rstd
+
+
+@triton.jit
 def _load_weights(w1_ptr, wm_ptr, bm_ptr, wl_ptr, bl_ptr, L: tl.constexpr, H: tl.constexpr, HAS_MIDDLE: tl.constexpr):
     """The weights as stored (rows contiguous, so loads coalesce): W_e (H, L), W_2 (H, H), W_3 (L, H), and biases.
 
@@ -118,10 +127,8 @@ def forward_kernel(
         _, _, _, a = _activations(
             e, table_ptr, rows_ptr, edges, mask, w1, wm, bm, wl, bl, H, HAS_MIDDLE, PRECISION, UPCAST
         )
-        mean = tl.sum(a, 1) / L
-        centred = a - mean[:, None]
-        rstd = 1.0 / tl.sqrt(tl.sum(centred * centred, 1) / L + eps)
-        update = centred * rstd[:, None] * gamma[None, :] + beta[None, :]
+        normed, _ = _normalised(a, eps, L)
+        update = normed * gamma[None, :] + beta[None, :]
         tl.store(out_ptr + edges[:, None] * L + lcols[None, :], e + update, mask=mask[:, None])
         receivers = tl.load(rows_ptr + 2 * edges, mask=mask, other=-1)
         # (BN, BE) one-hot of "edge k is received by node i": the product sums each receiver's
@@ -177,10 +184,7 @@ def backward_kernel(
     a1, a_middle, h_last_in, a = _activations(
         e, table_ptr, rows_ptr, edges, mask, w1, wm, bm, wl, bl, H, HAS_MIDDLE, PRECISION, UPCAST
     )
-    mean = tl.sum(a, 1) / L
-    centred = a - mean[:, None]
-    rstd = 1.0 / tl.sqrt(tl.sum(centred * centred, 1) / L + eps)
-    normed = centred * rstd[:, None]
+    normed, rstd = _normalised(a, eps, L)
     # The gradient at u: from e' = e + u directly, and from the aggregate at the edge's receiver.
     grad_u = tl.zeros((BE, L), dtype=tl.float32)
     if HAS_GRAD_OUT:
