@@ -40,7 +40,9 @@ def open_dataset(
     dataset.keep_trajectories = keep
     if spec.frame_stride == 1:
         return dataset
-    return FrameStrideDataset(dataset, spec.frame_stride, registry.kinematic_types())
+    return FrameStrideDataset(
+        dataset, spec.frame_stride, registry.kinematic_types(), all_offsets_in_train=spec.stride_offsets == "all"
+    )
 
 
 @dataclass

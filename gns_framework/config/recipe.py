@@ -58,6 +58,12 @@ class DatasetSpec(ComponentSpec):
         description="stored frames per learned step: the model sees every k-th frame (dt and statistics scale with it); "
         "fewer, larger steps make rollouts cheaper and accumulate less error",
     )
+    stride_offsets: Literal["first", "all"] = Field(
+        "first",
+        description="with frame_stride k > 1, the train windows come from frames 0, k, 2k, ... (first) or from "
+        "every offset j < k, frames j, j + k, ... (all: k times the windows from the same simulations); "
+        "validation and rollouts always start at the first frame",
+    )
     memory: Literal["auto", "all", "windows"] = Field(
         "auto",
         description="all: every trajectory read once and kept (fastest when the data fits); windows: a process "

@@ -82,3 +82,33 @@ def test_the_strided_dataset_is_the_inner_layout_otherwise():
     assert dataset.split("valid")[0].num_steps == 3
     # Without a train split the statistics come from the first split there is: x at t = 0, 3, 6 moves 4.5, 13.5.
     assert dataset.metadata().vel_mean == pytest.approx([9.0, 0.0])
+
+
+def test_a_later_offset_starts_there_and_names_itself():
+    trajectory = _accelerating(7)
+    second = strided(trajectory, 3, offset=1)
+    np.testing.assert_array_equal(second.position, trajectory.position[[1, 4]])
+    assert second.step_context[:, 0].tolist() == [1.0, 4.0] and second.key == "t+1"
+    with pytest.raises(ValueError, match=r"offset 3 must lie in \[0, 3\)"):
+        strided(trajectory, 3, offset=3)
+
+
+def test_a_split_with_all_offsets_hands_out_each_simulation_at_each_offset_in_turn():
+    split = StridedSplit([_accelerating(8, "a"), _accelerating(8, "b")], 2, offsets=2)
+    assert len(split) == 4
+    assert [t.key for t in split] == ["a", "a+1", "b", "b+1"]
+    assert split[-1].step_context[:, 0].tolist() == [1.0, 3.0, 5.0, 7.0]
+    with pytest.raises(IndexError):
+        split[4]
+    with pytest.raises(ValueError, match="offsets 3"):
+        StridedSplit([], 2, offsets=3)
+
+
+def test_all_offsets_widen_the_train_split_only_and_its_statistics_cover_them():
+    inner = InMemory({"train": [_accelerating(7)], "valid": [_accelerating(7)]})
+    dataset = FrameStrideDataset(inner, 2, kinematic_types=[3], all_offsets_in_train=True)
+    assert len(dataset.split("train")) == 2 and len(dataset.split("valid")) == 1
+    # x = t^2/2 at t = 0, 2, 4, 6 moves by 2, 6, 10; at t = 1, 3, 5 by 4, 8: mean velocity 6 either way, and
+    # the velocities' spread is that of all five steps (population std of 2, 4, 6, 8, 10 is sqrt(8)).
+    metadata = dataset.metadata()
+    assert metadata.vel_mean == pytest.approx([6.0, 0.0]) and metadata.vel_std[0] == pytest.approx(8**0.5)
