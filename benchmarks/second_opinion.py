@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--held-out", type=int, default=20)
     parser.add_argument("--seed", type=int, default=7, help="scene seed of the held-out scenes (training used 0)")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization", help="datasets are kept here")
-    parser.add_argument("--threshold", type=float, default=10.0, help="disagreement that flags a rollout, %")
+    parser.add_argument("--threshold", type=float, default=10.0, help="disagreement that flags a rollout, %%")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
