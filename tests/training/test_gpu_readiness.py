@@ -10,6 +10,7 @@ from tiny import tiny_recipe, tiny_trainer
 
 from gns_framework.io.checkpoint import load_checkpoint, save_checkpoint
 from gns_framework.training import distributed
+from gns_framework.training import progress as progress_module
 from gns_framework.training import trainer as trainer_module
 from gns_framework.training.distributed import Processes
 
@@ -73,7 +74,7 @@ def test_the_process_group_timeout_comes_from_the_environment_or_is_an_hour(monk
 def test_throughput_is_timed_between_device_synchronisations(dataset_multimaterial, tmp_path, registry, monkeypatch):
     """Each logged window starts and ends with a synchronisation, so queued GPU work is inside it."""
     events = []
-    monkeypatch.setattr(trainer_module, "synchronize", lambda device: events.append(("sync", device.type)))
+    monkeypatch.setattr(progress_module, "synchronize", lambda device: events.append(("sync", device.type)))
     raw_step = trainer_module.Trainer.train_step
 
     def step(self):

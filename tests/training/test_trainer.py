@@ -156,11 +156,3 @@ def test_bfloat16_training_follows_float32_closely(dataset_2d, tmp_path, registr
     assert np.all(np.isfinite(low))
     assert not np.array_equal(full, low)
     assert np.allclose(low, full, rtol=0.05), (full, low)
-
-
-def test_time_to_go_reads_like_a_clock():
-    from gns_framework.training.trainer import time_to_go
-
-    assert time_to_go(100, 40000, 100, 43.3) == "step 100 of 40000, 2.31 steps/s: about 4 h 48 min to go"
-    assert time_to_go(900, 1000, 900, 90.0) == "step 900 of 1000, 10 steps/s: about 1 min to go"
-    assert time_to_go(5, 10, 0, 0.0) == "step 5 of 10"
