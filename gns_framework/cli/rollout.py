@@ -36,8 +36,8 @@ from ..runtime.precision import PRECISIONS
 from ..safe_names import ensure_inside, require_component, safe_component
 from ..training.distributed import from_chief, processes_from_environment, start, stop
 from ..training.mlflow_tracker import log_to_recorded_run
-from ..training.processes import Processes
-from ..training.teams import team_of
+from ..runtime.processes import Processes
+from ..runtime.teams import team_of
 from .arguments import add_allow_pickle, non_negative_float, non_negative_int, positive_int, ratio_above_one_or_never
 from .envelope_option import add_outside_envelope, enforce_envelope
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from torch import Tensor
 
@@ -47,3 +47,18 @@ class Graph:
     @property
     def num_edges(self) -> int:
         return int(self.senders.shape[0])
+
+    def received_by(self, owned: Tensor, exchange: Callable[[Tensor], Tensor] | None) -> "Graph":
+        """The edges whose receiver is ``owned`` ((N,) bool), with ``exchange`` attached.
+
+        A process of a domain-decomposed step computes messages into its own particles
+        only; its halo particles just send, their latents refreshed by ``exchange``.
+        """
+        keep = owned[self.receivers].nonzero()[:, 0]
+        return replace(
+            self,
+            senders=self.senders[keep],
+            receivers=self.receivers[keep],
+            displacement=self.displacement[keep],
+            exchange=exchange,
+        )

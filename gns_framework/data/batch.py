@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
@@ -28,6 +28,9 @@ class ParticleBatch:
             training), or None.
         bounds: (B, d, 2) float32 each example's domain (its walls), or None (the model's bounds).
         walls: (B, 2d, 2) float32 each example's face conditions (friction, no-slip flag), or None.
+        owned: (N,) bool, the particles this process owns in a piece of a scene split with a halo of latents
+            (:mod:`gns_framework.decomposition.piece`), the graph's only receivers; or None.
+        exchange: with ``owned``, refreshes the halo's node latents from their owners (``Graph.exchange``).
     """
 
     position_sequence: Tensor
@@ -40,6 +43,8 @@ class ParticleBatch:
     ahead: Tensor | None = None
     bounds: Tensor | None = None
     walls: Tensor | None = None
+    owned: Tensor | None = None
+    exchange: Callable[[Tensor], Tensor] | None = None
 
     @property
     def num_particles(self) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -58,45 +59,33 @@ class WindowOrder:
     """
 
     def __init__(self, num_windows: int, batch_size: int, seed: int, rank: int = 0, world_size: int = 1):
-        self.num_windows = num_windows
-        self.batch_size = batch_size
-        self.seed = seed
-        self.rank = rank
-        self.world_size = world_size
-        self._epoch: int | None = None
-        self._permutation: np.ndarray | None = None
+        self.num_windows, self.batch_size, self.seed = num_windows, batch_size, seed
+        self.rank, self.world_size = rank, world_size
+        self._shuffled: tuple[int, np.ndarray] = (-1, np.empty(0, np.int64))  # the last epoch's permutation
 
     def permutation(self, epoch: int) -> np.ndarray:
-        if epoch != self._epoch:
+        if self._shuffled[0] != epoch:
             generator = torch.Generator().manual_seed(self.seed * 1_000_003 + epoch)
-            self._permutation = torch.randperm(self.num_windows, generator=generator).numpy()
-            self._epoch = epoch
-        assert self._permutation is not None  # made with the epoch
-        return self._permutation
+            self._shuffled = (epoch, torch.randperm(self.num_windows, generator=generator).numpy())
+        return self._shuffled[1]
 
-    def step_positions(self, step: int) -> range:
-        """Every process's positions in the global stream of windows at ``step``, in rank order."""
+    def draw(self, step: int) -> "StepWindows":
+        """Step ``step``'s global batch: positions ``[s*G, (s+1)*G)`` of the stream, rank-major, and this rank's share."""
         size = self.batch_size * self.world_size
-        return range(step * size, (step + 1) * size)
-
-    def positions(self, step: int) -> range:
-        """This process's positions in the global stream of windows at ``step``."""
-        first = (step * self.world_size + self.rank) * self.batch_size
-        return range(first, first + self.batch_size)
-
-    def window_at(self, position: int) -> int:
-        return int(self.permutation(position // self.num_windows)[position % self.num_windows])
-
-    def indices(self, step: int) -> list[int]:
-        return [self.window_at(p) for p in self.positions(step)]
+        positions = range(step * size, (step + 1) * size)
+        every = [int(self.permutation(p // self.num_windows)[p % self.num_windows]) for p in positions]
+        first = self.rank * self.batch_size
+        return StepWindows(step, every, range(first, first + self.batch_size))
 
 
-def window_noise_generator(seed: int, step: int, slot: int) -> torch.Generator:
-    """Noise generator of one window of one step, reproducible on resume.
+@dataclass(frozen=True)
+class StepWindows:
+    """Step ``step``'s windows: ``every`` (W x B indices of its global batch, rank-major), this process's ``slots``."""
 
-    ``slot`` is the window's place in the step's global batch (rank-major), so each
-    process draws only its own windows' noise and W processes get exactly the noise
-    of one process training on the same windows.
-    """
-    state = np.random.SeedSequence([seed, 1, step, slot]).generate_state(2, dtype=np.uint32)
-    return torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))
+    step: int
+    every: list[int]
+    slots: range
+
+    @property
+    def mine(self) -> list[int]:
+        return [self.every[slot] for slot in self.slots]

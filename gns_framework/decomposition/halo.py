@@ -17,15 +17,13 @@ docs/domain_decomposition.md measures both terms and projects them to many GPUs.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import torch
 from torch import Tensor
 
-from ..contracts import Graph, GraphBuilder, Processor
+from ..contracts import GraphBuilder, Processor
 from ..errors import GnsError
 from ..model.learned_simulator import LearnedSimulator
 from .exchange import Routing
@@ -151,60 +149,3 @@ def with_halo(owned: Particles, partition: Partition, world: int, group: Any = N
     place[order] = torch.arange(order.shape[0], device=order.device)
     owned_rows = place[: owned.count]
     return Halo(local.select(order), owned_rows, place[owned.count :], owned_rows[rows], routing)
-
-
-class OwnedReceivers(GraphBuilder):
-    """A builder's graph of a process's particles, kept where an owned particle receives, with the latent exchange.
-
-    For a halo of latents: the halo particles only send; their latents come from their
-    owners after each message-passing step (``Graph.exchange``).
-    """
-
-    name = "owned_receivers"
-
-    def __init__(self, inner: GraphBuilder, halo: Halo):
-        super().__init__(inner.params, inner.scene)
-        self.inner, self.halo = inner, halo
-        owned = torch.zeros(halo.local.count, dtype=torch.bool, device=halo.owned_rows.device)
-        self.owned = owned.index_fill(0, halo.owned_rows, True)
-
-    def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:
-        graph = self.inner.build(position, batch, num_examples)
-        keep = self.owned[graph.receivers].nonzero()[:, 0]
-        return replace(
-            graph,
-            senders=graph.senders[keep],
-            receivers=graph.receivers[keep],
-            displacement=graph.displacement[keep],
-            exchange=self.halo.refresh,
-        )
-
-
-@contextmanager
-def latent_exchange(simulator: LearnedSimulator, halo: Halo, kind: str) -> Iterator[None]:
-    """For a halo of latents, the simulator builds :class:`OwnedReceivers` graphs of ``halo`` while inside."""
-    if kind != "latents":
-        yield
-        return
-    inner = simulator.graph_builder
-    simulator.graph_builder = OwnedReceivers(inner, halo)
-    try:
-        yield
-    finally:
-        simulator.graph_builder = inner
-
-
-def stand_in_exchanges(simulator: LearnedSimulator, halo: Halo, backward: bool) -> None:
-    """What a process with no particle at all (none owned, no halo) does instead of a step with a halo of latents.
-
-    The others exchange latents between their message-passing steps (and again in the
-    backward pass); this process must take part in each exchange, though it sends and
-    receives nothing, or they would wait for it forever.
-    """
-    hops_param = type(simulator.processor).hops_param
-    assert hops_param is not None and halo.local.count == 0
-    latent = torch.zeros((0, 1), device=halo.owned_rows.device, requires_grad=backward)
-    for _ in range(int(getattr(simulator.processor.params, hops_param)) - 1):
-        latent = halo.refresh(latent)
-    if backward:
-        latent.sum().backward()

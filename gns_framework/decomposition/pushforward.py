@@ -28,12 +28,13 @@ from ..data.batch import ParticleBatch
 from ..model.history import advance_window
 from ..model.learned_simulator import LearnedSimulator
 from .exchange import rows_everywhere
-from .halo import HaloKind, latent_exchange, partition_for, stand_in_exchanges, with_halo
+from .halo import HaloKind, partition_for, with_halo
+from .piece import on_piece
 from .particles import Particles
 from .partition import Cut
 
 if TYPE_CHECKING:
-    from ..training.processes import Processes
+    from ..runtime.processes import Processes
 
 
 @torch.no_grad()
@@ -90,24 +91,7 @@ def _decomposed_next_frame(
     )
     owned = everyone.select(partition.owner(current) == rank)
     particles = with_halo(owned, partition, world, processes.group)
-    local = particles.local
-    if local.count == 0 or (kind == "positions" and owned.count == 0):
-        # Nothing to predict here; with a halo of latents the others' exchanges still need this process.
-        if kind == "latents":
-            stand_in_exchanges(simulator, particles, backward=False)
-        predicted = current[:0]
-    else:
-        assert local.example is not None
-        mine = replace(
-            batch,
-            position_sequence=local.sequence,
-            particle_type=local.particle_type,
-            material_property=local.material_property,
-            batch=local.example,
-            next_position=None,
-            ahead=None,
-        )
-        with latent_exchange(simulator, particles, kind):
-            predicted = simulator.predict_next_position(mine, prescribed=prescribed[local.ids])
-        predicted = predicted[particles.owned_rows]
+    on_mine = lambda mine: simulator.predict_next_position(mine, prescribed=prescribed[particles.local.ids])  # noqa: E731
+    predicted = on_piece(simulator, particles, kind, batch, on_mine)
+    predicted = current[:0] if predicted is None else predicted[particles.owned_rows]
     return rows_everywhere(owned.ids, predicted.to(current.dtype), batch.num_particles, world, processes.group)

@@ -27,6 +27,7 @@ frames (as the rollout file does), in memory or in a memory-mapped file (``frame
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -44,12 +45,13 @@ from ..model.rollout import check_simulates, rollout_step
 from ..model.rollout_guard import GuardViolation, RolloutGuard
 from ..runtime.precision import Precision
 from .exchange import rows_everywhere, send_rows
-from .halo import HaloKind, latent_exchange, partition_for, stand_in_exchanges, with_halo
+from .halo import HaloKind, partition_for, with_halo
+from .piece import on_piece
 from .particles import Particles
 from .partition import Cut, Partition
 
 if TYPE_CHECKING:
-    from ..training.processes import Processes
+    from ..runtime.processes import Processes
 
 
 @dataclass(frozen=True)
@@ -153,22 +155,15 @@ def partitioned_rollout(
         kinematic = owned_rows[~simulator.predicted_mask(owned.particle_type)]
         kinematic_ids = local.ids[kinematic].cpu().numpy()
         kinematic_next = torch.from_numpy(np.asarray(trajectory.position[history + step][kinematic_ids])).to(device)
-        current = replace(
-            shared,
-            position_sequence=local.sequence,
-            particle_type=local.particle_type,
-            material_property=local.material_property,
-            batch=torch.zeros(local.ids.shape[0], dtype=torch.long, device=device),
-            context=None if context is None else context[history - 1 + step][None],
+        scene_now = replace(shared, context=None if context is None else context[history - 1 + step][None])
+        step_on_piece = partial(
+            rollout_step, simulator, guard, kinematic=kinematic, kinematic_next=kinematic_next, precision=precision
         )
-        if local.count == 0 or (kind == "positions" and owned.count == 0):
-            # Nothing to predict here; with a halo of latents the others' exchanges still need this process.
-            if kind == "latents":
-                stand_in_exchanges(simulator, particles, backward=False)
-            next_position = continued = current.position_sequence[:0, -1]
+        result = on_piece(simulator, particles, kind, scene_now, step_on_piece)
+        if result is None:
+            next_position = continued = local.sequence[:0, -1]
         else:
-            with latent_exchange(simulator, particles, kind):
-                next_position, continued = rollout_step(simulator, guard, current, kinematic, kinematic_next, precision)
+            next_position, continued = result
         next_owned, continued_owned = next_position[owned_rows], continued[owned_rows]
         previous = None if predicted is None else (predicted[step - 1] if step > 0 else last_input)
         violations += _gather_and_check(

@@ -16,7 +16,6 @@ too large for one device trains on several.
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import TYPE_CHECKING, Literal
 
 import torch
@@ -27,12 +26,13 @@ from ..data.batch import ParticleBatch
 from ..model.learned_simulator import LearnedSimulator
 from ..model.loss import masked_squared_error_sum
 from ..runtime.precision import Precision, autocast, backward_precision
-from .halo import latent_exchange, stand_in_exchanges, with_halo
+from .halo import with_halo
+from .piece import on_piece
 from .particles import Particles
 from .partition import Partition
 
 if TYPE_CHECKING:
-    from ..training.processes import Processes
+    from ..runtime.processes import Processes
 
 
 def owned_share(window: ParticleBatch, position_noise: Tensor, partition: Partition, rank: int) -> Particles:
@@ -77,7 +77,7 @@ def partitioned_gradients(
         partition, halo: from :func:`.halo.partition_for`, the same on every process.
         precision: of the forward and backward (``training.precision``).
         everyone: the whole job when ``processes`` is one team of it, each team taking its own
-            windows (data-parallel over teams, :func:`~gns_framework.training.teams.team_of`):
+            windows (data-parallel over teams, :func:`~gns_framework.runtime.teams.team_of`):
             the loss is then the mean over every team's predicted particles and the gradients
             are summed over the job. Default: ``processes``.
 
@@ -89,26 +89,22 @@ def partitioned_gradients(
     local, owned_rows = particles.local, particles.owned_rows
     moving = simulator.predicted_mask(local.particle_type)[owned_rows]
     predicted_count = everyone.sum(moving.sum().to(torch.float64))
-    share = torch.zeros((), device=owned.sequence.device)
-    if local.count == 0 and halo == "latents":
-        stand_in_exchanges(simulator, particles, backward=True)  # the others' exchanges still need this process
-    elif local.count and (owned.count or halo == "latents"):
-        batch = replace(
-            scene,
-            position_sequence=local.sequence,
-            particle_type=local.particle_type,
-            material_property=local.material_property,
-            next_position=local.next_position,
-            batch=local.example if local.example is not None else torch.zeros_like(local.ids),
-        )
+    device = owned.sequence.device
+
+    def loss_share(batch: ParticleBatch) -> Tensor:
+        """This process's share of the loss, back-propagated: its predicted particles' error over the scene's count."""
         assert local.noise is not None, "the owned particles carry their training noise"
-        device = local.ids.device
-        with latent_exchange(simulator, particles, halo), autocast(precision, device):
+        with autocast(precision, device):
             prediction, target = simulator(batch, local.noise)
         error = masked_squared_error_sum(prediction[owned_rows].to(target.dtype), target[owned_rows], moving)
         share = error / predicted_count.clamp(min=1).to(error.dtype)
         with backward_precision(precision, device):
             share.backward()
+        return share
+
+    share = on_piece(simulator, particles, halo, scene, loss_share, backward=True)
+    if share is None:
+        share = torch.zeros((), device=device)
     _sum_gradients(simulator, everyone)
     return everyone.sum(share.detach())
 

@@ -15,24 +15,25 @@ Every process calls these at once; rank 0 gets the results the single process wo
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from ..data.batch import ParticleBatch
 from ..data.trajectory import Trajectory
 from ..errors import RolloutDiverged
 from ..model.learned_simulator import LearnedSimulator
 from ..model.loss import masked_squared_error_sum
-from .halo import HaloKind, latent_exchange, partition_for, stand_in_exchanges, with_halo
+from .halo import HaloKind, partition_for, with_halo
+from .piece import on_piece
 from .partition import Cut
 from .rollout import partitioned_rollout
 from .training_step import owned_share
 
 if TYPE_CHECKING:
-    from ..training.processes import Processes
+    from ..runtime.processes import Processes
 
 
 @torch.no_grad()
@@ -58,31 +59,21 @@ def partitioned_one_step_errors(
     owned = owned_share(batch, torch.zeros_like(batch.position_sequence), partition, rank)
     particles = with_halo(owned, partition, world, processes.group)
     local, owned_rows = particles.local, particles.owned_rows
-    # Summed over processes: the acceleration error, the position error, the predicted particles.
-    sums = torch.zeros(3, dtype=torch.float64, device=batch.position_sequence.device)
-    if local.count == 0 or (kind == "positions" and owned.count == 0):
-        # Nothing to predict here; with a halo of latents the others' exchanges still need this process.
-        if kind == "latents":
-            stand_in_exchanges(simulator, particles, backward=False)
-    else:
-        assert local.noise is not None and local.next_position is not None and local.example is not None
-        mine = replace(
-            batch,
-            position_sequence=local.sequence,
-            particle_type=local.particle_type,
-            material_property=local.material_property,
-            next_position=local.next_position,
-            batch=local.example,
-            ahead=None,
-        )
-        with latent_exchange(simulator, particles, kind):
-            prediction, target = simulator(mine, local.noise)
+
+    def error_sums(mine: ParticleBatch) -> Tensor:
+        """The owned particles' acceleration error, position error and count (float64, to be summed over processes)."""
+        assert local.noise is not None and local.next_position is not None
+        prediction, target = simulator(mine, local.noise)
         moving = simulator.predicted_mask(local.particle_type)[owned_rows]
         acceleration = masked_squared_error_sum(prediction[owned_rows], target[owned_rows], moving)
         accelerations = simulator.output_stats.denormalize(prediction)
         next_position = simulator.integrator.next_position(local.sequence, accelerations)[owned_rows]
         position = ((next_position - local.next_position[owned_rows])[moving] ** 2).sum()
-        sums = torch.stack([acceleration.double(), position.double(), moving.sum().double()])
+        return torch.stack([acceleration.double(), position.double(), moving.sum().double()])
+
+    sums = on_piece(simulator, particles, kind, batch, error_sums)
+    if sums is None:
+        sums = torch.zeros(3, dtype=torch.float64, device=batch.position_sequence.device)
     acceleration_sum, position_sum, predicted = processes.sum(sums).tolist()
     predicted = max(predicted, 1.0)
     return acceleration_sum / predicted, position_sum / (predicted * batch.position_sequence.shape[-1])

@@ -68,6 +68,8 @@ class LearnedSimulator(nn.Module):
         """The builder's edges, with the particles' current positions and examples attached (see :class:`Graph`)."""
         position = position_sequence[:, -1]
         graph = self.graph_builder.build(position, batch.batch, batch.num_examples)
+        if batch.owned is not None:  # a piece of a split scene: messages into its owned particles only
+            graph = graph.received_by(batch.owned, batch.exchange)
         return replace(graph, position=position, batch=batch.batch, num_examples=batch.num_examples)
 
     def encode_inputs(self, position_sequence: Tensor, batch: ParticleBatch) -> tuple[Tensor, Tensor, Graph]:

@@ -1,15 +1,19 @@
-"""Random-walk training noise on the input position history (Sanchez-Gonzalez et al. 2020, Sec. 3)."""
+"""Random-walk training noise on the input position history (Sanchez-Gonzalez et al. 2020, Sec. 3): its std, its
+draw, and the draw of one optimiser step's windows, reproducible on resume and under any number of processes."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
+import numpy as np
 import torch
 from torch import Tensor
 
 if TYPE_CHECKING:
     from ..config.recipe import ModelSpec
     from ..data.metadata import DatasetMetadata
+    from ..data.windows import StepWindows
 
 
 def random_walk_noise(
@@ -44,3 +48,22 @@ def training_noise_std(model: "ModelSpec", metadata: "DatasetMetadata") -> float
     if model.noise_relative is None:
         return model.noise_std
     return model.noise_relative * sum(metadata.vel_std) / len(metadata.vel_std)
+
+
+def step_noise(drawn: "StepWindows", particles: Sequence[int], shape: tuple[int, int], std: float, seed: int) -> Tensor:
+    """This process's noise of a step on the host, (sum of ``particles``, C, d) float32; ``shape``: (C, d).
+
+    ``particles``: of each window of ``drawn.mine``, whose generators are seeded by (seed, step, slot in the
+    global batch): W processes of B windows get exactly one process's noise of the same W x B windows.
+    """
+    parts = [
+        random_walk_noise(torch.empty((n, *shape)), std, window_noise_generator(seed, drawn.step, slot))
+        for n, slot in zip(particles, drawn.slots, strict=True)
+    ]
+    return torch.cat(parts)
+
+
+def window_noise_generator(seed: int, step: int, slot: int) -> torch.Generator:
+    """Noise generator of the window in ``slot`` of step ``step``'s global batch (rank-major)."""
+    state = np.random.SeedSequence([seed, 1, step, slot]).generate_state(2, dtype=np.uint32)
+    return torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))

@@ -32,7 +32,7 @@ from ..io.run_folder import RunFolder
 from ..model.envelope import Envelope
 from ..model.learned_simulator import LearnedSimulator
 from ..plugins import Registry
-from .processes import Processes
+from ..runtime.processes import Processes
 from .ema import WeightAverage
 from .step import TrainingStep
 from .validation import Validation

@@ -19,7 +19,7 @@ import torch.distributed as dist
 
 from ..errors import GnsError
 from ..runtime.device import is_cuda
-from .processes import Processes
+from ..runtime.processes import Processes
 
 __all__ = [
     "Processes",

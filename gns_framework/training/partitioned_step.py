@@ -18,7 +18,7 @@ from ..data.batch import ParticleBatch
 from ..decomposition.halo import partition_for
 from ..decomposition.pushforward import partitioned_pushed_forward
 from ..decomposition.training_step import owned_share, partitioned_gradients
-from .processes import Processes
+from ..runtime.processes import Processes
 from .step import TrainingStep
 
 

@@ -38,9 +38,9 @@ from .checkpoints import Checkpoints
 from .ema import WeightAverage
 from .optim import make_optimizer
 from .partitioned_step import PartitionedTrainingStep
-from .processes import Processes
+from ..runtime.processes import Processes
 from .step import TrainingStep
-from .teams import team_of
+from ..runtime.teams import team_of
 from .validation import Validation, validation_windows
 
 

@@ -19,15 +19,15 @@ import torch
 from torch import Tensor
 
 from ..data.batch import ParticleBatch
-from ..data.windows import WindowIndex, WindowOrder, window_noise_generator
+from ..data.windows import WindowIndex, WindowOrder
 from ..model.history import advance_window
 from ..model.learned_simulator import LearnedSimulator
 from ..model.loss import masked_squared_error_sum
-from ..model.noise import random_walk_noise
+from ..model.noise import step_noise
 from ..runtime.device import is_cuda
 from ..runtime.precision import Precision, autocast, backward_precision
 from .ema import WeightAverage
-from .processes import Processes
+from ..runtime.processes import Processes
 
 
 class TrainingStep:
@@ -82,8 +82,10 @@ class TrainingStep:
         is the one read-back a step needs (``radius_pairs``). Returns the global batch's loss, a
         float64 scalar tensor on the device, and its particle count (both the same on every rank).
         """
-        batch = self.windows.batch(self.order.indices(step))
-        noise = self.noise(step)
+        drawn = self.order.draw(step)
+        batch = self.windows.batch(drawn.mine)
+        particles, scene = [self.windows.num_particles(w) for w in drawn.mine], self.simulator.scene
+        noise = step_noise(drawn, particles, (scene.history, scene.dim), self.noise_std, self.seed)
         if self.pins_memory:
             batch, noise = batch.pinned(), noise.pin_memory()
         batch = batch.to(self.device)
@@ -97,8 +99,7 @@ class TrainingStep:
         if self.ema is not None:
             self.ema.update(self.simulator)
         self.scheduler.step()
-        particles = sum(self.windows.num_particles(self.order.window_at(p)) for p in self.order.step_positions(step))
-        return loss, particles
+        return loss, sum(self.windows.num_particles(w) for w in drawn.every)
 
     def gradients(self, batch: ParticleBatch, noise: Tensor, mask: Tensor) -> Tensor:
         """Fresh gradients of the global batch's loss on every rank; returns that loss (float64).
@@ -143,22 +144,3 @@ class TrainingStep:
             )
             sequence = advance_window(sequence, rolled)
         return replace(batch, position_sequence=sequence, next_position=truth[:, steps])
-
-    def noise(self, step: int) -> Tensor:
-        """This process's random-walk noise of step ``step`` on the host, (N, C, d) float32.
-
-        Each window's rows come from its own generator, seeded by (seed, step, the
-        window's place in the step's global batch): every rank draws only its own
-        windows' noise, and W processes of B windows get exactly the noise of one
-        process training on the same W x B windows.
-        """
-        history, dim = self.simulator.scene.history, self.simulator.scene.dim
-        first = self.order.step_positions(step).start
-        parts = []
-        for position in self.order.positions(step):
-            window = self.order.window_at(position)
-            shape = torch.empty((self.windows.num_particles(window), history, dim))
-            parts.append(
-                random_walk_noise(shape, self.noise_std, window_noise_generator(self.seed, step, position - first))
-            )
-        return torch.cat(parts)

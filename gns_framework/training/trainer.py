@@ -20,7 +20,7 @@ from ..io.checkpoint import list_checkpoints
 from ..plugins import Registry
 from ..runtime.host_sync import avoids_read_backs, read_back
 from .parts import build_training_parts
-from .processes import Processes
+from ..runtime.processes import Processes
 from .progress import Throughput, time_to_go
 from .ema import WeightAverage
 from .provenance import git_commit

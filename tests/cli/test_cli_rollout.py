@@ -16,7 +16,7 @@ from tiny import tiny_recipe_mapping
 
 from gns_framework.cli import main
 from gns_framework.cli import rollout as rollout_command
-from gns_framework.training.processes import Processes
+from gns_framework.runtime.processes import Processes
 
 
 def test_train_resume_rollout_render(dataset_multimaterial, tmp_path):

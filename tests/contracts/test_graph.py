@@ -37,3 +37,18 @@ def test_a_graph_is_frozen():
     # Processors share one graph across message-passing steps: none may change it under the others.
     with pytest.raises(dataclasses.FrozenInstanceError):
         _graph(2).num_nodes = 7
+
+
+def test_received_by_keeps_the_edges_into_owned_particles_in_order_with_the_exchange():
+    graph = Graph(
+        senders=torch.tensor([1, 2, 0, 2, 0, 1]),
+        receivers=torch.tensor([0, 0, 1, 1, 2, 2]),
+        displacement=torch.arange(12.0).reshape(6, 2),
+        num_nodes=3,
+        receivers_sorted=True,
+    )
+    exchange = torch.neg
+    piece = graph.received_by(torch.tensor([True, False, True]), exchange)
+    assert piece.senders.tolist() == [1, 2, 0, 1] and piece.receivers.tolist() == [0, 0, 2, 2]
+    assert piece.displacement[:, 0].tolist() == [0.0, 2.0, 8.0, 10.0]
+    assert piece.exchange is exchange and piece.receivers_sorted and piece.num_nodes == 3

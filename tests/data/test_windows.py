@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gns_framework.data.trajectory import Trajectory
-from gns_framework.data.windows import WindowIndex, WindowOrder, window_noise_generator
+from gns_framework.data.windows import WindowIndex, WindowOrder
 
 
 def trajectory(frames: int, particles: int, offset: float = 0.0) -> Trajectory:
@@ -33,23 +33,25 @@ def test_each_epoch_visits_every_window_once_and_ranks_take_disjoint_shares():
     windows, batch, ranks = 10, 2, 2
     orders = [WindowOrder(windows, batch, seed=3, rank=r, world_size=ranks) for r in range(ranks)]
     steps_per_epoch = windows // (batch * ranks)
-    seen = [w for step in range(steps_per_epoch) for order in orders for w in order.indices(step)]
+    seen = [w for step in range(steps_per_epoch) for order in orders for w in order.draw(step).mine]
     assert len(seen) == len(set(seen)) == steps_per_epoch * batch * ranks
     # Within an epoch; a step that straddles two epochs may give both ranks one window again.
     for step in range(steps_per_epoch):
-        assert not set(orders[0].indices(step)) & set(orders[1].indices(step))
+        assert not set(orders[0].draw(step).mine) & set(orders[1].draw(step).mine)
 
 
 def test_the_order_is_a_function_of_the_step_so_a_resumed_run_sees_the_same_windows():
     straight = WindowOrder(50, 4, seed=1)
-    sequence = [straight.indices(step) for step in range(40)]
+    sequence = [straight.draw(step).mine for step in range(40)]
     resumed = WindowOrder(50, 4, seed=1)
-    assert [resumed.indices(step) for step in range(20, 40)] == sequence[20:]
-    assert WindowOrder(50, 4, seed=2).indices(0) != sequence[0]
+    assert [resumed.draw(step).mine for step in range(20, 40)] == sequence[20:]
+    assert WindowOrder(50, 4, seed=2).draw(0).mine != sequence[0]
 
 
-def test_one_process_of_w_windows_gets_the_noise_of_w_processes_of_one():
-    one = [window_noise_generator(0, 5, slot).initial_seed() for slot in range(4)]
-    assert len(set(one)) == 4, "every window of a step its own stream"
-    assert window_noise_generator(0, 5, 2).initial_seed() == one[2]
-    assert window_noise_generator(0, 6, 2).initial_seed() != one[2]
+def test_a_step_draws_its_global_batch_rank_major_and_each_rank_its_slots_of_it():
+    orders = [WindowOrder(10, 2, seed=3, rank=r, world_size=2) for r in range(2)]
+    drawn = [order.draw(4) for order in orders]
+    assert drawn[0].every == drawn[1].every and len(drawn[0].every) == 4 and drawn[0].step == 4
+    assert list(drawn[0].slots) == [0, 1] and list(drawn[1].slots) == [2, 3]
+    assert drawn[0].mine + drawn[1].mine == drawn[0].every
+    assert WindowOrder(10, 4, seed=3).draw(4).every == drawn[0].every  # one process of 4 windows: the same batch

@@ -11,7 +11,7 @@ from spawned import free_loopback_port, run_processes
 
 from gns_framework.decomposition.rollout import partitioned_rollout
 from gns_framework.model.rollout import rollout
-from gns_framework.training.processes import Processes
+from gns_framework.runtime.processes import Processes
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -7,7 +7,8 @@ import torch
 
 from gns_framework.config.recipe import ModelSpec
 from gns_framework.data.metadata import DatasetMetadata
-from gns_framework.model.noise import random_walk_noise, training_noise_std
+from gns_framework.data.windows import WindowOrder
+from gns_framework.model.noise import random_walk_noise, step_noise, training_noise_std, window_noise_generator
 
 
 def test_the_first_position_is_noise_free_and_the_last_velocity_has_the_std_asked_for():
@@ -46,3 +47,22 @@ def metadata(vel_std):
 def test_the_noise_is_absolute_unless_it_is_relative_to_the_datas_velocities():
     assert training_noise_std(ModelSpec(noise_std=3e-4), metadata([1.0, 3.0])) == 3e-4
     assert training_noise_std(ModelSpec(noise_relative=0.1), metadata([1.0, 3.0])) == pytest.approx(0.2)
+
+
+def test_every_window_of_a_step_has_its_own_stream_seeded_by_step_and_slot():
+    one = [window_noise_generator(0, 5, slot).initial_seed() for slot in range(4)]
+    assert len(set(one)) == 4, "every window of a step its own stream"
+    assert window_noise_generator(0, 5, 2).initial_seed() == one[2]
+    assert window_noise_generator(0, 6, 2).initial_seed() != one[2]
+
+
+def test_one_process_of_w_windows_gets_the_noise_of_w_processes_of_one():
+    particles = {0: 3, 1: 5, 2: 2, 3: 4}  # window -> particles; the order deals windows 0..3 in some order
+    alone = WindowOrder(4, 4, seed=0).draw(0)
+    whole = step_noise(alone, [particles[w] for w in alone.mine], (6, 2), 0.1, seed=9)
+    ranks = [WindowOrder(4, 2, seed=0, rank=r, world_size=2).draw(0) for r in range(2)]
+    shares = [step_noise(d, [particles[w] for w in d.mine], (6, 2), 0.1, seed=9) for d in ranks]
+    assert ranks[0].every == alone.every
+    assert torch.equal(torch.cat(shares), whole) and whole.shape == (14, 6, 2)
+    again = step_noise(WindowOrder(4, 4, seed=0).draw(1), [3, 5, 2, 4], (6, 2), 0.1, seed=9)
+    assert not torch.equal(again, whole)  # another step, other noise

@@ -37,7 +37,7 @@ def train_rank(
             snapshot = {
                 "params": trainer.simulator.state_dict(),
                 "losses": losses,
-                "windows": trainer.order.indices(0),
+                "windows": trainer.order.draw(0).mine,
                 "validation": trainer.last_validation,
             }
             torch.save(snapshot, Path(out) / f"rank{rank}-step{steps}.pt")

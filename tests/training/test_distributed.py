@@ -33,7 +33,7 @@ def test_ranks_hold_identical_parameters_equal_to_one_process_on_the_global_batc
     trainer = Trainer(validate_recipe(single, registry), registry, run_dir=tmp_path / "single", progress=False)
     losses = trainer.train(steps)
     trainer.close()
-    assert sorted(trainer.order.indices(0)) == sorted(rank0["windows"] + rank1["windows"])
+    assert sorted(trainer.order.draw(0).mine) == sorted(rank0["windows"] + rank1["windows"])
     torch.testing.assert_close(torch.tensor(losses), torch.tensor(rank0["losses"]), rtol=1e-5, atol=1e-7)
     for name, value in trainer.simulator.state_dict().items():
         torch.testing.assert_close(
@@ -56,10 +56,10 @@ def test_window_order_gives_each_rank_a_distinct_shard_of_every_epoch():
             w
             for step in range(epoch * steps_per_epoch, (epoch + 1) * steps_per_epoch)
             for o in ranks
-            for w in o.indices(step)
+            for w in o.draw(step).mine
         ]
         assert sorted(seen) == list(range(num_windows)), f"epoch {epoch} is not one pass over the windows"
-    first, second = (ranks[0].indices(s) for s in (0, steps_per_epoch))
+    first, second = (ranks[0].draw(s).mine for s in (0, steps_per_epoch))
     assert first != second, "epochs are not reshuffled"
 
 

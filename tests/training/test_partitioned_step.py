@@ -11,7 +11,7 @@ from training_support import tiny_recipe
 from gns_framework.config.recipe import validate_recipe
 from gns_framework.errors import RecipeError
 from gns_framework.plugins import load_registry
-from gns_framework.training.processes import Processes
+from gns_framework.runtime.processes import Processes
 from gns_framework.training.trainer import Trainer
 
 STEPS = 4
@@ -39,7 +39,7 @@ def test_two_processes_that_split_each_scene_train_as_one_process(uneven_dataset
     alone.close()
     ranks = [torch.load(tmp_path / f"rank{rank}-step{STEPS}.pt", weights_only=True) for rank in (0, 1)]
     # Both processes took every window of each step, and the same updates: bitwise the same weights.
-    assert ranks[0]["windows"] == ranks[1]["windows"] == alone.order.indices(0)
+    assert ranks[0]["windows"] == ranks[1]["windows"] == alone.order.draw(0).mine
     for name, value in ranks[0]["params"].items():
         assert torch.equal(value, ranks[1]["params"][name]), name
     # Against one process: float32 sums in another order (the unit tests check the gradients at float64).
@@ -102,7 +102,7 @@ def test_two_teams_of_two_processes_train_as_one_process_on_both_teams_windows(u
     alone = Trainer(validate_recipe(single, registry), registry, run_dir=tmp_path / "alone", progress=False)
     losses = alone.train(STEPS)
     alone.close()
-    assert sorted(alone.order.indices(0)) == sorted(ranks[0]["windows"] + ranks[2]["windows"])
+    assert sorted(alone.order.draw(0).mine) == sorted(ranks[0]["windows"] + ranks[2]["windows"])
     assert ranks[0]["losses"] == pytest.approx(losses, rel=1e-5)
     for name, value in alone.simulator.state_dict().items():
         torch.testing.assert_close(ranks[0]["params"][name], value, rtol=1e-4, atol=1e-6, msg=name)

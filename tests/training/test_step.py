@@ -29,7 +29,7 @@ def test_the_trained_step_sees_the_models_own_rollout_and_the_true_frame_after_i
     recipe = tiny_recipe(dataset_2d, registry)
     recipe = recipe.model_copy(update={"training": recipe.training.model_copy(update={"pushforward_steps": 2})})
     trainer = tiny_trainer(recipe, tmp_path, registry)
-    windows = trainer.windows.batch(trainer.order.indices(0))
+    windows = trainer.windows.batch(trainer.order.draw(0).mine)
     assert windows.ahead.shape == (windows.num_particles, 2, 2)
     monkeypatch.setattr(trainer.optimisation, "pushforward_steps", lambda step: 2)
     recording = Recording(trainer.simulator)

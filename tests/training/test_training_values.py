@@ -16,7 +16,7 @@ from tiny import tiny_recipe, tiny_trainer
 from torch import nn
 
 from gns_framework.model.noise import random_walk_noise
-from gns_framework.training.processes import Processes
+from gns_framework.runtime.processes import Processes
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # restores the count the tiny trainers set to 1
 
@@ -99,7 +99,7 @@ def test_trainer_loss_masks_kinematic_particles_and_scales_for_the_world(dataset
     count is that of the step's global windows, known to every rank from the window order without communication
     (here the order is one process's, so it is this batch's)."""
     trainer = tiny_trainer(tiny_recipe(dataset_multimaterial), tmp_path)
-    batch = trainer.windows.batch(trainer.order.indices(0))
+    batch = trainer.windows.batch(trainer.order.draw(0).mine)
     kinematic = batch.particle_type == KINEMATIC_TYPE
     assert 0 < kinematic.sum() < batch.num_particles
     stub = FixedPrediction(batch.position_sequence.shape[-1])

@@ -8,7 +8,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from gns_framework.training.processes import Processes
+from gns_framework.runtime.processes import Processes
 
 
 def test_rank_zero_is_the_chief_and_one_process_is_not_distributed():

@@ -1,4 +1,4 @@
-"""Teams of consecutive ranks, each with its own process group (training/teams.py)."""
+"""Teams of consecutive ranks, each with its own process group (runtime/teams.py)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import pytest
 import torch
 from spawned import free_loopback_port, run_processes
 
-from gns_framework.training.processes import Processes
-from gns_framework.training.teams import team_of
+from gns_framework.runtime.processes import Processes
+from gns_framework.runtime.teams import team_of
 
 
 def test_teams_must_divide_the_job_and_one_team_is_the_job():
