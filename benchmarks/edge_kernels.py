@@ -57,7 +57,6 @@ class Case:
 
     def __init__(self, particles: int, precision: str, device, small: bool):
         import torch
-
         from lattice_scene import lattice_scene
 
         from gns_framework.assembly.learned import build_learned_simulator

@@ -67,7 +67,6 @@ def evaluate(
     from gns_framework.assembly.data import open_dataset
     from gns_framework.assembly.trained import load_trained
     from gns_framework.evaluation.candidates import cases_from_split, compare
-
     from gns_framework.model.envelope import outside_envelope
 
     model = load_trained(model_path, registry, device)

@@ -42,7 +42,6 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
 
     from gns_builtins._kernels.verlet_list import VerletList
-
     from gns_framework.assembly.data import open_dataset
     from gns_framework.assembly.trained import load_trained
     from gns_framework.model.rollout import rollout

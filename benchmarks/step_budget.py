@@ -43,7 +43,6 @@ from lattice_scene import lattice_scene  # noqa: E402
 
 from gns_framework.runtime.sync_counter import SyncCounter  # noqa: E402
 
-
 NO_KERNEL = frozenset(
     {
         "aten.view",
@@ -125,7 +124,6 @@ class Launches:
 def gpu_choices(launches: Launches, read_backs: list, triton: bool = True):
     """Inside: the accelerators' choices on the CPU, Triton launches counted, explicit read-backs recorded."""
     from gns_builtins._kernels import cell_list, chunked, edge_block, fused_kernels, triton_edge_block
-
     from gns_framework.model import learned_simulator, rollout
     from gns_framework.training import trainer
 

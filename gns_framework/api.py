@@ -8,16 +8,6 @@ without a deprecation warning. Grouped by what a plugin does with them.
 
 from __future__ import annotations
 
-# Registering components and naming what went wrong.
-from .errors import DatasetError, GnsError, PluginError, RecipeError
-from .hookspecs import hookimpl
-from .plugin_types import Command, Metric
-from .specs import ComponentSpec
-
-# Building blocks of learned components.
-from .layers import MLP, NormedMLP
-from .model.periodic import PeriodicBox
-
 # Reading and writing datasets: records, metadata, lazily read trajectories, checks, limits on input.
 from .data.atomic import atomic_path, write_text_atomic
 from .data.consistency import checked
@@ -26,6 +16,20 @@ from .data.metadata import DatasetMetadata, load_metadata, parse_metadata, read_
 from .data.npz_mapping import mapped_member
 from .data.particle_spacing import particle_spacing
 from .data.trajectory import Trajectory
+
+# Registering components and naming what went wrong.
+from .errors import DatasetError, GnsError, PluginError, RecipeError
+
+# Metrics of rollouts.
+from .evaluation.metrics import RolloutPair, horizon_mse, per_material_mse
+
+# Ground-truth simulators: the scene file, sampled.
+from .ground_truth.sampling import BodySample, SceneSample, at_resolution, sample_scene
+from .ground_truth.scene_spec import SceneSpec
+from .hookspecs import hookimpl
+
+# Building blocks of learned components.
+from .layers import MLP, NormedMLP
 from .limits import (
     INFLATE_RATIO_ABOVE,
     MAX_INFLATE_RATIO,
@@ -35,19 +39,15 @@ from .limits import (
     check_record_length,
     check_zip_member,
 )
-
-# Metrics of rollouts.
-from .evaluation.metrics import RolloutPair, horizon_mse, per_material_mse
-
-# Ground-truth simulators: the scene file, sampled.
-from .ground_truth.sampling import BodySample, SceneSample, at_resolution, sample_scene
-from .ground_truth.scene_spec import SceneSpec
+from .model.periodic import PeriodicBox
+from .plugin_types import Command, Metric
 
 # Devices, and the choices the accelerators' code paths make (kernels).
 from .runtime.activation_memory import recompute_activations
 from .runtime.deterministic import deterministic_sums
 from .runtime.device import choose_device
 from .runtime.host_sync import PerDevice, avoids_read_backs, read_back
+from .specs import ComponentSpec
 
 __all__ = [
     "INFLATE_RATIO_ABOVE",

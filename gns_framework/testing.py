@@ -37,9 +37,9 @@ from .contracts import (
     Integrator,
     Material,
     MaterialProperty,
+    ModelSetup,
     ModelSizes,
     Processor,
-    ModelSetup,
 )
 from .model.periodic import PeriodicBox
 
@@ -427,7 +427,7 @@ def check_dataset(
 
 def check_simulator(
     cls: type[GroundTruthSimulator],
-    scene: "SceneSpec",
+    scene: SceneSpec,
     materials: Mapping[str, type[Material]],
     params: Mapping | None = None,
     seed: int = 0,

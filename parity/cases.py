@@ -117,7 +117,7 @@ class ReferenceCase:
         )
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def load_case(path: Path) -> ReferenceCase:
     """Read (and cache: the members are LZMA-compressed) one fixture."""
     with np.load(path) as archive:

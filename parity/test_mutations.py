@@ -11,9 +11,9 @@ import torch
 
 from gns_builtins.graph_builders.radius import RadiusGraphBuilder
 from gns_builtins.processors.interaction_network import InteractionStep
-from gns_framework.model import normalization
 from gns_framework.contracts import Graph
 from gns_framework.importers import geoelements_layout
+from gns_framework.model import normalization
 
 from .harness import compare_case
 

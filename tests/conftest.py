@@ -16,6 +16,7 @@ if not torch.cuda.is_available():
 
 from rollouts import small_metadata, small_rollout
 from synthetic import write_synthetic_dataset
+
 from gns_framework.plugins import load_registry
 
 REPO = Path(__file__).resolve().parents[1]

@@ -11,9 +11,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import yaml
-from gns_builtins.datasets._formats import tfrecord_format as tf
 from scene_builders import mixed
 
+from gns_builtins.datasets._formats import tfrecord_format as tf
 from gns_framework import limits
 from gns_framework.cli import generate as generate_command
 from gns_framework.cli import main

@@ -13,11 +13,11 @@ from scene_builders import mixed
 from synthetic import soft_sphere_trajectory, synthetic_metadata, write_synthetic_dataset
 from tiny import tiny_recipe, tiny_trainer
 
+from gns_framework import outputs
 from gns_framework.cli import generate as generate_command
 from gns_framework.cli import main
 from gns_framework.errors import GnsError
 from gns_framework.io.rollout_file import save_rollout
-from gns_framework import outputs
 from gns_framework.outputs import MARKER
 from gns_framework.plugins import load_registry
 

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 import yaml
-
 from load_script import load_script
+
 from gns_framework.cli import build_parser
 from gns_framework.ground_truth.scene_spec import load_scene
 from gns_framework.plugins import load_registry

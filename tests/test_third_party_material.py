@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from synthetic import write_synthetic_dataset
 from tiny import tiny_recipe, tiny_trainer
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tiny import tiny_recipe, tiny_trainer
 
 from gns_framework.assembly.trained import load_trained
 from gns_framework.io.checkpoint import list_checkpoints, load_checkpoint
 from gns_framework.plugins import load_registry
-from tiny import tiny_recipe, tiny_trainer
 
 pytest.importorskip("gns_example_processor", reason="install it: pip install -e plugins/examples/gns-processor")
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 from ..config.recipe import DatasetSpec, Recipe
 from ..contracts import Dataset, ModelSetup
-from ..data.pickle_grant import pickle_granted
 from ..data.metadata import DatasetMetadata
+from ..data.pickle_grant import pickle_granted
 from ..data.stride import FrameStrideDataset
 from ..data.trajectory import Trajectory
 from ..errors import DatasetError

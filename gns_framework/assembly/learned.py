@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..config.recipe import COMPONENT_SECTIONS, ModelSpec, Recipe
-from ..contracts import ModelSizes, ModelSetup
+from ..contracts import ModelSetup, ModelSizes
 from ..data.metadata import DatasetMetadata
 from ..decomposition.halo import unbounded_reach
 from ..errors import GnsError, RecipeError

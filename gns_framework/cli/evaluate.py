@@ -114,10 +114,9 @@ def run(args: argparse.Namespace) -> int:
     from ..assembly.trained import load_trained
     from ..evaluation.candidates import cases_from_split, compare
     from ..evaluation.report import write_report
+    from ..outputs import check_folder, claim_folder
     from ..plugins import load_registry
     from ..runtime.device import resolve_device
-
-    from ..outputs import check_folder, claim_folder
 
     check_folder(args.out, "evaluate", args.overwrite, own=_earlier_report)
     registry = load_registry()

@@ -8,10 +8,10 @@ from pathlib import Path
 
 from ..assembly.ground_truth import build_ground_truth_simulator
 from ..errors import GnsError
-from ..limits import check_scene
-from ..outputs import check_folder, replaced_whole
 from ..ground_truth.generate import generate_dataset, is_up_to_date, provenance
 from ..ground_truth.scene_spec import load_scene
+from ..limits import check_scene
+from ..outputs import check_folder, replaced_whole
 from ..plugins import load_registry
 from ..specs import ComponentSpec
 from .arguments import non_negative_int

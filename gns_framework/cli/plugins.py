@@ -13,8 +13,8 @@ import inspect
 import json
 
 from ..contracts import COMPONENT_KINDS
-from ..plugins import ComponentEntry, MetricEntry, Registry, load_registry
 from ..plugin_types import worst_of
+from ..plugins import ComponentEntry, MetricEntry, Registry, load_registry
 from .commands import CommandEntry, command_entries
 
 KINDS = [*COMPONENT_KINDS, "metric", "command"]

@@ -28,16 +28,16 @@ from ..io.rollout_file import write_rollout
 from ..io.run_folder import RunFolder
 from ..model.batched_rollout import rollout_batch
 from ..model.rollout import rollout
-from ..outputs import check_folder, claim_folder
 from ..model.rollout_guard import RolloutGuard
+from ..outputs import check_folder, claim_folder
 from ..plugins import load_registry
 from ..runtime.device import resolve_device
 from ..runtime.precision import PRECISIONS
+from ..runtime.processes import Processes
+from ..runtime.teams import team_of
 from ..safe_names import ensure_inside, require_component, safe_component
 from ..training.distributed import from_chief, processes_from_environment, start, stop
 from ..training.mlflow_tracker import log_to_recorded_run
-from ..runtime.processes import Processes
-from ..runtime.teams import team_of
 from .arguments import add_allow_pickle, non_negative_float, non_negative_int, positive_int, ratio_above_one_or_never
 from .envelope_option import add_outside_envelope, enforce_envelope
 

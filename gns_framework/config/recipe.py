@@ -111,7 +111,7 @@ class ModelSpec(_Strict):
     integrator: ComponentSpec = ComponentSpec(name="semi_implicit_euler")
 
     @model_validator(mode="after")
-    def _one_noise_rule(self) -> "ModelSpec":
+    def _one_noise_rule(self) -> ModelSpec:
         # A resolved recipe (checkpoints, recipe.yaml) holds both keys with noise_std at its default: that is
         # no conflict. Another noise_std beside noise_relative is.
         if self.noise_relative is not None and self.noise_std != REFERENCE_NOISE_STD:
@@ -142,7 +142,7 @@ class OptimizerSpec(_Strict):
     )
 
     @model_validator(mode="after")
-    def _floor_below_start(self) -> "OptimizerSpec":
+    def _floor_below_start(self) -> OptimizerSpec:
         if self.lr_min > self.lr_init:
             raise ValueError(f"lr_min ({self.lr_min}) must not exceed lr_init ({self.lr_init})")
         return self
@@ -247,7 +247,7 @@ class Recipe(_Strict):
         """The recipe with every default filled in (stored in checkpoints and tracked runs)."""
         return self.model_dump(mode="json")
 
-    def on_dataset(self, path: str | Path) -> "Recipe":
+    def on_dataset(self, path: str | Path) -> Recipe:
         """This recipe with its data read from ``path`` (``--dataset``), as a run then records it."""
         return self.model_copy(update={"dataset": self.dataset.model_copy(update={"path": str(path)})})
 

@@ -22,7 +22,7 @@ class YamlFloat(float):
 
     text: str
 
-    def __new__(cls, value: float, text: str) -> "YamlFloat":
+    def __new__(cls, value: float, text: str) -> YamlFloat:
         number = super().__new__(cls, value)
         number.text = text
         return number

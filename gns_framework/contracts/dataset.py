@@ -36,11 +36,11 @@ class Dataset(ABC):
         """How many trajectories of a split stay in memory (``dataset.memory: windows``); None: all that were read."""
 
     @abstractmethod
-    def metadata(self) -> "DatasetMetadata":
+    def metadata(self) -> DatasetMetadata:
         """The validated metadata of this dataset."""
 
     @abstractmethod
-    def split(self, name: str) -> Sequence["Trajectory"]:
+    def split(self, name: str) -> Sequence[Trajectory]:
         """Trajectories of a split (``train``, ``valid``, ``test``), loaded lazily and validated."""
 
     def splits(self) -> list[str]:
@@ -51,6 +51,6 @@ class Dataset(ABC):
         return False
 
     @classmethod
-    def write(cls, path: Path, metadata: "DatasetMetadata", splits: Mapping[str, Sequence["Trajectory"]]) -> None:
+    def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:
         """Write ``metadata`` and ``splits`` in this layout (only when ``writable``)."""
         raise NotImplementedError(f"dataset layout {cls.name!r} is read-only")

@@ -48,7 +48,7 @@ class Graph:
     def num_edges(self) -> int:
         return int(self.senders.shape[0])
 
-    def received_by(self, owned: Tensor, exchange: Callable[[Tensor], Tensor] | None) -> "Graph":
+    def received_by(self, owned: Tensor, exchange: Callable[[Tensor], Tensor] | None) -> Graph:
         """The edges whose receiver is ``owned`` ((N,) bool), with ``exchange`` attached.
 
         A process of a domain-decomposed step computes messages into its own particles

@@ -30,7 +30,7 @@ class GroundTruthSimulator(ABC):
         self.params = params
         self.materials = materials
 
-    def check(self, scene: "SceneSpec") -> list[tuple[str, str]]:
+    def check(self, scene: SceneSpec) -> list[tuple[str, str]]:
         """Problems (location, message) of this simulator's own that stop it from running ``scene``.
 
         Stability limits (time step versus wave speed) and the like. The checks every
@@ -41,7 +41,7 @@ class GroundTruthSimulator(ABC):
         return []
 
     @abstractmethod
-    def simulate(self, scene: "SceneSpec", seed: int) -> "Trajectory":
+    def simulate(self, scene: SceneSpec, seed: int) -> Trajectory:
         """Run ``scene`` with randomness drawn from ``seed``; the same seed gives the same bits.
 
         Returns a trajectory of ``scene.time.frames`` frames: position (T, N, d)
@@ -49,7 +49,7 @@ class GroundTruthSimulator(ABC):
         (N, P) only when the scene sets properties.
         """
 
-    def simulate_at_resolution(self, scene: "SceneSpec", seed: int, variant: "SceneSpec") -> "Trajectory":
+    def simulate_at_resolution(self, scene: SceneSpec, seed: int, variant: SceneSpec) -> Trajectory:
         """Run the scene ``simulate(scene, seed)`` runs, as drawn, at ``variant``'s grid and time stepping.
 
         The yardstick of a reduced-resolution simulator: the same box, walls, bodies

@@ -50,18 +50,18 @@ class ParticleBatch:
     def num_particles(self) -> int:
         return int(self.position_sequence.shape[0])
 
-    def _map_tensors(self, convert) -> "ParticleBatch":
+    def _map_tensors(self, convert) -> ParticleBatch:
         """The same batch with ``convert`` applied to every tensor field (None fields stay None)."""
         return replace(
             self,
             **{f.name: convert(value) for f in fields(self) if isinstance(value := getattr(self, f.name), Tensor)},
         )
 
-    def pinned(self) -> "ParticleBatch":
+    def pinned(self) -> ParticleBatch:
         """The same batch in page-locked host memory, so copies to a GPU need not block the host."""
         return self._map_tensors(lambda t: t.pin_memory())
 
-    def to(self, device: torch.device | str) -> "ParticleBatch":
+    def to(self, device: torch.device | str) -> ParticleBatch:
         return self._map_tensors(lambda t: t.to(device, non_blocking=True))
 
 

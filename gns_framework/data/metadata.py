@@ -13,7 +13,6 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from ..errors import DatasetError
 from .trajectory import DomainCheck, Trajectory
 
-
 MAX_METADATA_BYTES = 16 * 2**20
 """Largest ``metadata.json`` read (it holds a few dozen numbers)."""
 
@@ -54,7 +53,7 @@ class DatasetMetadata(BaseModel):
         return DomainCheck(np.asarray(self.bounds, dtype=np.float64), 2.0 * self.default_connectivity_radius)
 
     @model_validator(mode="after")
-    def _dimensions_agree(self) -> "DatasetMetadata":
+    def _dimensions_agree(self) -> DatasetMetadata:
         from ..limits import MAX_SEQUENCE_LENGTH
 
         if self.sequence_length > MAX_SEQUENCE_LENGTH:

@@ -64,12 +64,12 @@ class Trajectory:
     def dim(self) -> int:
         return int(self.position.shape[2])
 
-    def first_frames(self, count: int) -> "Trajectory":
+    def first_frames(self, count: int) -> Trajectory:
         """The first ``count`` frames: position (count, N, d) and step_context (count, C) cut, the rest kept."""
         context = None if self.step_context is None else self.step_context[:count]
         return replace(self, position=self.position[:count], step_context=context)
 
-    def validated(self, source: str, dim: int | None = None, domain: DomainCheck | None = None) -> "Trajectory":
+    def validated(self, source: str, dim: int | None = None, domain: DomainCheck | None = None) -> Trajectory:
         """Check shapes, dtypes and values (type ids >= 0; inside ``domain`` when given); return a copy with canonical dtypes.
 
         Raises DatasetError naming ``source``, the trajectory key and the field (and frame and particle).

@@ -69,7 +69,7 @@ class WindowOrder:
             self._shuffled = (epoch, torch.randperm(self.num_windows, generator=generator).numpy())
         return self._shuffled[1]
 
-    def draw(self, step: int) -> "StepWindows":
+    def draw(self, step: int) -> StepWindows:
         """Step ``step``'s global batch: positions ``[s*G, (s+1)*G)`` of the stream, rank-major, and this rank's share."""
         size = self.batch_size * self.world_size
         positions = range(step * size, (step + 1) * size)

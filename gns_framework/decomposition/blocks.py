@@ -23,7 +23,6 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-
 CHUNK = 65_536
 """Particles compared with every box at once: (CHUNK, P, d) float64 temporaries, 100 MB at P = 64 in 3D."""
 
@@ -59,7 +58,7 @@ class BlockPartition:
         depth: float,
         periodic_dims: tuple[int, ...] = (),
         bounds: tuple[tuple[float, float], ...] | None = None,
-    ) -> "BlockPartition":
+    ) -> BlockPartition:
         """Boxes by recursive bisection of ``position`` (N, d): each cut halves the particles (in proportion to the
         processes on either side) across the dimension they spread farthest in; ``bounds`` gives the periodic box of
         ``periodic_dims``."""

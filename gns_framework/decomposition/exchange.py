@@ -33,7 +33,7 @@ class Routing:
     group: Any = None
 
     @classmethod
-    def of(cls, destination: Tensor, world_size: int, group: Any = None) -> "Routing":
+    def of(cls, destination: Tensor, world_size: int, group: Any = None) -> Routing:
         """Row i goes to process ``destination[i]`` (M,) of ``group`` (None: the whole job); every process of it
         calls this at once."""
         if world_size == 1:

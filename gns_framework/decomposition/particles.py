@@ -35,20 +35,20 @@ class Particles:
         return [getattr(self, f.name) for f in fields(self)]
 
     @classmethod
-    def of(cls, columns: list[Tensor | None]) -> "Particles":
+    def of(cls, columns: list[Tensor | None]) -> Particles:
         ids, sequence, particle_type, *rest = columns
         assert ids is not None and sequence is not None and particle_type is not None
         return cls(ids, sequence, particle_type, *rest)
 
-    def select(self, rows: Tensor) -> "Particles":
+    def select(self, rows: Tensor) -> Particles:
         """The particles at ``rows`` (indices or a bool mask)."""
         return Particles.of([None if c is None else c[rows] for c in self.columns()])
 
-    def cat(self, other: "Particles") -> "Particles":
+    def cat(self, other: Particles) -> Particles:
         """These particles, then ``other``'s: both must have the same fields."""
         return Particles.of([_cat(a, b) for a, b in zip(self.columns(), other.columns())])
 
-    def to(self, device: torch.device) -> "Particles":
+    def to(self, device: torch.device) -> Particles:
         return Particles.of([None if c is None else c.to(device) for c in self.columns()])
 
 

@@ -29,9 +29,9 @@ from ..model.history import advance_window
 from ..model.learned_simulator import LearnedSimulator
 from .exchange import rows_everywhere
 from .halo import HaloKind, partition_for, with_halo
-from .piece import on_piece
 from .particles import Particles
 from .partition import Cut
+from .piece import on_piece
 
 if TYPE_CHECKING:
     from ..runtime.processes import Processes

@@ -46,9 +46,9 @@ from ..model.rollout_guard import GuardViolation, RolloutGuard
 from ..runtime.precision import Precision
 from .exchange import rows_everywhere, send_rows
 from .halo import HaloKind, partition_for, with_halo
-from .piece import on_piece
 from .particles import Particles
 from .partition import Cut, Partition
+from .piece import on_piece
 
 if TYPE_CHECKING:
     from ..runtime.processes import Processes

@@ -48,7 +48,7 @@ class SlabPartition:
         axis: int | None = None,
         periodic_dims: tuple[int, ...] = (),
         bounds: tuple[tuple[float, float], ...] | None = None,
-    ) -> "SlabPartition":
+    ) -> SlabPartition:
         """Cuts at the particle-count quantiles of ``position`` (N, d) along ``axis``.
 
         ``axis`` defaults to the dimension in which the particles spread farthest (a

@@ -27,9 +27,9 @@ from ..model.learned_simulator import LearnedSimulator
 from ..model.loss import masked_squared_error_sum
 from ..runtime.precision import Precision, autocast, backward_precision
 from .halo import with_halo
-from .piece import on_piece
 from .particles import Particles
 from .partition import Partition
+from .piece import on_piece
 
 if TYPE_CHECKING:
     from ..runtime.processes import Processes

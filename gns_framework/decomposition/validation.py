@@ -27,8 +27,8 @@ from ..errors import RolloutDiverged
 from ..model.learned_simulator import LearnedSimulator
 from ..model.loss import masked_squared_error_sum
 from .halo import HaloKind, partition_for, with_halo
-from .piece import on_piece
 from .partition import Cut
+from .piece import on_piece
 from .rollout import partitioned_rollout
 from .training_step import owned_share
 

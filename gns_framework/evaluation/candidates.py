@@ -15,8 +15,8 @@ from ..data.metadata import DatasetMetadata
 from ..data.stride import strided
 from ..data.trajectory import Trajectory
 from ..errors import DatasetError, RolloutDiverged
-from ..model.learned_simulator import LearnedSimulator
 from ..model.batched_rollout import rollout_batch
+from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import rollout
 from ..model.rollout_guard import RolloutGuard, held_particles
 from ..plugins import Registry

@@ -27,15 +27,15 @@ from ..data.metadata import DatasetMetadata
 from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..io.rollout_file import save_rollout
-from ..safe_names import ensure_inside, unique_components
 from ..plugin_types import Metric
 from ..runtime.device import is_cuda
+from ..safe_names import ensure_inside, unique_components
 from .metrics import DEFAULT_HORIZONS, ParticleRollout, RolloutPair, metric_units, rollout_metrics, summarise
-from .timing import Timing, hardware_description, time_call
+from .plots import case_range, plot_error_over_rollout, plot_error_vs_time
 from .records import WALL_HELD, Candidate, Entry, Kind, Prediction, Report
 from .report_files import write_report
 from .tables import markdown_table, write_cases_csv, write_csv
-from .plots import case_range, plot_error_over_rollout, plot_error_vs_time
+from .timing import Timing, hardware_description, time_call
 
 __all__ = [
     "Candidate",

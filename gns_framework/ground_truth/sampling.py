@@ -19,7 +19,7 @@ from ..contracts import Material
 from ..errors import GnsError
 from ..limits import check_scene
 from . import shapes
-from .scene_spec import FACES, Block, OneOf, Obstacle, Range, SceneSpec, Span, WallChoice, WallRange
+from .scene_spec import FACES, Block, Obstacle, OneOf, Range, SceneSpec, Span, WallChoice, WallRange
 
 PLACEMENT_TRIES = 200
 """Draws of one body under ``no_overlap`` before the whole scene's bodies are drawn again."""

@@ -33,7 +33,7 @@ class WallRange(Spec):
     range: tuple[float, float]
 
     @model_validator(mode="after")
-    def _ordered(self) -> "WallRange":
+    def _ordered(self) -> WallRange:
         if not 0 <= self.range[0] <= self.range[1]:
             raise ValueError(f"range must be [low, high] with 0 <= low <= high, got {list(self.range)}")
         return self
@@ -59,7 +59,7 @@ class WallChoice(Spec):
     weights: list[float] | None = None
 
     @model_validator(mode="after")
-    def _weights(self) -> "WallChoice":
+    def _weights(self) -> WallChoice:
         check_weights(self.weights, len(self.one_of))
         return self
 
@@ -160,7 +160,7 @@ class Domain(Spec):
                 conditions.append((0.0 if condition == "slip" else condition, False))
         return conditions
 
-    def drawn(self, extent: list[float] | None, walls: dict[str, float | str]) -> "Domain":
+    def drawn(self, extent: list[float] | None, walls: dict[str, float | str]) -> Domain:
         """This domain with its extent and face conditions fixed: what one trajectory runs in.
 
         A drawn extent is rounded to whole cells (at least one), so that each wall lies on a

@@ -35,7 +35,6 @@ from ..config.problems import problems_from
 from ..config.yaml_files import load_yaml_mapping
 from ..errors import RecipeError
 from ..specs import ComponentSpec
-
 from .scene_bodies import SHAPED, Block, Obstacle, no_range
 from .scene_domain import FACES, Domain, Time, WallChoice, WallCondition, WallRange, Walls
 from .scene_values import Count, OneOf, Range, Span, Spec, Value, is_spanned
@@ -198,7 +197,7 @@ class SceneSpec(Spec):
             found.append(("blocks", "every trajectory needs a block: some block's count must be at least 1"))
         return found
 
-    def bodies_with_location(self) -> list[tuple[str, "Block | Obstacle"]]:
+    def bodies_with_location(self) -> list[tuple[str, Block | Obstacle]]:
         """(location, body) of every block and obstacle, in drawing order."""
         return [(f"blocks[{i}]", b) for i, b in enumerate(self.blocks)] + [
             (f"obstacles[{i}]", o) for i, o in enumerate(self.obstacles)

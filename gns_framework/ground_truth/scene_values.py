@@ -34,7 +34,7 @@ class Range(Spec):
     per: Literal["trajectory", "particle"] = "trajectory"
 
     @model_validator(mode="after")
-    def _ordered(self) -> "Range":
+    def _ordered(self) -> Range:
         if self.range[0] > self.range[1]:
             raise ValueError(f"range must be [low, high] with low <= high, got {list(self.range)}")
         return self
@@ -70,7 +70,7 @@ class Span(Spec):
         return data
 
     @model_validator(mode="after")
-    def _fraction(self) -> "Span":
+    def _fraction(self) -> Span:
         if not 0.0 <= self.span[0] <= self.span[1] <= 1.0:
             raise ValueError(f"span must be [low, high] with 0 <= low <= high <= 1, got {list(self.span)}")
         return self
@@ -138,7 +138,7 @@ class OneOf(Spec):
     weights: list[float] | None = None
 
     @model_validator(mode="after")
-    def _weights(self) -> "OneOf":
+    def _weights(self) -> OneOf:
         check_weights(self.weights, len(self.one_of))
         return self
 

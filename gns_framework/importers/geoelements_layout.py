@@ -102,7 +102,7 @@ class Architecture:
         return self.num_types > 1
 
     @classmethod
-    def infer(cls, state_dict: dict[str, Tensor], source: str) -> "Architecture":
+    def infer(cls, state_dict: dict[str, Tensor], source: str) -> Architecture:
         def shape(key: str, ndim: int) -> tuple[int, ...]:
             if key not in state_dict:
                 raise CheckpointError(f"{source}: {key}: missing (not a geoelements/gns LearnedSimulator state_dict?)")

@@ -23,8 +23,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from ..config.problems import problems_from
 from ..config.paths import resolve_named_path
+from ..config.problems import problems_from
 from ..config.yaml_files import load_yaml_mapping
 from ..errors import RecipeError
 
@@ -55,7 +55,7 @@ class ObservedSpec(_Strict):
     )
 
     @model_validator(mode="after")
-    def _held_out_apart(self) -> "ObservedSpec":
+    def _held_out_apart(self) -> ObservedSpec:
         if self.held_out is None:
             return self
         if not self.held_out:
@@ -89,7 +89,7 @@ class PropertyUnknown(_Strict):
     )
 
     @model_validator(mode="after")
-    def _initial_within_bounds(self) -> "PropertyUnknown":
+    def _initial_within_bounds(self) -> PropertyUnknown:
         _check_bounds(*self.bounds, self.initial, "")
         return self
 
@@ -118,7 +118,7 @@ class VelocityUnknown(_Strict):
     )
 
     @model_validator(mode="after")
-    def _initial_within_bounds(self) -> "VelocityUnknown":
+    def _initial_within_bounds(self) -> VelocityUnknown:
         for name in ("initial", "gravity"):
             value = getattr(self, name)
             if value is not None and len(value) != len(self.bounds):
@@ -159,7 +159,7 @@ class InvertOptimizer(_Strict):
     seed: int = Field(0, ge=0, description="seed of the Latin hypercube that spreads the starts after the first")
 
     @model_validator(mode="after")
-    def _decay_needs_adam(self) -> "InvertOptimizer":
+    def _decay_needs_adam(self) -> InvertOptimizer:
         if self.lr_decay is not None and self.name != "adam":
             raise ValueError(f"lr_decay: only adam takes a step size ({self.name} chooses its own); remove lr_decay")
         if self.starts > 1 and self.name != "adam":
@@ -190,7 +190,7 @@ class InvertConfig(_Strict):
     threads: int | None = Field(None, ge=1, description="torch intra-op threads (default: torch's)")
 
     @model_validator(mode="after")
-    def _something_to_recover(self) -> "InvertConfig":
+    def _something_to_recover(self) -> InvertConfig:
         if not self.unknowns:
             raise ValueError(
                 "unknowns: name at least one unknown (a material property such as friction, or initial_velocity)"

@@ -18,8 +18,8 @@ from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
 from ..data.batch import ParticleBatch
-from ..model.learned_simulator import LearnedSimulator
 from ..model.history import advance_window
+from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout_guard import RolloutGuard
 
 

@@ -24,10 +24,10 @@ from ..data.batch import collate, window
 from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..runtime.precision import Precision
+from .history import advance_window
 from .learned_simulator import LearnedSimulator
 from .rollout import check_simulates, rollout_step
 from .rollout_guard import GuardViolation, RolloutGuard
-from .history import advance_window
 
 
 def _per_particle_bounds(trajectories: Sequence[Trajectory]) -> torch.Tensor:

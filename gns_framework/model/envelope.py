@@ -102,10 +102,10 @@ class Envelope:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, raw: dict) -> "Envelope":
+    def from_dict(cls, raw: dict) -> Envelope:
         return cls(**raw)
 
-    def union(self, earlier: "Envelope") -> "Envelope":
+    def union(self, earlier: Envelope) -> Envelope:
         """This envelope widened by ``earlier``'s ranges: a model fine-tuned on this data was trained on both.
 
         Materials, property ranges, extents, walls, speeds, counts and boundary spacings are joined. The

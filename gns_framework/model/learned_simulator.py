@@ -13,7 +13,7 @@ from dataclasses import replace
 import torch
 from torch import Tensor, nn
 
-from ..contracts import Decoder, Encoder, Graph, GraphBuilder, Integrator, Processor, ModelSetup
+from ..contracts import Decoder, Encoder, Graph, GraphBuilder, Integrator, ModelSetup, Processor
 from ..data.batch import ParticleBatch
 from ..runtime.host_sync import avoids_read_backs
 from .features import FeatureBuilder

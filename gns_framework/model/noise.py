@@ -37,7 +37,7 @@ def random_walk_noise(
     return torch.cat([torch.zeros_like(velocity_noise[:, :1]), torch.cumsum(velocity_noise, dim=1)], dim=1)
 
 
-def training_noise_std(model: "ModelSpec", metadata: "DatasetMetadata") -> float:
+def training_noise_std(model: ModelSpec, metadata: DatasetMetadata) -> float:
     """The random-walk noise std of a model's recipe, in dataset length units per frame.
 
     ``noise_relative`` scales with the data: the reference's absolute 6.7e-4 was tuned
@@ -50,7 +50,7 @@ def training_noise_std(model: "ModelSpec", metadata: "DatasetMetadata") -> float
     return model.noise_relative * sum(metadata.vel_std) / len(metadata.vel_std)
 
 
-def step_noise(drawn: "StepWindows", particles: Sequence[int], shape: tuple[int, int], std: float, seed: int) -> Tensor:
+def step_noise(drawn: StepWindows, particles: Sequence[int], shape: tuple[int, int], std: float, seed: int) -> Tensor:
     """This process's noise of a step on the host, (sum of ``particles``, C, d) float32; ``shape``: (C, d).
 
     ``particles``: of each window of ``drawn.mine``, whose generators are seeded by (seed, step, slot in the

@@ -21,12 +21,12 @@ from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..errors import DatasetError
 from ..runtime.allocator import keep_freed_memory
+from ..runtime.device import is_cuda
 from ..runtime.host_sync import avoids_read_backs
 from ..runtime.precision import Precision, autocast
+from .history import advance_window
 from .learned_simulator import LearnedSimulator
 from .rollout_guard import GuardViolation, RolloutGuard
-from .history import advance_window
-from ..runtime.device import is_cuda
 
 
 @torch.inference_mode()

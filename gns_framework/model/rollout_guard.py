@@ -11,7 +11,6 @@ particles back and records what it did.
 from __future__ import annotations
 
 import copy
-
 import math
 from dataclasses import dataclass
 
@@ -72,10 +71,10 @@ class RolloutGuard:
         self._walled = PerDevice(self._make_walled)
 
     @classmethod
-    def from_spec(cls, scene: ModelSetup, spec: RolloutGuardSpec) -> "RolloutGuard":
+    def from_spec(cls, scene: ModelSetup, spec: RolloutGuardSpec) -> RolloutGuard:
         return cls(scene, spec.margin, spec.on_violation)
 
-    def with_bounds(self, bounds) -> "RolloutGuard":
+    def with_bounds(self, bounds) -> RolloutGuard:
         """This guard for a trajectory with its own domain: (d, 2) lower and upper walls, or (N, d, 2) per particle
         (scenes rolled out as one batch, each in its own box)."""
         guard = copy.copy(self)

@@ -15,6 +15,7 @@ Shapes are not judged beyond their boxes and counts; a top face the sand cannot 
 from __future__ import annotations
 
 import math
+
 from ..ground_truth.scene_spec import FACES, Block, OneOf, Range, SceneSpec, Span, WallChoice, WallRange
 from ..limits import scene_particles
 from .envelope import (

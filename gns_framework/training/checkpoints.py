@@ -15,9 +15,9 @@ from pathlib import Path
 
 import torch
 
+from ..assembly.data import PreparedData
 from ..assembly.learned import plugin_versions
 from ..assembly.scene import scene_to_dict
-from ..assembly.data import PreparedData
 from ..config.recipe import Recipe
 from ..errors import CheckpointError, GnsError
 from ..io.checkpoint import (

@@ -16,7 +16,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import cast
 
-
 METRICS_PER_REQUEST = 1000
 """MLflow's limit of metrics in one log_batch request: the outbox joins batches up to it."""
 

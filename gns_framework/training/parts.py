@@ -33,14 +33,14 @@ from ..runtime.activation_memory import set_recompute_activations
 from ..runtime.allocator import keep_freed_memory
 from ..runtime.deterministic import set_deterministic_sums
 from ..runtime.device import resolve_device
+from ..runtime.processes import Processes
+from ..runtime.teams import team_of
 from . import distributed
 from .checkpoints import Checkpoints
 from .ema import WeightAverage
 from .optim import make_optimizer
 from .partitioned_step import PartitionedTrainingStep
-from ..runtime.processes import Processes
 from .step import TrainingStep
-from ..runtime.teams import team_of
 from .validation import Validation, validation_windows
 
 

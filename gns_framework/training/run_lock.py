@@ -77,7 +77,7 @@ class RunFolderLock:
         holder = {
             "pid": os.getpid(),
             "host": socket.gethostname(),
-            "since": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "since": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
             "command": " ".join(sys.argv)[:500],
         }
         os.ftruncate(fd, 0)

@@ -26,8 +26,8 @@ from ..model.loss import masked_squared_error_sum
 from ..model.noise import step_noise
 from ..runtime.device import is_cuda
 from ..runtime.precision import Precision, autocast, backward_precision
-from .ema import WeightAverage
 from ..runtime.processes import Processes
+from .ema import WeightAverage
 
 
 class TrainingStep:

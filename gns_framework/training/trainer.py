@@ -19,10 +19,10 @@ from ..errors import DatasetError
 from ..io.checkpoint import list_checkpoints
 from ..plugins import Registry
 from ..runtime.host_sync import avoids_read_backs, read_back
-from .parts import build_training_parts
 from ..runtime.processes import Processes
-from .progress import Throughput, time_to_go
 from .ema import WeightAverage
+from .parts import build_training_parts
+from .progress import Throughput, time_to_go
 from .provenance import git_commit
 from .tracking import JsonlTracker, Tracker
 

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
 from load_script import load_script
 
 REPO = Path(__file__).resolve().parents[2]

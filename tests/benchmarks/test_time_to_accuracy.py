@@ -8,9 +8,8 @@ import sys
 from pathlib import Path
 
 import yaml
-
-from tiny import tiny_recipe_mapping
 from load_script import load_script
+from tiny import tiny_recipe_mapping
 
 SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "time_to_accuracy.py"
 

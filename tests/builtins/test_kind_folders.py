@@ -13,9 +13,9 @@ import importlib
 import pkgutil
 from pathlib import Path
 
-import gns_builtins
 import pytest
 
+import gns_builtins
 from gns_framework.contracts import COMPONENT_KINDS
 
 FOLDERS = {

@@ -17,7 +17,6 @@ import sys
 from pathlib import Path
 
 import yaml
-
 from doc_blocks import ROOT
 
 SCENE_FRAMES = 60

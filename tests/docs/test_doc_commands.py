@@ -17,7 +17,6 @@ import warnings
 from pathlib import Path
 
 import pytest
-
 from doc_blocks import all_blocks
 from docs_sandbox import make_sandbox
 

@@ -8,7 +8,6 @@ import sys
 from pathlib import Path
 
 import pytest
-
 import shim
 from doc_blocks import blocks
 

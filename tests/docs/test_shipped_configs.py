@@ -10,8 +10,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
 from doc_blocks import ROOT
+
 from gns_framework.assembly.trained import load_trained
 from gns_framework.inverse.config import load_invert_config
 from gns_framework.inverse.solve import unknown_bounds_problems

@@ -11,13 +11,13 @@ from hypothesis import strategies as st
 
 from gns_framework.evaluation.metrics import (
     ParticleRollout,
+    RolloutPair,
     kinetic_energy,
     kinetic_energy_error,
     mse_at_horizons,
     mse_per_step,
     pile_profile,
     profile_error,
-    RolloutPair,
     rollout_metrics,
     runout_distance,
     sinkhorn_distance,

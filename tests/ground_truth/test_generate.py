@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 import yaml
+from scene_builders import column_collapse, mixed
 
 from gns_framework.assembly.ground_truth import build_ground_truth_simulator
 from gns_framework.cli import generate as generate_command
@@ -15,7 +16,6 @@ from gns_framework.data.metadata import compute_statistics, load_metadata
 from gns_framework.data.particle_spacing import suggest_connectivity_radius
 from gns_framework.ground_truth.generate import generate_dataset, trajectory_seeds
 from gns_framework.ground_truth.scene_spec import parse_scene
-from scene_builders import column_collapse, mixed
 
 
 def test_trajectory_seeds_do_not_depend_on_how_many_are_drawn():

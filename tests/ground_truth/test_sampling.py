@@ -8,10 +8,10 @@ import sys
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scene_builders import mixed
 
 from gns_framework.ground_truth.sampling import fill, sample_scene
 from gns_framework.ground_truth.scene_spec import parse_scene
-from scene_builders import mixed
 
 
 @given(

@@ -6,11 +6,11 @@ import copy
 from pathlib import Path
 
 import pytest
+from scene_builders import column_collapse_3d, mixed, problems
 
 from gns_framework.assembly.ground_truth import build_ground_truth_simulator
 from gns_framework.errors import RecipeError
 from gns_framework.ground_truth.scene_spec import load_scene, parse_scene
-from scene_builders import column_collapse_3d, mixed, problems
 
 SCENES = sorted((Path(__file__).resolve().parents[2] / "scenes").rglob("*.yaml"))
 

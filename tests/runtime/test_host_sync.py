@@ -168,7 +168,6 @@ def test_the_radius_graph_waits_for_the_device_once_per_chunk_at_the_dispatch_le
     two waits per graph build of one chunk, against seven before (four torch.unique, two masks).
     """
     from gns_builtins._kernels import cell_list
-
     from gns_framework.runtime.sync_counter import SyncCounter
 
     generator = torch.Generator().manual_seed(0)

@@ -6,7 +6,6 @@ them on the GPU machine too, with its torch.
 
 from __future__ import annotations
 
-
 from tf32_getters import getters
 
 from gns_framework.runtime.precision import autocast, backward_precision

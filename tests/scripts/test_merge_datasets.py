@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from load_script import load_script
 from synthetic import write_synthetic_dataset
 
-from load_script import load_script
 from gns_framework.assembly.data import open_dataset
 from gns_framework.config.recipe import DatasetSpec
 from gns_framework.data.metadata import compute_statistics, load_metadata

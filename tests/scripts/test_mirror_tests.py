@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+
 from load_script import load_script
 
 ROOT = Path(__file__).resolve().parents[2]

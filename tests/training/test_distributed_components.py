@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 import torch
+from spawned import free_loopback_port
 from tiny import TINY_GRAPH_BUILDERS as GRAPH_BUILDERS
 from tiny import TINY_PROCESSORS as PROCESSORS
-from spawned import free_loopback_port
 from training_support import subprocess_env, tiny_recipe, trainable_integrators
 
 from gns_framework.plugins import load_registry

@@ -23,8 +23,7 @@ from training_support import (
 )
 
 from gns_framework.cli import main
-from gns_framework.io.run_folder import checkpoint_name
-from gns_framework.io.run_folder import RunFolder
+from gns_framework.io.run_folder import RunFolder, checkpoint_name
 from gns_framework.training.tracking import read_metrics
 
 mlflow = pytest.importorskip("mlflow")

@@ -7,8 +7,8 @@ import torch
 from tiny import tiny_recipe
 
 from gns_framework.errors import DatasetError, RecipeError
-from gns_framework.training.parts import _Builder, build_training_parts
 from gns_framework.runtime.processes import Processes
+from gns_framework.training.parts import _Builder, build_training_parts
 
 
 def _with(recipe, **training):

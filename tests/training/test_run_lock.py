@@ -15,8 +15,7 @@ from test_checkpoints import flip_tensor_byte, snapshot, train_cli
 from training_support import subprocess_env, tiny_recipe
 
 from gns_framework.io.checkpoint import list_checkpoints
-from gns_framework.io.run_folder import checkpoint_name
-from gns_framework.io.run_folder import RunFolder
+from gns_framework.io.run_folder import RunFolder, checkpoint_name
 from gns_framework.training.run_lock import RunFolderLock
 
 HOLD = """

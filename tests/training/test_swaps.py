@@ -8,13 +8,13 @@ import itertools
 import numpy as np
 import pytest
 import torch
-
-from gns_framework.plugins import load_registry
 from synthetic import write_synthetic_dataset
 from tiny import TINY_GRAPH_BUILDERS as GRAPH_BUILDERS
 from tiny import TINY_PROCESSORS as PROCESSORS
-from training_support import trainable_integrators
 from tiny import tiny_recipe, tiny_trainer
+from training_support import trainable_integrators
+
+from gns_framework.plugins import load_registry
 
 REGISTRY = load_registry()
 # Integrators that share another's position map are refused for training (tests/assembly/test_learned.py).

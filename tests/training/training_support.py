@@ -7,9 +7,9 @@ import sys
 from pathlib import Path
 
 import yaml
+from synthetic import soft_sphere_trajectory, synthetic_metadata
 
 from gns_framework.plugins import load_registry
-from synthetic import soft_sphere_trajectory, synthetic_metadata
 
 # (block, kinematic floor) per training trajectory: 25 to 54 particles, some kinematic, so
 # the ranks' batches hold different numbers of predicted particles.

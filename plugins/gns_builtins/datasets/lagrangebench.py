@@ -34,7 +34,6 @@ from pathlib import Path
 
 import numpy as np
 
-from gns_framework.contracts import Dataset
 from gns_framework.api import (
     INFLATE_RATIO_ABOVE,
     MAX_INFLATE_RATIO,
@@ -52,6 +51,7 @@ from gns_framework.api import (
     read_metadata_json,
     write_text_atomic,
 )
+from gns_framework.contracts import Dataset
 
 from ._formats.numbering import trajectory_numbers
 

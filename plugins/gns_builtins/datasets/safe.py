@@ -24,7 +24,6 @@ from typing import Any
 
 import numpy as np
 
-from gns_framework.contracts import ComponentParams
 from gns_framework.api import (
     DatasetError,
     DatasetMetadata,
@@ -34,6 +33,7 @@ from gns_framework.api import (
     mapped_member,
     write_text_atomic,
 )
+from gns_framework.contracts import ComponentParams
 
 from ._formats.npz_common import NpzSplitsDataset, open_npz, read_member
 

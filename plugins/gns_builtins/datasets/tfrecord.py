@@ -27,7 +27,6 @@ from pathlib import Path
 import numpy as np
 from pydantic import Field
 
-from gns_framework.contracts import Dataset, ComponentParams
 from gns_framework.api import (
     DatasetError,
     DatasetMetadata,
@@ -38,6 +37,7 @@ from gns_framework.api import (
     load_metadata,
     write_text_atomic,
 )
+from gns_framework.contracts import ComponentParams, Dataset
 
 from ._formats.numbering import trajectory_numbers
 from ._formats.tfrecord_format import Feature, SequenceExample, read_records, write_records

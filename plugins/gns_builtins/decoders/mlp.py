@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from gns_framework.contracts import Decoder, ModelSizes, ComponentParams
 from gns_framework.api import MLP
+from gns_framework.contracts import ComponentParams, Decoder, ModelSizes
 
 
 class MLPDecoder(Decoder):

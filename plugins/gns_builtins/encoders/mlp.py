@@ -6,8 +6,8 @@ import torch
 from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
-from gns_framework.contracts import Encoder, ModelSizes, ComponentParams
 from gns_framework.api import NormedMLP, recompute_activations
+from gns_framework.contracts import ComponentParams, Encoder, ModelSizes
 
 
 class MLPEncoder(Encoder):

@@ -6,7 +6,7 @@ import torch
 from pydantic import Field
 from torch import Tensor
 
-from gns_framework.contracts import Graph, GraphBuilder, ComponentParams
+from gns_framework.contracts import ComponentParams, Graph, GraphBuilder
 
 from .._kernels.cell_list import squared_distance
 

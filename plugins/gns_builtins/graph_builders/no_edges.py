@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from gns_framework.contracts import Graph, GraphBuilder, ComponentParams
+from gns_framework.contracts import ComponentParams, Graph, GraphBuilder
 
 
 class NoEdgesGraphBuilder(GraphBuilder):

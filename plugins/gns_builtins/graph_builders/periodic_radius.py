@@ -7,8 +7,8 @@ import itertools
 import torch
 from torch import Tensor
 
-from gns_framework.contracts import Graph, GraphBuilder, ComponentParams, ModelSetup
 from gns_framework.api import PerDevice, PeriodicBox, RecipeError
+from gns_framework.contracts import ComponentParams, Graph, GraphBuilder, ModelSetup
 
 from .._kernels.cell_list import radius_pairs
 

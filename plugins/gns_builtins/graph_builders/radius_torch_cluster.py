@@ -8,8 +8,8 @@ import torch
 from pydantic import Field
 from torch import Tensor
 
-from gns_framework.contracts import Graph, GraphBuilder, ComponentParams, ModelSetup
 from gns_framework.api import PluginError
+from gns_framework.contracts import ComponentParams, Graph, GraphBuilder, ModelSetup
 
 from .._kernels.cell_list import squared_distance
 

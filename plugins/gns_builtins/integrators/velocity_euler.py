@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from gns_framework.contracts import Integrator, ComponentParams
+from gns_framework.contracts import ComponentParams, Integrator
 
 
 class VelocityEuler(Integrator):

@@ -6,7 +6,7 @@ from collections.abc import Callable
 
 from torch import Tensor
 
-from gns_framework.contracts import Integrator, ComponentParams
+from gns_framework.contracts import ComponentParams, Integrator
 
 
 class VelocityVerlet(Integrator):

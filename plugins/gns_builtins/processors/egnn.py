@@ -23,8 +23,8 @@ import torch
 from pydantic import Field
 from torch import Tensor, nn
 
-from gns_framework.contracts import Graph, ModelSizes, ComponentParams, Processor
 from gns_framework.api import MLP, NormedMLP
+from gns_framework.contracts import ComponentParams, Graph, ModelSizes, Processor
 
 
 class EquivariantStep(nn.Module):

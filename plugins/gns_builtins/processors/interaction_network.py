@@ -20,8 +20,8 @@ import torch
 from pydantic import Field
 from torch import Tensor, nn
 
-from gns_framework.contracts import Graph, ModelSizes, ComponentParams, Processor
 from gns_framework.api import NormedMLP
+from gns_framework.contracts import ComponentParams, Graph, ModelSizes, Processor
 
 from .._kernels.edge_block import edge_block, edge_order, node_table, table_rows
 

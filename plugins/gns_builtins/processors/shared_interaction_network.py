@@ -5,7 +5,7 @@ from __future__ import annotations
 from pydantic import Field
 from torch import Tensor
 
-from gns_framework.contracts import Graph, ModelSizes, ComponentParams, Processor
+from gns_framework.contracts import ComponentParams, Graph, ModelSizes, Processor
 
 from .._kernels.edge_block import edge_order
 from .interaction_network import EdgeBlock, InteractionStep

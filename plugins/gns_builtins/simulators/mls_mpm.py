@@ -13,8 +13,8 @@ import math
 import numpy as np
 from pydantic import Field, ValidationError
 
-from gns_framework.contracts import GroundTruthSimulator, ComponentParams
 from gns_framework.api import BodySample, SceneSample, SceneSpec, Trajectory, at_resolution, sample_scene
+from gns_framework.contracts import ComponentParams, GroundTruthSimulator
 
 from ._mpm.models import MODELS, RIGID, ConstitutiveModel
 

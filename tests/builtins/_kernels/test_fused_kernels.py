@@ -7,10 +7,10 @@ from contextlib import contextmanager
 
 import pytest
 import torch
+from float_tolerances import assert_close_to_reference
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from float_tolerances import assert_close_to_reference
 from gns_builtins._kernels import chunked, fused_kernels
 from gns_builtins._kernels import edge_block as edge_block_module
 from gns_builtins._kernels.edge_block import edge_block, node_table, table_rows

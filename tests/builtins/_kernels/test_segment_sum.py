@@ -80,7 +80,6 @@ def test_sums_are_within_float32_rounding_of_a_float64_reference(dtype, monkeypa
 
 def test_deterministic_sums_switch_picks_the_path_on_accelerators_only():
     from gns_builtins._kernels.segment_sum import needs_ordered_sums
-
     from gns_framework.runtime.deterministic import deterministic_sums, set_deterministic_sums
 
     assert deterministic_sums() is True

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import pytest
 import torch
-
 from float_tolerances import FLOAT32_EPS, assert_close_to_reference
+
 from gns_builtins._kernels import triton_edge_block as triton_module
 from gns_builtins._kernels.edge_block import node_table, table_rows
 from gns_builtins._kernels.edge_order import EdgeOrder

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+
 from gns_builtins._kernels import verlet_list
 from gns_builtins._kernels.cell_list import radius_pairs
 from gns_builtins._kernels.verlet_list import VerletList

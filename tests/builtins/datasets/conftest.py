@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import pytest
-
 from synthetic import soft_sphere_trajectory
 
 

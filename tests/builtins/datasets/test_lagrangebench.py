@@ -10,11 +10,11 @@ import h5py
 import numpy as np
 import pytest
 from layout_fixtures import FIXTURES, FLOAT32, expected_position, read
+from synthetic import synthetic_metadata
 
 from gns_builtins.datasets.lagrangebench import LagrangeBenchDataset, lagrangebench_metadata
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
-from synthetic import synthetic_metadata
 
 
 def test_lagrangebench_is_read_as_lagrangebench_defines_it(registry):
@@ -159,7 +159,6 @@ def test_a_split_of_several_lengths_is_refused(tmp_path):
 def test_a_dataset_declaring_terabytes_it_does_not_store_is_refused_before_h5py_allocates(tmp_path):
     """A chunked HDF5 dataset may declare any shape: unwritten chunks read as the fill value (issue 47)."""
     from gns_builtins.datasets.lagrangebench import read_bounded
-
     from gns_framework.limits import LimitError
 
     path = tmp_path / "train.h5"
@@ -180,7 +179,6 @@ def test_damaged_hdf5_is_one_line_naming_the_file_and_what_was_read():
     from pathlib import Path
 
     from gns_builtins.datasets.lagrangebench import damaged_hdf5
-
     from gns_framework.errors import DatasetError
 
     with pytest.raises(

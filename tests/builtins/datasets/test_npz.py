@@ -8,10 +8,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from layout_fixtures import FIXTURES, FLOAT32, expected_position, read
+from synthetic import synthetic_metadata
 
 from gns_builtins.datasets.npz import GeoelementsNpzDataset
 from gns_framework.errors import DatasetError
-from synthetic import synthetic_metadata
 
 
 def test_round_trip(trajectories, tmp_path, registry):

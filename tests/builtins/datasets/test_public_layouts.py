@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from layout_fixtures import FIXTURES, FLOAT32, expected_position, read
 from load_script import load_script
-from gns_builtins.datasets._formats.tfrecord_format import SequenceExample, read_records
 
+from gns_builtins.datasets._formats.tfrecord_format import SequenceExample, read_records
 from gns_framework.cli import main
 
 

@@ -7,10 +7,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from synthetic import synthetic_metadata
 
 from gns_builtins.datasets.safe import SafeDataset
 from gns_framework.errors import DatasetError
-from synthetic import synthetic_metadata
 
 
 def test_round_trip(trajectories, tmp_path, registry):

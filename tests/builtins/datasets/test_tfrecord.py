@@ -8,11 +8,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from layout_fixtures import FIXTURES, FLOAT32, expected_position, read
+from synthetic import synthetic_metadata
 
 from gns_builtins.datasets._formats.tfrecord_format import Feature, SequenceExample, read_records, write_records
 from gns_builtins.datasets.tfrecord import TfRecordDataset
 from gns_framework.errors import DatasetError
-from synthetic import synthetic_metadata
 
 
 def test_deepmind_tfrecord_is_read_as_written(registry):

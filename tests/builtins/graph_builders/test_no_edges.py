@@ -6,8 +6,8 @@ import dataclasses
 
 import pytest
 import torch
-
 from graph_cases import build
+
 from gns_framework.testing import small_scene, small_sizes
 
 

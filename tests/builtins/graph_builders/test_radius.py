@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import torch
 
-from gns_framework.contracts import ModelSetup
 from gns_builtins.graph_builders.radius import RadiusGraphBuilder
+from gns_framework.contracts import ModelSetup
 
 
 def test_builder_returns_displacements():

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 import torch
-from gns_builtins.processors.grid_cnn import GridProcessor, ParticleGrid
 
+from gns_builtins.processors.grid_cnn import GridProcessor, ParticleGrid
 from gns_framework.contracts import Graph
 from gns_framework.testing import small_sizes
 

@@ -11,10 +11,10 @@ import math
 
 import numpy as np
 import pytest
+from scene_builders import column_collapse, column_collapse_3d, dam_break, mixed
 
 from gns_framework.assembly.ground_truth import build_ground_truth_simulator
 from gns_framework.ground_truth.scene_spec import parse_scene
-from scene_builders import column_collapse, column_collapse_3d, dam_break, mixed
 
 G = 9.81
 

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from load_script import load_script
+from scene_builders import problems
+
 from gns_framework.assembly.ground_truth import build_ground_truth_simulator
 from gns_framework.ground_truth.scene_spec import parse_scene
-from scene_builders import problems
 
 G, H, RHO = 1.0, 0.1, 1000.0
 

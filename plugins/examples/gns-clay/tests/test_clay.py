@@ -1,9 +1,9 @@
 """The clay material conforms and is found through its entry point."""
 
+from gns_example_clay import Clay
+
 from gns_framework.plugins import load_registry
 from gns_framework.testing import check_material
-
-from gns_example_clay import Clay
 
 
 def test_clay_conforms():

@@ -1,12 +1,11 @@
 """The example processor conforms, averages its messages, and is found through its entry point."""
 
 import torch
+from gns_example_processor import MeanInteractionNetwork
 
 from gns_framework.contracts import Graph
 from gns_framework.plugins import load_registry
 from gns_framework.testing import check_processor, small_sizes
-
-from gns_example_processor import MeanInteractionNetwork
 
 
 def test_conforms():

@@ -37,6 +37,7 @@ import zipfile
 import numpy as np
 
 from gns_framework.api import DatasetError, check_zip_member
+
 from .pickle_opcodes import (
     ALLOWED_GLOBALS,
     MAX_ELEMENTS,

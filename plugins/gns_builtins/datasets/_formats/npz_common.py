@@ -7,9 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from gns_framework.contracts import Dataset
-from .array_pickle import RefusedGlobal, read_npy_object_array
 from gns_framework.api import DatasetError, DatasetMetadata, check_array_header, check_zip_member, load_metadata
+from gns_framework.contracts import Dataset
+
+from .array_pickle import RefusedGlobal, read_npy_object_array
 
 
 class NpzSplitsDataset(Dataset):

@@ -171,7 +171,7 @@ class Feature:
     values: list[bytes] | np.ndarray
 
     @classmethod
-    def parse(cls, buf: bytes) -> "Feature":
+    def parse(cls, buf: bytes) -> Feature:
         for number, _, payload in _fields(buf):
             if number == 1:
                 return cls("bytes", [bytes(v) for n, _, v in _fields(_message(payload)) if n == 1])
@@ -212,7 +212,7 @@ class SequenceExample:
     feature_lists: dict[str, list[Feature]] = field(default_factory=dict)
 
     @classmethod
-    def parse(cls, buf: bytes) -> "SequenceExample":
+    def parse(cls, buf: bytes) -> SequenceExample:
         context: dict[str, Feature] = {}
         lists: dict[str, list[Feature]] = {}
         for number, _, payload in _fields(buf):

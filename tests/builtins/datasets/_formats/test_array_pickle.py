@@ -22,8 +22,8 @@ from hostile import MEMBER, write_hostile_dataset
 from synthetic import soft_sphere_trajectory, synthetic_metadata
 from tiny import tiny_recipe, tiny_recipe_mapping, tiny_trainer
 
-from gns_framework.cli import build_parser, main
 from gns_builtins.datasets._formats.array_pickle import RefusedGlobal, read_npy_object_array
+from gns_framework.cli import build_parser, main
 from gns_framework.errors import DatasetError
 from gns_framework.io.checkpoint import save_checkpoint
 

@@ -7,10 +7,10 @@ import sys
 
 import numpy as np
 import pytest
-from gns_builtins.datasets._formats import tfrecord_format as tf
 from hypothesis import given
 from hypothesis import strategies as st
 
+from gns_builtins.datasets._formats import tfrecord_format as tf
 from gns_framework.errors import DatasetError
 
 

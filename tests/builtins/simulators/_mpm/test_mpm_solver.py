@@ -7,7 +7,6 @@ import os
 import pytest
 
 from gns_builtins.simulators._mpm import solver as mpm_solver
-
 from gns_framework.errors import GnsError
 
 

@@ -17,8 +17,8 @@ import torch
 from pydantic import Field
 from torch import Tensor, nn
 
-from gns_framework.contracts import ComponentParams, Graph, ModelSizes, Processor
 from gns_framework.api import NormedMLP
+from gns_framework.contracts import ComponentParams, Graph, ModelSizes, Processor
 
 
 class MeanInteractionStep(nn.Module):
