@@ -32,7 +32,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from gpu_check import emit, left, part_deadline, skipped  # noqa: E402
+from gpu_check import emit, left, part_deadline, skipped
 
 PATHS = ("chunked", "triton")
 

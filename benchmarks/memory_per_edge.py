@@ -31,9 +31,9 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from step_time import Stepper, benchmark_model  # noqa: E402
+from step_time import Stepper, benchmark_model
 
-from gns_framework.runtime.activation_memory import set_recompute_activations  # noqa: E402
+from gns_framework.runtime.activation_memory import set_recompute_activations
 
 MODES = [
     ("rollout", "float32", False),

@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from learned_vs_simulator import learned_model, refined_scene  # noqa: E402
+from learned_vs_simulator import learned_model, refined_scene
 
 STAGES = ("graph", "features", "encoder", "processor", "decoder", "integrator", "rest")
 

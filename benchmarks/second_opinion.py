@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from generalization import ROOT, dataset  # noqa: E402
+from generalization import ROOT, dataset
 
 BAD = 15.0
 THRESHOLDS = (5.0, 7.5, 10.0, 15.0, 20.0)

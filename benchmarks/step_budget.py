@@ -39,9 +39,9 @@ from torch.utils._python_dispatch import TorchDispatchMode
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from lattice_scene import lattice_scene  # noqa: E402
+from lattice_scene import lattice_scene
 
-from gns_framework.runtime.sync_counter import SyncCounter  # noqa: E402
+from gns_framework.runtime.sync_counter import SyncCounter
 
 NO_KERNEL = frozenset(
     {

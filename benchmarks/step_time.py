@@ -39,18 +39,18 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from lattice_scene import lattice_scene  # noqa: E402
-from model_flops import forward_flops  # noqa: E402
+from lattice_scene import lattice_scene
+from model_flops import forward_flops
 
-from gns_framework.assembly.learned import build_learned_simulator  # noqa: E402
-from gns_framework.config.recipe import ModelSpec, OptimizerSpec  # noqa: E402
-from gns_framework.model.loss import masked_acceleration_loss  # noqa: E402
-from gns_framework.model.noise import random_walk_noise  # noqa: E402
-from gns_framework.plugins import load_registry  # noqa: E402
-from gns_framework.runtime.activation_memory import recompute_activations, set_recompute_activations  # noqa: E402
-from gns_framework.runtime.allocator import keep_freed_memory  # noqa: E402
-from gns_framework.runtime.precision import PRECISIONS, autocast  # noqa: E402
-from gns_framework.training.optim import make_optimizer  # noqa: E402
+from gns_framework.assembly.learned import build_learned_simulator
+from gns_framework.config.recipe import ModelSpec, OptimizerSpec
+from gns_framework.model.loss import masked_acceleration_loss
+from gns_framework.model.noise import random_walk_noise
+from gns_framework.plugins import load_registry
+from gns_framework.runtime.activation_memory import recompute_activations, set_recompute_activations
+from gns_framework.runtime.allocator import keep_freed_memory
+from gns_framework.runtime.precision import PRECISIONS, autocast
+from gns_framework.training.optim import make_optimizer
 
 SUITE = [(992, 2), (3969, 2), (10000, 2), (100000, 2), (8000, 3)]
 LARGE = 20_000

@@ -36,7 +36,7 @@ class Metric:
 
     name: str
     unit: str
-    function: Callable[[Any], Any | None | Mapping[str, Any]]
+    function: Callable[[Any], Any | Mapping[str, Any] | None]
     pairwise: bool = False
     validation: str | None = None
 

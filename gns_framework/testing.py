@@ -56,8 +56,8 @@ __all__ = [
     "check_material",
     "check_processor",
     "check_simulator",
-    "small_sizes",
     "small_scene",
+    "small_sizes",
 ]
 
 

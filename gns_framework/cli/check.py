@@ -47,7 +47,7 @@ def missing_module(name: str) -> str | None:
         importlib.import_module(name)
     except ImportError as exc:
         return str(exc) or f"No module named {name!r}"
-    except Exception as exc:  # noqa: BLE001 - a module that fails to import is as unusable as a missing one
+    except Exception as exc:  # a module that fails to import is as unusable as a missing one
         return f"{type(exc).__name__}: {exc}"
     return None
 

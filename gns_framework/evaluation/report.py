@@ -38,12 +38,12 @@ from .tables import markdown_table, write_cases_csv, write_csv
 from .timing import Timing, hardware_description, time_call
 
 __all__ = [
+    "WALL_HELD",
     "Candidate",
     "Entry",
     "Kind",
     "Prediction",
     "Report",
-    "WALL_HELD",
     "case_range",
     "evaluate",
     "installed",

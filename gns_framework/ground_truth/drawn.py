@@ -121,7 +121,7 @@ def read_drawn(folder: str | Path, key: str, materials: Mapping[str, type[Materi
     try:
         metadata = json.loads((folder / "metadata.json").read_text())
         scene = SceneSpec.model_validate(metadata["generated_from"]["scene"])
-    except Exception:  # noqa: BLE001 - any unreadable or outdated provenance: the truth is unknown
+    except Exception:  # any unreadable or outdated provenance: the truth is unknown
         return None
     if materials is None:
         from ..plugins import load_registry

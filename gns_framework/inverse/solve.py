@@ -131,7 +131,7 @@ def true_values(dataset: str | Path, trajectory: Trajectory, unknowns: dict, sim
     record = None
     try:
         record = read_drawn(dataset, trajectory.key) if trajectory.key else None
-    except Exception:  # noqa: BLE001 - a truth that cannot be read is not known; the inversion still runs
+    except Exception:  # a truth that cannot be read is not known; the inversion still runs
         record = None
     truth: dict = {}
     names = list(simulator.scene.property_names)

@@ -127,7 +127,7 @@ class Outbox:
                     cast("Callable[[], None]", requests[0].send)()  # a request without metrics has send
                 else:  # a run of metrics batches (_next)
                     self._send_metrics([entry for request in requests for entry in cast(list, request.metrics)])
-            except Exception as error:  # noqa: BLE001 - whatever the server does, training goes on
+            except Exception as error:  # whatever the server does, training goes on
                 if not server_unreachable(error):
                     what = requests[0].what
                     if len(requests) > 1:

@@ -105,7 +105,7 @@ def _check_mlflow_database(database: Path, source: str, uri: str) -> None:
             tables = {row[0] for row in connection.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
     except sqlite3.Error as exc:
         raise TrackingError(f"{source} {uri!r}: {database} is not an SQLite database ({exc})") from None
-    if tables and not _MLFLOW_TABLES <= tables:
+    if tables and not tables >= _MLFLOW_TABLES:
         shown = ", ".join(sorted(tables)[:5]) + (" ..." if len(tables) > 5 else "")
         raise TrackingError(
             f"{source} {uri!r}: {database} is a database of something else (tables {shown}), not an MLflow store; "

@@ -10,7 +10,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 
-import gpu_results  # noqa: E402
+import gpu_results
 
 LOG = """gpu_check: start device=cuda dry_run=0
 gpu_check: device name=NVIDIA_H100_80GB_HBM3 count=1 memory_gb=79.1 capability=9.0 torch=2.11.0 cuda=13.0

@@ -9,7 +9,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 
-from memory_per_edge import step_peak_bytes  # noqa: E402
+from memory_per_edge import step_peak_bytes
 
 
 def test_the_peak_is_what_is_held_at_once_not_what_is_allocated_in_all():

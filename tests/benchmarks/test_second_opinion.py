@@ -11,7 +11,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 
-import second_opinion  # noqa: E402
+import second_opinion
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ def test_a_prediction_of_other_frames_is_refused(make_rollout):
 def test_position_mse_counts_the_predicted_particles_only(make_rollout):
     rollout = make_rollout(steps=2, particles=4, history=6)
     with pytest.raises(ValueError, match="which particles the model predicts is not recorded"):
-        rollout.position_mse
+        rollout.position_mse  # noqa: B018 - reading the property is what raises
     moving = np.array([True, True, False, False])
     # The fixture's prediction is off by 0.001 k in every component at step k.
     assert replace(rollout, predicted_particles=moving).position_mse == pytest.approx(1e-6 * (1 + 4) / 2, rel=1e-3)

@@ -79,7 +79,7 @@ def test_the_halo_holds_every_particle_within_depth_of_an_owned_one_and_no_parti
     gap = torch.stack(
         [(position + s - (position + s).clamp(lower[:, None], upper[:, None])).norm(dim=-1) for s in shifts]
     )
-    within = gap.min(0).values.T <= depth
+    within = depth >= gap.min(0).values.T
     within[torch.arange(600), owner] = False
     assert torch.equal(within, halo)
 

@@ -71,7 +71,7 @@ def test_simulator_problems_name_materials_properties_and_parameters(sim_registr
     raw["obstacles"][0]["material"] = "sand"
     found = problems(raw, sim_registry)
     assert "unknown material 'watr'" in found["blocks[0].material"]
-    assert "material 'sand' has no property 'viscosity' (it has: friction)" == found["blocks[1].properties.viscosity"]
+    assert found["blocks[1].properties.viscosity"] == "material 'sand' has no property 'viscosity' (it has: friction)"
     assert "no parameter 'yield_stres'" in found["blocks[2].parameters.yield_stres"]
     assert "is not kinematic" in found["obstacles[0].material"]
 
