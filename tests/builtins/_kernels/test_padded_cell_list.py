@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 import torch
+
 from gns_builtins._kernels.cell_list import radius_pairs
 from gns_builtins._kernels.padded_cell_list import CellGrid, padded_radius_pairs
-
 from gns_framework.runtime.sync_counter import SyncCounter
 
 
