@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     low, high = model.envelope.properties["friction"]
     column = list(model.simulator.scene.property_names).index("friction")
     scenes = []
-    for index, friction in enumerate(np.linspace(low, high, args.scenes)):
+    for friction in np.linspace(low, high, args.scenes):
         properties = base.material_property.copy()
         properties[:, column] = friction
         scenes.append(replace(base, material_property=properties, key=f"friction_{friction:.3f}"))

@@ -319,16 +319,19 @@ def sums(args) -> None:
         sorted_keys, sorted_rows = keys[order], rows[order]
         # index_add: the atomic path (training.deterministic: false); ordered: the deterministic CSR segment
         # sum of any keys (a stable sort first, as the senders need); ordered_sorted: of receiver-sorted keys.
+        # Each path is called within this iteration; the defaults bind this size's tensors all the same.
         paths = {
-            "index_add": lambda: out.zero_().index_add_(0, keys, rows),
-            "ordered": lambda: segment_sum.segment_sum_(out.zero_(), keys, rows),
-            "ordered_sorted": lambda: segment_sum.sorted_segment_sum_(out.zero_(), sorted_keys, sorted_rows),
+            "index_add": lambda out=out, keys=keys, rows=rows: out.zero_().index_add_(0, keys, rows),
+            "ordered": lambda out=out, keys=keys, rows=rows: segment_sum.segment_sum_(out.zero_(), keys, rows),
+            "ordered_sorted": lambda out=out, keys=sorted_keys, rows=sorted_rows: segment_sum.sorted_segment_sum_(
+                out.zero_(), keys, rows
+            ),
         }
         if is_cuda(device) and triton_edge_block.triton_module() is not None:
             # triton_sorted: the Triton edge block's own CSR sum (its backward's node-table gradient).
             offsets = run_offsets(sorted_keys, nodes)
-            paths["triton_sorted"] = lambda: triton_edge_block.segment_sum_into(
-                out.zero_(), 0, sorted_rows, offsets, None
+            paths["triton_sorted"] = lambda out=out, rows=sorted_rows, offsets=offsets: (
+                triton_edge_block.segment_sum_into(out.zero_(), 0, rows, offsets, None)
             )
         reference = paths["index_add"]().clone()
         for name, function in paths.items():

@@ -148,7 +148,9 @@ def main(argv: list[str] | None = None) -> int:
     for scene_path in sorted((ROOT / "scenes" / "canonical").glob("*.yaml")):
         data = dataset(scene_path, args.out / "canonical" / scene_path.stem, 1, None, registry)
         figures = scene_figures(primary, second, data, registry, args.perturb)
-        canonical.update({scene_path.stem: v for v in figures.values()})
+        # One trajectory drawn per canonical scene: its case goes by the scene's name.
+        for figure in figures.values():
+            canonical[scene_path.stem] = figure
     groups["canonical"] = canonical
 
     what = args.second if args.second is not None else f"itself from inputs shifted by {args.perturb} m"

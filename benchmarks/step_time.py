@@ -290,7 +290,7 @@ HEADER = (
 def format_row(r: dict) -> str:
     train = f"{r['train_step_s']:.3f} s" if "train_step_s" in r else "n/a"
     train_eff = f"{r['train_efficiency']:.2f}" if "train_efficiency" in r else "n/a"
-    rss_train = f"{r['peak_rss_mb'] / 1024:.2f} GB" if "train_step_s" in r else "– GB"
+    rss_train = f"{r['peak_rss_mb'] / 1024:.2f} GB" if "train_step_s" in r else "\N{EN DASH} GB"
     peer = "n/a"
     if "peer_rollout_speedup" in r:
         peer_train = f"{r['peer_train_speedup']:.1f}x" if "peer_train_speedup" in r else "n/a"

@@ -99,10 +99,7 @@ def ensure_inside(path: str | Path, folder: str | Path) -> Path:
     """
     path, folder = Path(path), Path(folder)
     root = folder.resolve()
-    if path.name in ("", ".", ".."):
-        target = path.resolve()
-    else:
-        target = path.parent.resolve() / path.name
+    target = path.resolve() if path.name in ("", ".", "..") else path.parent.resolve() / path.name
     if target == root or not target.is_relative_to(root):
         raise UnsafePathError(
             f"{path}: would be written outside its output folder {folder} (it resolves to {target}, the folder to "

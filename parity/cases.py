@@ -7,6 +7,7 @@ member is one, so new cases in the same format are picked up as they are added.
 from __future__ import annotations
 
 import functools
+import itertools
 import json
 import os
 import zipfile
@@ -74,7 +75,7 @@ class ReferenceCase:
     def examples(self) -> list[slice]:
         """Particle range of each example (particles are stored example after example)."""
         ends = np.cumsum(self.arrays["input/nparticles_per_example"]).tolist()
-        return [slice(start, end) for start, end in zip([0] + ends[:-1], ends)]
+        return [slice(start, end) for start, end in itertools.pairwise([0, *ends])]
 
     def material_property(self) -> Tensor | None:
         """(N, 1) or None."""

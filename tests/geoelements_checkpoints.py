@@ -30,7 +30,7 @@ def geoelements_state_dict(
     generator = torch.Generator().manual_seed(seed)
     widths = {"_encoder.node_fn": node_in, "_encoder.edge_fn": dim + 1, "edge_fn": 3 * latent, "node_fn": 2 * latent}
     state = {}
-    for key in arch.keys():
+    for key in arch.keys():  # noqa: SIM118 - an Architecture is no dict: keys() lists its state-dict keys
         if key.startswith("_particle_type_embedding"):
             shape = (types, embedding)
         elif "NN-" not in key:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import struct
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -292,7 +293,7 @@ def _replace_member(archive_path, member: str, raw: bytes, compress: int) -> Non
     with zipfile.ZipFile(archive_path) as old:
         kept = {info.filename: (info, old.read(info)) for info in old.infolist() if info.filename != member}
     with zipfile.ZipFile(archive_path, "w") as new:
-        for name, (info, data) in kept.items():
+        for info, data in kept.values():
             new.writestr(info, data)
         new.writestr(zipfile.ZipInfo(member), raw, compress_type=compress)
 
@@ -325,9 +326,11 @@ def test_a_zip_bomb_member_is_refused_before_it_is_inflated(tmp_path, monkeypatc
     from gns_builtins.datasets._formats.npz_common import open_npz, read_array_pickle
 
     path = tmp_path / "train.npz"
-    with zipfile.ZipFile(path, "w") as archive:
-        with archive.open(zipfile.ZipInfo("simulation_trajectory_0.npy"), "w", force_zip64=True) as member:
-            member.write(b"")  # replaced below
+    with (
+        zipfile.ZipFile(path, "w") as archive,
+        archive.open(zipfile.ZipInfo("simulation_trajectory_0.npy"), "w", force_zip64=True) as member,
+    ):
+        member.write(b"")  # replaced below
     raw = bytearray()
     objects = np.empty(2, dtype=object)
     objects[0], objects[1] = np.zeros((80, 200_000, 2), np.float32), np.zeros(200_000, np.int64)  # 128 MB + 1.6 MB
@@ -375,7 +378,7 @@ def test_gns_check_refuses_a_model_no_machine_can_train_without_building_it(tmp_
         raise AssertionError("built before the size was checked")
 
     monkeypatch.setattr(learned_simulator.LearnedSimulator, "__init__", refuse)
-    text = open("recipes/sand2d_general_grid.yaml").read()
+    text = Path("recipes/sand2d_general_grid.yaml").read_text()
     huge = edit.replace("3,", "100000000,") if "steps" in edit else edit.replace("64", "1000000000")
     assert edit in text
     recipe = tmp_path / "huge.yaml"

@@ -237,14 +237,16 @@ def test_a_server_still_down_at_the_deadline_leaves_a_command_to_send_later(tmp_
     monkeypatch.setattr(client, "set_terminated", down)
     lines = [{"step": s, "time": 1.0 + s, "train_loss": 1.0 / (s + 1)} for s in range(1, 4)]
     (run_dir / "metrics.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
-    with pytest.warns(
-        UserWarning, match=rf"did not receive .* within 0.5 s; .* send them with `gns track-sync {run_dir}`"
+    with (
+        pytest.warns(
+            UserWarning, match=rf"did not receive .* within 0.5 s; .* send them with `gns track-sync {run_dir}`"
+        ),
+        warnings.catch_warnings(),
     ):
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=".*unreachable.*")
-            for line in lines:
-                tracker.log_metrics({"train_loss": line["train_loss"]}, line["step"])
-            tracker.close()
+        warnings.filterwarnings("ignore", message=".*unreachable.*")
+        for line in lines:
+            tracker.log_metrics({"train_loss": line["train_loss"]}, line["step"])
+        tracker.close()
     assert json.loads((run_dir / RunFolder.MLFLOW_UNSENT).read_text())["status"] == "FINISHED"
     monkeypatch.setattr(client, "log_batch", real_log_batch)
     monkeypatch.setattr(client, "set_terminated", real_terminated)

@@ -349,10 +349,9 @@ def test_a_failed_whole_replacement_leaves_the_folder_as_it_was(tmp_path):
     folder = tmp_path / "data"
     folder.mkdir()
     (folder / "test.npz").write_text("old")
-    with pytest.raises(OSError, match="disk full"):
-        with outputs.replaced_whole(folder, "convert") as staging:
-            (staging / "train.npz").write_text("half")
-            raise OSError("disk full")
+    with pytest.raises(OSError, match="disk full"), outputs.replaced_whole(folder, "convert") as staging:
+        (staging / "train.npz").write_text("half")
+        raise OSError("disk full")
     assert tree(folder) == {"test.npz": b"old"} and no_temporary_siblings(folder)
 
 

@@ -91,9 +91,8 @@ class Trajectory:
         ptype = np.asarray(self.particle_type)
         if ptype.shape != (n,):
             raise DatasetError(f"{where}: particle_type: expected shape ({n},), got {ptype.shape}")
-        if not np.issubdtype(ptype.dtype, np.integer):
-            if not np.all(np.equal(np.mod(ptype, 1), 0)):
-                raise DatasetError(f"{where}: particle_type: expected integer ids, got {ptype.dtype}")
+        if not np.issubdtype(ptype.dtype, np.integer) and not np.all(np.equal(np.mod(ptype, 1), 0)):
+            raise DatasetError(f"{where}: particle_type: expected integer ids, got {ptype.dtype}")
         ptype = ptype.astype(np.int64)
         if ptype.min() < 0:
             raise DatasetError(f"{where}: particle_type: ids must be >= 0, got [{ptype.min()}, {ptype.max()}]")

@@ -141,8 +141,8 @@ def _bisect(
         axis = 0
         cut = _middle(lower[axis], upper[axis])
     first = position[:, axis] < cut
-    _bisect(position[first], below, lower, upper[:axis] + [cut] + upper[axis + 1 :], lowers, uppers)
-    _bisect(position[~first], parts - below, lower[:axis] + [cut] + lower[axis + 1 :], upper, lowers, uppers)
+    _bisect(position[first], below, lower, [*upper[:axis], cut, *upper[axis + 1 :]], lowers, uppers)
+    _bisect(position[~first], parts - below, [*lower[:axis], cut, *lower[axis + 1 :]], upper, lowers, uppers)
 
 
 def _middle(low: float, high: float) -> float:

@@ -76,7 +76,7 @@ def rows_everywhere(ids: Tensor, rows: Tensor, total: int, world_size: int, grou
     repeats = (world_size,) + (1,) * (rows.dim() - 1)
     every_id, every_row = send_rows(destination, [ids.repeat(world_size), rows.repeat(repeats)], world_size, group)
     assert every_id is not None and every_row is not None
-    placed = rows.new_empty((total,) + tuple(rows.shape[1:]))
+    placed = rows.new_empty((total, *rows.shape[1:]))
     placed[every_id] = every_row
     return placed
 
@@ -87,7 +87,7 @@ class _AllToAll(torch.autograd.Function):
     @staticmethod
     def forward(ctx, rows: Tensor, received: list[int], sent: list[int], group: Any) -> Tensor:
         ctx.received, ctx.sent, ctx.group = received, sent, group
-        into = rows.new_empty((sum(received),) + tuple(rows.shape[1:]))
+        into = rows.new_empty((sum(received), *rows.shape[1:]))
         dist.all_to_all_single(
             into, rows.contiguous(), output_split_sizes=received, input_split_sizes=sent, group=group
         )
@@ -95,7 +95,7 @@ class _AllToAll(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, gradient: Tensor) -> tuple[Tensor, None, None, None]:
-        back = gradient.new_empty((sum(ctx.sent),) + tuple(gradient.shape[1:]))
+        back = gradient.new_empty((sum(ctx.sent), *gradient.shape[1:]))
         dist.all_to_all_single(
             back,
             gradient.contiguous(),

@@ -81,8 +81,8 @@ class SlabPartition:
         """(N, P) bool: row i, column r is True when particle i lies within ``depth`` of slab r but outside it."""
         x = position[:, self.axis].to(torch.float64)[:, None]
         inf = float("inf")
-        lower = torch.tensor((-inf,) + self.cuts, dtype=torch.float64, device=position.device)
-        upper = torch.tensor(self.cuts + (inf,), dtype=torch.float64, device=position.device)
+        lower = torch.tensor((-inf, *self.cuts), dtype=torch.float64, device=position.device)
+        upper = torch.tensor((*self.cuts, inf), dtype=torch.float64, device=position.device)
         if self.box is not None:
             lower[0], upper[-1] = self.box
         distance = _distance_to_interval(x, lower, upper)

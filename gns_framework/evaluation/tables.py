@@ -121,7 +121,7 @@ def write_cases_csv(report: Report, path: Path) -> None:
     metric_names = list(dict.fromkeys(name for e in report.entries for c in e.cases.values() for name in c))
     with path.open("w", newline="") as handle:
         writer = csv.writer(handle)
-        writer.writerow(["name", "case"] + metric_names)
+        writer.writerow(["name", "case", *metric_names])
         for e in report.entries:
             for key, metrics in e.cases.items():
                 row = [metrics.get(name) for name in metric_names]

@@ -191,7 +191,8 @@ def fill(shape: str, lower: np.ndarray, size: np.ndarray, spacing: float) -> np.
     Points sit at cell centres of a lattice anchored at ``lower``, so each
     particle stands for a volume ``spacing ** d``.
     """
-    counts = [max(1, int(round(s / spacing))) for s in size]
+    # int(): under numpy 1.x, round() of a numpy scalar is still a numpy float.
+    counts = [max(1, int(round(s / spacing))) for s in size]  # noqa: RUF046
     axes = [lower[a] + (np.arange(n) + 0.5) * spacing for a, n in enumerate(counts)]
     points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(size))
     if shape == "ellipsoid":
@@ -309,7 +310,7 @@ def _sample_bodies(scene: SceneSpec, rng: np.random.Generator) -> tuple[list[Bod
     gap = scene.particle_spacing
     for location, body in scene.bodies_with_location():
         count = (
-            int(round(body.count.low))
+            round(body.count.low)
             if body.count.is_fixed
             else int(rng.integers(int(body.count.low), int(body.count.high + 1)))
         )

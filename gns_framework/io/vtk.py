@@ -25,7 +25,7 @@ def _as_3d(values: np.ndarray) -> np.ndarray:
     """(..., 2) or (..., 3) -> (..., 3), padding the missing z with 0."""
     if values.shape[-1] == 3:
         return values
-    return np.concatenate([values, np.zeros(values.shape[:-1] + (1,), dtype=values.dtype)], axis=-1)
+    return np.concatenate([values, np.zeros((*values.shape[:-1], 1), dtype=values.dtype)], axis=-1)
 
 
 def frame_velocities(positions: np.ndarray, dt: float) -> np.ndarray:

@@ -14,6 +14,7 @@ and its kinematic particles follow their prescribed positions.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -105,7 +106,7 @@ def rollout_batch(
         predicted[step], found = guard.check(step, frame, previous, f"batch [{label}]")
         previous = predicted[step]
         for violation in found:
-            for index, (lo, hi) in enumerate(zip(ends[:-1], ends[1:])):
+            for index, (lo, hi) in enumerate(itertools.pairwise(ends)):
                 mine = violation.particles[(violation.particles >= lo) & (violation.particles < hi)] - lo
                 if mine.size:
                     violations[index].append(replace(violation, particles=mine))

@@ -3,6 +3,8 @@ terms; a scene file checked against it (exit 0 inside, 1 outside, 2 for a bad sc
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from gns_framework.cli import main
 
 
@@ -18,7 +20,9 @@ def test_a_scene_file_is_checked_field_by_field(tmp_path, capsys):
     assert "inside the envelope of models/sand2d_general.pt" in capsys.readouterr().out
     tall = tmp_path / "tall.yaml"
     tall.write_text(
-        open("scenes/canonical/tall_column_long_domain.yaml").read().replace("size: [0.2, 0.5]", "size: [0.2, 0.7]")
+        Path("scenes/canonical/tall_column_long_domain.yaml")
+        .read_text()
+        .replace("size: [0.2, 0.5]", "size: [0.2, 0.7]")
     )
     assert main(["envelope", "models/sand2d_general.pt", str(tall)]) == 1
     out = capsys.readouterr().out

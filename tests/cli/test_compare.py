@@ -56,14 +56,21 @@ def test_the_table_adds_the_differing_recipe_fields_and_sorts_by_the_first_logge
     assert err.strip() == "gns compare: warning: no run logged metric 'valid_loss'; logged metrics: train_loss"
     header = lines[0].split()
     # --params (default world_size), then the recipe fields whose values differ (seed is the same in both).
-    assert header == ["run", "experiment", "id", "status", "world_size", "model.latent_size", "training.steps"] + [
-        "train_loss"
+    assert header == [
+        "run",
+        "experiment",
+        "id",
+        "status",
+        "world_size",
+        "model.latent_size",
+        "training.steps",
+        "train_loss",
     ]
     # Sorted by train_loss, smallest first: water (0.2) above sand (0.5).
     assert [line.split()[1] for line in lines[1:3]] == ["water", "sand"]
     assert lines[2].split()[-2:] == ["-", "0.5"]  # sand logged no training.steps
     assert store["select"] == ("sqlite:///unused.db", ["sand", "water"], ["valid_loss", "train_loss"], None)
-    ids, metrics, path, title = store["plot"]
+    _ids, metrics, path, title = store["plot"]
     assert metrics == ["train_loss"] and path == Path("compare-sand.water-train_loss.png") and title == "sand water"
     assert lines[-1] == "2 runs of 2 experiment(s) (sand, water); plot in compare-sand.water-train_loss.png"
 

@@ -69,7 +69,9 @@ def test_documented_block_runs(block, sandboxes):
     entries = [json.loads(line) for line in log.read_text().splitlines()[before:]] if log.exists() else []
     for entry in entries:
         if "not_run" in entry:
-            warnings.warn(DocCommandNotRun(f"{block.name}: {' '.join(entry['as_written'])}: {entry['not_run']}"))
+            warnings.warn(
+                DocCommandNotRun(f"{block.name}: {' '.join(entry['as_written'])}: {entry['not_run']}"), stacklevel=1
+            )
     if result.returncode != 0:
         tail = (result.stdout[-2500:] + "\n" + result.stderr[-4000:]).strip()
         pytest.fail(f"{block.name}: exit {result.returncode}\n{tail}", pytrace=False)

@@ -180,7 +180,7 @@ def test_each_case_is_reported_and_the_spread_stated(report, tmp_path):
     per_case = [float(r["runout_error_pct"]) for r in rows if r["name"] == "gns"]
     assert per_case == pytest.approx([gns.cases[k]["runout_error_pct"] for k in ("case0", "case1")])
     assert np.mean(per_case) == pytest.approx(gns.metrics["runout_error_pct"])
-    line = next(l for l in paths["markdown"].read_text().splitlines() if l.startswith("- gns:"))
+    line = next(text for text in paths["markdown"].read_text().splitlines() if text.startswith("- gns:"))
     worst = max(per_case)
     assert f"runout_error_pct {np.median(per_case):.3g} / {worst:.3g}" in line
     # The error-vs-time plot's bars run over the same cases.
@@ -246,7 +246,7 @@ def test_a_plugin_metric_is_measured_beside_the_builtins(make_rollout):
 
 def test_a_batched_candidate_is_charged_its_share_of_each_batch(scenes):
     """Two cases rolled out together in 0.06 s each cost 0.03 s; the batch sees both cases, in order."""
-    states, cases, metadata = scenes
+    _states, cases, metadata = scenes
     clock, batches = WorkClock(), []
 
     def simulate_batch(chunk):
@@ -268,7 +268,7 @@ def test_the_particles_a_wall_held_are_counted_per_case_and_stated(scenes, tmp_p
     """A learned rollout's held particles go into cases.csv per case and into report.md per model (issue 46)."""
     import dataclasses
 
-    states, cases, metadata = scenes
+    _states, cases, metadata = scenes
     held = {"case0": 0, "case1": 7}
 
     def guarded(case):
@@ -290,7 +290,7 @@ def test_the_particles_a_wall_held_are_counted_per_case_and_stated(scenes, tmp_p
 
 def test_progress_is_reported_after_each_candidate_and_case(scenes):
     """The report phase says what it is timing: every candidate's every case, counted over all of them."""
-    states, cases, metadata = scenes
+    _states, cases, metadata = scenes
     seen = []
     evaluate(
         [Candidate("gns", "learned", learned), Candidate("other", "learned", learned)],

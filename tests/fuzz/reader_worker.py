@@ -55,7 +55,7 @@ def _touch_scene(path: Path) -> str:
 def _touch_invert_config(path: Path) -> str:
     from gns_framework.inverse.config import load_invert_config
 
-    config, unknowns = load_invert_config(path)
+    _config, unknowns = load_invert_config(path)
     return ", ".join(unknowns)
 
 

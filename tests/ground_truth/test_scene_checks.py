@@ -4,6 +4,7 @@ simulator, kinematic exactly for obstacles) and block properties; then the simul
 from __future__ import annotations
 
 import copy
+from collections.abc import Sequence
 
 from scene_builders import mixed
 
@@ -31,7 +32,7 @@ class Stub(GroundTruthSimulator):
     name = "stub"
     dims = (2,)
     constitutive_models = ("fluid", "granular", "rigid")
-    own: list[tuple[str, str]] = []
+    own: Sequence[tuple[str, str]] = ()  # a test sets its own on the instance
 
     def check(self, scene):
         return list(self.own)

@@ -57,7 +57,6 @@ def test_a_block_cannot_switch_off_a_recompute_mode_set_outside_it():
 
 def test_the_mode_is_restored_when_the_block_raises():
     set_recompute_activations(False)
-    with pytest.raises(RuntimeError, match="out of memory"):
-        with activations_recomputed():
-            raise RuntimeError("out of memory")
+    with pytest.raises(RuntimeError, match="out of memory"), activations_recomputed():
+        raise RuntimeError("out of memory")
     assert recompute_activations() is False

@@ -117,7 +117,7 @@ def test_unknown_metrics_are_named_with_the_logged_ones(two_recipes, tmp_path, c
 
 
 def test_unknown_names_and_bad_filters_are_clear_errors(two_recipes, tmp_path, capsys):
-    uri, run_ids, _ = two_recipes
+    uri, _run_ids, _ = two_recipes
     code, _, err = compare(capsys, uri, "recipe-c")
     assert code == 2 and "no experiment or run 'recipe-c'; experiments: Default, recipe-a, recipe-b" in err
     code, _, err = compare(capsys, uri, "recipe-a", "--filter", "params.x ==== 1")

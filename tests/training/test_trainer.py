@@ -151,7 +151,7 @@ def test_bfloat16_training_follows_float32_closely(dataset_2d, tmp_path, registr
     for precision in ("float32", "bfloat16"):
         raw = tiny_recipe_mapping(dataset_2d, tmp_path / precision, latent_size=32, mlp_hidden_size=32)
         raw["training"]["precision"] = precision
-        losses[precision], trainer = _train(raw, registry, 4)
+        losses[precision], _trainer = _train(raw, registry, 4)
     full, low = np.array(losses["float32"]), np.array(losses["bfloat16"])
     assert np.all(np.isfinite(low))
     assert not np.array_equal(full, low)

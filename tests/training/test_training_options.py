@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 
@@ -51,9 +52,9 @@ def test_cosine_schedule_warms_up_then_reaches_the_floor_at_the_last_step():
     spec = OptimizerSpec(schedule="cosine", lr_init=1e-3, lr_min=1e-5, warmup_steps=10)
     rates = [learning_rate(spec, step, total_steps=110) for step in range(111)]
     assert rates[0] == pytest.approx(1e-4) and rates[9] == pytest.approx(1e-3)
-    assert all(a < b for a, b in zip(rates[:10], rates[1:10]))
+    assert all(a < b for a, b in itertools.pairwise(rates[:10]))
     assert rates[10] == pytest.approx(1e-3)
-    assert all(a >= b for a, b in zip(rates[10:], rates[11:]))
+    assert all(a >= b for a, b in itertools.pairwise(rates[10:]))
     assert rates[60] == pytest.approx(1e-5 + (1e-3 - 1e-5) / 2)
     assert rates[110] == pytest.approx(1e-5)
 

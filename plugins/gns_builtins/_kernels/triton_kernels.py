@@ -252,10 +252,7 @@ def segment_sum_kernel(
     for start in range(lo, hi, BE):
         positions = start + tl.arange(0, BE)
         mask = positions < hi
-        if PERMUTED:
-            source = tl.load(permutation_ptr + positions, mask=mask, other=0)
-        else:
-            source = positions
+        source = tl.load(permutation_ptr + positions, mask=mask, other=0) if PERMUTED else positions
         rows = tl.load(rows_ptr + source[:, None] * F + cols[None, :], mask=mask[:, None], other=0.0)
         total += tl.sum(rows.to(tl.float32), 0)
     target = out_ptr + (out_offset + node) * out_stride + cols

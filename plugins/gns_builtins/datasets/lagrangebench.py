@@ -142,18 +142,17 @@ class LagrangeBenchDataset(Dataset):
         path = Path(path)
         document = lagrangebench_metadata(path, metadata, splits)
         for split, trajectories in splits.items():
-            with atomic_path(path / f"{split}.h5", suffix=".h5") as tmp:
-                with h5py.File(tmp, "w") as handle:
-                    for number, traj in zip(trajectory_numbers(trajectories), trajectories):
-                        group_name = f"{number:05d}"
-                        group = handle.create_group(group_name)
-                        group.create_dataset("position", data=np.asarray(traj.position, dtype=np.float32))
-                        group.create_dataset("particle_type", data=np.asarray(traj.particle_type, dtype=np.int64))
-                        for name in OPTIONAL_FIELDS:
-                            if getattr(traj, name) is not None:
-                                group.create_dataset(name, data=np.asarray(getattr(traj, name), dtype=np.float32))
-                        if traj.key and traj.key != group_name:
-                            group.attrs["key"] = traj.key
+            with atomic_path(path / f"{split}.h5", suffix=".h5") as tmp, h5py.File(tmp, "w") as handle:
+                for number, traj in zip(trajectory_numbers(trajectories), trajectories):
+                    group_name = f"{number:05d}"
+                    group = handle.create_group(group_name)
+                    group.create_dataset("position", data=np.asarray(traj.position, dtype=np.float32))
+                    group.create_dataset("particle_type", data=np.asarray(traj.particle_type, dtype=np.int64))
+                    for name in OPTIONAL_FIELDS:
+                        if getattr(traj, name) is not None:
+                            group.create_dataset(name, data=np.asarray(getattr(traj, name), dtype=np.float32))
+                    if traj.key and traj.key != group_name:
+                        group.attrs["key"] = traj.key
         write_text_atomic(path / "metadata.json", json.dumps(document, indent=2) + "\n")
 
 

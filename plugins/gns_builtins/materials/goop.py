@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 from gns_framework.contracts import Material
 
 
@@ -10,4 +12,4 @@ class Goop(Material):
     particle_type = 7
     description = "viscoplastic material (Goop)"
     constitutive_model = "von_mises"
-    physical_parameters = {"density": 1000.0, "youngs_modulus": 2.0e4, "poisson_ratio": 0.3}
+    physical_parameters: ClassVar[dict[str, float]] = {"density": 1000.0, "youngs_modulus": 2.0e4, "poisson_ratio": 0.3}

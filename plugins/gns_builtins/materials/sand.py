@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 from gns_framework.contracts import Material, MaterialProperty
 
 FRICTION = MaterialProperty(
@@ -19,4 +21,8 @@ class Sand(Material):
     properties = (FRICTION,)
     description = "granular Drucker-Prager material; friction may vary per particle"
     constitutive_model = "drucker_prager"
-    physical_parameters = {"density": 2200.0, "youngs_modulus": 3.537e5, "poisson_ratio": 0.3}
+    physical_parameters: ClassVar[dict[str, float]] = {
+        "density": 2200.0,
+        "youngs_modulus": 3.537e5,
+        "poisson_ratio": 0.3,
+    }

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 from gns_framework.contracts import Material
 
 
@@ -10,4 +12,4 @@ class Water(Material):
     particle_type = 5
     description = "Newtonian fluid (WaterDrop, WaterRamps)"
     constitutive_model = "weakly_compressible"
-    physical_parameters = {"density": 1000.0, "bulk_modulus": 2.0e5, "eos_exponent": 7.0}
+    physical_parameters: ClassVar[dict[str, float]] = {"density": 1000.0, "bulk_modulus": 2.0e5, "eos_exponent": 7.0}

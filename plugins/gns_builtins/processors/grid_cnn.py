@@ -109,7 +109,7 @@ class GridRound(nn.Module):
         # Dilations 1, 2, 4, 1, 2, 4, ...: the receptive field grows fast without pooling.
         self.convs = nn.ModuleList(
             conv(a, b, kernel_size=3, padding=2 ** (k % 3), dilation=2 ** (k % 3))
-            for k, (a, b) in enumerate(zip(sizes[:-1], sizes[1:]))
+            for k, (a, b) in enumerate(itertools.pairwise(sizes))
         )
         self.activation = nn.SiLU()
         self.node_mlp = NormedMLP(2 * latent, hidden, hidden_layers, latent)

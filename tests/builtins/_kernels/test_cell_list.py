@@ -106,7 +106,7 @@ def test_strict_radius_and_self_edges():
 def test_dense_cluster_keeps_every_neighbour():
     """No cap: 400 particles within R of each other give 400 * 400 edges."""
     position = torch.rand(400, 2) * 0.01
-    s, r = radius_pairs(position, torch.zeros(400, dtype=torch.long), 0.1)
+    s, _r = radius_pairs(position, torch.zeros(400, dtype=torch.long), 0.1)
     assert len(s) == 400 * 400
 
 

@@ -181,10 +181,12 @@ def test_damaged_hdf5_is_one_line_naming_the_file_and_what_was_read():
     from gns_builtins.datasets.lagrangebench import damaged_hdf5
     from gns_framework.errors import DatasetError
 
-    with pytest.raises(
-        DatasetError,
-        match=r"^f\.h5: not a readable HDF5 file \(truncated or corrupt\?\) reading "
-        r"trajectory '3': Unable to get group info \(bad symbol table node signature\)$",
+    with (
+        pytest.raises(
+            DatasetError,
+            match=r"^f\.h5: not a readable HDF5 file \(truncated or corrupt\?\) reading "
+            r"trajectory '3': Unable to get group info \(bad symbol table node signature\)$",
+        ),
+        damaged_hdf5(Path("f.h5"), "trajectory '3'"),
     ):
-        with damaged_hdf5(Path("f.h5"), "trajectory '3'"):
-            raise RuntimeError("Unable to get group info (bad symbol table node signature)")
+        raise RuntimeError("Unable to get group info (bad symbol table node signature)")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import pytest
 import torch
 from oscillator import frames_of_force_law, observed_order, oscillator_energy
@@ -49,7 +51,7 @@ def test_explicit_euler_is_declared_unstable_for_every_step():
     # stability_bound 0: even a small step gains energy at every step (the growth factor above is > 1 for any dt).
     assert ExplicitEuler.stability_bound == 0.0 and not ExplicitEuler.symplectic
     energies = oscillator_energy(ExplicitEuler.advance, 0.01, steps=50)
-    assert all(b > a for a, b in zip(energies, energies[1:]))
+    assert all(b > a for a, b in itertools.pairwise(energies))
 
 
 def test_order_of_accuracy_of_the_physical_form():

@@ -90,7 +90,7 @@ def _values_and_gradients(processor, graph, x, e):
 
 def test_the_plain_step_is_the_papers_three_lines():
     """plain, against the step written out here from the paper: edge update, sum at receivers, node update."""
-    fused, plain = _processors(steps=1)
+    _fused, plain = _processors(steps=1)
     graph, x, e = _graph_and_latents()
     step = plain.steps[0]
     s, r = graph.senders, graph.receivers

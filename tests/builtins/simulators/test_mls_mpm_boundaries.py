@@ -112,7 +112,7 @@ def test_each_face_applies_its_own_condition(dim, normal_speed, sim_registry):
     """Nodes moving along a face and towards it (or away from it): each face's condition alone acts on its nodes."""
     bounds = [[0.0, 1.0], [0.1, 0.6], [-0.2, 0.4]][:dim]
     walls = {face: c for face, c in FACE_CONDITIONS.items() if face[0] in "xyz"[:dim]}
-    scene, solver = solver_for(scene_in(bounds, 16, wall_friction=2.0, walls=walls), sim_registry)
+    _scene, solver = solver_for(scene_in(bounds, 16, wall_friction=2.0, walls=walls), sim_registry)
     index = node_indices(solver)
     lower = np.full(dim, 3)
     upper = np.array([solver.wall_upper[a] for a in range(dim)])

@@ -58,7 +58,7 @@ def test_column_collapse_runout_follows_lube_scaling(collapses, aspect):
 
     MPM with a Drucker-Prager friction angle of 30 degrees lands within +-40 % of it.
     """
-    scene, traj = collapses[aspect, 0.58]
+    _scene, traj = collapses[aspect, 0.58]
     runout = (front(traj.position)[-1] - 0.1) / 0.1
     lube = 1.2 * aspect if aspect < 1.8 else 1.9 * aspect ** (2 / 3)
     assert 0.6 * lube < runout < 1.4 * lube
@@ -93,7 +93,7 @@ def test_dam_break_front_advances_at_the_ritter_speed(sim_registry):
 
 
 def test_dam_break_front_starts_from_rest(sim_registry):
-    scene, traj = simulate(dam_break(0.2, 0.2, frames=20), sim_registry)
+    _scene, traj = simulate(dam_break(0.2, 0.2, frames=20), sim_registry)
     advance = front(traj.position) - front(traj.position)[0]
     assert np.all(np.diff(advance) >= -1e-4)
     assert advance[5] < advance[-1]

@@ -6,6 +6,8 @@ profile u(y) = g y (h - y) / (2 nu), mean g h^2 / (12 nu), nu = eta / rho.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from load_script import load_script
@@ -53,7 +55,7 @@ def middle_profile(viscosity: float, registry) -> tuple[np.ndarray, np.ndarray]:
     middle = (x > x.min() + 0.15) & (x < x.max() - 0.15)
     edges = np.linspace(0.0, H, 6)
     centres = 0.5 * (edges[:-1] + edges[1:])
-    means = np.array([u[middle & (y >= lo) & (y < hi)].mean() for lo, hi in zip(edges[:-1], edges[1:])])
+    means = np.array([u[middle & (y >= lo) & (y < hi)].mean() for lo, hi in itertools.pairwise(edges)])
     return centres, means
 
 

@@ -125,7 +125,7 @@ def read_npy_object_array(archive: zipfile.ZipFile, member: str) -> np.ndarray:
             except Exception as exc:  # numpy parses the header as a Python literal: ValueError, SyntaxError, TokenError
                 found = f"unreadable .npy header: {type(exc).__name__}: {exc}"
                 raise ArrayPickleError(file, key, None, found, "", "not a .npy file") from None
-            if dtype != object:
+            if dtype != np.dtype(object):
                 raise ArrayPickleError(file, key, None, f"the header says dtype {dtype}", "an object array (a pickle)")
             # The stated size bounds what zipfile inflates; checked before a byte of the payload is.
             check_zip_member(f"{file}: {key}", archive.getinfo(member))

@@ -177,13 +177,13 @@ class Feature:
                 return cls("bytes", [bytes(v) for n, _, v in _fields(_message(payload)) if n == 1])
             if number == 2:
                 floats: list[np.ndarray] = []
-                for n, wire, v in _fields(_message(payload)):
+                for n, _wire, v in _fields(_message(payload)):
                     if n == 1:
                         floats.append(np.frombuffer(_message(v), dtype="<f4"))
                 return cls("float", np.concatenate(floats) if floats else np.zeros(0, np.float32))
             if number == 3:
                 ints: list[int] = []
-                for n, wire, v in _fields(_message(payload)):
+                for n, _wire, v in _fields(_message(payload)):
                     if n != 1:
                         continue
                     if isinstance(v, int):  # wire == VARINT

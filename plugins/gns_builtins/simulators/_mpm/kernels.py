@@ -92,9 +92,8 @@ def polygon_distance(p: wp.vec2, vertices: wp.array(dtype=wp.vec2), start: int, 
             normal = wp.normalize(wp.vec2(edge[1], -edge[0]))
         above_a = a[1] > p[1]
         above_b = b[1] > p[1]
-        if above_a != above_b:
-            if p[0] < a[0] + (p[1] - a[1]) / (b[1] - a[1]) * edge[0]:
-                crossings += 1
+        if above_a != above_b and p[0] < a[0] + (p[1] - a[1]) / (b[1] - a[1]) * edge[0]:
+            crossings += 1
     if crossings % 2 == 1:
         best = -best
     return best, normal

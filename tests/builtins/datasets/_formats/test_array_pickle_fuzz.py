@@ -12,6 +12,7 @@ dimensions, pickled with protocols 2 to 5.
 from __future__ import annotations
 
 import io
+import itertools
 import pickletools
 import random
 
@@ -89,7 +90,7 @@ def _opcode_chunks(data: bytes) -> list[bytes]:
     start = _header_length(data)
     positions = [start + pos for _, _, pos in pickletools.genops(io.BytesIO(data[start:]))]
     bounds = [0, *positions, len(data)]
-    return [data[a:b] for a, b in zip(bounds, bounds[1:]) if b > a]
+    return [data[a:b] for a, b in itertools.pairwise(bounds) if b > a]
 
 
 CHUNKS = {name: _opcode_chunks(data) for name, data in SEEDS.items()}
@@ -163,7 +164,7 @@ def _opcodes_of(data: bytes, chunks: list[bytes] | None) -> list[bytes]:
     except ValueError:
         pass
     bounds = [*positions, len(data)]
-    pieces += [data[a:b] for a, b in zip(bounds, bounds[1:]) if b > a]
+    pieces += [data[a:b] for a, b in itertools.pairwise(bounds) if b > a]
     if positions and positions[0] > start:
         pieces.insert(1, data[start : positions[0]])
     return pieces

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 from gns_framework.contracts import Material, MaterialProperty
 
 COHESION = MaterialProperty(
@@ -25,4 +27,4 @@ class Clay(Material):
     properties = (COHESION,)
     description = "cohesive clay (undrained); cohesion may vary per particle"
     constitutive_model = "tresca"
-    physical_parameters = {"density": 1800.0, "youngs_modulus": 1.0e6, "poisson_ratio": 0.3}
+    physical_parameters: ClassVar[dict[str, float]] = {"density": 1800.0, "youngs_modulus": 1.0e6, "poisson_ratio": 0.3}
