@@ -69,7 +69,7 @@ def test_a_scene_of_6e10_particles_is_refused_with_the_estimate_before_sampling(
 
 
 def test_sampling_itself_refuses_it_too(no_allocation):
-    with pytest.raises(limits.LimitError, match="about 6.71e.10 particles per trajectory"):
+    with pytest.raises(limits.LimitError, match=r"about 6\.71e\+10 particles per trajectory"):
         sampling.sample_scene(parse_scene(HUGE), 0)
 
 
@@ -242,7 +242,7 @@ def test_the_memory_estimate_counts_every_stored_frame_and_the_working_state(mon
     monkeypatch.setattr(limits, "physical_memory", lambda: stored + working)
     limits.check_scene(scene, "s.yaml", trajectories=4)  # exactly fits
     monkeypatch.setattr(limits, "physical_memory", lambda: stored + working - 1)
-    with pytest.raises(limits.LimitError, match="s.yaml: blocks: generating 4 trajectories of 10 frames of about 24"):
+    with pytest.raises(limits.LimitError, match=r"s\.yaml: blocks: generating 4 trajectories of 10 frames of about 24"):
         limits.check_scene(scene, "s.yaml", trajectories=4)
 
 
@@ -270,7 +270,7 @@ def test_sizes_are_written_in_gib_to_three_figures(nbytes, text):
 
 def test_the_sequence_length_limit_is_inclusive():
     limits.check_sequence_length("m.json", limits.MAX_SEQUENCE_LENGTH)
-    with pytest.raises(limits.LimitError, match="m.json: sequence_length: 1e\\+06 frames, more than the limit"):
+    with pytest.raises(limits.LimitError, match=r"m\.json: sequence_length: 1e\+06 frames, more than the limit"):
         limits.check_sequence_length("m.json", limits.MAX_SEQUENCE_LENGTH + 1)
 
 

@@ -96,7 +96,7 @@ def test_non_finite_or_huge_metadata_is_refused_by_field(dataset, tmp_path, caps
 def test_metadata_linked_to_dev_zero_is_refused_without_reading_it_all(dataset, tmp_path, capsys):
     (dataset / "metadata.json").unlink()
     (dataset / "metadata.json").symlink_to("/dev/zero")
-    with pytest.raises(DatasetError, match="metadata.json: more than 16 MiB, too large for a metadata file"):
+    with pytest.raises(DatasetError, match=r"metadata\.json: more than 16 MiB, too large for a metadata file"):
         load_metadata(dataset)
 
 

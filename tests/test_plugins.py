@@ -76,7 +76,7 @@ def test_hook_returning_a_non_component_names_the_plugin():
         def gns_encoders():
             return [dict]
 
-    with pytest.raises(PluginError, match="plugin 'bad-plugin'.*not a subclass of Encoder"):
+    with pytest.raises(PluginError, match=r"plugin 'bad-plugin'.*not a subclass of Encoder"):
         load_registry(plugins=[("bad-plugin", Bad)])
 
 
@@ -93,7 +93,7 @@ def test_material_type_clash_names_both():
         def gns_materials():
             return [Mud]
 
-    with pytest.raises(PluginError, match="'water'.*'mud'.*particle type 5") as info:
+    with pytest.raises(PluginError, match=r"'water'.*'mud'.*particle type 5") as info:
         load_registry(plugins=[("mud", MudPlugin)])
     message = str(info.value)
     assert "builtin-materials" in message and "plugin 'mud'" in message
@@ -216,9 +216,9 @@ def test_metric_clashes_and_non_records_name_the_plugin():
     from gns_framework.plugin_types import Metric
 
     twin = Metric("sinkhorn_final", "L, another", lambda pair: None)
-    with pytest.raises(PluginError, match="two metrics are named 'sinkhorn_final'.*builtin-metrics.*twin-metric"):
+    with pytest.raises(PluginError, match=r"two metrics are named 'sinkhorn_final'.*builtin-metrics.*twin-metric"):
         load_registry(plugins=[("twin-metric", _metric_plugin(twin))])
-    with pytest.raises(PluginError, match="plugin 'bad-metric'.*not a gns_framework.plugin_types.Metric"):
+    with pytest.raises(PluginError, match=r"plugin 'bad-metric'.*not a gns_framework\.plugin_types\.Metric"):
         load_registry(plugins=[("bad-metric", _metric_plugin({"name": "x"}))])
 
 
@@ -248,14 +248,14 @@ def test_a_plugins_metric_can_be_tracked_in_validation_and_chosen_for_best_pt(tm
     twin = Metric("another_sinkhorn", "%, another", lambda pair: None, validation="sinkhorn_pct")
     with pytest.raises(
         PluginError,
-        match="tracked in validation as valid_rollout_sinkhorn_pct: 'sinkhorn_final_pct' "
-        "from plugin 'builtin-metrics'.*'another_sinkhorn' from plugin 'twin-tracked'",
+        match=r"tracked in validation as valid_rollout_sinkhorn_pct: 'sinkhorn_final_pct' "
+        r"from plugin 'builtin-metrics'.*'another_sinkhorn' from plugin 'twin-tracked'",
     ):
         load_registry(plugins=[("twin-tracked", _metric_plugin(twin))])
 
 
 def test_a_registry_without_metrics_says_how_to_get_them():
-    with pytest.raises(PluginError, match="no metric is installed.*builtin-metrics"):
+    with pytest.raises(PluginError, match=r"no metric is installed.*builtin-metrics"):
         load_registry(load_entry_points=False).metrics()
 
 

@@ -196,6 +196,6 @@ def test_simulator_check_passes_a_conforming_simulator_and_catches_a_nondetermin
     sloppy = type("Sloppy", (_Dropping,), {"name": "sloppy", "sloppy": True})
     with pytest.raises(AssertionError, match="same seed gave different trajectories"):
         testing.check_simulator(sloppy, scene, materials)
-    with pytest.raises(AssertionError, match="cannot run the scene.*constitutive model 'weakly_compressible'"):
+    with pytest.raises(AssertionError, match=r"cannot run the scene.*constitutive model 'weakly_compressible'"):
         water = {**SAND_SCENE, "blocks": [{**SAND_SCENE["blocks"][0], "material": "water"}]}
         testing.check_simulator(_Dropping, SceneSpec.model_validate(water), materials)

@@ -30,6 +30,6 @@ def test_integrators_with_their_own_position_map_train(name):
 
 
 def test_the_trainer_refuses_it_before_reading_any_data(tmp_path):
-    with pytest.raises(RecipeError, match="model.integrator.name"):
+    with pytest.raises(RecipeError, match=r"model\.integrator\.name"):
         Trainer(recipe("explicit_euler"), load_registry(), run_dir=tmp_path / "run", progress=False)
     assert not (tmp_path / "run").exists()

@@ -53,7 +53,7 @@ def test_a_plugin_adds_a_command_that_help_lists_and_gns_runs(tmp_path, monkeypa
         def gns_commands():
             return [Command("train", "another train", "sieve_command")]
 
-    with pytest.raises(PluginError, match="two gns commands are named 'train'.*clash-plugin"):
+    with pytest.raises(PluginError, match=r"two gns commands are named 'train'.*clash-plugin"):
         load_commands(plugins=[("clash-plugin", ClashingPlugin)])
 
 

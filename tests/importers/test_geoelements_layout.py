@@ -84,7 +84,7 @@ def test_without_hidden_layers_the_mlp_width_is_the_latent_size():
 
 
 def test_what_is_not_a_geoelements_state_dict_is_named():
-    with pytest.raises(CheckpointError, match="m.pt: no _encode_process_decode._encoder / _processor keys"):
+    with pytest.raises(CheckpointError, match=r"m\.pt: no _encode_process_decode\._encoder / _processor keys"):
         Architecture.infer({"weights": torch.zeros(1)}, "m.pt")
     state = geoelements_state_dict()
     del state[PREFIX + "_encoder.node_fn.1.weight"]

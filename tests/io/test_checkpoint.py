@@ -56,7 +56,7 @@ def test_a_pickle_that_would_run_code_is_refused_not_run(tmp_path):
 
     path = tmp_path / "evil.pt"
     torch.save({"format": FORMAT, "payload": Payload()}, path, pickle_module=pickle)
-    with pytest.raises(CheckpointError, match="evil.pt"):
+    with pytest.raises(CheckpointError, match=r"evil\.pt"):
         load_checkpoint(path)
 
 

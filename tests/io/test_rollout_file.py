@@ -76,10 +76,10 @@ def test_malformed_field_is_named_with_the_file(make_rollout, tmp_path, changes,
 
 def test_missing_and_unknown_fields_are_listed(make_rollout, tmp_path):
     path = write_fields(tmp_path / "bad.npz", make_rollout(), particle_type=None, extra=np.zeros(1))
-    with pytest.raises(DatasetError, match="missing field.*particle_type"):
+    with pytest.raises(DatasetError, match=r"missing field.*particle_type"):
         load_rollout(path)
     path = write_fields(tmp_path / "extra.npz", make_rollout(), extra=np.zeros(1))
-    with pytest.raises(DatasetError, match="unknown field.*extra"):
+    with pytest.raises(DatasetError, match=r"unknown field.*extra"):
         load_rollout(path)
 
 
@@ -93,5 +93,5 @@ def test_missing_or_unreadable_file(tmp_path):
     with pytest.raises(DatasetError, match="not found"):
         load_rollout(tmp_path / "absent.npz")
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
-    with pytest.raises(DatasetError, match="junk.npz: not a readable"):
+    with pytest.raises(DatasetError, match=r"junk\.npz: not a readable"):
         load_rollout(tmp_path / "junk.npz")

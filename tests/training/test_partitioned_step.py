@@ -57,7 +57,8 @@ def test_partitions_other_than_the_processes_are_refused(uneven_dataset, tmp_pat
     recipe = validate_recipe(tiny_recipe(uneven_dataset, partitions=2), registry)
     with pytest.raises(
         RecipeError,
-        match="2 pieces need a multiple of 2 processes .teams of one process per piece, data-parallel over the teams., but WORLD_SIZE is 1",
+        match=r"2 pieces need a multiple of 2 processes \(teams of one process per piece, data-parallel over the "
+        r"teams\), but WORLD_SIZE is 1",
     ):
         Trainer(recipe, registry, run_dir=tmp_path / "run", processes=Processes(), progress=False)
 

@@ -61,7 +61,7 @@ def test_checkpoint_of_another_model_is_refused(dataset_multimaterial, tmp_path,
     _train(tiny_recipe_mapping(dataset_multimaterial, tmp_path), registry, 3)
     other = tiny_recipe_mapping(dataset_multimaterial, tmp_path, latent_size=32)
     trainer = Trainer(validate_recipe(other, registry), registry, progress=False)
-    with pytest.raises(CheckpointError, match="different model: model.latent_size: checkpoint 16, recipe 32"):
+    with pytest.raises(CheckpointError, match=r"different model: model\.latent_size: checkpoint 16, recipe 32"):
         trainer.checkpoints.resume()
 
 

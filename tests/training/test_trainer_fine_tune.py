@@ -51,7 +51,7 @@ def test_a_checkpoint_of_another_model_is_refused_naming_the_difference(uneven_d
     recipe = tiny_recipe(uneven_dataset)
     recipe["model"]["latent_size"] = 8
     other = make_trainer(recipe, tmp_path / "other")
-    with pytest.raises(CheckpointError, match="model.latent_size: checkpoint 16, recipe 8"):
+    with pytest.raises(CheckpointError, match=r"model\.latent_size: checkpoint 16, recipe 8"):
         other.checkpoints.initialize_from(trained)
 
 

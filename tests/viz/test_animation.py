@@ -35,7 +35,7 @@ def test_gif_has_one_frame_per_drawn_frame(make_rollout, tmp_path, dim, every, f
 
 
 def test_only_gif_is_written(make_rollout, tmp_path):
-    with pytest.raises(ValueError, match="written as .gif"):
+    with pytest.raises(ValueError, match=r"written as \.gif"):
         animate_rollout(make_rollout(), tmp_path / "anim.mp4")
 
 

@@ -65,7 +65,7 @@ def test_the_processor_is_invariant_to_a_translation_by_whole_cells_and_needs_po
     assert passed is edges
     half, _ = processor(latent, edges, _graph(position + processor.spacing / 2))
     assert not torch.allclose(half, out), "a shift by half a cell moves the particles across their cells"
-    with pytest.raises(ValueError, match="Graph.position"):
+    with pytest.raises(ValueError, match=r"Graph\.position"):
         processor(
             latent,
             edges,

@@ -21,7 +21,7 @@ def test_the_missing_driver_warning_is_dropped_only_when_cuda_was_not_asked_for(
     monkeypatch.setattr(mpm_solver.wp, "init", _noisy_init)
     monkeypatch.setattr(mpm_solver.wp, "get_cuda_device_count", lambda: 0)
     if device.startswith("cuda"):
-        with pytest.raises(GnsError, match="simulator.device .* no CUDA device is available"):
+        with pytest.raises(GnsError, match=r"simulator\.device .* no CUDA device is available"):
             mpm_solver.resolve_device(device)
     else:
         assert mpm_solver.resolve_device(device) == "cpu"
