@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
                 r for i in range(0, len(scenes), size) for r in rollout_batch(model.simulator, scenes[i : i + size])
             ]
         )
-        diff = max(float(np.abs(b.predicted[-1] - a.predicted[-1]).max()) for a, b in zip(alone, batched))
+        diff = max(float(np.abs(b.predicted[-1] - a.predicted[-1]).max()) for a, b in zip(alone, batched, strict=True))
         print(f"{size:>6} {seconds / len(scenes):>12.4f} {per_scene / (seconds / len(scenes)):>17.2f} {diff:>27.2e}")
     return 0
 

@@ -144,7 +144,10 @@ def runup(viscosity: float, floor: str, registry) -> float:
         build_ground_truth_simulator(parse_scene(raw), registry, "<runup>").simulate(parse_scene(raw), 0).position
     )
     near = position[:, :, 0] > raw["domain"]["bounds"][0][1] - 0.05
-    return max((float(np.quantile(y[m], 0.995)) for y, m in zip(position[:, :, 1], near) if m.sum() > 5), default=0.0)
+    return max(
+        (float(np.quantile(y[m], 0.995)) for y, m in zip(position[:, :, 1], near, strict=True) if m.sum() > 5),
+        default=0.0,
+    )
 
 
 def main() -> None:
@@ -181,7 +184,7 @@ def main() -> None:
     header = "".join(f"{f'eta {eta:g}':>10}" for eta in runs)
     print(f"Martin & Moyce column, {args.cells} cells across a, {args.floor} floor; front Z = z / a")
     print(f"{'T':>5} {'Martin&Moyce':>13} {'Ritter':>7}{header}")
-    for t, z in zip(MARTIN_MOYCE_T, MARTIN_MOYCE_Z):
+    for t, z in zip(MARTIN_MOYCE_T, MARTIN_MOYCE_Z, strict=True):
         row = "".join(f"{np.interp(t, T, front):10.2f}" for T, front in runs.values())
         print(f"{t:5.2f} {z:13.2f} {1 + 2 * t:7.2f}{row}")
     for eta, (T, front) in runs.items():

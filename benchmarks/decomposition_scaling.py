@@ -273,7 +273,7 @@ def projection(particles: float, aspect: float, hops: int, gpus: list[int], cut:
     deep = lattice_halo_fractions(particles, aspect, hops * RADIUS_IN_SITES_3D, gpus, cut)
     shallow = lattice_halo_fractions(particles, aspect, RADIUS_IN_SITES_3D, gpus, cut)
     rows = []
-    for p, halo, thin in zip(gpus, deep, shallow):
+    for p, halo, thin in zip(gpus, deep, shallow, strict=True):
         per_gpu = particles / p * (1 + halo)
         halo_bytes = particles / p * halo * HISTORY * 3 * 4
         rollout_link = 3 * LINK["latency_s"] + (halo_bytes + particles / p * 3 * 4) / LINK["bytes_per_s"]

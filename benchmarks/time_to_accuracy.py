@@ -278,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
                 "ours": _late_medians(ours["evaluations"][-args.late :]),
             }
         )
-        for ref, ours in zip(runs["reference"], runs["ours"])
+        for ref, ours in zip(runs["reference"], runs["ours"], strict=True)
     ]
     late_ratio = {name: _spread([r[name] for r in per_seed if r[name] is not None]) for name in METRICS}
     print(

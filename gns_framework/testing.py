@@ -216,7 +216,7 @@ def check_integrator(cls: type[Integrator], params: Mapping | None = None, seed:
 
 
 def _canonical_edges(graph: Graph) -> set[tuple[int, int]]:
-    return set(zip(graph.senders.tolist(), graph.receivers.tolist()))
+    return set(zip(graph.senders.tolist(), graph.receivers.tolist(), strict=True))
 
 
 def check_graph_builder(
@@ -265,7 +265,7 @@ def check_graph_builder(
     moved = builder.build(position + shift, batch, len(counts))
     _expect(_canonical_edges(moved) == _canonical_edges(graph), f"{name}: edges change under translation")
 
-    perm = torch.cat([torch.randperm(c, generator=generator) + o for c, o in zip(counts, (0, counts[0]))])
+    perm = torch.cat([torch.randperm(c, generator=generator) + o for c, o in zip(counts, (0, counts[0]), strict=True)])
     renamed = builder.build(position[perm], batch, len(counts))
     back = {(int(perm[s]), int(perm[r])) for s, r in _canonical_edges(renamed)}
     _expect(back == _canonical_edges(graph), f"{name}: edges are not permutation-equivariant")
@@ -400,7 +400,7 @@ def check_dataset(
                         len(back) == len(written),
                         f"{cls.name}: {split}: {len(back)} trajectories, wrote {len(written)}",
                     )
-                    for i, (a, b) in enumerate(zip(back, written)):
+                    for i, (a, b) in enumerate(zip(back, written, strict=True)):
                         _expect(
                             np.array_equal(np.asarray(a.position, np.float32), b.position),
                             f"{cls.name}: {split}[{i}]: positions changed on the round trip ({dim}D)",

@@ -247,7 +247,7 @@ def _gradients(case: ReferenceCase, imported: ImportedCheckpoint) -> list[Deviat
     norms = case.arrays["canon/stats/gradnorm"]
     sums = case.arrays["canon/stats/gradsum"]
     full, norm, total, absent, compared = [], [], [], [], set()
-    for key, reference_norm, reference_sum, numel in zip(keys, norms, sums, case.arrays["stats/numel"]):
+    for key, reference_norm, reference_sum, numel in zip(keys, norms, sums, case.arrays["stats/numel"], strict=True):
         name = mapping.name(key)
         if name is None:
             # No counterpart: only the unused embedding of a single-type model, which gets no gradient.

@@ -183,7 +183,7 @@ def test_forward_pass_matches_the_loop_restatement(spec):
     )
     acceleration_std = stats.acc_std
 
-    assert set(zip(graph.senders.tolist(), graph.receivers.tolist())) == set(pairs)
+    assert set(zip(graph.senders.tolist(), graph.receivers.tolist(), strict=True)) == set(pairs)
     assert (node_features.double() - expected_features).abs().max() < FEATURE_TOLERANCE
     assert (acceleration.double() - expected_acceleration).abs().max() < ACCELERATION_TOLERANCE
     expected_position = ref.next_position(history, expected_acceleration * acceleration_std + stats.acc_mean)

@@ -40,7 +40,7 @@ def merge(
     datasets = [open_dataset(DatasetSpec(name="safe", path=str(source)), registry) for source in sources]
     metadatas = [dataset.metadata() for dataset in datasets]
     first = metadatas[0]
-    for source, metadata in zip(sources[1:], metadatas[1:]):
+    for source, metadata in zip(sources[1:], metadatas[1:], strict=True):
         for field in ("dim", "bounds", "dt"):
             if getattr(metadata, field) != getattr(first, field):
                 raise DatasetError(
@@ -70,7 +70,7 @@ def merge(
         raw["default_connectivity_radius"] = radius
     raw["merged_from"] = [
         {"path": str(source), "generated_from": (metadata.model_extra or {}).get("generated_from")}
-        for source, metadata in zip(sources, metadatas)
+        for source, metadata in zip(sources, metadatas, strict=True)
     ]
     layout.write(out, DatasetMetadata(**raw), {k: v for k, v in splits.items() if v})
     return {k: len(v) for k, v in splits.items()}

@@ -43,11 +43,11 @@ def main() -> None:
     ]
     times = (0.0, 0.2, 0.4, 0.6)
     fig, axes = plt.subplots(len(runs), len(times), figsize=(2.4 * len(times), 2.4 * len(runs)))
-    for row, (name, seed) in zip(axes, runs):
+    for row, (name, seed) in zip(axes, runs, strict=True):
         scene = load_scene(ROOT / "scenes" / f"{name}.yaml")
         trajectory = build_ground_truth_simulator(scene, registry, name).simulate(scene, seed)
         bounds = np.array(scene.domain.bounds)
-        for ax, t in zip(row, times):
+        for ax, t in zip(row, times, strict=True):
             frame = min(round(t / scene.time.frame_dt), scene.time.frames - 1)
             position = trajectory.position[frame]
             for kind, colour in COLOURS.items():

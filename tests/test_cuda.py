@@ -45,7 +45,9 @@ def test_training_runs_on_the_gpu_and_resumes_exactly(dataset_multimaterial, tmp
     tail = resumed.train(6)
     # Ordered sums in the edge block and CPU-drawn noise: the GPU repeats itself bit for bit.
     assert head + tail == losses
-    for (name, a), (_, b) in zip(straight.simulator.state_dict().items(), resumed.simulator.state_dict().items()):
+    for (name, a), (_, b) in zip(
+        straight.simulator.state_dict().items(), resumed.simulator.state_dict().items(), strict=True
+    ):
         assert torch.equal(a, b), name
 
 
@@ -73,7 +75,7 @@ def test_a_training_step_agrees_with_the_cpu(precision, dataset_multimaterial, t
     tolerance = {"float32": 1e-4, "tf32": 1e-2, "bfloat16": 5e-2}[precision]
     assert abs(gpu_loss - cpu_loss) <= tolerance * abs(cpu_loss), (cpu_loss, gpu_loss)
     names = [name for name, _ in cpu.simulator.named_parameters()]
-    for name, a, b in zip(names, cpu_gradients, gpu_gradients):
+    for name, a, b in zip(names, cpu_gradients, gpu_gradients, strict=True):
         assert torch.linalg.norm(a - b) <= 10 * tolerance * torch.linalg.norm(a) + 1e-12, name
 
 

@@ -52,7 +52,7 @@ def model_labels(recipe_names: list[str], checkpoints: list[Path]) -> list[str]:
     else:
         raw = [
             f"{name}.{RunFolder.of_checkpoint(path.resolve()).root.name}.{path.stem}"
-            for name, path in zip(recipe_names, checkpoints)
+            for name, path in zip(recipe_names, checkpoints, strict=True)
         ]
     return unique_components(re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip(".") or "model" for text in raw)
 
@@ -154,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
     claim_folder(args.out, "evaluate", args.overwrite, own=_earlier_report)
     with report_progress(args.no_progress) as progress:
         report = compare(
-            list(zip(names, models)),
+            list(zip(names, models, strict=True)),
             cases,
             metadata,
             registry,
@@ -192,7 +192,7 @@ def _log_to_training_runs(
     from ..training.mlflow_tracker import log_to_recorded_run
 
     entries = {entry.name: entry for entry in report.entries}
-    for model, name in zip(models, names):
+    for model, name in zip(models, names, strict=True):
         entry = entries[name]
         metrics = {"evaluation_seconds_per_rollout": entry.seconds}
         batched = next((e for e in report.entries if e.name.startswith(f"{name} [batch ")), None)

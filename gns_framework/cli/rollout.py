@@ -282,7 +282,7 @@ def _rollouts(
             stop += 1
         group = [trajectories[i] for i in range(start, stop)]
         results = rollout_batch(simulator, group, steps, device, guard=guard, precision=args.precision)
-        yield from zip(range(start, stop), results)
+        yield from zip(range(start, stop), results, strict=True)
         start = stop
 
 

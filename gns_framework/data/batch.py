@@ -101,7 +101,7 @@ def collate(examples: Sequence[ParticleBatch]) -> ParticleBatch:
     return ParticleBatch(
         position_sequence=torch.cat([e.position_sequence for e in examples]),
         particle_type=torch.cat([e.particle_type for e in examples]),
-        batch=torch.cat([e.batch + int(o) for e, o in zip(examples, offsets[:-1])]),
+        batch=torch.cat([e.batch + int(o) for e, o in zip(examples, offsets[:-1], strict=True)]),
         num_examples=int(offsets[-1]),
         next_position=cat("next_position"),
         material_property=cat("material_property"),

@@ -46,7 +46,7 @@ class Particles:
 
     def cat(self, other: Particles) -> Particles:
         """These particles, then ``other``'s: both must have the same fields."""
-        return Particles.of([_cat(a, b) for a, b in zip(self.columns(), other.columns())])
+        return Particles.of([_cat(a, b) for a, b in zip(self.columns(), other.columns(), strict=True)])
 
     def to(self, device: torch.device) -> Particles:
         return Particles.of([None if c is None else c.to(device) for c in self.columns()])

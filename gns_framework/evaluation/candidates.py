@@ -89,7 +89,7 @@ def learned_predictions_batch(
         try:
             batch = [cases[i] for i in indices]
             rolled = rollout_batch(simulator, batch, device=device, precision=precision, guard=guard)
-            for i, result in zip(indices, rolled):
+            for i, result in zip(indices, rolled, strict=True):
                 out[i] = Prediction(result.predicted, held=held_particles(result.guard_violations))
         except RolloutDiverged:
             for i in indices:
@@ -163,7 +163,7 @@ def simulator_candidates(
     scene = SceneSpec.model_validate(provenance["scene"])
     counts = provenance["trajectories"]
     seeds = trajectory_seeds(scene.seed, counts["train"] + counts["valid"] + counts["test"])[-counts["test"] :]
-    seed_of = {case.key: seed for case, seed in zip(cases, seeds)}
+    seed_of = {case.key: seed for case, seed in zip(cases, seeds, strict=True)}
     # A model trained with dataset.frame_stride k sees every k-th stored frame (its metadata's dt is k frame_dt).
     stride = max(1, round(metadata.dt / scene.time.frame_dt))
 

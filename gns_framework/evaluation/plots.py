@@ -61,24 +61,24 @@ def plot_error_vs_time(report: Report, path: Path) -> None:
             points.append((e.seconds, error, e.name, min(low, error), max(high, error), e.spread))
         if not points:
             continue
-        xs, ys, names, lows, highs, spreads = zip(*points)
+        xs, ys, names, lows, highs, spreads = zip(*points, strict=True)
         # Markers and bars only: settings may vary along different axes (resolution, time
         # step), so a line through them would suggest a trade-off curve that was not measured.
         ax.errorbar(
             xs,
             ys,
-            yerr=[[y - lo for y, lo in zip(ys, lows)], [hi - y for y, hi in zip(ys, highs)]],
-            xerr=[[min(s / 2, 0.9 * x) for x, s in zip(xs, spreads)], [s / 2 for s in spreads]],
+            yerr=[[y - lo for y, lo in zip(ys, lows, strict=True)], [hi - y for y, hi in zip(ys, highs, strict=True)]],
+            xerr=[[min(s / 2, 0.9 * x) for x, s in zip(xs, spreads, strict=True)], [s / 2 for s in spreads]],
             marker=marker,
             linestyle="none",
             capsize=2,
             elinewidth=0.8,
             label="ground-truth simulator" if kind == "simulator" else "learned simulator",
         )
-        for x, y, name in zip(xs, ys, names):
+        for x, y, name in zip(xs, ys, names, strict=True):
             key.append(f"{len(key) + 1}  {name}")
             ax.annotate(str(len(key)), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
-        drawn_x += [x for x in xs] + [x + s / 2 for x, s in zip(xs, spreads)]
+        drawn_x += [x for x in xs] + [x + s / 2 for x, s in zip(xs, spreads, strict=True)]
         drawn_y += [v for v in (*lows, *highs) if v > 0]
     if report.reference is not None:
         ax.axvline(report.reference.seconds, color="k", linestyle="--", label=f"{report.reference.name} (reference)")

@@ -109,7 +109,7 @@ def evaluate(
         raise ValueError(f"unknown error_metric {error_metric!r}; choose one of {sorted(known)}")
 
     # Names from the data and the labels are never paths: one safe file name each, unique in its folder.
-    folders = dict(zip(names, unique_components(names)))
+    folders = dict(zip(names, unique_components(names), strict=True))
     files = [f"{name}.npz" for name in unique_components([case.key for case in cases])]
     entries = []
     done, total = 0, len(candidates) * len(cases)
@@ -174,7 +174,7 @@ def _timed_rollouts(
     at a time and each is charged an equal share of its batch's time.
     """
     if candidate.simulate_batch is None or candidate.batch < 2:
-        for case, file_name in zip(cases, files):
+        for case, file_name in zip(cases, files, strict=True):
             prediction, timing = time_call(
                 partial(candidate.simulate, case), repeats=repeats, warmup=warmup, device=candidate.device, clock=clock
             )
@@ -191,7 +191,8 @@ def _timed_rollouts(
         )
         share = Timing(tuple(seconds / len(chunk) for seconds in timing.seconds), timing.warmup)
         yield from (
-            (case, file, prediction, share) for case, file, prediction in zip(chunk, files[start:], predictions)
+            (case, file, prediction, share)
+            for case, file, prediction in zip(chunk, files[start : start + len(chunk)], predictions, strict=True)
         )
 
 
@@ -334,7 +335,7 @@ def _entry(
         spread=float(np.mean([t.spread for t in timings])),
         metrics=metrics,
         mse_per_step=np.mean(curves, axis=0) if same_length else None,
-        cases=dict(zip(keys, summaries)),
+        cases=dict(zip(keys, summaries, strict=True)),
         rollout_files=tuple(rollout_files),
     )
 

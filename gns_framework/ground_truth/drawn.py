@@ -82,7 +82,9 @@ def drawn_record(sample: SceneSample, materials: Mapping[str, type[Material]]) -
         "domain": {
             "bounds": [[float(lo), float(hi)] for lo, hi in scene.domain.bounds],
             "extent": [float(hi - lo) for lo, hi in scene.domain.bounds],
-            "walls": {face: {"friction": float(f), "no_slip": bool(n)} for face, (f, n) in zip(faces, walls)},
+            "walls": {
+                face: {"friction": float(f), "no_slip": bool(n)} for face, (f, n) in zip(faces, walls, strict=True)
+            },
         }
     }
     for body in sample.blocks:

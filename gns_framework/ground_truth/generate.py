@@ -127,5 +127,5 @@ def generate_dataset(
     # What each trajectory drew (block velocities, sizes, properties, walls...), to check answers found from the data.
     seeds = trajectory_seeds(scene.seed, sum(len(t) for t in splits.values()))
     keys = [t.key or f"trajectory_{i:05d}" for split in SPLITS for i, t in enumerate(splits.get(split, []))]
-    write_drawn(Path(out), scene, zip(keys, seeds), simulator.materials)
+    write_drawn(Path(out), scene, zip(keys, seeds, strict=True), simulator.materials)
     return metadata

@@ -143,7 +143,7 @@ class Domain(Spec):
         """(d, 2) the smallest domain ``extent`` can draw (``bounds`` when it draws none)."""
         if self.extent is None or len(self.extent) != len(self.bounds):
             return list(self.bounds)
-        return [(lo, lo + e.low) for (lo, _), e in zip(self.bounds, self.extent)]
+        return [(lo, lo + e.low) for (lo, _), e in zip(self.bounds, self.extent, strict=True)]
 
     def wall_conditions(self) -> list[tuple[float, bool]]:
         """(friction coefficient, no-slip) of the 2 d faces, in ``FACES`` order; a fixed domain only."""
@@ -169,7 +169,7 @@ class Domain(Spec):
         dx = self.cell_size
         bounds = self.bounds
         if extent is not None:
-            bounds = [(lo, lo + max(1, round(e / dx)) * dx) for (lo, _), e in zip(self.bounds, extent)]
+            bounds = [(lo, lo + max(1, round(e / dx)) * dx) for (lo, _), e in zip(self.bounds, extent, strict=True)]
         return self.model_copy(
             update={
                 "bounds": [tuple(b) for b in bounds],

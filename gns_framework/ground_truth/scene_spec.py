@@ -129,7 +129,7 @@ class SceneSpec(Spec):
             if getattr(self.domain.walls, face) is not None:
                 found.append((f"domain.walls.{face}", f"a {d}D domain has faces {', '.join(FACES[: 2 * d])} only"))
         if self.domain.extent is not None and need_dim("domain.extent", self.domain.extent) and bounds_ok:
-            for axis, (value, (lo, hi)) in enumerate(zip(self.domain.extent, self.domain.bounds)):
+            for axis, (value, (lo, hi)) in enumerate(zip(self.domain.extent, self.domain.bounds, strict=True)):
                 where = f"domain.extent[{axis}]"
                 if is_spanned(value) or value.per == "particle":
                     found.append((where, "an extent is a length in metres: a number, {range: ...} or {one_of: ...}"))
@@ -236,7 +236,7 @@ def _outside_domain(where: str, body: Block | Obstacle, bounds: list[tuple[float
     velocity = body.velocity or [no_range()] * len(bounds)
     turned = isinstance(body, Block) and not (body.angle.is_fixed and body.angle.low == 0.0)
     reach = _rotated_half_extents(body) if turned and isinstance(body, Block) else None
-    for axis, ((lo, hi), pos, size, vel) in enumerate(zip(bounds, body.position, body.size, velocity)):
+    for axis, ((lo, hi), pos, size, vel) in enumerate(zip(bounds, body.position, body.size, velocity, strict=True)):
         if is_spanned(pos):
             if size.high > hi - lo:
                 found.append(

@@ -296,7 +296,7 @@ def _train_state(
     ours = [name for name, _ in simulator.named_parameters()]
     position = {name: i for i, name in enumerate(ours)}
     state: dict[int, dict] = {}
-    for index, key in zip(indices, reference_keys):
+    for index, key in zip(indices, reference_keys, strict=True):
         name = parameter_map.name(key)
         if name is None or index not in optimizer["state"]:
             continue

@@ -341,7 +341,7 @@ def solve(inversion: Inversion, on_iteration=lambda iterate: None) -> InversionR
 
     def describe(u: np.ndarray) -> str:
         values = parameters.values(torch.from_numpy(np.asarray(u, dtype=np.float64))).tolist()
-        return ", ".join(f"{name} {value:.4g}" for name, value in zip(parameters.names, values))
+        return ", ".join(f"{name} {value:.4g}" for name, value in zip(parameters.names, values, strict=True))
 
     started = time.perf_counter()
     with activations_recomputed(problem.checkpoint_every > 0):
@@ -409,7 +409,7 @@ def solve_starts(inversion: Inversion, on_iteration=lambda iterate: None) -> Inv
 
     def describe(u: np.ndarray) -> str:
         values = parameters.values(torch.from_numpy(np.asarray(u, dtype=np.float64))).tolist()
-        return ", ".join(f"{name} {value:.4g}" for name, value in zip(parameters.names, values))
+        return ", ".join(f"{name} {value:.4g}" for name, value in zip(parameters.names, values, strict=True))
 
     u0 = spread_starts(problem.start, spec.starts, spec.seed, parameters.high == parameters.low)
     started = time.perf_counter()
@@ -522,7 +522,7 @@ def plot_convergence(history: list[Iterate], inversion: Inversion, path: Path, b
                 label=None if several and not chosen else "held-out frames",
                 **style,
             )
-        for axis, column in zip(axes[1:], values.T):
+        for axis, column in zip(axes[1:], values.T, strict=True):
             axis.plot(iterations, column, **style)
     axes[0].set_ylabel(f"loss ({inversion.config.loss})")
     truth = inversion.truth or {}
@@ -531,7 +531,7 @@ def plot_convergence(history: list[Iterate], inversion: Inversion, path: Path, b
         value = truth.get(name)
         width = len(unknown.start)
         true_columns += [None] * width if value is None else list(np.atleast_1d(np.asarray(value, dtype=np.float64)))
-    for axis, name, true in zip(axes[1:], names, true_columns):
+    for axis, name, true in zip(axes[1:], names, true_columns, strict=True):
         if true is not None:
             axis.axhline(true, color="black", linestyle="--", linewidth=1, label=f"true {true:.4g}")
             axis.legend(loc="best", fontsize=8)
@@ -547,7 +547,7 @@ def plot_convergence(history: list[Iterate], inversion: Inversion, path: Path, b
             linestyle="none",
             label=f"returned: iteration {best.iteration}{where}",
         )
-        for axis, value in zip(axes[1:], problem.parameters.values(torch.from_numpy(best.u)).tolist()):
+        for axis, value in zip(axes[1:], problem.parameters.values(torch.from_numpy(best.u)).tolist(), strict=True):
             axis.plot([best.iteration], [value], marker="*", markersize=14, color="tab:red", linestyle="none")
         for axis in axes:
             axis.axvline(best.iteration, color="tab:red", linewidth=0.8, alpha=0.5)
@@ -587,7 +587,7 @@ def iteration_metrics(inversion: Inversion, iterate: Iterate) -> dict[str, float
     """
     values = inversion.problem.parameters.values(torch.from_numpy(iterate.u)).tolist()
     held_out = {} if iterate.held_out is None else {"held_out_loss": iterate.held_out}
-    metrics = {"loss": iterate.loss, **held_out, **dict(zip(inversion.problem.parameters.names, values))}
+    metrics = {"loss": iterate.loss, **held_out, **dict(zip(inversion.problem.parameters.names, values, strict=True))}
     if inversion.config.optimizer.starts == 1:
         return metrics
     return {f"start{iterate.start}.{name}": value for name, value in metrics.items()}

@@ -120,5 +120,5 @@ def rollout_batch(
             predicted_particles=moving_host[lo:hi],
             guard_violations=tuple(found),
         )
-        for trajectory, lo, hi, found in zip(trajectories, ends[:-1], ends[1:], violations)
+        for trajectory, lo, hi, found in zip(trajectories, ends[:-1], ends[1:], violations, strict=True)
     ]

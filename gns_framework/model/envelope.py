@@ -147,7 +147,7 @@ class Envelope:
             particle_types=sorted(set(self.particle_types) | set(earlier.particle_types)),
             materials={**earlier.materials, **self.materials},
             properties=properties,
-            extent=[span(a, b) for a, b in zip(self.extent, earlier.extent)],
+            extent=[span(a, b) for a, b in zip(self.extent, earlier.extent, strict=True)],
             walls=walls,
             max_speed=max(self.max_speed, earlier.max_speed),
             particle_count=span(self.particle_count, earlier.particle_count),
@@ -283,7 +283,9 @@ def measure_envelope(
         particle_types=sorted(types),
         materials={str(t): materials.get(t, "?") for t in sorted(types)},
         properties=properties,
-        extent=[[float(lo), float(hi)] for lo, hi in zip(extents_array.min(axis=0), extents_array.max(axis=0))],
+        extent=[
+            [float(lo), float(hi)] for lo, hi in zip(extents_array.min(axis=0), extents_array.max(axis=0), strict=True)
+        ],
         walls=faces if faces else None,
         max_speed=speed,
         particle_count=[int(min(counts)), int(max(counts))],
@@ -384,7 +386,7 @@ def outside_envelope(
                 "input speed", f"{speed:.3g} m/s", f"up to {envelope.max_speed:.3g} m/s, accepted {SPEED_SLACK:g}x", key
             )
         extent = _extent(trajectory, metadata)
-        for axis, (value, (lo, hi)) in enumerate(zip(extent, envelope.extent)):
+        for axis, (value, (lo, hi)) in enumerate(zip(extent, envelope.extent, strict=True)):
             if not _within(value, lo, hi, 2 * envelope.particle_spacing):
                 findings.add(f"domain {axes[axis]} extent", f"{value:.4g} m", f"{lo:.4g} .. {hi:.4g} m", key)
         if trajectory.material_property is not None:

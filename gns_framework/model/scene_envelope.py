@@ -92,7 +92,9 @@ def _block_sizes(scene: SceneSpec, material: str) -> list[tuple[float, float]] |
         if block.material != material:
             continue
         sizes = [value_range(v) or (0.0, math.inf) for v in block.size]
-        found = sizes if found is None else [(min(a[0], b[0]), max(a[1], b[1])) for a, b in zip(found, sizes)]
+        found = (
+            sizes if found is None else [(min(a[0], b[0]), max(a[1], b[1])) for a, b in zip(found, sizes, strict=True)]
+        )
     return found
 
 
@@ -127,7 +129,9 @@ def scene_problems(scene: SceneSpec, envelope: Envelope, trained: SceneSpec | No
                     f"lay particles {lattice:.4g} m apart; the model was trained at {want:.4g} m: domain.grid {grid}",
                 )
             )
-    for axis, ((low, high), (trained_low, trained_high)) in enumerate(zip(_box_extents(scene), envelope.extent)):
+    for axis, ((low, high), (trained_low, trained_high)) in enumerate(
+        zip(_box_extents(scene), envelope.extent, strict=True)
+    ):
         slack = 2 * envelope.particle_spacing
         if low < trained_low - slack or high > trained_high + slack:
             asked = f"{low:.4g} m" if low == high else f"{low:.4g} .. {high:.4g} m"
@@ -208,7 +212,7 @@ def _body_problems(scene: SceneSpec, envelope: Envelope, trained: SceneSpec | No
         if sizes is None:
             continue
         slack = 2 * envelope.particle_spacing
-        for axis, (value, (low, high)) in enumerate(zip(body.size, sizes)):
+        for axis, (value, (low, high)) in enumerate(zip(body.size, sizes, strict=True)):
             asked = value_range(value)
             if asked is not None and (asked[0] < low - slack or asked[1] > high + slack):
                 problems.append(

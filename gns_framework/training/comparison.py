@@ -174,8 +174,8 @@ def format_table(runs: list[RunSummary], metrics: list[str], params: list[str]) 
         for r in runs
     ]
     widths = [max(len(c), *(len(row[i]) for row in rows)) if rows else len(c) for i, c in enumerate(columns)]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(columns, widths))]
-    lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths)) for row in rows]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(columns, widths, strict=True))]
+    lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)) for row in rows]
     return "\n".join(line.rstrip() for line in lines)
 
 
@@ -187,10 +187,10 @@ def plot_histories(runs: list[RunSummary], metrics: list[str], path: Path, title
     from matplotlib import pyplot as plt
 
     figure, axes = plt.subplots(1, len(metrics), figsize=(5 * len(metrics), 3.8), squeeze=False)
-    for axis, metric in zip(axes[0], metrics):
+    for axis, metric in zip(axes[0], metrics, strict=True):
         for run in runs:
             if run.histories.get(metric):
-                steps, values = zip(*run.histories[metric])
+                steps, values = zip(*run.histories[metric], strict=True)
                 axis.plot(steps, values, marker=".", label=f"{run.experiment}/{run.name} {run.run_id[:8]}")
         axis.set_title(metric)
         axis.set_xlabel("step")

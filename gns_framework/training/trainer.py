@@ -233,7 +233,7 @@ def _read_losses(unread: list[tuple[int, Tensor]]) -> list[float]:
     ``step`` is the step count after the loss's optimiser step, so the loss is that of step ``step - 1``.
     """
     values = read_back(torch.stack([loss for _, loss in unread]))
-    for (step, _), value in zip(unread, values):
+    for (step, _), value in zip(unread, values, strict=True):
         if not math.isfinite(value):
             raise FloatingPointError(f"training loss is {value} at step {step - 1}")
     return values

@@ -87,7 +87,7 @@ def test_round_trip_through_every_layout(layout, source, source_without_context,
         assert getattr(metadata, field) == getattr(expected_metadata, field), field
     assert {k: len(v) for k, v in splits.items()} == {"train": 2, "valid": 1, "test": 1}
     for name, trajectories in original.items():
-        for before, after in zip(trajectories, splits[name]):
+        for before, after in zip(trajectories, splits[name], strict=True):
             np.testing.assert_array_equal(before.position, after.position)
             np.testing.assert_array_equal(before.particle_type, after.particle_type)
             np.testing.assert_array_equal(before.material_property, after.material_property)

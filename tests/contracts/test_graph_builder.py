@@ -38,7 +38,7 @@ def test_a_builder_keeps_its_params_and_the_setup_it_connects_for():
     position = torch.tensor([[0.0, 0.0], [0.3, 0.0], [0.0, 0.9], [0.1, 0.0]])
     graph = builder.build(position, torch.tensor([0, 0, 0, 1]), 2)
     # 0 and 1 are 0.3 apart (connected both ways); 2 is too far; 3 is another example.
-    assert sorted(zip(graph.senders.tolist(), graph.receivers.tolist())) == [(0, 1), (1, 0)]
+    assert sorted(zip(graph.senders.tolist(), graph.receivers.tolist(), strict=True)) == [(0, 1), (1, 0)]
 
 
 def test_by_default_a_builder_is_not_periodic_and_needs_no_optional_module():

@@ -36,11 +36,14 @@ def test_every_block_gets_its_share_of_the_particles_and_every_particle_one_owne
 
 def test_a_square_is_cut_into_quarters_and_a_long_strip_into_slabs():
     square = BlockPartition.balanced(_cloud(4000, (1.0, 1.0)), 4, depth=0.05)
-    for lower, upper in zip(square.lower, square.upper):
+    for lower, upper in zip(square.lower, square.upper, strict=True):
         finite = [bound for bound in lower + upper if abs(bound) != float("inf")]
         assert len(finite) == 2 and all(abs(bound - 0.5) < 0.05 for bound in finite), (lower, upper)
     strip = BlockPartition.balanced(_cloud(4000, (8.0, 1.0)), 4, depth=0.05)
-    assert all(lower[1] == -float("inf") and upper[1] == float("inf") for lower, upper in zip(strip.lower, strip.upper))
+    assert all(
+        lower[1] == -float("inf") and upper[1] == float("inf")
+        for lower, upper in zip(strip.lower, strip.upper, strict=True)
+    )
 
 
 def _min_image_distance(a: torch.Tensor, b: torch.Tensor, box: tuple) -> torch.Tensor:

@@ -32,5 +32,8 @@ def test_select_and_cat_keep_every_field_row_by_row_and_none_stays_none():
 def test_columns_round_trip():
     particles = _particles([0, 5], True)
     again = Particles.of(particles.columns())
-    assert all((a is None and b is None) or torch.equal(a, b) for a, b in zip(again.columns(), particles.columns()))
+    assert all(
+        (a is None and b is None) or torch.equal(a, b)
+        for a, b in zip(again.columns(), particles.columns(), strict=True)
+    )
     assert len(particles.columns()) == 7  # every field travels

@@ -12,7 +12,7 @@ def entry(name: str, reference: bool = False, seconds: float = 2.0, held: tuple[
         f"case{k}": {"mse_20": 0.01 * (k + 1), "runout_error_pct": 5.0 * (k + 1), "sinkhorn_final_pct": 1.0 + k}
         for k in range(2)
     }
-    for case, count in zip(cases.values(), held):
+    for case, count in zip(cases.values(), held, strict=True):
         case[WALL_HELD] = float(count)
     return Entry(
         name=name,

@@ -51,7 +51,7 @@ def test_every_trajectory_records_what_it_drew(generated, sim_registry, material
     cls = sim_registry.get("dataset", "safe")
     keys = [t.key for split in ("train", "valid", "test") for t in cls(cls.Params(), out).split(split)]
     assert list(drawn) == keys == [f"seed_{s}" for s in trajectory_seeds(scene.seed, 4)]
-    for key, seed in zip(keys, trajectory_seeds(scene.seed, 4)):
+    for key, seed in zip(keys, trajectory_seeds(scene.seed, 4), strict=True):
         sample, record = sample_scene(scene, seed), drawn[key]
         assert set(record) == {"domain", "blocks[0]", "blocks[1]", "blocks[2]", "blocks[3]", "obstacles[0]"}
         np.testing.assert_allclose(record["domain"]["bounds"], sample.bounds, atol=1e-6)

@@ -53,7 +53,7 @@ def test_drawn_domains_are_whole_cells_inside_the_bounds_and_keep_the_cell_size(
     for seed in range(20):
         drawn = sample_scene(scene, seed).scene.domain
         assert drawn.cell_size == dx
-        for (lo, hi), (low, high) in zip(drawn.bounds, [(0.75, 2.0), (0.5, 1.0)]):
+        for (lo, hi), (low, high) in zip(drawn.bounds, [(0.75, 2.0), (0.5, 1.0)], strict=True):
             cells = (hi - lo) / dx
             assert abs(cells - round(cells)) < 1e-9
             assert low - dx / 2 <= hi - lo <= high + dx / 2

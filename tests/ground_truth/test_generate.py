@@ -67,7 +67,7 @@ def test_generation_is_reproducible_and_splits_differ(generated, sim_registry, t
         progress=False,
     )
     for split in ("train", "valid", "test"):
-        for a, b in zip(load_split(sim_registry, out, split), load_split(sim_registry, again, split)):
+        for a, b in zip(load_split(sim_registry, out, split), load_split(sim_registry, again, split), strict=True):
             assert a.position.tobytes() == b.position.tobytes()
     train = load_split(sim_registry, out, "train")
     assert train[0].key != train[1].key

@@ -36,7 +36,7 @@ def test_ramps_are_static_boundary_particles_drawn_anew_per_trajectory(name, sim
         assert np.array_equal(trajectory.position[0, ramp], trajectory.position[-1, ramp])
         assert (trajectory.particle_type[~ramp] != RIGID).all() and (~ramp).sum() > 100
     ramps = [sample_scene(scene, seed).obstacles for seed in (1, 2)]
-    assert all(a.angle != b.angle and not np.array_equal(a.lower, b.lower) for a, b in zip(*ramps))
+    assert all(a.angle != b.angle and not np.array_equal(a.lower, b.lower) for a, b in zip(*ramps, strict=True))
 
 
 def test_generated_ramps_dataset_trains(sim_registry, monkeypatch, tmp_path):

@@ -43,12 +43,12 @@ def test_box_of_whole_cells_holds_one_particle_per_spacing_volume():
 def test_same_seed_same_draw_and_another_seed_another():
     scene = parse_scene(mixed())
     a, b, c = sample_scene(scene, 1), sample_scene(scene, 1), sample_scene(scene, 2)
-    for x, y in zip(a.bodies, b.bodies):
+    for x, y in zip(a.bodies, b.bodies, strict=True):
         assert x.position.tobytes() == y.position.tobytes()
         assert x.values.keys() == y.values.keys()
     assert any(
         x.position.shape != z.position.shape or not np.array_equal(x.position, z.position)
-        for x, z in zip(a.bodies, c.bodies)
+        for x, z in zip(a.bodies, c.bodies, strict=True)
     )
 
 
@@ -161,7 +161,7 @@ def test_a_drawn_scene_at_another_grid_is_the_same_scene_refilled(tmp_path):
         assert now[1:] == kept[1:], "walls and every body as drawn"
         # Bounds are stored in float32: half a coarse cell, to float32 rounding of ~1 m.
         assert np.abs(np.array(now[0]) - np.array(kept[0])).max() <= coarse.domain.cell_size / 2 + 1e-6
-        for before, after in zip(data.blocks, same.blocks):
+        for before, after in zip(data.blocks, same.blocks, strict=True):
             # A quarter of the particles (twice the spacing in 2D), filling the same box.
             assert abs(after.num_particles - before.num_particles / 4) <= before.num_particles / 8 + 4
             assert (after.position >= before.lower - coarse.particle_spacing).all()
@@ -176,5 +176,5 @@ def test_at_the_data_s_own_grid_the_bodies_and_box_are_the_data_s():
     data = sample_scene(scene, 3)
     same = at_resolution(data, scene, scene, 3)
     assert _layout(same) == _layout(data)
-    for before, after in zip(data.blocks, same.blocks):
+    for before, after in zip(data.blocks, same.blocks, strict=True):
         assert after.num_particles == before.num_particles  # the jitter alone is drawn anew

@@ -61,7 +61,7 @@ def test_train_state_becomes_an_adam_state_that_continues_identically():
         optimizer.step()
     saved = {"optimizer_state": optimizer.state_dict(), "global_train_state": {"step": 2}, "loss": 0.5}
     imported = import_geoelements_checkpoint(
-        {k: p.detach() for k, p in zip(keys, theirs)},
+        {k: p.detach() for k, p in zip(keys, theirs, strict=True)},
         METADATA,
         train_state=saved,
         particle_types=[3, 5],
@@ -71,14 +71,14 @@ def test_train_state_becomes_an_adam_state_that_continues_identically():
     ours = dict(imported.simulator.named_parameters())
     ours_optimizer = torch.optim.Adam(ours.values(), lr=1e-3)
     ours_optimizer.load_state_dict(imported.optimizer_state)
-    for key, p in zip(keys, theirs):
+    for key, p in zip(keys, theirs, strict=True):
         p.grad = torch.randn(p.shape, generator=generator)
         name = imported.parameter_map.name(key)
         if name is not None:
             ours[name].grad = imported.parameter_map.tensor(key, p.grad)
     optimizer.step()
     ours_optimizer.step()
-    for key, p in zip(keys, theirs):
+    for key, p in zip(keys, theirs, strict=True):
         name = imported.parameter_map.name(key)
         if name is not None:
             assert torch.equal(ours[name].detach(), imported.parameter_map.tensor(key, p.detach())), key

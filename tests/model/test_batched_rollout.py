@@ -33,7 +33,7 @@ def test_each_scene_of_a_batch_is_rolled_out_as_alone():
     scenes = [_scene(0, 30), _scene(1, 45), _scene(2, 20, frames=14)]
     batched = rollout_batch(simulator, scenes)
     assert [r.num_steps for r in batched] == [6, 6, 6]  # as far as the shortest goes
-    for scene, result in zip(scenes, batched):
+    for scene, result in zip(scenes, batched, strict=True):
         alone = rollout(simulator, scene, steps=6)
         assert result.key == scene.key and result.predicted.shape == alone.predicted.shape
         # Only the matrix products see other rows: float32 rounding of the model's outputs over 6 steps.
@@ -71,7 +71,7 @@ def test_evaluate_batches_scenes_of_one_length_and_keeps_a_diverged_scene_to_its
     simulator = tiny_simulator(REGISTRY, 2)
     scenes = [_scene(0, 30), _scene(1, 25, frames=14), _scene(2, 20)]
     batched = learned_positions_batch(simulator, scenes, "cpu")
-    for scene, positions in zip(scenes, batched):
+    for scene, positions in zip(scenes, batched, strict=True):
         alone = learned_positions(simulator, scene, "cpu")
         assert positions.shape == alone.shape == (scene.num_steps - 6, scene.num_particles, 2)
         np.testing.assert_allclose(positions, alone, rtol=0, atol=1e-5 * np.abs(alone).max())

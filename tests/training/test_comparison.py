@@ -42,7 +42,7 @@ def table_rows(lines: list[str]) -> tuple[list[str], dict[str, dict[str, str]]]:
     """Header and ``{experiment: {column: value}}`` of the printed table (values hold no spaces here)."""
     header = lines[0].split()
     rows = [line.split() for line in lines[1:] if line and not line.endswith(".png")]
-    return header, {row[1]: dict(zip(header, row)) for row in rows}
+    return header, {row[1]: dict(zip(header, row, strict=True)) for row in rows}
 
 
 def png_size(path) -> tuple[int, int]:

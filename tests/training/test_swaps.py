@@ -102,4 +102,4 @@ def test_every_combination_trains(processor, integrator, builder, dataset, tmp_p
     before = [p.detach().clone() for p in trainer.simulator.parameters()]
     losses = trainer.train(3)
     assert len(losses) == 3 and np.isfinite(losses).all()
-    assert any(not (a == b.detach()).all() for a, b in zip(before, trainer.simulator.parameters()))
+    assert any(not (a == b.detach()).all() for a, b in zip(before, trainer.simulator.parameters(), strict=True))

@@ -52,7 +52,7 @@ def test_resumed_run_continues_identically(dataset_multimaterial, tmp_path, regi
     second, resumed = _train(tiny_recipe_mapping(dataset_multimaterial, tmp_path / "b"), registry, 6, resume=True)
     assert first + second == straight
     for (name, a), (_, b) in zip(
-        straight_trainer.simulator.state_dict().items(), resumed.simulator.state_dict().items()
+        straight_trainer.simulator.state_dict().items(), resumed.simulator.state_dict().items(), strict=True
     ):
         assert torch.equal(a, b), name
 

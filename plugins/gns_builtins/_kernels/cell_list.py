@@ -109,7 +109,7 @@ def radius_pairs(position: Tensor, batch: Tensor, radius: float) -> tuple[Tensor
 
     def combine(parts: list[Tensor]) -> Tensor:
         key = parts[0]
-        for size, part in zip(sizes[1:], parts[1:]):
+        for size, part in zip(sizes[1:], parts[1:], strict=True):
             key = key * size + part
         return key
 
@@ -136,7 +136,7 @@ def radius_pairs(position: Tensor, batch: Tensor, radius: float) -> tuple[Tensor
     per_receiver = counts_t.sum(1)
     bounds, totals = _chunk_bounds(per_receiver, candidates_per_chunk(device))
     senders_out, receivers_out = [], []
-    for lo_i, hi_i, total in zip(bounds[:-1], bounds[1:], totals):
+    for lo_i, hi_i, total in zip(bounds[:-1], bounds[1:], totals, strict=True):
         s, r = _expand(starts_t[lo_i:hi_i], counts_t[lo_i:hi_i], order, lo_i, total)
         # One wait for the kept count (nonzero), shared by both selections.
         kept = (squared_distance(position[r], position[s]) < r2).nonzero().squeeze(1)
@@ -164,7 +164,7 @@ def _chunk_bounds(per_receiver: Tensor, size: int) -> tuple[list[int], list[int]
     ends = torch.cat([cuts, cuts.new_full((1,), n)])
     cuts, reached = read_back(torch.stack([ends, cumulative[(ends - 1).clamp(min=0)] * (ends > 0)]))
     bounds, totals, before = [0], [], 0
-    for cut, done in zip(cuts, reached):
+    for cut, done in zip(cuts, reached, strict=True):
         if bounds[-1] < cut:
             bounds.append(cut)
             totals.append(done - before)

@@ -143,7 +143,7 @@ class LagrangeBenchDataset(Dataset):
         document = lagrangebench_metadata(path, metadata, splits)
         for split, trajectories in splits.items():
             with atomic_path(path / f"{split}.h5", suffix=".h5") as tmp, h5py.File(tmp, "w") as handle:
-                for number, traj in zip(trajectory_numbers(trajectories), trajectories):
+                for number, traj in zip(trajectory_numbers(trajectories), trajectories, strict=True):
                     group_name = f"{number:05d}"
                     group = handle.create_group(group_name)
                     group.create_dataset("position", data=np.asarray(traj.position, dtype=np.float32))

@@ -96,7 +96,7 @@ class TfRecordDataset(Dataset):
                     )
         for split, trajectories in splits.items():
             numbers = trajectory_numbers(trajectories)
-            records = [_encode(number, traj).serialize() for number, traj in zip(numbers, trajectories)]
+            records = [_encode(number, traj).serialize() for number, traj in zip(numbers, trajectories, strict=True)]
             with atomic_path(path / f"{split}.tfrecord") as tmp:
                 write_records(tmp, records)
         document = {**metadata.to_json_dict(), "sequence_length": metadata.sequence_length - 1}

@@ -40,7 +40,7 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
         self._shifts = PerDevice(self._make_shifts)
         short = [
             (k, float(length))
-            for k, length in zip(self.box.dims, self.box.length)
+            for k, length in zip(self.box.dims, self.box.length, strict=True)
             if not length > 2 * scene.connectivity_radius
         ]
         if short:

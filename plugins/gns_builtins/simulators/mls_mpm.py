@@ -60,7 +60,7 @@ class MlsMpm(GroundTruthSimulator):
             # Every constraint and the wave speed are monotone in each parameter: the corners bound them.
             for corner in itertools.product(*ranged.values()):
                 try:
-                    params = model(**{**material.physical_parameters, **dict(zip(ranged, corner))})
+                    params = model(**{**material.physical_parameters, **dict(zip(ranged, corner, strict=True))})
                 except ValidationError as exc:
                     problems += [
                         (f"{where}.{'.'.join(str(p) for p in err['loc'])}", err["msg"]) for err in exc.errors()

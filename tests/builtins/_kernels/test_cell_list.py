@@ -58,7 +58,7 @@ def make(dim, counts, radius, seed, scale=1.0):
 def test_matches_brute_force(scene):
     position, batch, radius = make(*scene)
     senders, receivers = radius_pairs(position, batch, radius)
-    assert set(zip(senders.tolist(), receivers.tolist())) == brute_force(position, batch, radius)
+    assert set(zip(senders.tolist(), receivers.tolist(), strict=True)) == brute_force(position, batch, radius)
     keys = (receivers * len(position) + senders).tolist()
     assert keys == sorted(keys), "edges are sorted by (receiver, sender)"
 
@@ -69,8 +69,8 @@ def test_translation_invariance(scene, shift):
     position, batch, radius = make(*scene)
     # A shift by a multiple of a power of two keeps float32 differences exact.
     offset = torch.tensor(shift[: position.shape[1]], dtype=torch.float32).round()
-    before = set(zip(*[t.tolist() for t in radius_pairs(position, batch, radius)]))
-    after = set(zip(*[t.tolist() for t in radius_pairs(position + offset, batch, radius)]))
+    before = set(zip(*[t.tolist() for t in radius_pairs(position, batch, radius)], strict=True))
+    after = set(zip(*[t.tolist() for t in radius_pairs(position + offset, batch, radius)], strict=True))
     assert before == after
 
 
@@ -85,12 +85,12 @@ def test_permutation_equivariance(scene, rnd):
         idx = [i for i in range(n) if batch[i] == b]
         shuffled = idx[:]
         rnd.shuffle(shuffled)
-        for a, c in zip(idx, shuffled):
+        for a, c in zip(idx, shuffled, strict=True):
             perm[a] = c
     perm_t = torch.tensor(perm)
-    original = set(zip(*[t.tolist() for t in radius_pairs(position, batch, radius)]))
+    original = set(zip(*[t.tolist() for t in radius_pairs(position, batch, radius)], strict=True))
     s, r = radius_pairs(position[perm_t], batch, radius)
-    mapped = {(perm[a], perm[b]) for a, b in zip(s.tolist(), r.tolist())}
+    mapped = {(perm[a], perm[b]) for a, b in zip(s.tolist(), r.tolist(), strict=True)}
     assert mapped == original
 
 
@@ -98,7 +98,7 @@ def test_strict_radius_and_self_edges():
     position = torch.tensor([[0.0, 0.0], [0.5, 0.0], [0.25, 0.0]])
     batch = torch.zeros(3, dtype=torch.long)
     s, r = radius_pairs(position, batch, 0.5)
-    pairs = set(zip(s.tolist(), r.tolist()))
+    pairs = set(zip(s.tolist(), r.tolist(), strict=True))
     assert (0, 1) not in pairs and (1, 0) not in pairs, "distance == R is not an edge"
     assert {(0, 0), (1, 1), (2, 2), (0, 2), (2, 0), (1, 2), (2, 1)} == pairs
 
@@ -114,7 +114,7 @@ def test_far_apart_particles_do_not_overflow_cell_keys():
     position = torch.tensor([[0.0, 0.0], [1e30, -1e30], [1e30, -1e30], [1e6, 1e6], [1e6 + 0.5, 1e6]])
     s, r = radius_pairs(position, torch.zeros(5, dtype=torch.long), 1.0)
     expected = {(i, i) for i in range(5)} | {(1, 2), (2, 1), (3, 4), (4, 3)}
-    assert set(zip(s.tolist(), r.tolist())) == expected
+    assert set(zip(s.tolist(), r.tolist(), strict=True)) == expected
 
 
 def test_chunked_search_finds_the_same_edges(monkeypatch):
@@ -123,7 +123,7 @@ def test_chunked_search_finds_the_same_edges(monkeypatch):
     whole = radius_pairs(position, batch, radius)
     for size in (1, 37, 500):
         monkeypatch.setattr(cell_list, "CANDIDATES_PER_CHUNK_CPU", size)
-        for got, expected in zip(radius_pairs(position, batch, radius), whole):
+        for got, expected in zip(radius_pairs(position, batch, radius), whole, strict=True):
             assert torch.equal(got, expected), size
 
 

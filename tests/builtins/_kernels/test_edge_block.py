@@ -64,9 +64,9 @@ def test_values_and_gradients_match_autograd(
     got = edge_block(e, table, rows, receivers, weights, biases, mlp.norm)
     got_grads = torch.autograd.grad(loss(*got), [x, e, *mlp.parameters()])
 
-    for a, b in zip(got, expected):
+    for a, b in zip(got, expected, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
-    for a, b in zip(got_grads, expected_grads):
+    for a, b in zip(got_grads, expected_grads, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-10)
 
 
@@ -138,7 +138,7 @@ def test_bfloat16_autocast_is_no_less_accurate_than_autocast_on_the_concatenated
     with torch.autocast("cpu", dtype=torch.bfloat16):
         ours = values_and_gradients(chunked)
         autocast_reference = values_and_gradients(concatenated)
-    for index, (a, b, c) in enumerate(zip(full, ours, autocast_reference)):
+    for index, (a, b, c) in enumerate(zip(full, ours, autocast_reference, strict=True)):
         assert b.dtype == torch.float32, index
         a, b, c = a.detach(), b.detach(), c.detach().float()
         error = float((b - a).norm() / a.norm())
@@ -175,5 +175,5 @@ def test_under_bfloat16_autocast_the_edge_latents_are_kept_in_bfloat16_with_the_
     monkeypatch.setattr(torch.Tensor, "to", lambda t, *a, **k: t if t is e else original_to(t, *a, **k))
     saved, kept_as_given = gradients()
     assert saved.dtype == torch.float32
-    for a, b in zip(kept_in_bfloat16, kept_as_given):
+    for a, b in zip(kept_in_bfloat16, kept_as_given, strict=True):
         assert a.dtype == b.dtype and torch.equal(a, b)

@@ -93,11 +93,11 @@ def test_values_and_gradients_match_float64(hidden_layers, outputs):
     x32, e32 = on_device(x, e)
     got = run_kernels(mlp, x32, e32, senders, receivers)
     loss(*got).backward()
-    for value, expected in zip(got, want):
+    for value, expected in zip(got, want, strict=True):
         assert_close_to_reference(value.detach().cpu(), expected.detach())
     assert_close_to_reference(e32.grad.cpu(), e64.grad, msg="e")
     assert_close_to_reference(x32.grad.cpu(), x64.grad, msg="x")
-    for (name, p32), p64 in zip(mlp.named_parameters(), mlp64.parameters()):
+    for (name, p32), p64 in zip(mlp.named_parameters(), mlp64.parameters(), strict=True):
         assert_close_to_reference(p32.grad.cpu(), p64.grad, msg=name)
 
 
@@ -125,7 +125,7 @@ def test_same_bits_every_run():
         (out.sum() + aggregate.square().sum()).backward()
         runs.append([out.detach(), aggregate.detach(), x.grad.clone(), e.grad.clone()])
         x.grad, e.grad = None, None
-    for name, first, second in zip(["edges", "aggregate", "x grad", "e grad"], *runs):
+    for name, first, second in zip(["edges", "aggregate", "x grad", "e grad"], *runs, strict=True):
         assert torch.equal(first, second), (name, (first - second).abs().max())
 
 

@@ -22,7 +22,7 @@ def test_round_trip(trajectories, tmp_path, registry):
     assert dataset.splits() == ["train"]
     loaded = dataset.split("train")
     assert len(loaded) == 2
-    for original, back in zip(trajectories, loaded):
+    for original, back in zip(trajectories, loaded, strict=True):
         np.testing.assert_array_equal(original.position, back.position)
         np.testing.assert_array_equal(original.particle_type, back.particle_type)
         np.testing.assert_array_equal(original.material_property, back.material_property)

@@ -50,7 +50,7 @@ def test_material_properties_step_context_and_names_round_trip(trajectories, tmp
     assert dataset(tmp_path).metadata() == metadata
     back = dataset(tmp_path).split("train")
     assert [t.key for t in back] == ["a", "b"]
-    for original, loaded in zip((first, second), back):
+    for original, loaded in zip((first, second), back, strict=True):
         for field in ("position", "particle_type", "material_property", "step_context"):
             np.testing.assert_array_equal(getattr(loaded, field), getattr(original, field), err_msg=field)
 

@@ -30,7 +30,7 @@ def test_recomputed_edge_encoder_keeps_only_its_input_and_gives_the_same_gradien
 
     stored_bytes, stored = run(False)
     recomputed_bytes, recomputed = run(True)
-    for a, b in zip(stored, recomputed):
+    for a, b in zip(stored, recomputed, strict=True):
         assert torch.equal(a, b)
     # Stored, the edge MLP keeps at least its two hidden layers' inputs and its LayerNorm input: 3 x (E, 16) float32.
     assert stored_bytes - recomputed_bytes >= 3 * edges.shape[0] * 16 * 4

@@ -18,7 +18,7 @@ def build(name, scene, position, batch, num_examples, **params):
 
 
 def edge_set(graph):
-    return set(zip(graph.senders.tolist(), graph.receivers.tolist()))
+    return set(zip(graph.senders.tolist(), graph.receivers.tolist(), strict=True))
 
 
 def brute_force_radius(position, batch, radius, box_length=None):
@@ -30,7 +30,7 @@ def brute_force_radius(position, batch, radius, box_length=None):
     close = (diff**2).sum(-1) < radius**2
     close &= batch.numpy()[:, None] == batch.numpy()[None]
     receivers, senders = np.nonzero(close)
-    return set(zip(senders.tolist(), receivers.tolist()))
+    return set(zip(senders.tolist(), receivers.tolist(), strict=True))
 
 
 scenes = st.tuples(

@@ -90,5 +90,6 @@ def test_without_periodic_dimensions_it_is_the_radius_graph():
     for got, expected in zip(
         (periodic.senders, periodic.receivers, periodic.displacement),
         (plain.senders, plain.receivers, plain.displacement),
+        strict=True,
     ):
         assert torch.equal(got, expected)

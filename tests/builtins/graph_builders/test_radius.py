@@ -16,7 +16,7 @@ def test_builder_returns_displacements():
     scene = ModelSetup(dim=2, bounds=((0, 1), (0, 1)), connectivity_radius=0.3, particle_types=(5,))
     position = torch.tensor([[0.1, 0.1], [0.3, 0.1]])
     graph = RadiusGraphBuilder(RadiusGraphBuilder.Params(), scene).build(position, torch.zeros(2, dtype=torch.long), 1)
-    for s, r, d in zip(graph.senders, graph.receivers, graph.displacement):
+    for s, r, d in zip(graph.senders, graph.receivers, graph.displacement, strict=True):
         assert torch.equal(d, position[s] - position[r])
 
 

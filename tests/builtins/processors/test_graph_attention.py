@@ -91,7 +91,7 @@ def test_the_steps_are_applied_in_order_with_their_own_weights():
     x, e = latents(3, 5)
     x1, e1 = layer.steps[0](x, e, graph.senders, graph.receivers)
     expected = layer.steps[1](x1, e1, graph.senders, graph.receivers)
-    for got, want in zip(layer(x, e, graph), expected):
+    for got, want in zip(layer(x, e, graph), expected, strict=True):
         torch.testing.assert_close(got, want, rtol=0, atol=0)
     swapped = copy.deepcopy(layer)
     swapped.steps[0].load_state_dict(layer.steps[1].state_dict(), strict=False)

@@ -106,7 +106,9 @@ def test_the_fused_step_equals_the_plain_one_in_float64():
     fused, plain = _processors()
     graph, x, e = _graph_and_latents(dtype=torch.float64)
     fused, plain = fused.double(), plain.double()
-    for got, expected in zip(_values_and_gradients(fused, graph, x, e), _values_and_gradients(plain, graph, x, e)):
+    for got, expected in zip(
+        _values_and_gradients(fused, graph, x, e), _values_and_gradients(plain, graph, x, e), strict=True
+    ):
         # Both are float64 evaluations of one function: they differ by float64 rounding only.
         torch.testing.assert_close(got, expected, rtol=0, atol=1e-11 * max(float(expected.detach().abs().max()), 1.0))
 
@@ -123,7 +125,7 @@ def test_fused_and_plain_in_float32_both_meet_the_float64_step():
     reference = _values_and_gradients(copy.deepcopy(plain).double(), graph, x.double(), e.double())[:4]
     for processor in (fused, plain):
         got = _values_and_gradients(processor, graph, x, e)[:4]
-        for name, value, expected in zip(("x", "e", "grad x", "grad e"), got, reference):
+        for name, value, expected in zip(("x", "e", "grad x", "grad e"), got, reference, strict=True):
             assert_close_to_reference(value, expected, msg=f"{processor.params.edge_block}: {name}")
 
 
@@ -155,7 +157,7 @@ def test_the_triton_path_meets_the_float64_step(monkeypatch):
     reference = _values_and_gradients(copy.deepcopy(plain).double(), graph, x.double(), e.double())[:4]
     got = _values_and_gradients(fused, sorted_graph, x, e)[:4]
     assert len(made) == 1, "the edge order is made once per graph, for every step"
-    for name, value, expected in zip(("x", "e", "grad x", "grad e"), got, reference):
+    for name, value, expected in zip(("x", "e", "grad x", "grad e"), got, reference, strict=True):
         assert_close_to_reference(value, expected, msg=f"triton: {name}")
     _values_and_gradients(fused, graph, x, e)
     assert len(made) == 1, "a graph that does not say its receivers are sorted keeps the chunked path"

@@ -55,7 +55,7 @@ def test_it_equals_the_unshared_network_with_every_step_given_the_same_weights()
     for step in unshared.steps:
         step.load_state_dict(processor.step.state_dict())
     graph, x, e = case(seed=1)
-    for got, expected in zip(processor(x, e, graph), unshared(x, e, graph)):
+    for got, expected in zip(processor(x, e, graph), unshared(x, e, graph), strict=True):
         torch.testing.assert_close(got, expected, rtol=0, atol=0)
 
 
@@ -78,6 +78,6 @@ def test_the_fused_edge_block_equals_the_plain_one_in_float64(seed):
     fused, plain = shared(edge_block="fused", seed=seed), shared(edge_block="plain", seed=seed)
     plain.load_state_dict(fused.state_dict())
     graph, x, e = case(seed=seed)
-    for got, expected in zip(fused(x, e, graph), plain(x, e, graph)):
+    for got, expected in zip(fused(x, e, graph), plain(x, e, graph), strict=True):
         # One function evaluated twice in float64: rounding of O(1) latents after three steps only.
         torch.testing.assert_close(got, expected, rtol=0, atol=1e-11)

@@ -225,7 +225,7 @@ class Interpreter:
             if len(items) % 2:
                 raise Refused(self.position, f"SETITEMS of {len(items)} values", "key-value pairs")
             target = self.mutable(self.top(), dict)
-            for key, value in zip(items[::2], items[1::2]):
+            for key, value in zip(items[::2], items[1::2], strict=True):
                 target[self.key(key)] = value
         elif name == "NONE":
             stack.append(None)

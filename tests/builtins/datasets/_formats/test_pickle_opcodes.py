@@ -21,7 +21,7 @@ def test_an_object_array_of_arrays_is_rebuilt(protocol):
     array[1] = np.array([1, 2, 3], dtype=np.int64)
     rebuilt = Interpreter(pickle.dumps(array, protocol=protocol)).run()
     assert rebuilt.dtype == object and rebuilt.shape == (2,)
-    for got, want in zip(rebuilt, array):
+    for got, want in zip(rebuilt, array, strict=True):
         assert got.dtype == want.dtype and np.array_equal(got, want)
 
 

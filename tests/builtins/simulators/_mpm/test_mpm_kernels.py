@@ -120,7 +120,7 @@ def test_a_particle_on_a_node_spreads_its_mass_by_the_quadratic_b_spline(dim):
     expected = np.zeros((8,) * dim)
     weights = {-1: 1 / 8, 0: 3 / 4, 1: 1 / 8}
     for offsets in itertools.product((-1, 0, 1), repeat=dim):
-        node = tuple(round(p / DX) + o for p, o in zip(position, offsets))
+        node = tuple(round(p / DX) + o for p, o in zip(position, offsets, strict=True))
         expected[node] = 2.0 * np.prod([weights[o] for o in offsets])
     np.testing.assert_allclose(mass, expected, rtol=0, atol=FLOAT32)
 
@@ -146,7 +146,7 @@ def grid_update(k, mass, momentum, dt=0.0, gravity=None, walls=None, obstacles=(
     grid_momentum = arrays(momentum.reshape(-1, dim).astype(np.float32), k.vec)
     velocity = arrays(np.ones((mass.size, dim), np.float32), k.vec)  # stale values the update must overwrite
     shape, centre, half, rotation, body_velocity, body_friction, vertices = (
-        zip(*obstacles) if obstacles else ((), (), (), (), (), (), ())
+        zip(*obstacles, strict=True) if obstacles else ((), (), (), (), (), (), ())
     )
     polygons = [v for v in vertices if v is not None]
     counts = [0 if v is None else len(v) for v in vertices]
