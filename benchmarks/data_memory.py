@@ -1,4 +1,5 @@
-"""Peak memory per training process under DDP: every trajectory kept (``dataset.memory: all``) against a few (``windows``).
+"""Peak memory per training process under DDP: every trajectory kept (``dataset.memory: all``) against a few
+(``windows``).
 
 Writes a synthetic dataset in the safe layout (random walks of particles on a
 lattice: the values do not matter to memory), several times larger than one

@@ -347,7 +347,8 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(row)
             note = " (oversubscribed: processes share cores)" if row["oversubscribed"] else ""
             print(
-                f"P={p} ({row['partition']}) halo of {halo if p > 1 else '-'}: rollout step {row['rollout_seconds']:.3f} s "
+                f"P={p} ({row['partition']}) halo of {halo if p > 1 else '-'}: rollout step "
+                f"{row['rollout_seconds']:.3f} s "
                 f"(exchanges {row['rollout_exchange_seconds']:.3f} s), training step {row['train_seconds']:.3f} s "
                 f"(exchanges {row['train_exchange_seconds']:.3f} s), halo {row['halo_fraction']:.1%} of the "
                 f"particles, peak added memory per process: rollout {row['rollout_peak_mb_per_process']:.0f} MB, "
@@ -368,7 +369,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"{row['halo_fraction_latents']:5.1%} one radius; halo of positions: rollout step "
                 f"{row['rollout_seconds']:.3f} s, training step {row['train_seconds']:.3f} s (efficiency "
                 f"{row['train_efficiency']:.0%}), {row['train_gb_per_gpu']:.0f} GB per GPU"
-                f"{'' if row['fits'] else ' (does not fit)'}; halo of latents: rollout {row['rollout_seconds_latents']:.3f} s, "
+                f"{'' if row['fits'] else ' (does not fit)'}; halo of latents: rollout "
+                f"{row['rollout_seconds_latents']:.3f} s, "
                 f"training {row['train_seconds_latents']:.3f} s, {row['train_gb_per_gpu_latents']:.0f} GB per GPU",
                 flush=True,
             )

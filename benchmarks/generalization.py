@@ -38,7 +38,8 @@ MEASURES = ("extent_error_pct", "height_error_pct", "runout_error_pct", "sinkhor
 
 
 def dataset(scene_path: Path, out: Path, test: int, seed: int | None, registry, obstacles: bool = True) -> Path:
-    """``out`` holding one training trajectory (statistics need one) and ``test`` cases of the scene (without its obstacles unless ``obstacles``)."""
+    """``out`` holding one training trajectory (statistics need one) and ``test`` cases of the scene (without its
+    obstacles unless ``obstacles``)."""
     from gns_framework.assembly.ground_truth import build_ground_truth_simulator
     from gns_framework.ground_truth.generate import generate_dataset, is_up_to_date, provenance
     from gns_framework.ground_truth.scene_spec import load_scene

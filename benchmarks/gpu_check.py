@@ -1,4 +1,5 @@
-"""The measuring parts of benchmarks/gpu_check.sh: imports, the device, tests, DDP, node sums, step time and memory, the MPM.
+"""The measuring parts of benchmarks/gpu_check.sh: imports, the device, tests, DDP, node sums, step time and memory, the
+MPM.
 
 Usage:
     python benchmarks/gpu_check.py imports                  # import seconds; the registry lists the built-ins
@@ -673,7 +674,8 @@ def chunks(args) -> None:
 
 
 def mpm(args) -> None:
-    """Seconds per frame of the 3D sand column on a ``--grid``-cell-wide grid (particles grow as grid^3), on ``--device``."""
+    """Seconds per frame of the 3D sand column on a ``--grid``-cell-wide grid (particles grow as grid^3), on
+    ``--device``."""
     if importlib.util.find_spec("warp") is None:
         skipped("warp-lang is not installed here (the MLS-MPM runs on NVIDIA Warp)")
     import torch

@@ -1,4 +1,5 @@
-"""Wheels for a GPU machine that lacks them: made here by ``gpu_check.sh --prepare``, installed there by ``gpu_check.sh``.
+"""Wheels for a GPU machine that lacks them: made here by ``gpu_check.sh --prepare``, installed there by
+``gpu_check.sh``.
 
 The lent GPU machine (docs/performance.md, "GPUs") has Python 3.12 and torch, numpy,
 pluggy, PyYAML, tqdm, scipy, h5py and matplotlib, but no pydantic, no gns-framework

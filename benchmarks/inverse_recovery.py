@@ -320,7 +320,8 @@ def main() -> int:
             )
         summary["time_ratio_learned_over_mpm_median"] = float(np.median(ratios))
         print(
-            f"median time ratio learned / MPM search at equal error: {summary['time_ratio_learned_over_mpm_median']:.1f}"
+            "median time ratio learned / MPM search at equal error: "
+            f"{summary['time_ratio_learned_over_mpm_median']:.1f}"
         )
 
     if args.memory:
@@ -334,8 +335,8 @@ def main() -> int:
         }
         print(
             f"\npeak RSS, one full-length loss and gradient: load only {base:.0f} MiB, without checkpointing "
-            f"{whole:.0f} MiB (+{whole - base:.0f}), checkpoint every {args.checkpoint_every} steps {checkpointed:.0f} MiB "
-            f"(+{checkpointed - base:.0f})"
+            f"{whole:.0f} MiB (+{whole - base:.0f}), checkpoint every {args.checkpoint_every} steps "
+            f"{checkpointed:.0f} MiB (+{checkpointed - base:.0f})"
         )
     summary["per_case"] = [{k: c[k] for k in (*RECORDED, "mpm") if k in c} for c in cases]
     print(json.dumps(summary))

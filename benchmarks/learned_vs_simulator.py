@@ -184,7 +184,8 @@ def main() -> int:
     rows = []
     hardware = hardware_description()
     print(
-        f"{hardware['cpu']}, {hardware['cpu_cores_usable']} usable cores, torch threads {args.threads}, torch {hardware['torch']}"
+        f"{hardware['cpu']}, {hardware['cpu_cores_usable']} usable cores, torch threads {args.threads}, torch "
+        f"{hardware['torch']}"
     )
     print(
         f"{'particles':>9} {'grid':>5} {'substeps':>8} {'MPM s/frame':>12} {'fast s/frame':>13} {'grid s/frame':>13} "

@@ -1,11 +1,11 @@
 """What a reader opens to follow one training step and one rollout step: files and lines.
 
 Runs one training step (the trainer's step room, ``training/step.py``, where the tree
-has one, else ``Trainer.train_step``, after a first step has made every lazy choice) and one rollout step (``rollout`` of one frame) of the reference
-model (interaction network, 10 steps, latent 128) on a small dataset made here,
-under ``sys.settrace``, and records every project source file whose code ran
-(``gns_framework/`` and ``plugins/gns_builtins/``). It prints per step the files,
-their total lines (what a reader opens) and the lines that ran, then the files.
+has one, else ``Trainer.train_step``, after a first step has made every lazy choice) and one rollout step (``rollout``
+of one frame) of the reference model (interaction network, 10 steps, latent 128) on a small dataset made here, under
+``sys.settrace``, and records every project source file whose code ran (``gns_framework/`` and
+``plugins/gns_builtins/``). It prints per step the files, their total lines (what a reader opens) and the lines that
+ran, then the files.
 
 The project's reading goal (issue 28): the files and lines of one training step at
 most half of what they were before the redesign. To measure an older tree, put it

@@ -156,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     what = args.second if args.second is not None else f"itself from inputs shifted by {args.perturb} m"
     print(f"primary {args.model}, second opinion {what}; % against the MPM, disagreement against the second")
     print(
-        f"{'group':<10} {'scene':<26} {'extent':>7} {'height':>7} {'2nd ext':>7} {'2nd hgt':>7} {'dis ext':>7} {'dis hgt':>7} flag"
+        f"{'group':<10} {'scene':<26} {'extent':>7} {'height':>7} {'2nd ext':>7} {'2nd hgt':>7} {'dis ext':>7} "
+        f"{'dis hgt':>7} flag"
     )
     rows = []
     for group, cases in groups.items():
@@ -173,8 +174,8 @@ def main(argv: list[str] | None = None) -> int:
     sweep = [rates(rows, threshold) for threshold in sorted({args.threshold, *THRESHOLDS})]
     for r in sweep:
         print(
-            f"threshold {r['threshold_pct']:5.1f} %: flags {r['hit_rate']:.0%} of {r['bad']} bad scenes (goal >= 80 %), "
-            f"{r['false_alarm_rate']:.0%} of {r['good']} good ones (goal <= 20 %)"
+            f"threshold {r['threshold_pct']:5.1f} %: flags {r['hit_rate']:.0%} of {r['bad']} bad scenes "
+            f"(goal >= 80 %), {r['false_alarm_rate']:.0%} of {r['good']} good ones (goal <= 20 %)"
         )
     if args.json:
         print(json.dumps({"model": str(args.model), "second": str(what), "rows": rows, "sweep": sweep}))

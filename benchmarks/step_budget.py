@@ -1,4 +1,5 @@
-"""Operations dispatched and host read-backs per rollout step and per training step, on the GPU code path run on the CPU.
+"""Operations dispatched and host read-backs per rollout step and per training step, on the GPU code path run on the
+CPU.
 
 Usage:
     python benchmarks/step_budget.py [--particles 10000] [--dim 3] [--top 15] [--chunked] [--json]

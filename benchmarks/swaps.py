@@ -180,8 +180,9 @@ def main(argv: list[str] | None = None) -> int:
             merged = {k: statistics.median(r[k] for r in per_seed) for k in per_seed[0]}
             results.append({"kind": kind, "name": name, **merged, "seeds": per_seed})
             print(
-                f"{kind:14s} {name:28s} one-step {merged['one_step_loss']:.3g}  sinkhorn {merged['sinkhorn_median']:.2f}/"
-                f"{merged['sinkhorn_worst']:.2f} %  runout {merged['runout_median']:.1f}/{merged['runout_worst']:.1f} %  "
+                f"{kind:14s} {name:28s} one-step {merged['one_step_loss']:.3g}  "
+                f"sinkhorn {merged['sinkhorn_median']:.2f}/{merged['sinkhorn_worst']:.2f} %  "
+                f"runout {merged['runout_median']:.1f}/{merged['runout_worst']:.1f} %  "
                 f"{merged['train_s_per_step']:.3f} s/step  {merged['rollout_s']:.2f} s/rollout",
                 flush=True,
             )
@@ -198,11 +199,13 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"| {row['kind']} | `{row['name']}` | {row['one_step_loss']:.3g} | {row['sinkhorn_median']:.2f} / "
             f"{row['sinkhorn_worst']:.2f} | {row['runout_median']:.1f} / {row['runout_worst']:.1f} | "
-            f"{row['train_s_per_step'] / base_row['train_s_per_step']:.2f}x | {row['rollout_s'] / base_row['rollout_s']:.2f}x |"
+            f"{row['train_s_per_step'] / base_row['train_s_per_step']:.2f}x | "
+            f"{row['rollout_s'] / base_row['rollout_s']:.2f}x |"
         )
     print(
         f"\n{args.base.name}, {args.steps} steps, seeds {args.seeds}, {args.cases} held-out cases, "
-        f"{args.threads} thread(s); base: {base_row['train_s_per_step']:.3f} s/step, {base_row['rollout_s']:.2f} s/rollout"
+        f"{args.threads} thread(s); base: {base_row['train_s_per_step']:.3f} s/step, {base_row['rollout_s']:.2f} "
+        "s/rollout"
     )
     if args.json:
         print(json.dumps({"base": str(args.base), "steps": args.steps, "seeds": args.seeds, "rows": results}))

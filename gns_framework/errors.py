@@ -22,7 +22,8 @@ class PluginError(GnsError):
 
 
 class PluginWarning(UserWarning):
-    """A plugin was skipped (it failed to load), or ``$GNS_DISABLE_PLUGINS`` names none; ``gns`` shows it as one line."""
+    """A plugin was skipped (it failed to load), or ``$GNS_DISABLE_PLUGINS`` names none; ``gns`` shows it as one
+    line."""
 
 
 class RecipeError(GnsError):

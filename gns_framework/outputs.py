@@ -72,7 +72,8 @@ def check_folder(folder: str | Path, command: str, overwrite: bool, own: Callabl
 
 
 def claim_folder(folder: str | Path, command: str, overwrite: bool, own: Callable[[Path], bool] | None = None) -> Path:
-    """:func:`check_folder`, then create ``folder`` and mark it as ``gns command``'s; says when it replaces something."""
+    """:func:`check_folder`, then create ``folder`` and mark it as ``gns command``'s; says when it replaces
+    something."""
     folder = Path(folder)
     if check_folder(folder, command, overwrite, own):
         refuse_links_inside(folder, command)

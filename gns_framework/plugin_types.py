@@ -42,7 +42,8 @@ class Metric:
 
     @property
     def tracked_as(self) -> str | None:
-        """``valid_rollout_<validation>``, its name in training's metrics and ``training.best_metric``; None if untracked."""
+        """``valid_rollout_<validation>``, its name in training's metrics and ``training.best_metric``; None if
+        untracked."""
         return None if self.validation is None else f"valid_rollout_{self.validation}"
 
 

@@ -144,7 +144,8 @@ class Registry:
                 raise PluginError(
                     f"two {entry.kind} components are named {entry.name!r}: "
                     f"{first.cls.__module__}.{first.cls.__qualname__} from {first.provider} and "
-                    f"{entry.cls.__module__}.{entry.cls.__qualname__} from {entry.provider}; {disable_one(first, entry)}"
+                    f"{entry.cls.__module__}.{entry.cls.__qualname__} from {entry.provider}; "
+                    f"{disable_one(first, entry)}"
                 )
             of_kind[entry.name] = entry
         self._check_material_types()

@@ -51,15 +51,16 @@ def training_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str
             (
                 "model.integrator.name",
                 f"{integrator.name!r} moves particles with {same!r}'s position map when it sees positions only, so a "
-                f"learned model trains exactly the same with either: use {same!r} (the {integrator.name!r} scheme itself "
-                "is studied under force laws by gns stability)",
+                f"learned model trains exactly the same with either: use {same!r} (the {integrator.name!r} scheme "
+                "itself is studied under force laws by gns stability)",
             )
         )
     return problems
 
 
 def size_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str]]:
-    """The recipe's model estimated from its numbers: refused when too large to build (``limits.model_size_problems``)."""
+    """The recipe's model estimated from its numbers: refused when too large to build
+    (``limits.model_size_problems``)."""
     model = recipe.model
     steps = processor_steps(recipe, registry)
     return model_size_problems(model.latent_size, model.mlp_hidden_size, model.mlp_hidden_layers, steps)
@@ -95,7 +96,8 @@ def build_learned_simulator(
             [
                 (
                     "model.graph_builder.name",
-                    f"{builder_cls.name!r} does not connect across the periodic dimensions {list(scene.periodic_dims)}; "
+                    f"{builder_cls.name!r} does not connect across the periodic dimensions "
+                    f"{list(scene.periodic_dims)}; "
                     f"use one of: {', '.join(periodic_builders) or 'none installed'}",
                 )
             ],

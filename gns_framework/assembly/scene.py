@@ -99,7 +99,8 @@ def scene_from_data(
     context_size = context_widths.pop() if context_widths else 0
     if context_size and (metadata.context_mean is None or len(metadata.context_mean) != context_size):
         raise DatasetError(
-            f"{source}: metadata.json: context_mean/context_std: needed with {context_size} entries for the step_context"
+            f"{source}: metadata.json: context_mean/context_std: needed with {context_size} entries for the "
+            "step_context"
         )
 
     given = model.periodic if model.periodic is not None else metadata.periodic_boundary_conditions

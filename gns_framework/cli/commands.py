@@ -26,7 +26,8 @@ BUILTIN_COMMANDS = (
     ),
     Command(
         "plugins",
-        "list installed components, metrics and commands with their source and distribution, and the free particle types",
+        "list installed components, metrics and commands with their source and distribution, "
+        "and the free particle types",
         "gns_framework.cli.plugins",
     ),
     Command("check", "validate recipes and report every problem at once", "gns_framework.cli.check"),
@@ -107,7 +108,8 @@ def load_commands(load_entry_points: bool = True, plugins: Iterable[tuple[str, o
 
 
 def command_entries(load_entry_points: bool = True, plugins: Iterable[tuple[str, object]] = ()) -> list[CommandEntry]:
-    """Every ``gns`` subcommand with its provider, as :func:`load_commands` orders them; two of one name are an error."""
+    """Every ``gns`` subcommand with its provider, as :func:`load_commands` orders them; two of one name are an
+    error."""
     builtin = [("builtin-commands", sys.modules[__name__])]
     pm, origin, _ = make_plugin_manager(load_entry_points, [*builtin, *plugins], group=COMMAND_GROUP)
     origin["builtin-commands"] = ("gns-framework", __version__)

@@ -118,5 +118,8 @@ def default_plot_name(experiments: list[str], metrics: list[str]) -> Path:
     given by id, as one safe file name in the working directory (names from the store are never paths)."""
     stem = f"compare-{'.'.join(experiments)}-{'.'.join(metrics)}"
     if len(stem) > 120:  # many experiments or metrics: the name stays a name, the table says the rest
-        stem = f"compare-{experiments[0]}{'.more' if len(experiments) > 1 else ''}-{metrics[0]}{'.more' if len(metrics) > 1 else ''}"
+        stem = (
+            f"compare-{experiments[0]}{'.more' if len(experiments) > 1 else ''}"
+            f"-{metrics[0]}{'.more' if len(metrics) > 1 else ''}"
+        )
     return Path(f"{safe_component(stem[:200])}.png")

@@ -88,7 +88,8 @@ def _simulate(scene, simulator, folder: Path, counts: dict[str, int], registry, 
         print(f"using the cached dataset {folder}")
         return
     print(
-        f"simulating {sum(counts.values())} trajectories of {scene.name} (seed {scene.seed}) with {simulator.name} into {folder} ..."
+        f"simulating {sum(counts.values())} trajectories of {scene.name} (seed {scene.seed}) with {simulator.name} "
+        f"into {folder} ..."
     )
     generate_dataset(scene, simulator, folder, registry.get("dataset", "safe"), counts, progress)
 
@@ -120,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
     finally:
         trainer.close()
     print(
-        f"short model: validation one-step loss {before['valid_one_step_loss']:.4g} -> {after['valid_one_step_loss']:.4g}"
+        f"short model: validation one-step loss {before['valid_one_step_loss']:.4g} -> "
+        f"{after['valid_one_step_loss']:.4g}"
     )
     best = trainer.run.best_checkpoint
     saved = best if best.is_file() else trainer.checkpoints.save()

@@ -54,7 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--on-violation",
         choices=("stop", "clamp"),
-        help="on NaN/Inf or particles beyond the margin: stop, or clamp and report (default: rollout.guard.on_violation)",
+        help="on NaN/Inf or particles beyond the margin: stop, or clamp and report "
+        "(default: rollout.guard.on_violation)",
     )
     parser.add_argument(
         "--guard-margin",

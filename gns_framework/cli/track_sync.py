@@ -1,4 +1,5 @@
-"""``gns track-sync RUN``: send what an MLflow outage kept back, from ``<run>/metrics.jsonl``, once the server is back."""
+"""``gns track-sync RUN``: send what an MLflow outage kept back, from ``<run>/metrics.jsonl``, once the server is
+back."""
 
 from __future__ import annotations
 

@@ -65,8 +65,8 @@ def with_mlflow(
             raise mlflow_tracker.TrackingError(f"MLflow at {uri}: {mlflow_tracker.first_line(error)}") from None
         # The command never waits on tracking: without a server at the start, this run is not in MLflow.
         warnings.warn(
-            f"tracking: MLflow at {uri} unreachable ({mlflow_tracker.first_line(error)}); {activity} goes on without it, "
-            f"the metrics go to {run_dir / 'metrics.jsonl'} only",
+            f"tracking: MLflow at {uri} unreachable ({mlflow_tracker.first_line(error)}); {activity} goes on "
+            f"without it, the metrics go to {run_dir / 'metrics.jsonl'} only",
             stacklevel=2,
         )
         return local

@@ -55,8 +55,8 @@ class DatasetSpec(ComponentSpec):
     frame_stride: int = Field(
         1,
         ge=1,
-        description="stored frames per learned step: the model sees every k-th frame (dt and statistics scale with it); "
-        "fewer, larger steps make rollouts cheaper and accumulate less error",
+        description="stored frames per learned step: the model sees every k-th frame "
+        "(dt and statistics scale with it); fewer, larger steps make rollouts cheaper and accumulate less error",
     )
     stride_offsets: Literal["first", "all"] = Field(
         "first",
@@ -96,7 +96,8 @@ class ModelSpec(_Strict):
     )
     periodic: list[bool] | None = Field(
         None,
-        description="per dimension, whether the domain wraps around; default: the metadata's periodic_boundary_conditions",
+        description="per dimension, whether the domain wraps around; "
+        "default: the metadata's periodic_boundary_conditions",
     )
     wall_features: bool = Field(True, description="distance-to-wall node features for the non-periodic dimensions")
     wall_conditions: bool | None = Field(

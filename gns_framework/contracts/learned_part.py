@@ -1,4 +1,5 @@
-"""What the learned parts (encoder, processor, decoder) share: a torch module built from its recipe parameters and the model's sizes."""
+"""What the learned parts (encoder, processor, decoder) share: a torch module built from its recipe parameters and the
+model's sizes."""
 
 from __future__ import annotations
 

@@ -25,7 +25,8 @@ def atomic_path(path: str | Path, suffix: str = "") -> Iterator[Path]:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{suffix}", dir=path.parent)
     try:
         # mkstemp makes the file 0600: a new file follows the umask like any other, a replaced one keeps its mode.
-        # lstat: a link at ``path`` is replaced by the file (its target is never written), so its target's mode is not ours.
+        # lstat: a link at ``path`` is replaced by the file (its target is never written), so its target's mode is not
+        # ours.
         replaced = path.exists() and not path.is_symlink()
         os.fchmod(fd, os.lstat(path).st_mode & 0o7777 if replaced else 0o666 & ~process_umask())
     finally:

@@ -80,7 +80,8 @@ class DatasetMetadata(BaseModel):
                 raise ValueError(f"bounds must be (lower, upper) with lower < upper, got {(lo, hi)}")
         if self.periodic_boundary_conditions is not None and len(self.periodic_boundary_conditions) != self.dim:
             raise ValueError(
-                f"periodic_boundary_conditions has {len(self.periodic_boundary_conditions)} entries but dim = {self.dim}"
+                f"periodic_boundary_conditions has {len(self.periodic_boundary_conditions)} entries but dim = "
+                f"{self.dim}"
             )
         if (self.context_mean is None) != (self.context_std is None):
             raise ValueError("context_mean and context_std must be given together")

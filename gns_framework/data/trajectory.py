@@ -70,7 +70,8 @@ class Trajectory:
         return replace(self, position=self.position[:count], step_context=context)
 
     def validated(self, source: str, dim: int | None = None, domain: DomainCheck | None = None) -> Trajectory:
-        """Check shapes, dtypes and values (type ids >= 0; inside ``domain`` when given); return a copy with canonical dtypes.
+        """Check shapes, dtypes and values (type ids >= 0; inside ``domain`` when given); return a copy with canonical
+        dtypes.
 
         Raises DatasetError naming ``source``, the trajectory key and the field (and frame and particle).
         """

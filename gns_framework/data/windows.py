@@ -70,7 +70,8 @@ class WindowOrder:
         return self._shuffled[1]
 
     def draw(self, step: int) -> StepWindows:
-        """Step ``step``'s global batch: positions ``[s*G, (s+1)*G)`` of the stream, rank-major, and this rank's share."""
+        """Step ``step``'s global batch: positions ``[s*G, (s+1)*G)`` of the stream, rank-major, and this rank's
+        share."""
         size = self.batch_size * self.world_size
         positions = range(step * size, (step + 1) * size)
         every = [int(self.permutation(p // self.num_windows)[p % self.num_windows]) for p in positions]

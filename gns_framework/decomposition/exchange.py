@@ -58,7 +58,8 @@ class Routing:
 def send_rows(
     destination: Tensor, tensors: list[Tensor | None], world_size: int, group: Any = None
 ) -> list[Tensor | None]:
-    """Send row i of every tensor to process ``destination[i]`` of ``group``; return the rows received (None stays None).
+    """Send row i of every tensor to process ``destination[i]`` of ``group``; return the rows received (None stays
+    None).
 
     Shapes: destination (M,) int64 in [0, world_size); each tensor (M, ...) -> (M', ...).
     """

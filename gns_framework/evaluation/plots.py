@@ -1,4 +1,5 @@
-"""The report's plots: error against run time (log-log, with each entry's spread over cases) and error over rollout time.
+"""The report's plots: error against run time (log-log, with each entry's spread over cases) and error over rollout
+time.
 
 matplotlib is imported only when a plot is drawn.
 """

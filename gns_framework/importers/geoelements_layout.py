@@ -26,7 +26,7 @@ Two layouts differ and are converted:
   ``b + W[:, emb] @ row``, which gives the same features.
 
 The same linear maps apply to gradients and to Adam's moments (:meth:`ParameterMap.tensor`).
-"""
+"""  # noqa: E501 - the table above is as wide as its longest key pair
 
 from __future__ import annotations
 

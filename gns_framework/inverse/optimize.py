@@ -97,7 +97,8 @@ class _Evaluator:
         )
 
     def starts(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
-        """Per start of ``u`` (M, k): losses (M,), gradients (M, k), held-out misfits (M,) or None, and which are finite."""
+        """Per start of ``u`` (M, k): losses (M,), gradients (M, k), held-out misfits (M,) or None, and which are
+        finite."""
         values, gradients, held_out = self._evaluate(u)
         return values, gradients, held_out, np.isfinite(values) & np.isfinite(gradients).all(axis=1)
 

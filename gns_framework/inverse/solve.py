@@ -581,7 +581,8 @@ def write_outputs(inversion: Inversion, result: InversionResult, out: Path, gif:
 
 
 def iteration_metrics(inversion: Inversion, iterate: Iterate) -> dict[str, float]:
-    """``{"loss": ..., "held_out_loss": ..., "friction": ..., "initial_velocity.x": ...}`` of one iterate, in physical units.
+    """``{"loss": ..., "held_out_loss": ..., "friction": ..., "initial_velocity.x": ...}`` of one iterate, in physical
+    units.
 
     In a multi-start search each name is prefixed by the iterate's start (``start2.loss``).
     """

@@ -50,7 +50,8 @@ def refuse_link(path: str | Path, what: str) -> None:
 
 
 def open_owned_fd(path: str | Path, mode: str, what: str, permissions: int = 0o666) -> int:
-    """An OS file descriptor of ``path`` opened for ``mode`` ('w', 'a' or 'r+', created when missing), never through a link.
+    """An OS file descriptor of ``path`` opened for ``mode`` ('w', 'a' or 'r+', created when missing), never through a
+    link.
 
     ``what`` names the file in the refusal ("run folder's lock", "metrics file").
     """

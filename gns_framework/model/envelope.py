@@ -167,7 +167,8 @@ class Envelope:
             ("nearest-neighbour distance (median)", f"{self.particle_spacing:.4g} m (+-{SPACING_TOLERANCE:.0%})"),
             (
                 "learned step",
-                f"{self.step_dt:.4g} s ({self.frame_stride} stored frame(s) of {self.step_dt / self.frame_stride:.4g} s)",
+                f"{self.step_dt:.4g} s "
+                f"({self.frame_stride} stored frame(s) of {self.step_dt / self.frame_stride:.4g} s)",
             ),
             (
                 "materials",
@@ -203,7 +204,8 @@ def _wall_kinds(seen: dict) -> str:
 
 
 def _spacings(position: np.ndarray, moving: np.ndarray) -> tuple[float, float | None]:
-    """Particle spacing of the moving particles (of all, when fewer than two move) and of the fixed ones (None: fewer than two)."""
+    """Particle spacing of the moving particles (of all, when fewer than two move) and of the fixed ones (None: fewer
+    than two)."""
     material = particle_spacing(position[moving]) if moving.sum() >= 2 else particle_spacing(position)
     fixed = ~moving
     return material, (particle_spacing(position[fixed]) if fixed.sum() >= 2 else None)
@@ -237,7 +239,8 @@ def measure_envelope(
     materials: dict[int, str],
     frame_stride: int,
 ) -> Envelope:
-    """The envelope of ``trajectories`` as the model sees them (already strided; ``metadata.dt`` is per learned step)."""
+    """The envelope of ``trajectories`` as the model sees them (already strided; ``metadata.dt`` is per learned
+    step)."""
     spacings, boundary_spacings, counts, frames, speed = [], [], [], [], 0.0
     extents = []
     properties: dict[str, list[float]] = {}

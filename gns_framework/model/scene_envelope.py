@@ -125,7 +125,8 @@ def scene_problems(scene: SceneSpec, envelope: Envelope, trained: SceneSpec | No
             problems.append(
                 (
                     "domain.grid",
-                    f"{scene.domain.grid} cells over {longest:.4g} m with particles_per_cell {scene.particles_per_cell} "
+                    f"{scene.domain.grid} cells over {longest:.4g} m with particles_per_cell "
+                    f"{scene.particles_per_cell} "
                     f"lay particles {lattice:.4g} m apart; the model was trained at {want:.4g} m: domain.grid {grid}",
                 )
             )
@@ -218,7 +219,8 @@ def _body_problems(scene: SceneSpec, envelope: Envelope, trained: SceneSpec | No
                 problems.append(
                     (
                         f"{location}.size[{axis}]",
-                        f"{_shown(asked)} m along {'xyz'[axis]}; trained {body.material} blocks {low:.4g} .. {high:.4g} m",
+                        f"{_shown(asked)} m along {'xyz'[axis]}; trained {body.material} blocks {low:.4g} .. "
+                        f"{high:.4g} m",
                     )
                 )
     if trained is not None:
@@ -245,7 +247,8 @@ def scene_file_terms(trained: SceneSpec | None, envelope: Envelope) -> list[str]
             f"particles_per_cell {trained.particles_per_cell}: particles {trained.particle_spacing:.4g} m apart "
             f"(jitter {trained.jitter:g}); for a box of L m use domain.grid = L / {domain.cell_size:.4g}",
             f"time: frame_dt {trained.time.frame_dt:g} s x frame_stride {envelope.frame_stride} = learned step "
-            f"{envelope.step_dt:.4g} s; {trained.time.frames} frames ({trained.time.frames * trained.time.frame_dt:.3g} s)",
+            f"{envelope.step_dt:.4g} s; {trained.time.frames} frames "
+            f"({trained.time.frames * trained.time.frame_dt:.3g} s)",
         ]
     for axis, (low, high) in enumerate(envelope.extent):
         lines.append(f"box {'xyz'[axis]}: {low:.4g} .. {high:.4g} m")

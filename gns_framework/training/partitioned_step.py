@@ -1,12 +1,12 @@
 """The optimisation step with each scene split over the processes (``training.partitions``).
 
 Every process takes the same windows of the step (the whole batch, with the same noise),
-owns the particles in its piece of the scene (a slab or a block), rolls the windows on with the others where the step pushes
-them forward (:func:`gns_framework.decomposition.pushforward.partitioned_pushed_forward`),
-and computes the gradients of the whole batch's loss with the others
-(:func:`gns_framework.decomposition.training_step.partitioned_gradients`).
-The weights, the optimiser, the schedule and the weight average then take the same update
-on every process, so the run is one process's run, with the memory of each scene split.
+owns the particles in its piece of the scene (a slab or a block), rolls the windows on with the others where the step
+pushes them forward (:func:`gns_framework.decomposition.pushforward.partitioned_pushed_forward`), and computes the
+gradients of the whole batch's loss with the others
+(:func:`gns_framework.decomposition.training_step.partitioned_gradients`). The weights, the optimiser, the schedule and
+the weight average then take the same update on every process, so the run is one process's run, with the memory of each
+scene split.
 """
 
 from __future__ import annotations
@@ -51,5 +51,6 @@ class PartitionedTrainingStep(TrainingStep):
         return loss.to(torch.float64)
 
     def pushed_forward(self, batch: ParticleBatch, steps: int) -> ParticleBatch:
-        """The single process's push-forward, each unrolled step predicted piece by piece (the same batch in the team)."""
+        """The single process's push-forward, each unrolled step predicted piece by piece (the same batch in the
+        team)."""
         return partitioned_pushed_forward(self.simulator, batch, steps, self.team)

@@ -56,7 +56,8 @@ class RunFolderLock:
                 if exc.errno not in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
                     raise GnsError(f"{self.path}: cannot lock the run folder: {exc.strerror or exc}") from None
                 raise RunFolderBusy(
-                    f"{self.run_dir}: another gns train is writing into this run folder ({describe(read_holder(self.path))}; "
+                    f"{self.run_dir}: another gns train is writing into this run folder "
+                    f"({describe(read_holder(self.path))}; "
                     f"lock {self.path}): wait until it ends, or train into another folder with --out"
                 ) from None
             # The holder before us may have removed the file between our open and our flock: then we hold the

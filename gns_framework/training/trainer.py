@@ -111,7 +111,8 @@ class Trainer:
         return loss, particles
 
     def validate(self) -> dict[str, float]:
-        """Validation metrics of the weight average when the recipe keeps one (what best.pt and rollouts use), else of the weights."""
+        """Validation metrics of the weight average when the recipe keeps one (what best.pt and rollouts use), else of
+        the weights."""
         return self.validation.measure(self.ema.module if self.ema is not None else self.simulator)
 
     def keep_if_best(self, metrics: dict[str, float]) -> Path | None:

@@ -72,7 +72,8 @@ def animate_side_by_side(
     predicted, ground_truth = np.asarray(predicted), np.asarray(ground_truth)
     if predicted.shape != ground_truth.shape or predicted.ndim != 3 or predicted.shape[2] not in (2, 3):
         raise ValueError(
-            f"predicted and ground_truth must both be (T, N, d) with d = 2 or 3, got {predicted.shape} and {ground_truth.shape}"
+            f"predicted and ground_truth must both be (T, N, d) with d = 2 or 3, got {predicted.shape} and "
+            f"{ground_truth.shape}"
         )
     dim = predicted.shape[2]
     particle_type = np.asarray(particle_type)

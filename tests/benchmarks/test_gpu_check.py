@@ -153,7 +153,7 @@ def test_the_run_budget_limits_the_parts_and_skips_what_no_longer_fits(tmp_path)
             """part first 100 "$PYTHON" -c "import os; print('gpu_check: first limit=' + os.environ['GPU_CHECK_PART_LIMIT_S'])"
 part sleeper 100 "$PYTHON" -c "import time; time.sleep(60)"
 part late 100 "$PYTHON" -c "print('gpu_check: late ran=1')"
-"""
+"""  # noqa: E501 - a script's lines, one command each
         )
     )
     result = subprocess.run(

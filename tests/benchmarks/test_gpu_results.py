@@ -24,7 +24,7 @@ gpu_check: step particles=10000 precision=float32 phase=rollout memory=stored st
 gpu_check: step particles=1000000 precision=bfloat16 phase=train memory=recompute status=ok edges=23200000 step_s=1.5
 gpu_check: step particles=1000000 precision=bfloat16 phase=rollout memory=stored status=oom edges=23200000
 gpu_check: part name=scale status=pass seconds=100 limit=130
-"""
+"""  # noqa: E501 - gpu_check's log lines as it writes them, one record a line
 
 
 def test_the_record_holds_the_step_times_of_one_precision_and_the_kernels():

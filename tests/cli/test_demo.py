@@ -13,7 +13,8 @@ from gns_framework.cli.demo import _by_data_view
 
 
 def test_demo_runs_end_to_end(tmp_path):
-    """The demo's whole pipeline with a tiny short model: simulate, train, roll out the shipped model, animate, report."""
+    """The demo's whole pipeline with a tiny short model: simulate, train, roll out the shipped model, animate,
+    report."""
     recipe = tmp_path / "tiny.yaml"
     recipe.write_text(yaml.safe_dump(tiny_recipe_mapping(tmp_path / "unused", tmp_path / "unused-run")))
     demo = tmp_path / "demo"

@@ -40,7 +40,8 @@ def test_spacing_skips_coincident_particles_and_subsamples_big_clouds():
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_spacing_is_the_median_nearest_non_coincident_distance_of_every_pair(dim):
-    """Against all pairs compared in float64, on a random cloud with a coincident triple (which the tree meets first)."""
+    """Against all pairs compared in float64, on a random cloud with a coincident triple (which the tree meets
+    first)."""
     points = np.random.default_rng(dim).random((400, dim))
     points[[5, 6]] = points[7]
     d2 = ((points[:, None] - points[None]) ** 2).sum(-1)

@@ -128,7 +128,8 @@ def test_split_counts_hold_what_was_asked_for_and_may_hold_out_everything():
 
 
 def test_a_test_only_dataset_takes_its_statistics_from_its_own_splits(sim_registry, tmp_path):
-    """Held-out seeds for a model trained elsewhere: no train split, and the metadata says where its statistics came from."""
+    """Held-out seeds for a model trained elsewhere: no train split, and the metadata says where its statistics came
+    from."""
     scene = parse_scene(mixed(frames=8))
     simulator = build_ground_truth_simulator(scene, sim_registry)
     cls = sim_registry.get("dataset", "safe")

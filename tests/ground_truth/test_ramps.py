@@ -1,4 +1,5 @@
-"""The ramps scene family (issue 19): boundary particles recorded like DeepMind's ramps, and a dataset gns train takes."""
+"""The ramps scene family (issue 19): boundary particles recorded like DeepMind's ramps, and a dataset gns train
+takes."""
 
 from __future__ import annotations
 

@@ -1,4 +1,6 @@
-"""The geoelements/gns checkpoint importer (``gns_framework.importers.geoelements``), on synthetic checkpoints (the\nparity suite checks real ones); the ``gns import-geoelements`` command is tested in tests/cli/test_import_geoelements.py."""
+"""The geoelements/gns checkpoint importer (``gns_framework.importers.geoelements``), on synthetic checkpoints (the
+parity suite checks real ones); the ``gns import-geoelements`` command is tested in
+tests/cli/test_import_geoelements.py."""
 
 from __future__ import annotations
 

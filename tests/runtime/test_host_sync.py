@@ -1,4 +1,5 @@
-"""A training step and a rollout step read nothing back from the device but what gns_framework.runtime.host_sync documents.
+"""A training step and a rollout step read nothing back from the device but what gns_framework.runtime.host_sync
+documents.
 
 On the CPU reads cost nothing, so the CPU paths may read; here the accelerators'
 paths are taken on the CPU (``avoids_read_backs`` and ``needs_ordered_sums``

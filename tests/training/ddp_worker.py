@@ -1,4 +1,5 @@
-"""One rank of a 2-process CPU training: started by torch.multiprocessing (train_rank) or by torchrun (run as a script)."""
+"""One rank of a 2-process CPU training: started by torch.multiprocessing (train_rank) or by torchrun (run as a
+script)."""
 
 from __future__ import annotations
 
@@ -72,7 +73,8 @@ def train_under_torchrun(recipe_file: str, out: str, steps: int) -> None:
 
 
 def share_from_chief(rank: int, world_size: int, port: int, out: str) -> None:
-    """Rank 0's result of ``from_chief`` on every rank, then rank 0's failure raised on every rank; written to ``out``."""
+    """Rank 0's result of ``from_chief`` on every rank, then rank 0's failure raised on every rank; written to
+    ``out``."""
     os.environ.update({"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port), "GLOO_SOCKET_IFNAME": "lo"})
     processes = Processes(rank, world_size, rank)
     distributed.start(processes, torch.device("cpu"))

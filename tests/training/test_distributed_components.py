@@ -25,7 +25,8 @@ from gns_framework.plugins import load_registry
 REGISTRY = load_registry()
 WORKER = Path(__file__).with_name("ddp_worker.py")
 STEPS = 3
-"""Two would do (DDP refuses a parameter without a gradient at the next step); the third shows the ranks stay in step."""
+"""Two would do (DDP refuses a parameter without a gradient at the next step); the third shows the ranks stay in
+step."""
 
 
 # Integrators that share another's position map are refused for training (tests/assembly/test_learned.py).

@@ -1,4 +1,5 @@
-"""What training on GPUs relies on, checked on the CPU: resume without CUDA generators, the process group's device and timeout, timing."""
+"""What training on GPUs relies on, checked on the CPU: resume without CUDA generators, the process group's device and
+timeout, timing."""
 
 from __future__ import annotations
 

@@ -217,7 +217,8 @@ def test_rollout_and_evaluation_metrics_for_an_unreachable_server_are_a_warning(
 
 
 def start_server(folder, port: int) -> subprocess.Popen:
-    """An ``mlflow server`` on 127.0.0.1:``port`` whose store and artifacts live in ``folder`` (kept across restarts)."""
+    """An ``mlflow server`` on 127.0.0.1:``port`` whose store and artifacts live in ``folder`` (kept across
+    restarts)."""
     command = [
         sys.executable,
         "-m",

@@ -1,4 +1,5 @@
-"""training.partitions: each scene split over the processes trains as one process trains it (training/partitioned_step.py)."""
+"""training.partitions: each scene split over the processes trains as one process trains it
+(training/partitioned_step.py)."""
 
 from __future__ import annotations
 

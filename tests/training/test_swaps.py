@@ -38,7 +38,8 @@ def test_every_built_in_component_is_covered():
 
 @pytest.mark.parametrize("processor", sorted(PROCESSORS))
 def test_every_parameter_gets_a_gradient(processor, dataset, tmp_path):
-    # A parameter whose output nothing reads stops DistributedDataParallel (tests/training/test_distributed_components.py).
+    # A parameter whose output nothing reads stops DistributedDataParallel
+    # (tests/training/test_distributed_components.py).
     recipe = tiny_recipe(dataset, processor={"name": processor, **PROCESSORS[processor]})
     trainer = tiny_trainer(recipe, tmp_path)
     trainer.train(1)

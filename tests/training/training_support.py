@@ -1,4 +1,5 @@
-"""Helpers of the training tests: a small dataset whose windows differ in particle counts, tiny recipes, child processes."""
+"""Helpers of the training tests: a small dataset whose windows differ in particle counts, tiny recipes, child
+processes."""
 
 from __future__ import annotations
 

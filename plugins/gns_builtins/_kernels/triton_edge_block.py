@@ -95,7 +95,8 @@ def _upcast(products: torch.dtype) -> bool:
 
 
 def forward(e, table, rows, order: EdgeOrder, weights, biases, gamma, beta, eps, allow_tf32=False):
-    """``(e + u, aggregate of u at receivers)``; arguments as :func:`triton_edge_block`, weights in the products' dtype."""
+    """``(e + u, aggregate of u at receivers)``; arguments as :func:`triton_edge_block`, weights in the products'
+    dtype."""
     kernels = triton_module()
     num_nodes = table.shape[0] // 2
     latent, hidden = e.shape[1], table.shape[1]
@@ -132,7 +133,8 @@ def forward(e, table, rows, order: EdgeOrder, weights, biases, gamma, beta, eps,
 
 
 def segment_sum_into(out: Tensor, first_row: int, rows: Tensor, offsets: Tensor, permutation: Tensor | None) -> Tensor:
-    """``out[first_row + i] += `` the sum of node i's run of ``rows`` (through ``permutation`` when given); returns ``out``."""
+    """``out[first_row + i] += `` the sum of node i's run of ``rows`` (through ``permutation`` when given); returns
+    ``out``."""
     kernels = triton_module()
     num_nodes = offsets.shape[0] - 1
     if num_nodes == 0:

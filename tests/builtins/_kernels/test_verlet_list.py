@@ -14,7 +14,8 @@ SKIN = 0.5 * R
 
 
 def _walk(frames: int, n: int = 400, step: float = 0.002, seed: int = 0) -> list[torch.Tensor]:
-    """Frames of ``n`` particles in a unit square of two examples, each moving ``step`` a frame in a random direction."""
+    """Frames of ``n`` particles in a unit square of two examples, each moving ``step`` a frame in a random
+    direction."""
     generator = torch.Generator().manual_seed(seed)
     position = torch.rand(n, 2, generator=generator)
     out = [position]

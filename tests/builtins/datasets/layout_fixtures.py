@@ -1,4 +1,5 @@
-"""The files in tests/fixtures/public_layouts, written by generate.py as DeepMind, LagrangeBench and geoelements write them.
+"""The files in tests/fixtures/public_layouts, written by generate.py as DeepMind, LagrangeBench and geoelements write
+them.
 
 They are made from the public specifications (TFRecord framing, protobuf wire format,
 h5py, numpy), not with gns-framework's writers, so a mistake shared by a reader and

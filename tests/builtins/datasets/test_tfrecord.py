@@ -74,7 +74,8 @@ def test_trajectories_of_another_length_are_refused_before_any_file_is_written(t
 
 
 def write_records_of(tmp_path, trajectories, *examples: SequenceExample) -> TfRecordDataset:
-    """A dataset whose train split holds ``examples`` as they are, with the metadata of ``trajectories`` (2D, 12 frames)."""
+    """A dataset whose train split holds ``examples`` as they are, with the metadata of ``trajectories`` (2D, 12
+    frames)."""
     TfRecordDataset.write(tmp_path, synthetic_metadata(trajectories, 2), {"train": trajectories[:1]})
     write_records(tmp_path / "train.tfrecord", [example.serialize() for example in examples])
     return dataset(tmp_path)

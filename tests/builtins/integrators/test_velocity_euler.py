@@ -27,7 +27,8 @@ def test_earlier_frames_do_not_move_the_particle():
 
 
 def test_target_is_the_displacement_over_the_next_frame():
-    # A particle moving at constant velocity (0.15, 0.2) per frame: the target is that velocity, not 0 as an acceleration.
+    # A particle moving at constant velocity (0.15, 0.2) per frame: the target is that velocity, not 0 as an
+    # acceleration.
     history = torch.tensor([[[0.1, 0.3], [0.25, 0.5]]], dtype=torch.float64)
     following = torch.tensor([[0.4, 0.7]], dtype=torch.float64)
     torch.testing.assert_close(

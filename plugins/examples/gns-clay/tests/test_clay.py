@@ -17,7 +17,8 @@ def test_clay_is_registered_by_its_entry_point():
 
 
 def test_weaker_clay_slumps_further_in_the_mpm():
-    """The MLS-MPM moves clay with the undrained model: a column of half the strength runs out further and ends lower."""
+    """The MLS-MPM moves clay with the undrained model: a column of half the strength runs out further and ends
+    lower."""
     from pathlib import Path
 
     import numpy as np

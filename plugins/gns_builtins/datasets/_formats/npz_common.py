@@ -76,7 +76,8 @@ def read_array_pickle(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> np
 
 
 def check_member_size(archive: np.lib.npyio.NpzFile, path: Path, key: str) -> None:
-    """Refuse member ``key`` before numpy inflates or allocates it: a zip bomb, or a header promising more than it holds.
+    """Refuse member ``key`` before numpy inflates or allocates it: a zip bomb, or a header promising more than it
+    holds.
 
     numpy's ``archive[key]`` allocates the array its header describes before reading
     it; the stated shape is checked here against the bytes the member holds and the

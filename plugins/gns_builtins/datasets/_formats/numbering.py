@@ -1,4 +1,5 @@
-"""The numbers trajectories are stored under in layouts that number them (DeepMind's ``key``, LagrangeBench's groups)."""
+"""The numbers trajectories are stored under in layouts that number them (DeepMind's ``key``, LagrangeBench's
+groups)."""
 
 from __future__ import annotations
 

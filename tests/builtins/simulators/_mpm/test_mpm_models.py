@@ -25,7 +25,8 @@ MU, LAM = 5e5, 7.5e5
 
 
 def test_undrained_clay_yields_at_its_cohesion_in_the_von_mises_return_map():
-    """tresca: sigma_y = sqrt(3) c_u (kPa -> Pa), so the yield strain is sqrt(2/3) sigma_y / (2 mu) = c_u / (sqrt(2) mu)."""
+    """tresca: sigma_y = sqrt(3) c_u (kPa -> Pa), so the yield strain is sqrt(2/3) sigma_y / (2 mu) = c_u / (sqrt(2)
+    mu)."""
     model = MODELS["tresca"]
     assert model.kernel_id == VonMisesGoop.kernel_id
     values = {"youngs_modulus": np.array([1.3e6]), "poisson_ratio": np.array([0.3]), "cohesion": np.array([0.5])}
@@ -83,7 +84,8 @@ def test_the_elastic_wave_speed_is_that_of_the_p_wave():
 
 
 def test_the_fluid_sound_speed_allows_for_ten_percent_compression():
-    # The Tait stiffness K J^-(gamma + 1) at J = 0.9: with gamma = 1, K = 810 Pa, rho = 1: sqrt(810 / 0.81) = sqrt(1000).
+    # The Tait stiffness K J^-(gamma + 1) at J = 0.9: with gamma = 1, K = 810 Pa, rho = 1: sqrt(810 / 0.81) =
+    # sqrt(1000).
     fluid = WeaklyCompressibleFluid(bulk_modulus=810.0, eos_exponent=1.0, density=1.0)
     assert fluid.wave_speed() == pytest.approx(math.sqrt(1000.0), rel=1e-12)
     # Stiffer with a larger exponent: gamma = 7 at the default density is sqrt(2e5 / 1000) * 0.9^-4.
