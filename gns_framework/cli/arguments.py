@@ -37,6 +37,14 @@ def non_negative_float(text: str) -> float:
     return value
 
 
+def positive_float(text: str) -> float:
+    """A finite number > 0 (durations)."""
+    value = non_negative_float(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
+
 def ratio_above_one_or_never(text: str) -> float | None:
     """A finite number > 1, or ``never`` (None): how far one process may hold more than its share."""
     if text == "never":

@@ -18,7 +18,7 @@ from ..training import distributed
 from ..training.distributed import processes_from_environment
 from ..training.run_lock import run_folder_lock
 from ..training.trainer import Trainer
-from .arguments import add_allow_pickle, positive_int
+from .arguments import add_allow_pickle, positive_float, positive_int
 from .tracking_options import add_tracking_arguments, check_tracking_arguments, with_mlflow
 
 
@@ -59,6 +59,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--device", help="cpu, cuda or cuda:N (overrides training.device)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--time-limit",
+        type=positive_float,
+        metavar="MINUTES",
+        help="stop after the first step past MINUTES of training, with a checkpoint of it, to go on with --resume "
+        "(on this machine or another: a run started on a GPU resumes on the CPU)",
+    )
     add_tracking_arguments(parser, "<run>/metrics.jsonl", "the recipe's name")
 
 
@@ -166,7 +173,15 @@ def _train(trainer: Trainer, args: argparse.Namespace) -> int:
         trainer.tracker = with_mlflow(args, trainer.recipe.name, trainer.run_dir, trainer.tracker, resumed is not None)
     if processes.distributed:
         say(f"training on {processes.world_size} processes ({trainer.device.type})")
-    trainer.train()
+    trainer.train(time_limit_s=None if args.time_limit is None else args.time_limit * 60)
+    if trainer.stopped_by_time:
+        trainer.close()
+        processes.barrier()
+        say(
+            f"stopped at the time limit ({args.time_limit:g} min) at step {trainer.step} of "
+            f"{trainer.recipe.training.steps}; checkpoints in {trainer.checkpoint_dir}: go on with --resume"
+        )
+        return 0
     # The loop validates at its last step; a run resumed at its end has not validated yet.
     final = trainer.last_validation if trainer.last_validation is not None else trainer.validate()
     trainer.close()

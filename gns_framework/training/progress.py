@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import torch
 
 from ..runtime.device import synchronize
+from ..runtime.processes import Processes
 
 
 class Throughput:
@@ -56,3 +58,30 @@ def time_to_go(step: int, total: int, done: int, seconds: float) -> str:
     minutes = round(left / 60)
     span = f"{minutes // 60} h {minutes % 60} min" if minutes >= 60 else f"{max(minutes, 1)} min"
     return f"step {step} of {total}, {pace:.3g} steps/s: about {span} to go"
+
+
+class Deadline:
+    """Whether a run has used its time (``gns train --time-limit``): every process stops after the same step.
+
+    One process looks at its clock after every step. Several agree at the steps that log,
+    where rank 0's clock decides for all (a broadcast there only): clocks differ, and a
+    process that stopped alone would leave the others waiting in their collectives.
+    """
+
+    clock: Callable[[], float] = staticmethod(time.monotonic)
+    """Seconds from any origin (a class attribute, so that a test can set the time)."""
+
+    def __init__(self, seconds: float | None, processes: Processes):
+        self.seconds, self.processes = seconds, processes
+        self.started = self.clock()
+        self.reached = False
+
+    def passed(self, logs: bool) -> bool:
+        """Whether the time is used, after a step (``logs``: one that logs)."""
+        if self.seconds is None:
+            return False
+        if not self.processes.distributed:
+            self.reached = self.clock() - self.started >= self.seconds
+        elif logs:
+            self.reached = bool(self.processes.broadcast(self.clock() - self.started >= self.seconds))
+        return self.reached

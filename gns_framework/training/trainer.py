@@ -22,7 +22,7 @@ from ..runtime.host_sync import avoids_read_backs, read_back
 from ..runtime.processes import Processes
 from .ema import WeightAverage
 from .parts import build_training_parts
-from .progress import Throughput, time_to_go
+from .progress import Deadline, Throughput, time_to_go
 from .provenance import git_commit
 from .tracking import JsonlTracker, Tracker
 
@@ -74,6 +74,8 @@ class Trainer:
         self.optimizer, self.scheduler = parts.optimizer, parts.scheduler
         self.optimisation, self.validation, self.checkpoints = parts.optimisation, parts.validation, parts.checkpoints
         self.progress = progress
+        self.stopped_by_time = False
+        """Whether :meth:`train` stopped at its time limit, before its last step."""
         self.last_validation: dict[str, float] | None = None
         """The metrics of this run's latest validation (:meth:`train` validates at its last step), or None."""
         self.tracker = None
@@ -124,8 +126,9 @@ class Trainer:
         """
         return self.validation.keep_if_best(metrics, self.step, self.checkpoints.state)
 
-    def train(self, steps: int | None = None) -> list[float]:
-        """Train until ``steps`` (default: the recipe's) total steps; returns this call's losses."""
+    def train(self, steps: int | None = None, time_limit_s: float | None = None) -> list[float]:
+        """Train until ``steps`` (default: the recipe's) total steps, or until ``time_limit_s`` seconds have passed
+        (then with a checkpoint of the last step, and ``stopped_by_time`` set); returns this call's losses."""
         total = steps if steps is not None else self.recipe.training.steps
         spec = self.recipe.training
         losses: list[float] = []
@@ -145,6 +148,7 @@ class Trainer:
         self.simulator.train()
         checkpoint = None
         started, first_step, told = time.perf_counter(), self.step, False
+        deadline = Deadline(time_limit_s, self.processes)
         while self.step < total:
             throughput.step_starts()
             try:
@@ -155,7 +159,7 @@ class Trainer:
             unread.append((self.step, loss))
             logs = self.step % spec.log_every == 0 or self.step == total
             validates = self.step % spec.validate_every == 0 or self.step == total
-            saves = self.step % spec.checkpoint_every == 0 or self.step == total
+            saves = self.step % spec.checkpoint_every == 0 or self.step == total or deadline.passed(logs)
             if not avoids_read_backs(self.device) or logs or validates or saves:
                 read = _read_losses(unread)
                 losses += read
@@ -187,6 +191,9 @@ class Trainer:
             if saves:
                 throughput.pause()
                 checkpoint = self.checkpoints.save()
+            if deadline.reached:
+                break
+        self.stopped_by_time = deadline.reached
         bar.close()
         if checkpoint is not None and self.tracker is not None:
             self.tracker.log_artifact(checkpoint)

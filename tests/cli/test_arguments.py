@@ -12,6 +12,7 @@ from gns_framework.cli.arguments import (
     add_allow_pickle,
     non_negative_float,
     non_negative_int,
+    positive_float,
     positive_int,
     ratio_above_one_or_never,
 )
@@ -40,6 +41,13 @@ def test_distances_are_finite_and_not_negative():
             non_negative_float(text)
     with pytest.raises(argparse.ArgumentTypeError, match=r"^invalid float value: 'far'$"):
         non_negative_float("far")
+
+
+def test_durations_are_finite_and_positive():
+    assert positive_float("0.5") == 0.5 and positive_float("10") == 10.0
+    for text in ("0", "-1", "nan", "inf"):
+        with pytest.raises(argparse.ArgumentTypeError, match=r"^must be a finite number >"):
+            positive_float(text)
 
 
 def test_a_bad_value_on_the_command_line_is_a_usage_error_naming_the_option(capsys):

@@ -94,3 +94,21 @@ def test_sigterm_marks_the_mlflow_run_killed_releases_the_lock_and_keeps_the_che
     assert list_checkpoints(run / "checkpoints")
     run_id = __import__("json").loads(RunFolder(run).mlflow_run.read_text())["run_id"]
     assert mlflow.MlflowClient(store).get_run(run_id).info.status == "KILLED"
+
+
+def test_a_time_limit_stops_with_a_checkpoint_that_resumes_to_the_end(dataset_2d, tmp_path, monkeypatch, capsys):
+    from gns_framework.training import progress
+
+    clock = iter(range(0, 10_000, 50))  # every look at the deadline's clock: 50 s later
+    monkeypatch.setattr(progress.Deadline, "clock", staticmethod(lambda: float(next(clock))))
+    recipe = tmp_path / "tiny.yaml"
+    recipe.write_text(yaml.safe_dump(tiny_recipe_mapping(dataset_2d)))
+    run = tmp_path / "run"
+    argv = ["train", str(recipe), "--out", str(run), "--steps", "6", "--no-tracking", "--no-progress"]
+    assert main([*argv, "--time-limit", "2.5"]) == 0  # 150 s: the deadline started at 0, steps end at 50, 100, 150
+    out = capsys.readouterr().out
+    assert "stopped at the time limit (2.5 min) at step 3 of 6" in out and "go on with --resume" in out
+    assert sorted(p.name for p in (run / "checkpoints").glob("checkpoint-*.pt")) == ["checkpoint-000000003.pt"]
+    monkeypatch.undo()
+    assert main([*argv, "--resume"]) == 0
+    assert "resumed from" in (out := capsys.readouterr().out) and "trained tiny to step 6" in out

@@ -5,8 +5,9 @@ from __future__ import annotations
 import pytest
 import torch
 
+from gns_framework.runtime.processes import Processes
 from gns_framework.training import progress
-from gns_framework.training.progress import Throughput, time_to_go
+from gns_framework.training.progress import Deadline, Throughput, time_to_go
 
 
 def test_time_to_go_reads_like_a_clock():
@@ -36,3 +37,30 @@ def test_throughput_counts_steps_and_particles_between_reads_and_leaves_out_paus
 def test_throughput_is_read_after_a_step_only():
     with pytest.raises(AssertionError, match="read after a step"):
         Throughput(torch.device("cpu")).read()
+
+
+def test_a_deadline_alone_looks_at_its_clock_after_every_step(monkeypatch):
+    assert not Deadline(None, Processes()).passed(logs=True)
+    clock = iter([0.0, 50.0, 99.0, 100.0])
+    monkeypatch.setattr(Deadline, "clock", staticmethod(lambda: next(clock)))
+    deadline = Deadline(100.0, Processes())
+    assert [deadline.passed(logs=False), deadline.passed(logs=False), deadline.passed(logs=False)] == [
+        False,
+        False,
+        True,
+    ]
+    assert deadline.reached
+
+
+def test_processes_agree_on_the_deadline_at_logging_steps_by_rank_zeros_clock(monkeypatch):
+    class Two(Processes):
+        def broadcast(self, value):
+            told.append(value)
+            return True  # rank 0's verdict, whatever this process's clock says
+
+    told: list = []
+    clock = iter([0.0, 10.0, 20.0])
+    monkeypatch.setattr(Deadline, "clock", staticmethod(lambda: next(clock)))
+    deadline = Deadline(100.0, Two(rank=1, world_size=2))
+    assert not deadline.passed(logs=False) and told == []  # not a logging step: no look, no collective
+    assert deadline.passed(logs=True) and told == [False]
