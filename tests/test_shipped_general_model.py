@@ -1,5 +1,6 @@
-"""The shipped general sand model (models/sand2d_general.pt): its envelope travels with it, it refuses
-data outside it, and it holds on a canonical scene it never trained on, in a box with slip side walls."""
+"""The shipped general sand models (models/sand2d_general.pt, and sand2d_general_fast.pt with its 20 ms step):
+the envelope travels with each, each refuses data outside it, and each holds on a canonical scene it never trained
+on, in a box with slip side walls."""
 
 from __future__ import annotations
 
@@ -13,13 +14,20 @@ from gns_framework.assembly.trained import load_trained
 
 REPO = Path(__file__).resolve().parents[1]
 MODEL = REPO / "models" / "sand2d_general.pt"
+FAST = REPO / "models" / "sand2d_general_fast.pt"
+STRIDES = {MODEL: 2, FAST: 4}
+"""Stored frames (of 5 ms) per learned step of each model."""
+models = pytest.mark.parametrize("model", [MODEL, FAST], ids=lambda path: path.stem)
 
 
-def test_the_envelope_it_records_is_the_card_s(registry):
-    assert MODEL.stat().st_size < 12e6
-    loaded = load_trained(MODEL, registry, "cpu")
+@models
+def test_the_envelope_it_records_is_the_card_s(registry, model):
+    assert model.stat().st_size < 12e6
+    loaded = load_trained(model, registry, "cpu")
     envelope = loaded.envelope.to_dict()
-    assert envelope["dim"] == 2 and envelope["frame_stride"] == 2 and envelope["step_dt"] == pytest.approx(0.01)
+    stride = STRIDES[model]
+    assert envelope["dim"] == 2 and envelope["frame_stride"] == stride
+    assert envelope["step_dt"] == pytest.approx(0.005 * stride)
     assert envelope["extent"] == [[0.75, 2.0], [0.5, 1.0]]
     assert envelope["materials"] == {"3": "rigid", "6": "sand"}
     low, high = envelope["properties"]["friction"]
@@ -48,10 +56,11 @@ def canonical(tmp_path_factory) -> Path:
     return out
 
 
-def test_it_holds_on_a_canonical_scene(canonical, tmp_path):
+@models
+def test_it_holds_on_a_canonical_scene(canonical, tmp_path, model):
     result = gns(
         "evaluate",
-        str(MODEL),
+        str(model),
         "--dataset",
         str(canonical),
         "--out",
@@ -70,7 +79,8 @@ def test_it_holds_on_a_canonical_scene(canonical, tmp_path):
     assert float(learned["extent_error_pct"]) < 15 and float(learned["height_error_pct"]) < 15
 
 
-def test_data_outside_the_envelope_is_refused_naming_what(tmp_path):
+@models
+def test_data_outside_the_envelope_is_refused_naming_what(tmp_path, model):
     """The demo's sand at another spacing (grid 64 instead of 48): refused, naming the spacing and its range."""
     scene = (REPO / "scenes" / "demo_sand_2d.yaml").read_text().replace("grid: 48", "grid: 64")
     assert "grid: 64" in scene
@@ -90,7 +100,7 @@ def test_data_outside_the_envelope_is_refused_naming_what(tmp_path):
         "--no-progress",
     )
     assert made.returncode == 0, made.stderr
-    result = gns("rollout", str(MODEL), "--dataset", str(out), "--out", str(tmp_path / "rollouts"))
+    result = gns("rollout", str(model), "--dataset", str(out), "--out", str(tmp_path / "rollouts"))
     assert result.returncode != 0
     assert (
         "nearest-neighbour distance (median)" in result.stderr
