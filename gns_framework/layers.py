@@ -12,8 +12,6 @@ and the decoder is a plain :class:`MLP` (its output is a normalised prediction).
 
 from __future__ import annotations
 
-import itertools
-
 import torch
 from torch import Tensor, nn
 
@@ -29,7 +27,7 @@ class MLP(nn.Module):
     def __init__(self, in_size: int, hidden_size: int, hidden_layers: int, out_size: int):
         super().__init__()
         sizes = [in_size] + [hidden_size] * hidden_layers + [out_size]
-        self.linears = nn.ModuleList(nn.Linear(a, b) for a, b in itertools.pairwise(sizes))
+        self.linears = nn.ModuleList(nn.Linear(sizes[k], sizes[k + 1]) for k in range(len(sizes) - 1))
 
     def forward(self, x: Tensor) -> Tensor:
         return self.rest(self.linears[0](x))

@@ -1,5 +1,4 @@
-"""Random-walk training noise on the input position history (Sanchez-Gonzalez et al. 2020, Sec. 3): its std, its
-draw, and the draw of one optimiser step's windows, reproducible on resume and under any number of processes."""
+"""Random-walk training noise on the input positions (Sanchez-Gonzalez et al. 2020, Sec. 3): its std and its draw."""
 
 from __future__ import annotations
 

@@ -70,6 +70,7 @@ def test_a_helper_among_the_components_is_named(registry):
             "edge_block",
             "edge_order",
             "fused_kernels",
+            "padded_cell_list",
             "segment_sum",
             "triton_edge_block",
             "triton_kernels",
