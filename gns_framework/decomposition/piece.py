@@ -32,7 +32,12 @@ def piece_batch(scene: ParticleBatch, piece: Halo, kind: Literal["positions", "l
     """
     local = piece.local
     latents = kind == "latents"
-    owned = torch.zeros(local.count, dtype=torch.bool, device=local.ids.device).index_fill(0, piece.owned_rows, True)
+    # Only a halo of latents filters the graph by receiver; a halo of positions keeps every edge.
+    owned = (
+        torch.zeros(local.count, dtype=torch.bool, device=local.ids.device).index_fill(0, piece.owned_rows, True)
+        if latents
+        else None
+    )
     return replace(
         scene,
         position_sequence=local.sequence,
@@ -41,7 +46,7 @@ def piece_batch(scene: ParticleBatch, piece: Halo, kind: Literal["positions", "l
         next_position=local.next_position,
         batch=local.example if local.example is not None else torch.zeros_like(local.ids),
         ahead=None,
-        owned=owned if latents else None,
+        owned=owned,
         exchange=piece.refresh if latents else None,
     )
 
