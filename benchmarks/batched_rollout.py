@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.model}: needs a model with a friction property and an envelope", file=sys.stderr)
         return 2
     low, high = model.envelope.properties["friction"]
-    column = list(model.simulator.scene.property_names).index("friction")
+    column = list(model.simulator.setup.property_names).index("friction")
     scenes = []
     for friction in np.linspace(low, high, args.scenes):
         properties = base.material_property.copy()

@@ -76,7 +76,7 @@ class Case:
             )
         torch.manual_seed(0)
         self.device = device
-        self.simulator = build_learned_simulator(scene.scene, scene.metadata, spec, load_registry()).to(device)
+        self.simulator = build_learned_simulator(scene.setup, scene.metadata, spec, load_registry()).to(device)
         self.batch = scene.batch.to(device)
         self.mask = self.simulator.predicted_mask(self.batch.particle_type)
         generator = torch.Generator().manual_seed(0)

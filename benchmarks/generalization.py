@@ -74,8 +74,8 @@ def evaluate(
     data_set = open_dataset(model.recipe.dataset, registry, data)
     cases = cases_from_split(data_set.split("test"))
     if model.envelope is not None:
-        scene = model.simulator.scene
-        for line in outside_envelope(model.envelope, data_set.metadata(), cases, scene.history, scene.kinematic_types):
+        setup = model.simulator.setup
+        for line in outside_envelope(model.envelope, data_set.metadata(), cases, setup.history, setup.kinematic_types):
             print(f"{data}: outside the model's envelope: {line}", file=sys.stderr)
     with tempfile.TemporaryDirectory() as rollouts:
         report = compare(
@@ -94,7 +94,7 @@ def evaluate(
             from gns_framework.viz.animation import animate_rollout
 
             learned = next(e for e in report.entries if e.kind == "learned")
-            names = registry.material_names(model.simulator.scene.particle_types)
+            names = registry.material_names(model.simulator.setup.particle_types)
             animate_rollout(load_rollout(learned.rollout_files[0]), gif, every=4, material_names=names)
             print(f"animation: {gif}", file=sys.stderr)
     by_kind = {}

@@ -40,6 +40,7 @@ STARTED = time.monotonic()  # before torch's import: the part's clock starts wit
 
 import argparse  # noqa: E402
 import contextlib  # noqa: E402
+import dataclasses  # noqa: E402
 import importlib.util  # noqa: E402
 import os  # noqa: E402
 import resource  # noqa: E402
@@ -370,7 +371,7 @@ def _lattice(particles: int):
     return lattice_scene(particles, dim=3)
 
 
-def _simulator(scene, device):
+def _simulator(scene, device, graph_builder: str = "radius"):
     import torch
 
     from gns_framework.assembly.learned import build_learned_simulator
@@ -378,7 +379,8 @@ def _simulator(scene, device):
     from gns_framework.plugins import load_registry
 
     torch.manual_seed(0)
-    return build_learned_simulator(scene.scene, scene.metadata, ModelSpec(), load_registry()).to(device)
+    model = ModelSpec(graph_builder={"name": graph_builder})
+    return build_learned_simulator(scene.setup, scene.metadata, model, load_registry()).to(device)
 
 
 def peak_bytes(device) -> int:
@@ -673,6 +675,86 @@ def chunks(args) -> None:
         raise SystemExit("gpu_check: the chunked training step differs from the CPU's")
 
 
+def capture(args) -> None:
+    """Rollout steps of the paper's model on the fixed-capacity graph, eager against captured (``gns rollout
+    --capture``: a CUDA graph on CUDA, the emulation on the CPU): the same frames, and the time per step.
+
+    Per size: ``steps`` steps each way from the lattice scene (no kinematic particles), timed after one warm-up
+    step; ``max_abs_diff`` compares the last frames (TF32 off: the two must run the same float32 kernels).
+    """
+    import torch
+
+    device = torch.device(args.device)
+    deadline = part_deadline()
+    for particles in args.sizes:
+        if left(deadline) < 10:
+            emit("capture", particles=particles, status="over_budget")
+            continue
+        figures = _capture_case(_lattice(particles), device, args.steps)
+        ok = figures["max_abs_diff"] <= 1e-4 and not figures["overflowed"]
+        emit("capture", particles=particles, steps=args.steps, **figures, status="ok" if ok else "differ")
+
+
+def _capture_case(scene, device, steps: int) -> dict:
+    """Eager and captured rollouts of ``steps`` steps of ``scene``: times per step, their difference, captures made."""
+    import torch
+
+    from gns_framework.model.captured_steps import CapturedSteps
+    from gns_framework.model.history import advance_window
+    from gns_framework.model.rollout import capacity_checks, rollout_step
+    from gns_framework.model.rollout_guard import RolloutGuard
+    from gns_framework.runtime.device import synchronize
+
+    simulator = _simulator(scene, device, "radius_fixed_capacity").eval()
+    batch = scene.batch.to(device)
+    guard = RolloutGuard(simulator.setup)
+    kinematic = torch.zeros(0, dtype=torch.long, device=device)
+    still = torch.zeros(0, scene.setup.dim, device=device)
+
+    def one_step(current, kinematic_next):
+        return rollout_step(simulator, guard, current, kinematic, kinematic_next, "float32")
+
+    captured = CapturedSteps(one_step, batch, simulator.graph_builder)
+    step_of = {
+        "eager": lambda sequence: one_step(dataclasses.replace(batch, position_sequence=sequence), still),
+        "captured": lambda sequence: captured(sequence, None, still),
+    }
+
+    def roll(name, count):
+        sequence = batch.position_sequence
+        for _ in range(count):
+            _, continued = step_of[name](sequence)
+            sequence = advance_window(sequence, continued)
+        return sequence
+
+    last, figures = {}, {}
+    with torch.inference_mode(), capacity_checks(simulator.graph_builder), _no_tf32():
+        for name in step_of:
+            roll(name, 1)  # warm-up (and the capture)
+            synchronize(device)
+            started = time.perf_counter()
+            last[name] = roll(name, steps)
+            synchronize(device)
+            figures[f"{name}_ms"] = (time.perf_counter() - started) / steps * 1e3
+        figures["overflowed"] = simulator.graph_builder.overflowed()
+    figures["speedup"] = figures["eager_ms"] / figures["captured_ms"]
+    figures["max_abs_diff"] = float((last["eager"] - last["captured"]).abs().max())
+    figures["captures"] = captured.captures
+    return figures
+
+
+@contextlib.contextmanager
+def _no_tf32():
+    import torch
+
+    saved = torch.backends.cuda.matmul.allow_tf32
+    torch.backends.cuda.matmul.allow_tf32 = False
+    try:
+        yield
+    finally:
+        torch.backends.cuda.matmul.allow_tf32 = saved
+
+
 def mpm(args) -> None:
     """Seconds per frame of the 3D sand column on a ``--grid``-cell-wide grid (particles grow as grid^3), on
     ``--device``."""
@@ -722,7 +804,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("imports")
-    for name in ("info", "ddp", "sums", "chunks", "scale", "mpm"):
+    for name in ("info", "ddp", "sums", "chunks", "scale", "capture", "mpm"):
         command = sub.add_parser(name)
         command.add_argument("--device", default="cuda")
     sub.add_parser("tests").add_argument("files", nargs="+")
@@ -748,6 +830,8 @@ def main() -> None:
         default=1e9,
         help="seconds for the whole part (also bounded by GPU_CHECK_PART_LIMIT_S)",
     )
+    sub.choices["capture"].add_argument("--sizes", type=int, nargs="+", default=[300, 10_000, 100_000])
+    sub.choices["capture"].add_argument("--steps", type=int, default=20)
     sub.choices["mpm"].add_argument("--frames", type=int, default=10)
     sub.choices["mpm"].add_argument("--grid", type=int, default=96, help="grid cells along the box (24: 768 particles)")
     sub.add_parser("data").add_argument("out")
@@ -760,6 +844,7 @@ def main() -> None:
         "sums": sums,
         "chunks": chunks,
         "scale": scale,
+        "capture": capture,
         "mpm": mpm,
         "data": data,
     }[args.command](args)

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The GPU check: install what the machine lacks, imports, CUDA tests, training + resume, rollout,
-# DDP, node sums, a chunked step against the CPU, the Triton edge block against the chunked one, step
+# DDP, node sums, a chunked step against the CPU, the Triton edge block against the chunked one, captured
+# rollout steps against eager ones, step
 # time and peak memory by scene size and precision, and the MPM on CUDA. Every part has its own time limit and the whole run a budget
 # (450 s, install included), so it ends within 8 minutes on one GPU; exits non-zero when any part fails.
 #
@@ -122,6 +123,7 @@ if [ "$DRY" = 1 ]; then
   SCALE=(--sizes 500 --precisions float32 bfloat16 --repeat 1)
   SUMS=(--rows 20000 --chunk-rows 2000 --repeat 3)
   CHUNKS=(--particles 500)
+  CAPTURE=(--sizes 300 --steps 3)
   KERNELS=(--small --sizes 64 --precisions float32 --repeat 1 --profile-rows 3)
   MPM=(--grid 24 --frames 3)
 else
@@ -129,6 +131,7 @@ else
   SCALE=(--sizes 10000 100000 1000000 --repeat 5)
   SUMS=(--rows 4194304 --chunk-rows 262144 --repeat 10)
   CHUNKS=(--particles 10000)
+  CAPTURE=(--sizes 300 10000 100000 --steps 20)
   KERNELS=(--sizes 10000 100000 --precisions float32 bfloat16 --repeat 5 --profile-rows 15)
   MPM=(--grid 96 --frames 10)
 fi
@@ -155,7 +158,8 @@ part info 30 "$PYTHON" benchmarks/gpu_check.py info --device "$DEVICE"
 if [ "$DEVICE" = cuda ]; then
   # The CUDA tests, and the precision getters under this machine's torch.
   part cuda_tests 90 "$PYTHON" benchmarks/gpu_check.py tests tests/test_cuda.py tests/runtime/test_precision.py tests/runtime/test_tf32.py \
-    tests/builtins/_kernels/test_triton_edge_block.py tests/builtins/_kernels/test_triton_kernels.py
+    tests/builtins/_kernels/test_triton_edge_block.py tests/builtins/_kernels/test_triton_kernels.py \
+    tests/model/test_captured_steps.py tests/runtime/test_capture.py
 else
   skip cuda_tests "--device cpu (the cuda-marked tests need a GPU; the test suite runs the rest)"
 fi
@@ -183,6 +187,8 @@ if [ "$DEVICE" = cpu ]; then
 else
   part kernels 100 "$PYTHON" benchmarks/edge_kernels.py --device cuda "${KERNELS[@]}"
 fi
+# Rollout steps on the fixed-capacity graph, eager against one captured CUDA graph (issue 45, item 4).
+part capture 45 "$PYTHON" benchmarks/gpu_check.py capture --device "$DEVICE" "${CAPTURE[@]}"
 part scale 130 "$PYTHON" benchmarks/gpu_check.py scale --device "$DEVICE" "${SCALE[@]}"
 part mpm 40 "$PYTHON" benchmarks/gpu_check.py mpm --device "$DEVICE" "${MPM[@]}"
 

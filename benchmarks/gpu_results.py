@@ -9,7 +9,9 @@ without ``--out`` the record is printed) one record: ``date``, ``commit``, ``dev
 ``precision`` (the precision of the step times), ``rollout_ms`` and ``training_ms`` keyed by
 particle count (the ``scale`` part's median steps at that precision; stored activations where
 both were timed, else recompute), the edge kernels' times and speed-ups (``kernels``), whether
-the ordered sums and the Triton training step gave the same bits twice (``same_bits``), and
+the ordered sums and the Triton training step gave the same bits twice (``same_bits``), float32
+rollout steps eager and captured on the fixed-capacity graph keyed by particle count
+(``captured_rollout_ms``: ``eager_ms``, ``captured_ms``, ``max_abs_diff``), and
 ``small_scene_rollout_s`` and ``batched_s_per_scene`` when the run measured them (else None).
 Every figure docs/performance.md quotes from a device run lives here, run by run.
 """
@@ -56,6 +58,11 @@ def record(text: str, commit: str, date: str, precision: str = "bfloat16") -> di
     same_bits.update(
         {f"triton_train_{f['precision']}": f["equal"] == "True" for p, f in lines if p == "kernels_bitwise"}
     )
+    captured = {
+        f["particles"]: {key: float(f[key]) for key in ("eager_ms", "captured_ms", "max_abs_diff")}
+        for p, f in lines
+        if p == "capture" and f.get("status") in ("ok", "differ") and "captured_ms" in f
+    }
     small = next((float(f["seconds"]) for p, f in lines if p == "small_scene" and "seconds" in f), None)
     batched = next((float(f["s_per_scene"]) for p, f in lines if p == "batched" and "s_per_scene" in f), None)
     return {
@@ -67,6 +74,7 @@ def record(text: str, commit: str, date: str, precision: str = "bfloat16") -> di
         "training_ms": times["train"],
         "kernels": kernels,
         "same_bits": same_bits,
+        "captured_rollout_ms": captured,
         "small_scene_rollout_s": small,
         "batched_s_per_scene": batched,
     }

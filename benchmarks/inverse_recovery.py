@@ -260,7 +260,7 @@ def main() -> int:
                 problem = case["inversion"].problem
                 case["launch"] = truth
                 truth = input_frame_velocity(
-                    case["inversion"].trajectory.position, problem.simulator.scene.history, problem.metadata.dt
+                    case["inversion"].trajectory.position, problem.simulator.setup.history, problem.metadata.dt
                 )
             error = 100 * float(np.linalg.norm(np.subtract(case["recovered"], truth)) / np.linalg.norm(truth))
             case.update(truth=truth, error_pct=error)

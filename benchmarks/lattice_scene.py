@@ -33,7 +33,7 @@ ACC_MEAN, ACC_STD = [5.24e-07, 2.36e-07], [2.58e-04, 2.96e-04]
 
 @dataclass(frozen=True)
 class LatticeScene:
-    scene: ModelSetup
+    setup: ModelSetup
     metadata: DatasetMetadata
     batch: ParticleBatch
     """A window with ``next_position``: training input and rollout state at once."""
@@ -69,7 +69,7 @@ def lattice_scene(particles: int, dim: int = 2, seed: int = 0) -> LatticeScene:
         acc_mean=acc_mean,
         acc_std=acc_std,
     )
-    scene = ModelSetup(
+    setup = ModelSetup(
         dim=dim, bounds=bounds, connectivity_radius=RADIUS, particle_types=PARTICLE_TYPES, history=HISTORY
     )
     # A small random walk so velocities and accelerations are realistic in size.
@@ -82,4 +82,4 @@ def lattice_scene(particles: int, dim: int = 2, seed: int = 0) -> LatticeScene:
         num_examples=1,
         next_position=trajectory[:, HISTORY - 1] + velocity[:, -1],
     )
-    return LatticeScene(scene, metadata, batch)
+    return LatticeScene(setup, metadata, batch)

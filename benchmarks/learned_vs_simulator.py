@@ -94,7 +94,7 @@ def learned_model(kind: str, registry, radius_scale: float):
     model_file = "sand2d_fast_grid.pt" if kind == "grid" else "sand2d_fast.pt"
     shipped = load_trained(ROOT / "models" / model_file, registry)
     scene = replace(
-        shipped.simulator.scene, connectivity_radius=shipped.simulator.scene.connectivity_radius * radius_scale
+        shipped.simulator.setup, connectivity_radius=shipped.simulator.setup.connectivity_radius * radius_scale
     )
     if kind in ("fast", "grid"):
         simulator = build_learned_simulator(scene, shipped.metadata, shipped.recipe.model, registry)
@@ -111,7 +111,7 @@ def time_learned(simulator, sample, repeats: int) -> float:
 
     position = torch.from_numpy(np.concatenate([b.position for b in sample.blocks])).float()
     n = position.shape[0]
-    history = simulator.scene.history
+    history = simulator.setup.history
     state = ParticleBatch(
         position_sequence=position[:, None].repeat(1, history, 1),
         particle_type=torch.full((n,), 6, dtype=torch.long),

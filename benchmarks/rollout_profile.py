@@ -85,7 +85,7 @@ def profile(simulator, sample, repeats: int) -> dict:
     clock.wrap(simulator.integrator, "next_position", "integrator")
     position = torch.from_numpy(np.concatenate([b.position for b in sample.blocks])).float()
     n = position.shape[0]
-    history = simulator.scene.history
+    history = simulator.setup.history
     # A column just released: the last frames fall a little, so the step sees motion.
     fall = torch.linspace(-1e-4 * (history - 1), 0.0, history)
     sequence = position[:, None].repeat(1, history, 1)

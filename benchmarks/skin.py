@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     builder = simulator.graph_builder
     if not hasattr(builder, "verlet"):
         parser.error(f"{args.model}: its graph builder ({builder.name}) takes no skin")
-    radius = simulator.scene.connectivity_radius
+    radius = simulator.setup.connectivity_radius
     skins = [float(s) for s in args.skins.split(",")]
     cases = list(open_dataset(model.recipe.dataset, registry, args.dataset).split("test"))[: args.cases]
 

@@ -3,6 +3,7 @@ CPU.
 
 Usage:
     python benchmarks/step_budget.py [--particles 10000] [--dim 3] [--top 15] [--chunked] [--json]
+        [--graph-builder radius|radius_fixed_capacity]
 
 On a GPU every operation is at least one kernel launch (a few microseconds of host
 time each) and every read-back makes the host wait for the device: a scene of 10k
@@ -124,7 +125,7 @@ class Launches:
 @contextlib.contextmanager
 def gpu_choices(launches: Launches, read_backs: list, triton: bool = True):
     """Inside: the accelerators' choices on the CPU, Triton launches counted, explicit read-backs recorded."""
-    from gns_builtins._kernels import cell_list, chunked, edge_block, fused_kernels, triton_edge_block
+    from gns_builtins._kernels import cell_list, chunked, edge_block, fixed_capacity, fused_kernels, triton_edge_block
     from gns_framework.model import learned_simulator, rollout
     from gns_framework.training import trainer
 
@@ -139,6 +140,7 @@ def gpu_choices(launches: Launches, read_backs: list, triton: bool = True):
         (triton_edge_block, "applies", lambda e, hidden, num_weights: triton and num_weights in (2, 3)),
         (triton_edge_block, "triton_module", launches.module),
         (cell_list, "read_back", counted_read_back),
+        (fixed_capacity, "read_back", counted_read_back),
         (cell_list, "candidates_per_chunk", lambda device: cell_list.CANDIDATES_PER_CHUNK_ACCELERATOR),
         # The chunked edge block as on a GPU (--chunked): chunks of the accelerators' size, no CPU C loops.
         (edge_block, "chunk_size", lambda device: chunked.ROWS_PER_CHUNK_ACCELERATOR),
@@ -165,21 +167,23 @@ def count(step, launches: Launches, read_backs: list) -> tuple[Counter[str], int
     return counter.operations, counter.syncs.total + len(read_backs)
 
 
-def measure(particles: int, dim: int, triton: bool = True) -> dict:
+def measure(particles: int, dim: int, triton: bool = True, graph_builder: str = "radius") -> dict:
+    """The counts for the paper's model with ``graph_builder`` (a built-in radius builder's name)."""
     from gns_framework.assembly.learned import build_learned_simulator
     from gns_framework.config.recipe import ModelSpec, OptimizerSpec
     from gns_framework.model.loss import masked_acceleration_loss
     from gns_framework.model.noise import random_walk_noise
-    from gns_framework.model.rollout import rollout_step
+    from gns_framework.model.rollout import capacity_checks, rollout_step
     from gns_framework.model.rollout_guard import RolloutGuard
     from gns_framework.plugins import load_registry
     from gns_framework.training.optim import make_optimizer
 
     torch.manual_seed(0)
     scene = lattice_scene(particles, dim=dim)
-    simulator = build_learned_simulator(scene.scene, scene.metadata, ModelSpec(), load_registry())
+    model = ModelSpec(graph_builder={"name": graph_builder})
+    simulator = build_learned_simulator(scene.setup, scene.metadata, model, load_registry())
     batch = scene.batch
-    guard = RolloutGuard(simulator.scene)
+    guard = RolloutGuard(simulator.setup)
     kinematic = torch.zeros(0, dtype=torch.long)
     kinematic_next = torch.zeros(0, dim)
     mask = simulator.predicted_mask(batch.particle_type)
@@ -191,7 +195,8 @@ def measure(particles: int, dim: int, triton: bool = True) -> dict:
             simulator.build_graph(batch.position_sequence, batch)
 
     def rollout():
-        with torch.inference_mode():
+        # As inside gns rollout: a fixed-capacity builder's overflow check comes every few steps, not here.
+        with torch.inference_mode(), capacity_checks(simulator.graph_builder):
             rollout_step(simulator, guard, batch, kinematic, kinematic_next, "float32")
 
     def training():
@@ -201,14 +206,17 @@ def measure(particles: int, dim: int, triton: bool = True) -> dict:
         optimizer.step()
         scheduler.step()
 
+    phases = [("graph_build", graph), ("rollout_step", rollout), ("training_step", training)]
     launches, read_backs = Launches(), []
+    if simulator.graph_builder.fixed_capacity:
+        phases.append(("captured_rollout_step", captured_rollout(simulator, guard, batch, kinematic, launches)))
     figures: dict = {"particles": particles, "dim": dim}
     with gpu_choices(launches, read_backs, triton):
         # Fused, as on an accelerator (make_optimizer decides by the parameters' device).
         optimizer, scheduler = make_optimizer(simulator.parameters(), OptimizerSpec(), total_steps=10, fused=True)
         with torch.no_grad():
             figures["edges"] = int(simulator.build_graph(batch.position_sequence, batch).num_edges)
-        for name, step in (("graph_build", graph), ("rollout_step", rollout), ("training_step", training)):
+        for name, step in phases:
             step()  # warm-up: lazily made constants, optimizer state
             operations, syncs = count(step, launches, read_backs)
             launching = {op: n for op, n in operations.items() if op not in NO_KERNEL}
@@ -221,6 +229,38 @@ def measure(particles: int, dim: int, triton: bool = True) -> dict:
     return figures
 
 
+def captured_rollout(simulator, guard, batch, kinematic, launches: Launches):
+    """One rollout step as ``gns rollout --capture`` runs it: inputs copied in, one replay, outputs copied out, the
+    window advanced. A replay is one launch (``cuda_graph.replay``); what it replays is not dispatched by the host."""
+    from torch.utils._python_dispatch import _disable_current_modes
+
+    from gns_framework.model.captured_steps import CapturedSteps
+    from gns_framework.model.history import advance_window
+    from gns_framework.model.rollout import capacity_checks, rollout_step
+
+    kinematic_next = torch.zeros(0, batch.position_sequence.shape[-1])
+    one_step = lambda current, nxt: rollout_step(simulator, guard, current, kinematic, nxt, "float32")  # noqa: E731
+    steps_of = CapturedSteps(one_step, batch, simulator.graph_builder)
+
+    def step():
+        with torch.inference_mode(), capacity_checks(simulator.graph_builder):
+            fresh = steps_of.captured is None
+            _, continued = steps_of(batch.position_sequence, None, kinematic_next)
+            if fresh:  # count each later replay as the one launch it is on a GPU
+                replay = steps_of.captured._replay
+
+                def counted_replay():
+                    with _disable_current_modes():
+                        replay()
+                    if launches.counter is not None:
+                        launches.counter.operations["cuda_graph.replay"] += 1
+
+                steps_of.captured._replay = counted_replay
+            advance_window(batch.position_sequence, continued)
+
+    return step
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--particles", type=int, default=10_000)
@@ -228,11 +268,22 @@ def main() -> None:
     parser.add_argument("--top", type=int, default=15, help="operations listed per phase")
     parser.add_argument("--json", action="store_true", help="end with one JSON line")
     parser.add_argument("--chunked", action="store_true", help="the chunked edge block instead of the Triton one")
+    parser.add_argument(
+        "--graph-builder",
+        default="radius",
+        choices=("radius", "radius_fixed_capacity"),
+        help="radius (exact size, read-backs) or radius_fixed_capacity (fixed-size buffers)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
-    figures = measure(args.particles, args.dim, triton=not args.chunked)
-    print(f"{figures['particles']} particles, {figures['edges']} edges, {figures['dim']}D; GPU path on the CPU")
-    for phase in ("graph_build", "rollout_step", "training_step"):
+    figures = measure(args.particles, args.dim, triton=not args.chunked, graph_builder=args.graph_builder)
+    print(
+        f"{figures['particles']} particles, {figures['edges']} edges, {figures['dim']}D, {args.graph_builder}; "
+        "GPU path on the CPU"
+    )
+    for phase in ("graph_build", "rollout_step", "training_step", "captured_rollout_step"):
+        if phase not in figures:
+            continue
         entry = figures[phase]
         top = ", ".join(f"{name} {n}" for name, n in entry["top"][: args.top])
         print(f"{phase:14s} ops={entry['ops']:5d} launching={entry['launching']:5d} syncs={entry['syncs']}  {top}")
@@ -250,6 +301,9 @@ def main() -> None:
             "ops_per_training_step": figures["training_step"]["ops"],
             "syncs_per_training_step": figures["training_step"]["syncs"],
         }
+        if "captured_rollout_step" in figures:
+            summary["ops_per_captured_rollout_step"] = figures["captured_rollout_step"]["ops"]
+            summary["syncs_per_captured_rollout_step"] = figures["captured_rollout_step"]["syncs"]
         print(json.dumps(summary))
 
 

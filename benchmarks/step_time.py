@@ -106,7 +106,7 @@ def benchmark_model(particles: int, dim: int):
     """The scene and the paper's model on it, with parameters that depend only on the seed."""
     scene = lattice_scene(particles, dim)
     torch.manual_seed(0)
-    return scene, build_learned_simulator(scene.scene, scene.metadata, ModelSpec(), load_registry())
+    return scene, build_learned_simulator(scene.setup, scene.metadata, ModelSpec(), load_registry())
 
 
 class PeerProcess:

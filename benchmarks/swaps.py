@@ -97,7 +97,7 @@ def measure(raw: dict, registry, held_out: Path, cases: int) -> dict:
     simulator = trainer.simulator.eval()
     data = open_dataset(recipe.dataset, registry, held_out)
     test = cases_from_split(data.split("test"))[:cases]
-    granular = granular_particle_types(simulator.scene, registry)
+    granular = granular_particle_types(simulator.setup, registry)
     sinkhorn, runout, rollout_seconds = [], [], []
     learned_positions(simulator, test[0], "cpu")  # untimed: the first rollout compiles kernels and fills caches
     for case in test:
@@ -107,10 +107,10 @@ def measure(raw: dict, registry, held_out: Path, cases: int) -> dict:
         scores = score_prediction(
             Prediction(positions),
             case,
-            simulator.scene.history,
+            simulator.setup.history,
             data.metadata(),
             granular_types=granular,
-            kinematic_types=simulator.scene.kinematic_types,
+            kinematic_types=simulator.setup.kinematic_types,
             metrics=[m for m in registry.metrics() if m.name in ("sinkhorn_final_pct", "runout_error_pct")],
         )
         sinkhorn.append(float(scores["sinkhorn_final_pct"].item()))

@@ -1,15 +1,22 @@
 """Old homes of moved names: importing from one still works, with a DeprecationWarning naming the new home.
 
 A module that moved leaves a stub whose module-level ``__getattr__`` is
-``old_home(__name__, default_home, {name: home, ...})``.
+``old_home(__name__, default_home, {name: home, ...})``. A renamed attribute leaves
+``old = renamed_attribute("old", "new")`` in its class, and a renamed keyword a
+``@renamed_keywords(old="new")`` on its function.
 """
 
 from __future__ import annotations
 
+import functools
 import importlib
+import inspect
 import warnings
 from collections.abc import Callable
-from typing import Any
+from typing import Any, ParamSpec, TypeVar
+
+P = ParamSpec("P")
+R = TypeVar("R")
 
 
 def old_home(old: str, default_home: str, homes: dict[str, str] | None = None) -> Callable[[str], Any]:
@@ -24,3 +31,47 @@ def old_home(old: str, default_home: str, homes: dict[str, str] | None = None) -
         return getattr(module, name)
 
     return __getattr__
+
+
+def renamed_attribute(old: str, new: str) -> property:
+    """A read-only property ``old`` for an attribute renamed ``new``: ``self.<new>``, with a warning."""
+
+    def get(self: Any) -> Any:
+        warnings.warn(
+            f"{type(self).__name__}.{old} is now .{new}; the old name goes in 0.3", DeprecationWarning, stacklevel=2
+        )
+        return getattr(self, new)
+
+    return property(get, doc=f"Deprecated: the old name of ``{new}``.")
+
+
+def renamed_keywords(**renames: str) -> Callable[[Callable[P, R]], Callable[P, R]]:
+    """A decorator: the function also takes each renamed keyword under its old name (``old="new"``), with a warning.
+
+    A function that still has a parameter of an old name is returned as it is (a subclass's own ``__init__``).
+    """
+
+    def decorate(function: Callable[P, R]) -> Callable[P, R]:
+        taken = inspect.signature(function).parameters
+        old_names = {old: new for old, new in renames.items() if old not in taken}
+        if not old_names:
+            return function
+        name = function.__qualname__.removesuffix(".__init__")
+
+        @functools.wraps(function)
+        def renamed(*args: P.args, **kwargs: P.kwargs) -> R:
+            for old in old_names.keys() & kwargs.keys():
+                new = old_names[old]
+                warnings.warn(
+                    f"{name}({old}=...) is now {name}({new}=...); the old keyword goes in 0.3",
+                    DeprecationWarning,
+                    stacklevel=2,
+                )
+                if new in kwargs:
+                    raise TypeError(f"{name}() got both {old}= and its new name {new}=")
+                kwargs[new] = kwargs.pop(old)
+            return function(*args, **kwargs)
+
+        return renamed
+
+    return decorate

@@ -42,6 +42,7 @@ from .contracts import (
     Processor,
 )
 from .model.periodic import PeriodicBox
+from .moved import renamed_keywords
 
 if TYPE_CHECKING:
     from .data.trajectory import Trajectory
@@ -219,31 +220,55 @@ def _canonical_edges(graph: Graph) -> set[tuple[int, int]]:
     return set(zip(graph.senders.tolist(), graph.receivers.tolist(), strict=True))
 
 
+def _between_particles(graph: Graph, n: int, name: str) -> Graph:
+    """``graph`` without the sink nodes of a fixed-size graph (``node_particle``), checking what joins them.
+
+    Nodes from ``n`` on must stand for particles (``node_particle``), and an edge that touches one
+    must join two of them (padding): no particle may receive a padding message.
+    """
+    if graph.node_particle is None:
+        _expect(graph.num_nodes == n, f"{name}: num_nodes {graph.num_nodes}, expected {n}")
+        return graph
+    node_particle = graph.node_particle
+    _expect(node_particle.shape == (graph.num_nodes,), f"{name}: node_particle must have one row per node")
+    _expect(bool((node_particle[:n] == torch.arange(n)).all()), f"{name}: node i < N must be particle i")
+    _expect(bool(((node_particle >= 0) & (node_particle < n)).all()), f"{name}: node_particle out of range")
+    padding = graph.receivers >= n
+    _expect(bool((graph.senders[padding] >= n).all()), f"{name}: a particle sends to a sink node")
+    _expect(bool((graph.senders[~padding] < n).all()), f"{name}: a sink node sends to a particle")
+    _expect(bool((padding[1:] >= padding[:-1]).all()), f"{name}: padding edges must come after every real edge")
+    real = (~padding).nonzero()[:, 0]
+    return replace(
+        graph, senders=graph.senders[real], receivers=graph.receivers[real], displacement=graph.displacement[real]
+    )
+
+
+@renamed_keywords(scene="setup")
 def check_graph_builder(
-    cls: type[GraphBuilder], params: Mapping | None = None, scene: ModelSetup | None = None, seed: int = 0
+    cls: type[GraphBuilder], params: Mapping | None = None, setup: ModelSetup | None = None, seed: int = 0
 ) -> None:
     """Edge invariants of a graph builder on random scenes of two examples.
 
-    Checks: int64 indices in range, displacements equal ``p_sender - p_receiver``
+    Checks: int64 indices in range (sink nodes after the particles only joined to each other, for
+    fixed-size graphs with ``node_particle``), displacements equal ``p_sender - p_receiver``
     (minimum image on periodic dimensions), no edge between examples, edges
     sorted by (receiver, sender) without duplicates, the same edges after a
     translation (by whole box lengths along periodic dimensions) and after
     renaming the particles.
     """
     _expect(inspect.isclass(cls) and issubclass(cls, GraphBuilder), f"{cls!r} is not a GraphBuilder subclass")
-    scene = scene or small_scene()
-    builder = cls(cls.Params.model_validate(dict(params or {})), scene)
+    setup = setup or small_scene()
+    builder = cls(cls.Params.model_validate(dict(params or {})), setup)
     generator = torch.Generator().manual_seed(seed)
-    lower = torch.tensor([b[0] for b in scene.bounds], dtype=torch.float64)
-    upper = torch.tensor([b[1] for b in scene.bounds], dtype=torch.float64)
+    lower = torch.tensor([b[0] for b in setup.bounds], dtype=torch.float64)
+    upper = torch.tensor([b[1] for b in setup.bounds], dtype=torch.float64)
     counts = (30, 25)
-    position = lower + (upper - lower) * torch.rand(sum(counts), scene.dim, generator=generator, dtype=torch.float64)
+    position = lower + (upper - lower) * torch.rand(sum(counts), setup.dim, generator=generator, dtype=torch.float64)
     batch = torch.repeat_interleave(torch.arange(len(counts)), torch.tensor(counts))
-    graph = builder.build(position, batch, len(counts))
     n = position.shape[0]
     name = cls.name
+    graph = _between_particles(builder.build(position, batch, len(counts)), n, name)
 
-    _expect(graph.num_nodes == n, f"{name}: num_nodes {graph.num_nodes}, expected {n}")
     _expect(graph.senders.dtype == torch.long and graph.receivers.dtype == torch.long, f"{name}: indices must be int64")
     _expect(graph.num_edges > 0, f"{name}: built no edges on a random scene")
     _expect(
@@ -254,19 +279,19 @@ def check_graph_builder(
     key = graph.receivers * n + graph.senders
     _expect(bool((key[1:] > key[:-1]).all()), f"{name}: edges not sorted by (receiver, sender) or duplicated")
     _expect(graph.receivers_sorted, f"{name}: sorted edges must say so: Graph(..., receivers_sorted=True)")
-    box = PeriodicBox(scene)
+    box = PeriodicBox(setup)
     expected = box.minimum_image(position[graph.senders] - position[graph.receivers])
     _expect(_close(graph.displacement, expected, 1e-9), f"{name}: displacement != p_sender - p_receiver")
 
-    shift = torch.rand(scene.dim, generator=generator, dtype=torch.float64) * 0.37
+    shift = torch.rand(setup.dim, generator=generator, dtype=torch.float64) * 0.37
     if box.active:
         # Along periodic dimensions a translation is a relabelling of the box only by whole lengths.
         shift[box.dims] = torch.round(shift[box.dims]) * box.length + box.length
-    moved = builder.build(position + shift, batch, len(counts))
+    moved = _between_particles(builder.build(position + shift, batch, len(counts)), n, name)
     _expect(_canonical_edges(moved) == _canonical_edges(graph), f"{name}: edges change under translation")
 
     perm = torch.cat([torch.randperm(c, generator=generator) + o for c, o in zip(counts, (0, counts[0]), strict=True)])
-    renamed = builder.build(position[perm], batch, len(counts))
+    renamed = _between_particles(builder.build(position[perm], batch, len(counts)), n, name)
     back = {(int(perm[s]), int(perm[r])) for s, r in _canonical_edges(renamed)}
     _expect(back == _canonical_edges(graph), f"{name}: edges are not permutation-equivariant")
 

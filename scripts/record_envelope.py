@@ -51,12 +51,12 @@ def main(argv: list[str] | None = None) -> int:
                 file=sys.stderr,
             )
             return 2
-    scene = loaded.simulator.scene
+    setup = loaded.simulator.setup
     envelope = measure_envelope(
         dataset.metadata(),
         train,
-        scene,
-        {t: registry.material_by_type(t).name for t in scene.particle_types},
+        setup,
+        {t: registry.material_by_type(t).name for t in setup.particle_types},
         loaded.recipe.dataset.frame_stride,
     )
     state = load_checkpoint(args.checkpoint, map_location="cpu")

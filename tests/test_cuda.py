@@ -100,7 +100,7 @@ def test_evaluation_metrics_on_the_gpu_match_the_cpu(dataset_multimaterial, tmp_
     trainer = _trainer(dataset_multimaterial, tmp_path, registry, "cpu")
     trainer.train(5)
     trajectories = [trainer.data.dataset.split("valid")[0]]
-    scene, metadata = trainer.data.scene, trainer.data.metadata
+    scene, metadata = trainer.data.setup, trainer.data.metadata
     on_cpu = rollout_score_summary(
         trainer.simulator, trajectories, validation_rollout_scorer(registry, scene, metadata, torch.device("cpu"))
     )
@@ -134,3 +134,28 @@ def test_mpm_on_the_gpu_repeats_its_bits_and_follows_the_cpu():
     assert gpu.position.shape == cpu.position.shape and np.isfinite(gpu.position).all()
     # Ten frames of 8 substeps: float32 sums in another order, ~1e-6 m per substep at most.
     assert float(np.abs(gpu.position - cpu.position).max()) <= 1e-4
+
+
+def test_a_captured_rollout_on_the_gpu_gives_the_eager_frames():
+    # gns rollout --capture on CUDA: one CUDA graph per buffer size, replayed; a redo after growth captures again.
+    from fixed_capacity_cases import small_simulator, wandering_trajectory
+
+    from gns_framework.model import captured_steps
+
+    processor = {"name": "interaction_network", "message_passing_steps": 2}
+    trajectory = wandering_trajectory()
+    eager = rollout(small_simulator("radius_fixed_capacity", processor, acc_std=0.02).cuda(), trajectory, device="cuda")
+    made = []
+    original = captured_steps.CapturedSteps.__init__
+
+    def remember(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        made.append(self)
+
+    model = small_simulator("radius_fixed_capacity", processor, acc_std=0.02).cuda()
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(captured_steps.CapturedSteps, "__init__", remember)
+        captured = rollout(model, trajectory, device="cuda", capture=True)
+    assert made and made[0].captured is not None and made[0].captured._graph is not None
+    assert model.graph_builder.search.sizings > 1 and made[0].captures >= 2
+    np.testing.assert_allclose(captured.predicted, eager.predicted, rtol=0, atol=1e-5)

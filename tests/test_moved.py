@@ -6,6 +6,7 @@ import importlib
 
 import pytest
 
+from gns_framework.moved import renamed_attribute, renamed_keywords
 from gns_framework.runtime import processes, teams
 
 MOVED = [
@@ -30,3 +31,36 @@ def test_an_unknown_name_is_still_an_attribute_error():
     old = importlib.import_module("gns_framework.training.processes")
     with pytest.raises(AttributeError, match="has no attribute 'nothing_here'"):
         old.nothing_here  # noqa: B018
+
+
+class Holder:
+    old = renamed_attribute("old", "new")
+
+    @renamed_keywords(old="new")
+    def __init__(self, new, other=0):
+        self.new, self.other = new, other
+
+
+def test_a_renamed_attribute_warns_names_the_class_and_reads_the_new_one():
+    class Sub(Holder):
+        pass
+
+    with pytest.warns(DeprecationWarning, match=r"^Sub\.old is now \.new; the old name goes in 0\.3$"):
+        assert Sub(1).old == 1
+    with pytest.raises(AttributeError):
+        Sub(1).old = 2
+
+
+def test_a_renamed_keyword_reaches_the_new_one_with_a_warning():
+    with pytest.warns(DeprecationWarning, match=r"^Holder\(old=...\) is now Holder\(new=...\); the old keyword"):
+        held = Holder(old=3, other=4)
+    assert (held.new, held.other) == (3, 4)
+    with pytest.warns(DeprecationWarning), pytest.raises(TypeError, match="both old= and its new name new="):
+        Holder(old=3, new=4)
+
+
+def test_a_function_that_still_has_the_old_parameter_is_left_as_it_is():
+    def function(old):
+        return old
+
+    assert renamed_keywords(old="new")(function) is function

@@ -52,13 +52,18 @@ def test_graph_builder_conforms(name, dim):
         pytest.skip("torch-cluster is not installed")
     if name == "no_edges":
         pytest.skip("builds no edges by design (tests/builtins/graph_builders/test_no_edges.py)")
-    testing.check_graph_builder(REGISTRY.get("graph_builder", name), scene=testing.small_scene(dim))
+    testing.check_graph_builder(REGISTRY.get("graph_builder", name), setup=testing.small_scene(dim))
 
 
 @pytest.mark.parametrize("periodic", [(True, False), (True, True)])
 def test_periodic_builder_conforms_on_periodic_scenes(periodic):
-    scene = testing.small_scene(2, periodic=periodic)
-    testing.check_graph_builder(REGISTRY.get("graph_builder", "periodic_radius"), scene=scene)
+    setup = testing.small_scene(2, periodic=periodic)
+    testing.check_graph_builder(REGISTRY.get("graph_builder", "periodic_radius"), setup=setup)
+
+
+def test_check_graph_builder_still_takes_the_setup_as_scene_with_a_warning():
+    with pytest.warns(DeprecationWarning, match=r"check_graph_builder\(scene=...\) is now check_graph_builder\(setup="):
+        testing.check_graph_builder(REGISTRY.get("graph_builder", "radius"), scene=testing.small_scene(3))
 
 
 class _BrokenIntegrator(REGISTRY.get("integrator", "semi_implicit_euler")):

@@ -23,7 +23,7 @@ def test_trains_on_clay_with_per_particle_cohesion(tmp_path):
     )
     recipe = tiny_recipe(data, materials=["clay", "rigid"], material_properties=["cohesion"])
     trainer = tiny_trainer(recipe, tmp_path / "run")
-    scene = trainer.simulator.scene
+    scene = trainer.simulator.setup
     assert scene.particle_types == (3, 8) and scene.kinematic_types == (3,)
     assert scene.property_names == ("cohesion",)
     losses = trainer.train(5)

@@ -18,6 +18,7 @@ TINY_PROCESSORS = {
 """Parameters of each built-in processor at test size."""
 TINY_GRAPH_BUILDERS = {
     "radius": {},
+    "radius_fixed_capacity": {},
     "periodic_radius": {},
     "knn": {"k": 6},
     "radius_torch_cluster": {},

@@ -14,6 +14,7 @@ from ..data.pickle_grant import pickle_granted
 from ..data.stride import FrameStrideDataset
 from ..data.trajectory import Trajectory
 from ..errors import DatasetError
+from ..moved import renamed_attribute
 from ..plugins import Registry
 from .scene import scene_from_data
 
@@ -51,7 +52,8 @@ class PreparedData:
     metadata: DatasetMetadata
     train: Sequence[Trajectory]
     valid: Sequence[Trajectory] | None
-    scene: ModelSetup
+    setup: ModelSetup
+    scene = renamed_attribute("scene", "setup")  # its name until 0.2
 
 
 def prepare_data(
@@ -61,10 +63,10 @@ def prepare_data(
     keep: int | None = None,
     known: tuple[DatasetMetadata, ModelSetup] | None = None,
 ) -> PreparedData:
-    """The recipe's dataset (at ``dataset.path``), its train and valid splits and the scene they give.
+    """The recipe's dataset (at ``dataset.path``), its train and valid splits and the model setup they give.
 
     ``keep``: trajectories each split keeps in memory (None: all). ``known``: the
-    metadata (with its statistics) and scene another process already derived from
+    metadata (with its statistics) and setup another process already derived from
     the same data; given, nothing is read here but the splits' lists of trajectories.
     """
     dataset = open_dataset(recipe.dataset, registry, allow_pickle=allow_pickle, keep=keep)
@@ -74,5 +76,5 @@ def prepare_data(
     if known is not None:
         return PreparedData(dataset, metadata, train, valid, known[1])
     seen = itertools.chain(train, valid if valid is not None else ())
-    scene = scene_from_data(metadata, seen, recipe.model, registry, source=str(dataset.path))
-    return PreparedData(dataset, metadata, train, valid, scene)
+    setup = scene_from_data(metadata, seen, recipe.model, registry, source=str(dataset.path))
+    return PreparedData(dataset, metadata, train, valid, setup)

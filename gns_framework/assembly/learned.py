@@ -15,17 +15,17 @@ from ..model.normalization import Stats
 from ..plugins import Registry
 
 
-def model_sizes(scene: ModelSetup, model: ModelSpec) -> ModelSizes:
-    """Input, latent and output widths of the encoder, processor and decoder for ``scene``."""
+def model_sizes(setup: ModelSetup, model: ModelSpec) -> ModelSizes:
+    """Input, latent and output widths of the encoder, processor and decoder for ``setup``."""
     return ModelSizes(
-        node_in=node_feature_size(scene, model.type_embedding_size),
-        edge_in=edge_feature_size(scene),
+        node_in=node_feature_size(setup, model.type_embedding_size),
+        edge_in=edge_feature_size(setup),
         latent=model.latent_size,
         mlp_hidden=model.mlp_hidden_size,
         mlp_hidden_layers=model.mlp_hidden_layers,
-        output=scene.dim,
-        dim=scene.dim,
-        connectivity_radius=scene.connectivity_radius,
+        output=setup.dim,
+        dim=setup.dim,
+        connectivity_radius=setup.connectivity_radius,
     )
 
 
@@ -80,16 +80,16 @@ def processor_steps(recipe: Recipe, registry: Registry) -> int | None:
 
 
 def build_learned_simulator(
-    scene: ModelSetup, metadata: DatasetMetadata, model: ModelSpec, registry: Registry
+    setup: ModelSetup, metadata: DatasetMetadata, model: ModelSpec, registry: Registry
 ) -> LearnedSimulator:
-    """Instantiate the components a recipe names, sized from the scene and normalised by the data's statistics."""
-    sizes = model_sizes(scene, model)
+    """Instantiate the components a recipe names, sized from the setup and normalised by the data's statistics."""
+    sizes = model_sizes(setup, model)
     builder_cls, builder_params = registry.resolve("graph_builder", model.graph_builder, ("model", "graph_builder"))
     encoder_cls, encoder_params = registry.resolve("encoder", model.encoder, ("model", "encoder"))
     processor_cls, processor_params = registry.resolve("processor", model.processor, ("model", "processor"))
     decoder_cls, decoder_params = registry.resolve("decoder", model.decoder, ("model", "decoder"))
     integrator_cls, integrator_params = registry.resolve("integrator", model.integrator, ("model", "integrator"))
-    if scene.periodic_dims and not builder_cls.supports_periodic:
+    if setup.periodic_dims and not builder_cls.supports_periodic:
         periodic_builders = [e.name for e in registry.entries("graph_builder") if e.cls.supports_periodic]
         raise RecipeError(
             None,
@@ -97,7 +97,7 @@ def build_learned_simulator(
                 (
                     "model.graph_builder.name",
                     f"{builder_cls.name!r} does not connect across the periodic dimensions "
-                    f"{list(scene.periodic_dims)}; "
+                    f"{list(setup.periodic_dims)}; "
                     f"use one of: {', '.join(periodic_builders) or 'none installed'}",
                 )
             ],
@@ -110,14 +110,14 @@ def build_learned_simulator(
     else:
         output_stats = Stats(metadata.vel_mean, metadata.vel_std, noise_std)
     context_stats = None
-    if scene.context_size:
+    if setup.context_size:
         # scene_from_data refuses a context without these statistics.
         assert metadata.context_mean is not None and metadata.context_std is not None
         context_stats = Stats(metadata.context_mean, metadata.context_std)
     return LearnedSimulator(
-        scene=scene,
-        features=FeatureBuilder(scene, velocity_stats, model.type_embedding_size, context_stats),
-        graph_builder=builder_cls(builder_params, scene),
+        setup=setup,
+        features=FeatureBuilder(setup, velocity_stats, model.type_embedding_size, context_stats),
+        graph_builder=builder_cls(builder_params, setup),
         encoder=encoder_cls(encoder_params, sizes),
         processor=processor_cls(processor_params, sizes),
         decoder=decoder_cls(decoder_params, sizes),
@@ -126,9 +126,9 @@ def build_learned_simulator(
     )
 
 
-def plugin_versions(recipe: Recipe, registry: Registry, scene: ModelSetup) -> dict[str, dict[str, str]]:
+def plugin_versions(recipe: Recipe, registry: Registry, setup: ModelSetup) -> dict[str, dict[str, str]]:
     """``kind/name -> {"distribution", "version", "plugin"}`` of every component the recipe uses and of the
-    installed materials of the scene's particle types (an imported model may have types no material is installed for).
+    installed materials of the setup's particle types (an imported model may have types no material is installed for).
 
     Checkpoints store it as ``plugins``, so loading one where a component is missing
     says which distribution, at which version, to install (:mod:`.trained`).
@@ -136,5 +136,5 @@ def plugin_versions(recipe: Recipe, registry: Registry, scene: ModelSetup) -> di
     model = recipe.model
     named = [(kind, getattr(model, kind).name) for kind in COMPONENT_SECTIONS]
     named.append(("dataset", recipe.dataset.name))
-    named += [("material", e.name) for e in registry.entries("material") if e.cls.particle_type in scene.particle_types]
+    named += [("material", e.name) for e in registry.entries("material") if e.cls.particle_type in setup.particle_types]
     return {f"{kind}/{name}": registry.entry(kind, name).record for kind, name in named}

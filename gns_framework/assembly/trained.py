@@ -34,7 +34,7 @@ class LoadedModel:
 
     def rollout_guard(self) -> RolloutGuard:
         """The boundary treatment its recipe gives rollouts (``rollout.guard``), the same in every command."""
-        return RolloutGuard.from_spec(self.simulator.scene, self.recipe.rollout.guard)
+        return RolloutGuard.from_spec(self.simulator.setup, self.recipe.rollout.guard)
 
 
 def load_trained(path: str | Path, registry: Registry, device: torch.device | str = "cpu") -> LoadedModel:

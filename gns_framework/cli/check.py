@@ -96,7 +96,7 @@ def data_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str]]:
     except (GnsError, OSError, ValueError) as exc:
         return [(_data_location(str(exc)), str(exc))]
     problems = []
-    if recipe.training.pushforward_steps and data.scene.context_size:
+    if recipe.training.pushforward_steps and data.setup.context_size:
         problems.append(
             (
                 "training.pushforward_steps",
@@ -109,7 +109,7 @@ def data_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str]]:
     except ValueError as exc:
         problems.append(("model.history", f"{recipe.dataset.path}: train split: {exc}"))
     try:
-        build_learned_simulator(data.scene, data.metadata, recipe.model, registry)
+        build_learned_simulator(data.setup, data.metadata, recipe.model, registry)
     except RecipeError as exc:
         problems += [(loc or "model", message) for loc, message in exc.problems]
     except (GnsError, ValueError, RuntimeError) as exc:

@@ -141,7 +141,7 @@ def _by_data_view(models: list[tuple[str, LoadedModel]]) -> list[list[tuple[str,
     """Models grouped by how they see the data (frame stride, history): one report compares a group."""
     groups: dict[tuple, list] = {}
     for name, model in models:
-        groups.setdefault((model.recipe.dataset.frame_stride, model.simulator.scene.history), []).append((name, model))
+        groups.setdefault((model.recipe.dataset.frame_stride, model.simulator.setup.history), []).append((name, model))
     return list(groups.values())
 
 

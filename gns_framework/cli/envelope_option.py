@@ -49,8 +49,8 @@ def enforce_envelope(
             file=sys.stderr,
         )
         return []
-    scene = loaded.simulator.scene
-    problems = outside_envelope(loaded.envelope, metadata, trajectories, scene.history, scene.kinematic_types)
+    setup = loaded.simulator.setup
+    problems = outside_envelope(loaded.envelope, metadata, trajectories, setup.history, setup.kinematic_types)
     if not problems:
         return []
     message = envelope_message(source, str(loaded.path), problems)

@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
     registry = load_registry()
     device = resolve_device(args.device)
     models = [load_trained(path, registry, device) for path in args.checkpoints]
-    histories = {m.simulator.scene.history for m in models}
+    histories = {m.simulator.setup.history for m in models}
     if len(histories) > 1:
         raise GnsError(f"the models need different input histories {sorted(histories)}; evaluate them separately")
     dataset = open_dataset(models[0].recipe.dataset, registry, args.dataset, args.allow_pickle)

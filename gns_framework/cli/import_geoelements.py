@@ -64,11 +64,11 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or RunFolder(Path("runs") / safe_component(name)).checkpoint(imported.step)
     out.parent.mkdir(parents=True, exist_ok=True)
     save_checkpoint(out, state)
-    spec, scene = imported.model, imported.scene
+    spec, setup = imported.model, imported.setup
     print(
         f"{out}: imported {imported.source} (step {imported.step}): latent {spec.latent_size}, "
         f"{spec.processor.params['message_passing_steps']} message-passing steps, {spec.mlp_hidden_layers} hidden "
-        f"layers of {spec.mlp_hidden_size}, particle types {list(scene.particle_types)}"
+        f"layers of {spec.mlp_hidden_size}, particle types {list(setup.particle_types)}"
         + (", with optimizer state" if imported.optimizer_state is not None else "")
     )
     return 0

@@ -119,6 +119,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "one radius deep after each message-passing step (fewer particles, more exchanges; processors that "
         "exchange latents); auto: latents where the processor exchanges them (default)",
     )
+    parser.add_argument(
+        "--capture",
+        action="store_true",
+        help="replay each step from one captured step: a CUDA graph on a GPU, one launch per step instead of "
+        "hundreds (on a CPU an emulation, for tests, not faster); the model's graph builder must not wait for the "
+        "device (radius_fixed_capacity, or no edges); one scene at a time (no --batch or --partitions)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
         "--overwrite",
@@ -145,6 +152,10 @@ def _processes(args: argparse.Namespace) -> Processes:
         raise GnsError("gns rollout: --partition-axis, --cut, --rebalance and --halo need --partitions P with P > 1")
     if args.cut == "blocks" and args.partition_axis is not None:
         raise GnsError("gns rollout: --partition-axis cuts slabs across one dimension; --cut blocks has no one axis")
+    if args.capture and (args.partitions > 1 or args.batch > 1):
+        raise GnsError(
+            "gns rollout: --capture replays one scene's step: it combines with neither --batch nor --partitions"
+        )
     if args.partitions > 1 and args.batch > 1:
         raise GnsError("gns rollout: --partitions and --batch do not combine: a partitioned scene is rolled out alone")
     if processes.world_size % args.partitions:
@@ -164,10 +175,10 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
     spec = loaded.recipe.rollout
     dataset = open_dataset(loaded.recipe.dataset, registry, args.dataset, args.allow_pickle)
     dim = dataset.metadata().dim
-    if dim != loaded.simulator.scene.dim:
+    if dim != loaded.simulator.setup.dim:
         raise DatasetError(
             f"{dataset.path / 'metadata.json'}: dim: the dataset has dim = {dim} but the model simulates "
-            f"dim = {loaded.simulator.scene.dim} ({args.checkpoint})"
+            f"dim = {loaded.simulator.setup.dim} ({args.checkpoint})"
         )
     if args.partition_axis is not None and args.partition_axis >= dim:
         raise GnsError(f"gns rollout: --partition-axis {args.partition_axis}: the scene has dimensions 0 to {dim - 1}")
@@ -190,7 +201,7 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
     from_chief(processes, lambda: check_folder(out, "rollout", args.overwrite, own=_only_rollouts))
     errors = []
     guard = RolloutGuard(
-        loaded.simulator.scene,
+        loaded.simulator.setup,
         args.guard_margin if args.guard_margin is not None else spec.guard.margin,
         args.on_violation or spec.guard.on_violation,
     )
@@ -271,6 +282,7 @@ def _rollouts(
                     progress=not args.no_progress,
                     guard=guard,
                     precision=args.precision,
+                    capture=args.capture,
                 ),
             )
         return

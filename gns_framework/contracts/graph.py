@@ -19,7 +19,7 @@ class Graph:
             (receiver, sender).
         displacement: (E, d) float, ``p_sender - p_receiver`` in dataset units
             (minimum image in periodic domains).
-        num_nodes: N.
+        num_nodes: N, or more where ``node_particle`` is given.
         position: (N, d) float, each particle's current position in dataset units, for
             processors that work on space itself (a grid) rather than on edges; the
             learned simulator attaches it, builders need not (None: not given).
@@ -29,6 +29,10 @@ class Graph:
         receivers_sorted: the builder guarantees ``receivers`` non-decreasing (every built-in builder does), so
             sums at receivers can run over contiguous runs of edges without sorting or a read-back to check;
             keeping a subset of the edges keeps it.
+        node_particle: (num_nodes,) int64 the particle whose features and position each node takes, where a
+            graph has more nodes than particles: a fixed-size graph's padding edges join a sink node after the
+            particles, so that no particle receives their messages; the learned simulator drops the sinks'
+            outputs. None: node i is particle i.
         exchange: in a domain-decomposed step with a halo of latents, refreshes the (N, L) node latents of
             the particles other processes own; a processor that declares ``exchanges_latents`` calls it
             between message-passing steps. None otherwise.
@@ -42,6 +46,7 @@ class Graph:
     batch: Tensor | None = None
     num_examples: int = 1
     receivers_sorted: bool = False
+    node_particle: Tensor | None = None
     exchange: Callable[[Tensor], Tensor] | None = None
 
     @property

@@ -49,7 +49,7 @@ def receptive_field(simulator: LearnedSimulator) -> float:
         raise GnsError("a domain-decomposed rollout needs a bounded receptive field: " + "; ".join(problems))
     hops_param = type(processor).hops_param
     assert hops_param is not None
-    return simulator.scene.connectivity_radius * int(getattr(processor.params, hops_param))
+    return simulator.setup.connectivity_radius * int(getattr(processor.params, hops_param))
 
 
 def unbounded_reach(builder: type[GraphBuilder], processor: type[Processor]) -> list[str]:
@@ -83,7 +83,7 @@ def halo_kind(simulator: LearnedSimulator, requested: HaloKind) -> Literal["posi
 def halo_depth(simulator: LearnedSimulator, kind: Literal["positions", "latents"]) -> float:
     """The receptive field for a halo of positions; one connectivity radius for a halo of latents."""
     reach = receptive_field(simulator)  # refuses what has no bounded reach, for either kind
-    return reach if kind == "positions" else simulator.scene.connectivity_radius
+    return reach if kind == "positions" else simulator.setup.connectivity_radius
 
 
 def partition_for(
@@ -97,10 +97,10 @@ def partition_for(
     """Pieces of equal particle count of the scene at ``position`` (N, d), cut as ``cut`` says
     (:func:`.partition.balanced_partition`), with the halo ``halo`` resolves to."""
     kind = halo_kind(simulator, halo)
-    scene = simulator.scene
+    setup = simulator.setup
     depth = halo_depth(simulator, kind)
     partition = balanced_partition(
-        position, parts, depth, cut, axis, periodic_dims=scene.periodic_dims, bounds=scene.bounds
+        position, parts, depth, cut, axis, periodic_dims=setup.periodic_dims, bounds=setup.bounds
     )
     return partition, kind
 

@@ -118,12 +118,12 @@ def partitioned_rollout(
     if rebalance is not None and not rebalance > 1:
         raise ValueError(f"rebalance must be more than 1 (a process's most particles over its share), got {rebalance}")
     check_simulates(simulator, trajectory)
-    scene = simulator.scene
-    guard = guard if guard is not None else RolloutGuard(scene)
+    setup = simulator.setup
+    guard = guard if guard is not None else RolloutGuard(setup)
     if trajectory.bounds is not None:
         guard = guard.with_bounds(trajectory.bounds)
     device = torch.device(device)
-    history = scene.history
+    history = setup.history
     available = trajectory.num_steps - history
     steps = available if steps is None else min(steps, available)
     if steps < 1:
@@ -144,7 +144,7 @@ def partitioned_rollout(
     shared = replace(shared, material_property=None).to(device)
     context = None if trajectory.step_context is None else torch.from_numpy(trajectory.step_context).to(device)
     chief = rank == 0
-    predicted = _frames(frames, (steps, start.num_particles, scene.dim)) if chief else None
+    predicted = _frames(frames, (steps, start.num_particles, setup.dim)) if chief else None
     last_input = torch.from_numpy(np.array(trajectory.position[history - 1])) if chief else None
     violations: list[GuardViolation] = []
     halo_count = migrations = rebalances = 0

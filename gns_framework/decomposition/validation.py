@@ -96,7 +96,7 @@ def partitioned_positions(
         except RolloutDiverged:
             if not processes.is_chief:
                 return None
-            shape = (trajectory.num_steps - simulator.scene.history, *trajectory.position.shape[1:])
+            shape = (trajectory.num_steps - simulator.setup.history, *trajectory.position.shape[1:])
             return np.full(shape, np.nan, dtype=trajectory.position.dtype)
         return None if result is None else result.predicted
 

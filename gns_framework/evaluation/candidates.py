@@ -54,7 +54,7 @@ def learned_prediction(
     try:
         result = rollout(simulator, trajectory, device=device, precision=precision, guard=guard)
     except RolloutDiverged:
-        shape = (trajectory.num_steps - simulator.scene.history, *trajectory.position.shape[1:])
+        shape = (trajectory.num_steps - simulator.setup.history, *trajectory.position.shape[1:])
         return Prediction(np.full(shape, np.nan, dtype=trajectory.position.dtype))
     return Prediction(result.predicted, held=held_particles(result.guard_violations))
 
@@ -244,25 +244,25 @@ def compare(
     ``precisions`` gives every model its rows in that precision, so the error and time
     bfloat16 products change are measured side by side. ``progress`` is :func:`evaluate`'s.
     """
-    scene = models[0][1].simulator.scene
+    setup = models[0][1].simulator.setup
     candidates = []
     for precision in precisions:
         candidates += [learned_candidate(model, name, device, 1, precision) for name, model in models]
         if batch > 1:
             candidates += [learned_candidate(model, name, device, batch, precision) for name, model in models]
     if with_simulator:
-        candidates += simulator_candidates(metadata, registry, cases, scene.history, grid_scales, substep_scales)
+        candidates += simulator_candidates(metadata, registry, cases, setup.history, grid_scales, substep_scales)
     return evaluate(
         candidates,
         cases,
         metadata,
-        scene.history,
+        setup.history,
         repeats=repeats,
         warmup=warmup,
         error_metric=error_metric,
-        granular_types=granular_particle_types(scene, registry),
-        material_names=registry.material_names(scene.particle_types),
-        kinematic_types=scene.kinematic_types,
+        granular_types=granular_particle_types(setup, registry),
+        material_names=registry.material_names(setup.particle_types),
+        kinematic_types=setup.kinematic_types,
         metrics=registry.metrics(),
         rollout_dir=rollout_dir,
         progress=progress,

@@ -51,10 +51,10 @@ def validation_rollout_scorer(
         values = score_prediction(
             prediction,
             trajectory,
-            simulator.scene.history,
+            simulator.setup.history,
             metadata,
             granular_types=granular,
-            kinematic_types=simulator.scene.kinematic_types,
+            kinematic_types=simulator.setup.kinematic_types,
             metrics=metrics,
         )
         found = {name: values.get(metric.name) for name, metric in tracked.items()}

@@ -28,6 +28,7 @@ from ..contracts import ModelSetup
 from ..data.metadata import DatasetMetadata, load_metadata, parse_metadata
 from ..errors import CheckpointError, GnsError
 from ..model.learned_simulator import LearnedSimulator
+from ..moved import renamed_attribute
 from ..plugins import Registry, load_registry
 from ..specs import ComponentSpec
 from ..training.optim import make_optimizer
@@ -48,7 +49,7 @@ class ImportedCheckpoint:
     Attributes:
         simulator: the built-in simulator with the imported parameters (eval mode).
         model: the recipe's ``model`` section that rebuilds ``simulator``.
-        scene: the scene it is sized for.
+        setup: the model setup it is sized for.
         metadata: the dataset metadata it normalises with.
         parameter_map: geoelements key -> built-in name and layout (for gradients and moments too).
         optimizer_state: ``torch.optim.Adam`` state_dict for ``simulator.parameters()``, or None.
@@ -59,7 +60,8 @@ class ImportedCheckpoint:
 
     simulator: LearnedSimulator
     model: ModelSpec
-    scene: ModelSetup
+    setup: ModelSetup
+    scene = renamed_attribute("scene", "setup")  # its name until 0.2
     metadata: DatasetMetadata
     parameter_map: ParameterMap
     optimizer_state: dict | None
@@ -84,9 +86,9 @@ class ImportedCheckpoint:
             "model": self.simulator.state_dict(),
             "step": self.step,
             "recipe": recipe.resolved(),
-            "scene": scene_to_dict(self.scene),
+            "scene": scene_to_dict(self.setup),
             "metadata": self.metadata.to_json_dict(),
-            "plugins": plugin_versions(recipe, registry, self.scene),
+            "plugins": plugin_versions(recipe, registry, self.setup),
         }
         if self.optimizer_state is not None:
             optimizer, scheduler = make_optimizer(
@@ -149,7 +151,7 @@ def import_geoelements_checkpoint(
     walls_width = (HISTORY - 1) * metadata.dim + 2 * metadata.dim
     types = _particle_types(particle_types, architecture, source)
     names = _property_names(material_properties, architecture, walls_width, source)
-    scene = ModelSetup(
+    setup = ModelSetup(
         dim=metadata.dim,
         bounds=tuple((float(lo), float(hi)) for lo, hi in metadata.bounds),
         connectivity_radius=float(metadata.default_connectivity_radius),
@@ -169,7 +171,7 @@ def import_geoelements_checkpoint(
         noise_std=noise_std,
         processor=ComponentSpec(name="interaction_network", message_passing_steps=architecture.message_passing_steps),
     )
-    simulator = build_learned_simulator(scene, metadata, spec, registry)
+    simulator = build_learned_simulator(setup, metadata, spec, registry)
     parameter_map = ParameterMap(architecture, types, walls_width)
     _load_parameters(simulator, parameter_map, reference, source)
     simulator.eval()
@@ -179,7 +181,7 @@ def import_geoelements_checkpoint(
         state_source = str(train_state) if isinstance(train_state, (str, Path)) else "<train_state>"
         raw = _read(train_state, "train state") if isinstance(train_state, (str, Path)) else dict(train_state)
         optimizer_state, step, loss = _train_state(raw, list(reference), parameter_map, simulator, state_source)
-    return ImportedCheckpoint(simulator, spec, scene, metadata, parameter_map, optimizer_state, step, loss, source)
+    return ImportedCheckpoint(simulator, spec, setup, metadata, parameter_map, optimizer_state, step, loss, source)
 
 
 def _read(path: str | Path, what: str) -> dict:

@@ -101,20 +101,20 @@ def check_against_model(
     source: str | Path,
 ) -> None:
     """Every problem only the model and the data reveal, at once: RecipeError naming each field."""
-    scene = simulator.scene
+    setup = simulator.setup
     problems: list[tuple[str, str]] = []
     for name, unknown in unknowns.items():
         where = f"unknowns.{name}"
         if isinstance(unknown, VelocityUnknown):
-            if len(unknown.bounds) != scene.dim:
+            if len(unknown.bounds) != setup.dim:
                 problems.append(
                     (
                         f"{where}.bounds",
-                        f"needs {scene.dim} [low, high] pairs (one per axis), got {len(unknown.bounds)}",
+                        f"needs {setup.dim} [low, high] pairs (one per axis), got {len(unknown.bounds)}",
                     )
                 )
-        elif name not in scene.property_names:
-            inputs = ", ".join(scene.property_names) if scene.property_names else "none"
+        elif name not in setup.property_names:
+            inputs = ", ".join(setup.property_names) if setup.property_names else "none"
             problems.append(
                 (
                     where,
@@ -124,14 +124,14 @@ def check_against_model(
             )
         kind = unknown.particle_type
         if kind is not None:
-            if kind not in scene.particle_types:
+            if kind not in setup.particle_types:
                 problems.append(
                     (
                         f"{where}.particle_type",
-                        f"{kind} is not among the model's particle types {list(scene.particle_types)}",
+                        f"{kind} is not among the model's particle types {list(setup.particle_types)}",
                     )
                 )
-            elif kind in scene.kinematic_types:
+            elif kind in setup.kinematic_types:
                 problems.append((f"{where}.particle_type", f"{kind} is kinematic: the model does not move it"))
     observed = config.observed
     if observed.trajectory >= len(trajectories):
@@ -147,30 +147,30 @@ def check_against_model(
         frames = trajectory.num_steps
         for field, listed in (("frames", observed.frames), ("held_out", observed.held_out)):
             if isinstance(listed, list):
-                bad = [f for f in listed if not scene.history <= f < frames]
+                bad = [f for f in listed if not setup.history <= f < frames]
                 if bad or not listed:
                     problems.append(
                         (
                             f"observed.{field}",
                             f"frames {bad or '[]'} are not rolled out: give indices in "
-                            f"[{scene.history}, {frames - 1}] (the first {scene.history} are the model's input)",
+                            f"[{setup.history}, {frames - 1}] (the first {setup.history} are the model's input)",
                         )
                     )
-        if not isinstance(observed.frames, list) and frames <= scene.history:
+        if not isinstance(observed.frames, list) and frames <= setup.history:
             problems.append(
                 (
                     "observed.trajectory",
-                    f"has {frames} frames; the model needs more than its {scene.history} input frames",
+                    f"has {frames} frames; the model needs more than its {setup.history} input frames",
                 )
             )
         for name, unknown in unknowns.items():
             kind = unknown.particle_type
-            if kind is not None and kind in scene.particle_types and not (trajectory.particle_type == kind).any():
+            if kind is not None and kind in setup.particle_types and not (trajectory.particle_type == kind).any():
                 problems.append(
                     (f"unknowns.{name}.particle_type", f"no particle of type {kind} in trajectory {trajectory.key!r}")
                 )
-        if scene.property_names and trajectory.material_property is None:
-            missing = [p for p in scene.property_names if p not in unknowns]
+        if setup.property_names and trajectory.material_property is None:
+            missing = [p for p in setup.property_names if p not in unknowns]
             if missing:
                 problems.append(
                     (
@@ -239,15 +239,15 @@ class InverseProblem:
         self.held_out = sorted(set(held_out))
         self.checkpoint_every = checkpoint_every
         self.parameters, self.start = parameters_of(unknowns)
-        scene = simulator.scene
-        history = scene.history
+        setup = simulator.setup
+        history = setup.history
         self.steps = max(self.frames + self.held_out) - history + 1
         self.dtype = dtype
         state = window(trajectory, 0, history, with_target=False).to(device)
         material_property = state.material_property
-        if material_property is None and scene.property_names:
+        if material_property is None and setup.property_names:
             # Every column the model reads is an unknown here (checked): start from the properties' defaults.
-            material_property = torch.zeros(state.num_particles, len(scene.property_names), device=device)
+            material_property = torch.zeros(state.num_particles, len(setup.property_names), device=device)
         # The observation's own box and wall conditions stay: the model takes them from the data.
         self.state = replace(
             state,
@@ -281,7 +281,7 @@ class InverseProblem:
         sequence, material_property = state.position_sequence, state.material_property
         first_frame = sequence[:, 0]
         index = 0
-        scene = self.simulator.scene
+        setup = self.simulator.setup
         for name, unknown in self.unknowns.items():
             width = len(unknown.start)
             value = values[:, index : index + width]
@@ -289,8 +289,8 @@ class InverseProblem:
             if isinstance(unknown, VelocityUnknown):
                 # C input frames of a body starting at the unknown velocity from the first observed frame,
                 # accelerated by the given gravity (ballistic flight) or not at all (uniform motion).
-                times = torch.arange(scene.history, dtype=self.dtype, device=u.device)[None, :, None] * self.metadata.dt
-                gravity = torch.tensor(unknown.gravity or [0.0] * scene.dim, dtype=self.dtype, device=u.device)
+                times = torch.arange(setup.history, dtype=self.dtype, device=u.device)[None, :, None] * self.metadata.dt
+                gravity = torch.tensor(unknown.gravity or [0.0] * setup.dim, dtype=self.dtype, device=u.device)
                 rebuilt = first_frame[:, None] + times * value[:, None] + 0.5 * times.square() * gravity
                 chosen = (state.particle_type == unknown.particle_type)[:, None, None]
                 sequence = torch.where(chosen, rebuilt, sequence)
@@ -299,8 +299,8 @@ class InverseProblem:
                     material_property is not None
                 )  # a property unknown: the model has properties (zeros if unrecorded)
                 chosen = self._particles(unknown, state.particle_type)[:, None]
-                column = torch.zeros(len(scene.property_names), dtype=torch.bool, device=u.device)
-                column[scene.property_names.index(name)] = True
+                column = torch.zeros(len(setup.property_names), dtype=torch.bool, device=u.device)
+                column[setup.property_names.index(name)] = True
                 material_property = torch.where(chosen & column, value, material_property)
         return replace(state, position_sequence=sequence, material_property=material_property)
 
@@ -345,7 +345,7 @@ class InverseProblem:
 
         Shapes: predicted (S, M N, d) -> (M,).
         """
-        history = self.simulator.scene.history
+        history = self.simulator.setup.history
         index = [f - history for f in (self.frames if frames is None else frames)]
         starts = state.num_examples
         n = self.state.num_particles
@@ -365,7 +365,7 @@ class InverseProblem:
                 diameter=self.domain,
             )
             return 100 * distance / self.domain
-        kinematic = self.simulator.scene.kinematic_types
+        kinematic = self.simulator.setup.kinematic_types
         types = self.state.particle_type[None].expand(starts, -1)
         granular = self.granular[None].expand(starts, -1)
         start = state.position_sequence[:, 0].unflatten(0, (starts, n))

@@ -86,7 +86,7 @@ def prepare(
     trajectories = dataset.split(observed.split)
     check_against_model(config, unknowns, model.simulator, trajectories, source)
     trajectory = trajectories[observed.trajectory]
-    frames = observed_frames(observed.frames, model.simulator.scene.history, trajectory.num_steps)
+    frames = observed_frames(observed.frames, model.simulator.setup.history, trajectory.num_steps)
     shared = sorted(set(frames) & set(observed.held_out or ()))
     if shared:
         from ..errors import RecipeError
@@ -100,7 +100,7 @@ def prepare(
                 )
             ],
         )
-    scene = model.simulator.scene
+    setup = model.simulator.setup
     warnings = _envelope_warnings(model, dataset.metadata(), trajectory, unknowns, outside_envelope, observed.dataset)
     problem = InverseProblem(
         model.simulator,
@@ -109,7 +109,7 @@ def prepare(
         unknowns,
         config.loss,
         frames,
-        granular_types=granular_particle_types(scene, registry),
+        granular_types=granular_particle_types(setup, registry),
         checkpoint_every=config.checkpoint_every,
         device=device,
         held_out=observed.held_out or (),
@@ -134,7 +134,7 @@ def true_values(dataset: str | Path, trajectory: Trajectory, unknowns: dict, sim
     except Exception:  # a truth that cannot be read is not known; the inversion still runs
         record = None
     truth: dict = {}
-    names = list(simulator.scene.property_names)
+    names = list(simulator.setup.property_names)
     for name, unknown in unknowns.items():
         value: list[float] | float | None
         if isinstance(unknown, VelocityUnknown):
@@ -195,12 +195,12 @@ def _envelope_warnings(model, metadata, trajectory, unknowns, allowed: bool, sou
     envelope = model.envelope
     if envelope is None:
         return ()
-    scene = model.simulator.scene
+    setup = model.simulator.setup
     searched = {name for name, unknown in unknowns.items() if isinstance(unknown, PropertyUnknown)}
     velocity = [u for u in unknowns.values() if isinstance(u, VelocityUnknown)]
     problems = [
         line
-        for line in outside_envelope(envelope, metadata, [trajectory], scene.history, scene.kinematic_types)
+        for line in outside_envelope(envelope, metadata, [trajectory], setup.history, setup.kinematic_types)
         if not any(line.startswith(f"property {name} ") for name in searched)
         and not (velocity and line.startswith("input speed "))
     ]
@@ -470,7 +470,7 @@ def recovered_rollout(inversion: Inversion, result: InversionResult) -> Rollout:
     problem = inversion.problem
     u = torch.from_numpy(result.u)
     trajectory = inversion.trajectory
-    history = problem.simulator.scene.history
+    history = problem.simulator.setup.history
     device = problem.prescribed.device
     observed = torch.from_numpy(trajectory.position[history:]).to(device, problem.dtype)
     with torch.no_grad():

@@ -46,12 +46,12 @@ def _same_fields(simulator: LearnedSimulator, trajectories: Sequence[Trajectory]
     A scene without its own bounds is in the model's box; walls are kept only when the
     model takes them as inputs (then every scene needs them, as a single rollout does).
     """
-    model = np.asarray(simulator.scene.bounds, dtype=np.float32)
+    model = np.asarray(simulator.setup.bounds, dtype=np.float32)
     own_box = any(t.bounds is not None for t in trajectories)
     out = []
     for t in trajectories:
         bounds = (t.bounds if t.bounds is not None else model) if own_box else None
-        walls = t.walls if simulator.scene.wall_conditions else None
+        walls = t.walls if simulator.setup.wall_conditions else None
         out.append(replace(t, bounds=bounds, walls=walls))
     return out
 
@@ -75,14 +75,14 @@ def rollout_batch(
         return []
     for trajectory in trajectories:
         check_simulates(simulator, trajectory)
-    history = simulator.scene.history
+    history = simulator.setup.history
     available = min(t.num_steps for t in trajectories) - history
     steps = available if steps is None else min(steps, available)
     if steps < 1:
         raise ValueError(f"the shortest trajectory has {available + history} frames; rollout needs more than {history}")
     trajectories = _same_fields(simulator, trajectories)
     device = torch.device(device)
-    guard = guard if guard is not None else RolloutGuard(simulator.scene)
+    guard = guard if guard is not None else RolloutGuard(simulator.setup)
     if trajectories[0].bounds is not None:  # all of them have their own box, or none (the model's)
         guard = guard.with_bounds(_per_particle_bounds(trajectories))
     state = collate([window(t, 0, history, with_target=False) for t in trajectories]).to(device)

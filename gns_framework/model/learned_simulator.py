@@ -1,9 +1,7 @@
 """The learned simulator: graph builder, features, encoder, processor, decoder and integrator.
 
-The hot path calls the components directly (never through pluggy). ``forward`` is
-the training computation so DistributedDataParallel wraps it and averages gradients.
-In periodic domains the stored (wrapped) history is made continuous before features
-and targets are computed, and predicted positions are wrapped back into the box.
+The hot path calls the components directly (never through pluggy); ``forward`` is the training computation (DDP
+wraps it). Periodic domains: histories made continuous before features and targets, predictions wrapped back.
 """
 
 from __future__ import annotations
@@ -15,6 +13,7 @@ from torch import Tensor, nn
 
 from ..contracts import Decoder, Encoder, Graph, GraphBuilder, Integrator, ModelSetup, Processor
 from ..data.batch import ParticleBatch
+from ..moved import renamed_attribute, renamed_keywords
 from ..runtime.host_sync import avoids_read_backs
 from .features import FeatureBuilder
 from .normalization import Stats
@@ -25,10 +24,12 @@ class LearnedSimulator(nn.Module):
     """Predicts the next positions of every particle from its last C positions."""
 
     kinematic_type: Tensor  # a buffer (register_buffer)
+    scene = renamed_attribute("scene", "setup")  # its name until 0.2
 
+    @renamed_keywords(scene="setup")
     def __init__(
         self,
-        scene: ModelSetup,
+        setup: ModelSetup,
         features: FeatureBuilder,
         graph_builder: GraphBuilder,
         encoder: Encoder,
@@ -38,7 +39,7 @@ class LearnedSimulator(nn.Module):
         output_stats: Stats,
     ):
         super().__init__()
-        self.scene = scene
+        self.setup = setup
         self.features = features
         self.graph_builder = graph_builder
         self.encoder = encoder
@@ -47,9 +48,9 @@ class LearnedSimulator(nn.Module):
         self.integrator = integrator
         self.output_stats = output_stats
         # Only a domain that wraps around needs its history made continuous and its predictions wrapped back.
-        self.box = PeriodicBox(scene) if scene.periodic_dims else None
-        kinematic = torch.zeros(max(scene.particle_types) + 1, dtype=torch.bool)
-        kinematic[list(scene.kinematic_types)] = True
+        self.box = PeriodicBox(setup) if setup.periodic_dims else None
+        kinematic = torch.zeros(max(setup.particle_types) + 1, dtype=torch.bool)
+        kinematic[list(setup.kinematic_types)] = True
         self.register_buffer("kinematic_type", kinematic, persistent=False)
 
     def predicted_mask(self, particle_type: Tensor) -> Tensor:
@@ -68,12 +69,13 @@ class LearnedSimulator(nn.Module):
         """The builder's edges, with the particles' current positions and examples attached (see :class:`Graph`)."""
         position = position_sequence[:, -1]
         graph = self.graph_builder.build(position, batch.batch, batch.num_examples)
+        on_nodes = lambda rows: rows if graph.node_particle is None else rows[graph.node_particle]  # noqa: E731
         if batch.owned is not None:  # a piece of a split scene: messages into its owned particles only
-            graph = graph.received_by(batch.owned, batch.exchange)
-        return replace(graph, position=position, batch=batch.batch, num_examples=batch.num_examples)
+            graph = graph.received_by(on_nodes(batch.owned), batch.exchange)
+        return replace(graph, position=on_nodes(position), batch=on_nodes(batch.batch), num_examples=batch.num_examples)
 
     def encode_inputs(self, position_sequence: Tensor, batch: ParticleBatch) -> tuple[Tensor, Tensor, Graph]:
-        """Node features (N, node_in), edge features (E, edge_in) and the graph."""
+        """Node features (graph.num_nodes, node_in), edge features (E, edge_in) and the graph."""
         graph = self.build_graph(position_sequence, batch)
         per_node = lambda field: None if field is None else field[batch.batch]  # noqa: E731
         nodes = self.features.node_features(
@@ -82,8 +84,9 @@ class LearnedSimulator(nn.Module):
             batch.material_property,
             per_node(batch.context),
             bounds=per_node(batch.bounds),
-            walls=per_node(batch.walls) if self.scene.wall_conditions else None,
+            walls=per_node(batch.walls) if self.setup.wall_conditions else None,
         )
+        nodes = nodes if graph.node_particle is None else nodes[graph.node_particle]
         return nodes, self.features.edge_features(graph), graph
 
     def processed_latent(self, position_sequence: Tensor, batch: ParticleBatch) -> Tensor:
@@ -91,24 +94,21 @@ class LearnedSimulator(nn.Module):
         node_features, edge_features, graph = self.encode_inputs(position_sequence, batch)
         node_latent, edge_latent = self.encoder(node_features, edge_features)
         node_latent, _ = self.processor(node_latent, edge_latent, graph)
-        return node_latent
+        return node_latent[: len(position_sequence)]  # a fixed-size graph's sink nodes dropped
 
     def normalized_prediction(self, position_sequence: Tensor, batch: ParticleBatch) -> Tensor:
         """The decoder's output (N, d): normalised acceleration (or velocity) of every particle.
 
-        Every row is decoded, kinematic ones included, so outputs compare one to one
-        with reference implementations.
+        Every row is decoded, kinematic ones included, so outputs compare one to one with reference implementations.
         """
         return self.decoder(self.processed_latent(self.continuous(position_sequence), batch))
 
     def predict_next_position(self, batch: ParticleBatch, prescribed: Tensor | None = None) -> Tensor:
         """(N, d) next positions: predicted for moving particles, prescribed for kinematic ones.
 
-        On the CPU kinematic particles are neither decoded nor integrated. On
-        accelerators every row is, and the kinematic rows are then replaced: selecting
-        the moving rows would read their count back from the device at every step.
-        The moving rows' values are the same either way (the decoder and integrator
-        work row by row).
+        On the CPU kinematic particles are neither decoded nor integrated. On accelerators every row is, and the
+        kinematic rows are then replaced: selecting the moving rows would read their count back from the device at
+        every step. The moving rows' values are the same either way (the decoder and integrator work row by row).
 
         Args:
             batch: the current windows.
@@ -131,9 +131,8 @@ class LearnedSimulator(nn.Module):
     def forward(self, batch: ParticleBatch, position_noise: Tensor) -> tuple[Tensor, Tensor]:
         """Training prediction and target on noise-corrupted inputs.
 
-        The noise is added to the inputs, and the target next position moves with the
-        last input's noise, so the target corrects the velocity noise but not the
-        position noise (Sanchez-Gonzalez et al. 2020, Sec. 3).
+        The noise is added to the inputs, and the target next position moves with the last input's noise, so the
+        target corrects the velocity noise but not the position noise (Sanchez-Gonzalez et al. 2020, Sec. 3).
 
         Args:
             batch: windows with ``next_position``.

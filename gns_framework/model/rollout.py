@@ -9,6 +9,8 @@ silently.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 
 import numpy as np
@@ -16,6 +18,7 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
+from ..contracts import GraphBuilder
 from ..data.batch import ParticleBatch, window
 from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
@@ -24,9 +27,14 @@ from ..runtime.allocator import keep_freed_memory
 from ..runtime.device import is_cuda
 from ..runtime.host_sync import avoids_read_backs
 from ..runtime.precision import Precision, autocast
+from .captured_steps import CapturedSteps
 from .history import advance_window
 from .learned_simulator import LearnedSimulator
 from .rollout_guard import GuardViolation, RolloutGuard
+
+CAPACITY_CHECK_EVERY = 8
+"""Steps between reads of a fixed-capacity graph builder's overflow flag (one wait for the device each): the
+steps since a check are redone when it finds a buffer was short, so their frames reach the guard only after it."""
 
 
 @torch.inference_mode()
@@ -38,6 +46,7 @@ def rollout(
     progress: bool = False,
     guard: RolloutGuard | None = None,
     precision: Precision = "float32",
+    capture: bool = False,
 ) -> Rollout:
     """Predict ``steps`` frames from the first C of ``trajectory``.
 
@@ -55,15 +64,19 @@ def rollout(
     is copied without blocking and checked by the guard a few steps later
     (:class:`HostFrames`), so a ``stop`` names the step where the violation occurred
     after the model has run a few steps past it.
+
+    ``capture``: run each step as a replay of one captured step (:mod:`.captured_steps`: a CUDA
+    graph on CUDA, an emulation elsewhere, which is not faster); the step must not wait for the
+    device, so the graph builder must be ``radius_fixed_capacity`` or build no edges.
     """
     check_simulates(simulator, trajectory)
-    guard = guard if guard is not None else RolloutGuard(simulator.scene)
+    guard = guard if guard is not None else RolloutGuard(simulator.setup)
     if trajectory.bounds is not None:
         guard = guard.with_bounds(trajectory.bounds)  # its own domain's walls, not the training data's
     device = torch.device(device)
     if device.type == "cpu":
         keep_freed_memory()
-    history = simulator.scene.history
+    history = simulator.setup.history
     available = trajectory.num_steps - history
     steps = available if steps is None else min(steps, available)
     if steps < 1:
@@ -90,13 +103,36 @@ def rollout(
         predicted[step], found = guard.check(step, raw, previous, trajectory.key)
         violations += found
 
-    for step in tqdm(range(steps), desc=f"rollout {trajectory.key}", unit="step", disable=not progress):
-        frame_context = None if context is None else context[history - 1 + step][None]
-        current = replace(state, position_sequence=sequence, context=frame_context)
-        next_position, continued = rollout_step(simulator, guard, current, kinematic, kinematic_truth[step], precision)
-        for done, raw in frames.push(step, next_position):
-            checked(done, raw)
-        sequence = advance_window(sequence, continued)
+    builder = simulator.graph_builder
+    one_step = lambda current, nxt: rollout_step(simulator, guard, current, kinematic, nxt, precision)  # noqa: E731
+    steps_of = CapturedSteps(one_step, state, builder) if capture else None
+    step, sound_step, sound_sequence = 0, 0, sequence
+    unchecked: list[tuple[int, Tensor]] = []
+    bar = tqdm(total=steps, desc=f"rollout {trajectory.key}", unit="step", disable=not progress)
+    with bar, capacity_checks(builder) as every:
+        while step < steps:
+            frame_context = None if context is None else context[history - 1 + step][None]
+            if steps_of is not None:
+                next_position, continued = steps_of(sequence, frame_context, kinematic_truth[step])
+            else:
+                current = replace(state, position_sequence=sequence, context=frame_context)
+                next_position, continued = one_step(current, kinematic_truth[step])
+            unchecked.append((step, next_position))
+            sequence = advance_window(sequence, continued)
+            step += 1
+            if step % every and step < steps:
+                continue
+            if builder.overflowed():  # a graph since the last check lacked edges: redo those steps, buffers grown
+                step, sequence = sound_step, sound_sequence
+                unchecked.clear()
+                if steps_of is not None:
+                    steps_of.invalidate()  # the buffers' shapes changed
+                continue
+            for done, raw in (ready for pending in unchecked for ready in frames.push(*pending)):
+                checked(done, raw)
+            bar.update(step - sound_step)
+            unchecked.clear()
+            sound_step, sound_sequence = step, sequence
     for done, raw in frames.drain():
         checked(done, raw)
     return Rollout(
@@ -129,6 +165,17 @@ def rollout_step(
         next_position = simulator.predict_next_position(current, prescribed=prescribed)
     next_position = next_position.to(torch.float32)
     return next_position, guard.continued(next_position, last)
+
+
+@contextmanager
+def capacity_checks(builder: GraphBuilder) -> Iterator[int]:
+    """Steps between the rollout's reads of ``builder.overflowed()``: 1, or for a fixed-capacity builder
+    :data:`CAPACITY_CHECK_EVERY`, its own checks deferred to the rollout meanwhile."""
+    builder.checks_deferred = builder.fixed_capacity
+    try:
+        yield CAPACITY_CHECK_EVERY if builder.fixed_capacity else 1
+    finally:
+        builder.checks_deferred = False
 
 
 class HostFrames:
@@ -181,12 +228,12 @@ class HostFrames:
 
 def check_simulates(simulator: LearnedSimulator, trajectory: Trajectory) -> None:
     """Refuse a trajectory of another dimension or with particle types the model was not built for."""
-    scene = simulator.scene
+    setup = simulator.setup
     where = f"trajectory {trajectory.key!r}"
-    if trajectory.dim != scene.dim:
-        raise DatasetError(f"{where}: position: has d = {trajectory.dim} but the model simulates dim = {scene.dim}")
-    unknown = sorted(set(np.unique(trajectory.particle_type).tolist()) - set(scene.particle_types))
+    if trajectory.dim != setup.dim:
+        raise DatasetError(f"{where}: position: has d = {trajectory.dim} but the model simulates dim = {setup.dim}")
+    unknown = sorted(set(np.unique(trajectory.particle_type).tolist()) - set(setup.particle_types))
     if unknown:
         raise DatasetError(
-            f"{where}: particle_type: ids {unknown} are not among the model's {list(scene.particle_types)}"
+            f"{where}: particle_type: ids {unknown} are not among the model's {list(setup.particle_types)}"
         )

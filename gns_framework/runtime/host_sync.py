@@ -1,22 +1,21 @@
 """Where the hot path may wait for the device, and the choices made to avoid waiting elsewhere.
 
-On a GPU every read of a tensor's value on the host (``item``, ``tolist``,
-``cpu``, ``bool``, boolean-mask selection) waits until the device has run
-everything queued before it, so the host stops queueing work ahead. A training
-or rollout step reads back only:
+On a GPU every read of a tensor's value on the host (``item``, ``tolist``, ``cpu``, ``bool``,
+boolean-mask selection) waits until the device has run everything queued before it, so the host
+stops queueing work ahead. A training or rollout step reads back only:
 
-- the edge count of the graph it builds (``radius_pairs``: the candidate count,
-  and the pairs kept within the radius), which is data and sizes every edge tensor;
+- the edge count of the graph it builds (``radius_pairs``: the candidate count, and the pairs
+  kept within the radius), which is data and sizes every edge tensor (none with fixed capacity);
 - on logging, validation and checkpoint steps, the losses since the last read.
 
-Explicit reads go through :func:`read_back`, so a test can count them and make
-any other read fail (``tests/runtime/test_host_sync.py``);
-:class:`~.sync_counter.SyncCounter` counts the waits torch itself would make.
+Explicit reads go through :func:`read_back`, so a test can count them and make any other read
+fail (``tests/runtime/test_host_sync.py``); :class:`~.sync_counter.SyncCounter` counts torch's own.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from contextvars import ContextVar
 from typing import Any, Generic, TypeVar
 
 import torch
@@ -24,14 +23,16 @@ from torch import Tensor
 
 T = TypeVar("T")
 
+EMULATED_ACCELERATOR: ContextVar[bool] = ContextVar("emulated_accelerator", default=False)
+"""True while the CPU stands in for an accelerator: a captured step's emulation (runtime/capture.py)."""
+
 
 def avoids_read_backs(device: torch.device) -> bool:
     """Whether code on ``device`` takes its read-back-free path (every accelerator).
 
-    On the CPU a read costs nothing, and the CPU paths are the reference ones
-    (bitwise as before): they stay as they are.
+    On the CPU a read costs nothing, and the CPU paths are the reference ones (bitwise as before).
     """
-    return device.type != "cpu"
+    return device.type != "cpu" or EMULATED_ACCELERATOR.get()
 
 
 def read_back(tensor: Tensor) -> Any:

@@ -198,7 +198,7 @@ def rollout_guard(registry: Registry) -> Iterator[Row]:
         for mode in ("stop", "clamp"):
             simulator = tiny_simulator(registry, 2)
             apply(simulator)
-            guard = RolloutGuard(simulator.scene, margin=0.1, on_violation=mode)
+            guard = RolloutGuard(simulator.setup, margin=0.1, on_violation=mode)
             try:
                 result = rollout(simulator, trajectory, steps=5, guard=guard)
             except RolloutDiverged as exc:

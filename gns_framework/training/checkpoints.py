@@ -91,9 +91,9 @@ class Checkpoints:
             # CPU, so no CUDA generator is ever used: only the CPU one is kept, for completeness.
             "rng": {"torch": torch.get_rng_state()},
             "recipe": self.recipe.resolved(),
-            "scene": scene_to_dict(self.data.scene),
+            "scene": scene_to_dict(self.data.setup),
             "metadata": self.data.metadata.to_json_dict(),
-            "plugins": plugin_versions(self.recipe, self.registry, self.data.scene),
+            "plugins": plugin_versions(self.recipe, self.registry, self.data.setup),
             "best": dict(self.validation.best),
             **({"ema": ema.state_dict()} if ema is not None else {}),
             "history": self.history,
@@ -176,9 +176,9 @@ class Checkpoints:
                 f"model.{k}: checkpoint {saved_model.get(k)!r}, recipe {current.get(k)!r}" for k in differing
             )
             raise CheckpointError(f"{source}: written for a different model: {details}")
-        if state["scene"] != scene_to_dict(self.data.scene):
+        if state["scene"] != scene_to_dict(self.data.setup):
             raise CheckpointError(
-                f"{source}: scene: written for {state['scene']}, this dataset gives {scene_to_dict(self.data.scene)}"
+                f"{source}: scene: written for {state['scene']}, this dataset gives {scene_to_dict(self.data.setup)}"
             )
 
     def initialize_from(self, checkpoint: str | Path) -> int:

@@ -118,7 +118,7 @@ class _Builder:
         envelope = self.envelope(data)
         # Same seed on every rank: identical initial weights (DDP would broadcast rank 0's anyway).
         torch.manual_seed(self.recipe.seed)
-        simulator = build_learned_simulator(data.scene, data.metadata, self.recipe.model, self.registry).to(device)
+        simulator = build_learned_simulator(data.setup, data.metadata, self.recipe.model, self.registry).to(device)
         model = simulator if team is not None else self.processes.wrap(simulator, device)
         noise_std = training_noise_std(self.recipe.model, data.metadata)
         optimizer, scheduler = make_optimizer(simulator.parameters(), spec.optimizer, spec.steps)
@@ -196,11 +196,11 @@ class _Builder:
 
         def derive() -> tuple[DatasetMetadata, ModelSetup, list[tuple[int, int]]]:
             read.append(prepare_data(self.recipe, self.registry, allow_pickle=self.allow_pickle, keep=keep))
-            return read[0].metadata, read[0].scene, [(t.num_steps, t.num_particles) for t in read[0].train]
+            return read[0].metadata, read[0].setup, [(t.num_steps, t.num_particles) for t in read[0].train]
 
         metadata, scene, shapes = distributed.from_chief(self.processes, derive)
         data = read[0] if read else prepare_data(self.recipe, self.registry, self.allow_pickle, keep, (metadata, scene))
-        if self.recipe.training.pushforward_steps and data.scene.context_size:
+        if self.recipe.training.pushforward_steps and data.setup.context_size:
             raise RecipeError(
                 None,
                 [
@@ -260,8 +260,8 @@ class _Builder:
         """What the model is trained on, recorded in every checkpoint (rollouts refuse data outside it); rank 0's."""
         if not self.processes.is_chief:
             return None
-        materials = {t: self.registry.material_by_type(t).name for t in data.scene.particle_types}
-        return measure_envelope(data.metadata, data.train, data.scene, materials, self.recipe.dataset.frame_stride)
+        materials = {t: self.registry.material_by_type(t).name for t in data.setup.particle_types}
+        return measure_envelope(data.metadata, data.train, data.setup, materials, self.recipe.dataset.frame_stride)
 
     def validation(self, data: PreparedData, device: torch.device, team: Processes | None) -> Validation:
         """Fixed one-step windows and the first ``validation_rollouts`` valid trajectories, on the bare model.
@@ -281,10 +281,10 @@ class _Builder:
                 assert valid is not None  # windows come only from a valid split
                 trajectories = [valid[i] for i in range(min(spec.validation_rollouts, len(valid)))]
         if team is None:
-            score = validation_rollout_scorer(self.registry, data.scene, data.metadata, device)
+            score = validation_rollout_scorer(self.registry, data.setup, data.metadata, device)
             return Validation(batches, trajectories, score, spec.best_metric, self.run, device)
         split = partitioned_positions(team, device)
-        score = validation_rollout_scorer(self.registry, data.scene, data.metadata, device, positions=split)
+        score = validation_rollout_scorer(self.registry, data.setup, data.metadata, device, positions=split)
         return Validation(
             batches,
             trajectories,

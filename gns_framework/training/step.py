@@ -84,8 +84,8 @@ class TrainingStep:
         """
         drawn = self.order.draw(step)
         batch = self.windows.batch(drawn.mine)
-        particles, scene = [self.windows.num_particles(w) for w in drawn.mine], self.simulator.scene
-        noise = step_noise(drawn, particles, (scene.history, scene.dim), self.noise_std, self.seed)
+        particles, setup = [self.windows.num_particles(w) for w in drawn.mine], self.simulator.setup
+        noise = step_noise(drawn, particles, (setup.history, setup.dim), self.noise_std, self.seed)
         if self.pins_memory:
             batch, noise = batch.pinned(), noise.pin_memory()
         batch = batch.to(self.device)

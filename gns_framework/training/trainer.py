@@ -221,7 +221,7 @@ class Trainer:
         tracker.log_params(
             {
                 "recipe": self.recipe.resolved(),
-                "plugins": plugin_versions(self.recipe, self.registry, self.data.scene),
+                "plugins": plugin_versions(self.recipe, self.registry, self.data.setup),
                 "git_commit": git_commit(),
                 "world_size": self.world_size,
             }

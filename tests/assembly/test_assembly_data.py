@@ -67,11 +67,13 @@ def test_the_scene_covers_the_types_of_the_valid_split_too(registry, tmp_path):
     prepared = prepare_data(tiny_recipe(tmp_path / "d", registry), registry)
     assert [t.key for t in prepared.train] == ["train_0"] and [t.key for t in prepared.valid] == ["valid_0"]
     # A type seen only in validation still gets its embedding row: the model is sized for both.
-    assert prepared.scene.particle_types == (5, 6) and prepared.scene.dim == 2
+    assert prepared.setup.particle_types == (5, 6) and prepared.setup.dim == 2
     assert prepared.metadata == prepared.dataset.metadata()
 
 
 def test_without_a_valid_split_there_is_nothing_to_validate_on(folder, registry):
     prepared = prepare_data(tiny_recipe(folder, registry), registry)
     assert prepared.valid is None and len(prepared.train) == 2
-    assert prepared.scene.particle_types == (5,)
+    assert prepared.setup.particle_types == (5,)
+    with pytest.warns(DeprecationWarning, match=r"PreparedData\.scene is now \.setup"):
+        assert prepared.scene is prepared.setup  # its name until 0.2

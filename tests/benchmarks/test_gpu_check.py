@@ -58,6 +58,7 @@ def test_the_dry_run_passes_every_cpu_part_and_reports_in_the_documented_format(
             "sums",
             "chunks",
             "kernels",
+            "capture",
             "scale",
             "mpm",
         )
@@ -87,6 +88,8 @@ def test_the_dry_run_passes_every_cpu_part_and_reports_in_the_documented_format(
         assert all(float(k["max_rel_diff"]) < 1e-4 and k["finite"] == "True" for k in kernels)
         assert [line["equal"] for line in lines if line["part"] == "kernels_bitwise"] == ["True"]
         assert {line["path"] for line in lines if line["part"] == "kernels_profile"} == {"chunked", "triton"}
+    capture = next(line for line in lines if line["part"] == "capture")
+    assert capture["status"] == "ok" and float(capture["max_abs_diff"]) <= 1e-4 and capture["captures"] == "1"
     steps = [line for line in lines if line["part"] == "step"]
     assert {(s["precision"], s["phase"]) for s in steps} == {
         (p, phase) for p in ("float32", "bfloat16") for phase in ("rollout", "train")

@@ -24,6 +24,8 @@ gpu_check: step particles=10000 precision=float32 phase=rollout memory=stored st
 gpu_check: step particles=1000000 precision=bfloat16 phase=train memory=recompute status=ok edges=23200000 step_s=1.5
 gpu_check: step particles=1000000 precision=bfloat16 phase=rollout memory=stored status=oom edges=23200000
 gpu_check: part name=scale status=pass seconds=100 limit=130
+gpu_check: capture particles=300 steps=20 eager_ms=9.1 captured_ms=0.8 overflowed=False speedup=11.4 max_abs_diff=2e-07 captures=1 status=ok
+gpu_check: capture particles=100000 status=over_budget
 """  # noqa: E501 - gpu_check's log lines as it writes them, one record a line
 
 
@@ -35,6 +37,7 @@ def test_the_record_holds_the_step_times_of_one_precision_and_the_kernels():
     assert entry["kernels"][0]["speedup"] == "8.156"
     assert entry["same_bits"] == {"sums_ordered_sorted": True, "triton_train_bfloat16": True}
     assert entry["small_scene_rollout_s"] is None
+    assert entry["captured_rollout_ms"] == {"300": {"eager_ms": 9.1, "captured_ms": 0.8, "max_abs_diff": 2e-07}}
 
 
 def test_records_are_appended_to_the_list(tmp_path):

@@ -1,4 +1,5 @@
-"""benchmarks/second_opinion.py: the perturbed second opinion moves only moving particles' inputs; the rates."""
+"""benchmarks/second_opinion.py: the perturbed second opinion moves only moving particles' inputs, the shifted one
+the whole scene with its walls; the rates."""
 
 from __future__ import annotations
 
@@ -48,8 +49,27 @@ def test_hit_and_false_alarm_rates():
 def test_only_the_second_rollout_starts_perturbed():
     case = Case(position=np.zeros((8, 3, 2), np.float32), particle_type=np.array([6, 6, 6]))
     primary = SimpleNamespace(simulator=SimpleNamespace(predicted_mask=lambda types: types == 6))
-    (first_model, first), (second_model, second) = second_opinion.rollouts(case, primary, primary, 6, 0.01, seed=0)
-    assert first_model is primary and second_model is primary
+    (first_model, first, _), (second_model, second, offset) = second_opinion.rollouts(
+        case, primary, primary, 6, {"perturb": 0.01}, seed=0
+    )
+    assert first_model is primary and second_model is primary and offset == 0.0
     assert first is case and np.abs(second.position[:6]).max() > 0
     other = SimpleNamespace()
-    assert second_opinion.rollouts(case, primary, other, 6, None, seed=0) == [(primary, case), (other, case)]
+    assert second_opinion.rollouts(case, primary, other, 6, {}, seed=0) == [(primary, case, 0.0), (other, case, 0.0)]
+
+
+@dataclass(frozen=True)
+class Walled:
+    """What the translation reads of a trajectory."""
+
+    position: np.ndarray
+    bounds: np.ndarray | None
+
+
+def test_the_shifted_opinion_moves_the_scene_and_its_walls_and_is_moved_back():
+    case = Walled(position=np.zeros((8, 3, 2), np.float32), bounds=np.array([[0.0, 2.0], [0.0, 1.0]], np.float32))
+    primary = SimpleNamespace()
+    (_, first, none), (_, second, offset) = second_opinion.rollouts(case, primary, primary, 6, {"shift": 0.01}, 0)
+    assert first is case and none == 0.0 and offset == 0.01
+    assert np.allclose(second.position, 0.01) and np.allclose(second.bounds, case.bounds + 0.01)
+    assert second_opinion.shifted(Walled(case.position, None), 0.5).bounds is None

@@ -100,7 +100,7 @@ def test_the_peer_computes_the_same_function_as_our_model():
     batch64 = dataclasses.replace(scene.batch, position_sequence=sequence.double())
     # Float32 positions are rounded at eps * |position| and the edge features divide their differences by the
     # connectivity radius: the network's output is only that much better than its inputs in float32.
-    conditioning = 1 + sequence.abs().max().item() / simulator.scene.connectivity_radius
+    conditioning = 1 + sequence.abs().max().item() / simulator.setup.connectivity_radius
     with torch.no_grad():
         expected = reference.normalized_prediction(batch64.position_sequence, batch64)
         expected_position = reference.predict_next_position(batch64)

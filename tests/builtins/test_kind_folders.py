@@ -69,6 +69,7 @@ def test_a_helper_among_the_components_is_named(registry):
             "chunked",
             "edge_block",
             "edge_order",
+            "fixed_capacity",
             "fused_kernels",
             "padded_cell_list",
             "segment_sum",

@@ -137,7 +137,7 @@ def batches_of(lengths: list[int], count: int, batch: int, monkeypatch) -> list[
 
     monkeypatch.setattr(rollout_command, "rollout", one)
     monkeypatch.setattr(rollout_command, "rollout_batch", many)
-    args = Namespace(batch=batch, no_progress=True, precision="float32", partitions=1)
+    args = Namespace(batch=batch, no_progress=True, precision="float32", partitions=1, capture=False)
     rolled = rollout_command._rollouts(None, trajectories, count, None, "cpu", None, args, Processes(), lambda: None)
     results = list(rolled)
     # Every rollout comes back under its own index, in order, whatever the grouping.
@@ -285,3 +285,16 @@ def test_partition_options_that_do_not_combine_are_refused(tiny_model, tmp_path)
     refused = gns("rollout", str(tiny_model), *both)
     assert refused.returncode != 0 and "--cut blocks has no one axis" in refused.stderr
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_capture_of_a_step_that_waits_for_the_device_is_one_clear_line(tiny_model, tmp_path):
+    # The tiny model's radius builder reads its edge count back: its step cannot be captured.
+    refused = gns(
+        "rollout", str(tiny_model), "--capture", "--steps", "2", "--outside-envelope", "--out", str(tmp_path / "out")
+    )
+    assert refused.returncode != 0, refused.stdout
+    assert "cannot be captured" in refused.stderr and "use radius_fixed_capacity" in refused.stderr
+    assert "Traceback" not in refused.stderr
+    batched = gns("rollout", str(tiny_model), "--capture", "--batch", "2", "--out", str(tmp_path / "b"))
+    assert batched.returncode != 0 and "combines with neither --batch nor --partitions" in batched.stderr
+    assert not (tmp_path / "b").exists()

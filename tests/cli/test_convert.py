@@ -238,7 +238,7 @@ def test_a_material_of_type_9_converts_and_trains(layout, tmp_path):
     raw = tiny_recipe_mapping(tmp_path / "out")
     raw["dataset"]["name"] = layout
     trainer = Trainer(validate_recipe(raw, registry), registry, run_dir=tmp_path / "run", progress=False)
-    assert trainer.data.scene.particle_types == (3, 9)
+    assert trainer.data.setup.particle_types == (3, 9)
     assert np.isfinite(trainer.train(1)).all()
     trainer.close()
 
@@ -316,7 +316,7 @@ def test_lagrangebench_periodic_data_converts_with_its_types_mapped_and_trains_t
     raw["dataset"]["path"] = str(tmp_path / "periodic2d")
     raw["output_dir"] = str(tmp_path / "run")
     trainer = Trainer(validate_recipe(raw, registry), registry, progress=False)
-    assert trainer.data.scene.periodic_dims == (0, 1) and trainer.data.scene.particle_types == (5,)
+    assert trainer.data.setup.periodic_dims == (0, 1) and trainer.data.setup.particle_types == (5,)
     assert np.isfinite(trainer.train(1)).all()
     trainer.close()
 

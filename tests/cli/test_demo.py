@@ -52,10 +52,10 @@ def test_demo_without_the_pretrained_model_says_where_it_should_be(tmp_path):
 
 
 def model_seeing(stride: int, history: int) -> SimpleNamespace:
-    """What ``_by_data_view`` reads of a loaded model: its recipe's frame stride and its scene's history."""
+    """What ``_by_data_view`` reads of a loaded model: its recipe's frame stride and its setup's history."""
     return SimpleNamespace(
         recipe=SimpleNamespace(dataset=SimpleNamespace(frame_stride=stride)),
-        simulator=SimpleNamespace(scene=SimpleNamespace(history=history)),
+        simulator=SimpleNamespace(setup=SimpleNamespace(history=history)),
     )
 
 

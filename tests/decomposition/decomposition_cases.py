@@ -211,7 +211,7 @@ def training_worker(
         for name in cases:
             simulator = case_simulator(name).double().train()
             batch, noise = training_window(name)
-            scene = simulator.scene
+            scene = simulator.setup
             partition = balanced_partition(
                 batch.position_sequence[:, -1],
                 world,

@@ -46,7 +46,7 @@ def test_a_builder_or_processor_without_a_bounded_reach_is_refused_naming_both(m
     from gns_builtins.graph_builders.knn import KnnGraphBuilder
 
     simulator = case_simulator("2d_walls")
-    simulator.graph_builder = KnnGraphBuilder(KnnGraphBuilder.Params(k=6), simulator.scene)
+    simulator.graph_builder = KnnGraphBuilder(KnnGraphBuilder.Params(k=6), simulator.setup)
     # As a grid over the whole scene would: no bound on how far a particle's output reaches.
     monkeypatch.setattr(type(simulator.processor), "hops_param", None)
     with pytest.raises(GnsError) as refused:

@@ -65,7 +65,7 @@ def test_a_bfloat16_row_is_named_so_and_rolls_out_with_bfloat16_products(registr
     assert learned_candidate(model, "m", device, 2, "bfloat16").name == "m [bfloat16, batch 2]"
     assert "products in bfloat16" in bfloat16.settings
     exact, rounded = float32.simulate(trajectory).position, bfloat16.simulate(trajectory).position
-    moved = np.abs(exact - trajectory.position[model.simulator.scene.history - 1]).max()
+    moved = np.abs(exact - trajectory.position[model.simulator.setup.history - 1]).max()
     difference = np.abs(rounded - exact).max()
     # bfloat16 keeps 8 bits of mantissa (relative rounding 2^-9 = 2e-3 per product): over a few steps the
     # positions differ by a small share of how far the particles moved, never by nothing.
@@ -92,12 +92,12 @@ def test_evaluate_rolls_out_as_gns_rollout_does_walls_holding_and_counting_the_p
     model = dataclasses.replace(model, recipe=recipe)
     trajectory = soft_sphere_trajectory(3, frames=14, block=5, particle_types=(SAND,), with_property=True, key="k")
     # Walls just inside the cloud's first frame: every step some particles pass one and are put back.
-    first = trajectory.position[model.simulator.scene.history - 1]
+    first = trajectory.position[model.simulator.setup.history - 1]
     box = np.stack([first.min(0) + 0.01, first.max(0) - 0.01], axis=1).astype(np.float32)
     trajectory = dataclasses.replace(trajectory, bounds=box)
 
     prediction = learned_candidate(model, "m", torch.device("cpu")).simulate(trajectory)
-    guard = RolloutGuard.from_spec(model.simulator.scene, guard_spec)
+    guard = RolloutGuard.from_spec(model.simulator.setup, guard_spec)
     same = rollout(model.simulator, trajectory, guard=guard)
     np.testing.assert_array_equal(prediction.position, same.predicted)
     held = {int(i) for v in same.guard_violations if v.escaped for i in v.particles}

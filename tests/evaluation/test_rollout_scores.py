@@ -33,7 +33,7 @@ def trained(sand, tmp_path, registry):
 
 
 def test_each_tracked_metric_is_the_evaluation_value_of_the_rollout(trained, registry):
-    scene, metadata, cpu = trained.data.scene, trained.data.metadata, torch.device("cpu")
+    scene, metadata, cpu = trained.data.setup, trained.data.metadata, torch.device("cpu")
     trajectory = trained.data.valid[0]
     scores = validation_rollout_scorer(registry, scene, metadata, cpu)(trained.simulator, trajectory)
     tracked = registry.validation_metrics()
@@ -54,17 +54,17 @@ def test_each_tracked_metric_is_the_evaluation_value_of_the_rollout(trained, reg
 
 def test_a_diverged_rollout_scores_inf_everywhere(trained, registry, monkeypatch):
     trajectory = trained.data.valid[0]
-    nan = np.full((trajectory.num_steps - trained.simulator.scene.history, *trajectory.position.shape[1:]), np.nan)
+    nan = np.full((trajectory.num_steps - trained.simulator.setup.history, *trajectory.position.shape[1:]), np.nan)
     monkeypatch.setattr(rollout_scores, "learned_positions", lambda simulator, case, device: nan)
-    score = validation_rollout_scorer(registry, trained.data.scene, trained.data.metadata, torch.device("cpu"))
+    score = validation_rollout_scorer(registry, trained.data.setup, trained.data.metadata, torch.device("cpu"))
     values = score(trained.simulator, trajectory)
     assert values and all(math.isinf(v) for v in values.values()), values
 
 
 def test_metrics_without_granular_particles_are_absent(dataset_2d, tmp_path, registry):
     trainer = tiny_trainer(tiny_recipe(dataset_2d, registry), tmp_path / "run", registry)
-    assert granular_particle_types(trainer.data.scene, registry) == []
-    score = validation_rollout_scorer(registry, trainer.data.scene, trainer.data.metadata, torch.device("cpu"))
+    assert granular_particle_types(trainer.data.setup, registry) == []
+    score = validation_rollout_scorer(registry, trainer.data.setup, trainer.data.metadata, torch.device("cpu"))
     values = score(trainer.simulator, trainer.data.valid[0])
     assert set(values) == {"valid_rollout_mse", "valid_rollout_sinkhorn_pct"}
     trainer.close()
@@ -72,7 +72,7 @@ def test_metrics_without_granular_particles_are_absent(dataset_2d, tmp_path, reg
 
 def test_positions_rolled_elsewhere_are_scored_and_none_scores_nothing(trained, registry):
     """A rollout split over processes hands its positions in (rank 0) or None (the others)."""
-    scene, metadata, cpu = trained.data.scene, trained.data.metadata, torch.device("cpu")
+    scene, metadata, cpu = trained.data.setup, trained.data.metadata, torch.device("cpu")
     trajectory = trained.data.valid[0]
     rolled = learned_positions(trained.simulator, trajectory, cpu)
     calls = []

@@ -20,7 +20,7 @@ REGISTRY = load_registry()
 def test_sizes_scene_and_spec_are_read_from_tensor_shapes():
     state = geoelements_state_dict(latent=6, hidden=5, layers=3, steps=4, embedding=4, properties=1)
     imported = import_geoelements_checkpoint(state, METADATA, registry=REGISTRY)
-    spec, scene = imported.model, imported.scene
+    spec, scene = imported.model, imported.setup
     assert (spec.latent_size, spec.mlp_hidden_size, spec.mlp_hidden_layers, spec.type_embedding_size) == (6, 5, 3, 4)
     assert spec.processor.params == {"message_passing_steps": 4}
     assert scene.particle_types == tuple(range(9)) and scene.kinematic_types == (3,)
@@ -44,7 +44,9 @@ def test_a_single_type_scene_folds_the_embedding_into_the_encoder_bias():
 def test_chosen_types_keep_their_embedding_rows():
     state = geoelements_state_dict()
     imported = import_geoelements_checkpoint(state, METADATA, particle_types=[6, 3], registry=REGISTRY)
-    assert imported.scene.particle_types == (3, 6)
+    assert imported.setup.particle_types == (3, 6)
+    with pytest.warns(DeprecationWarning, match=r"ImportedCheckpoint\.scene is now \.setup"):
+        assert imported.scene is imported.setup  # its name until 0.2
     assert torch.equal(
         imported.simulator.features.type_embedding.weight, state["_particle_type_embedding.weight"][[3, 6]]
     )

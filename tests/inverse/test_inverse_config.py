@@ -133,7 +133,7 @@ def test_the_example_inversions_name_a_shipped_model_and_validate(path, registry
     config, unknowns = load_invert_config(path)  # the model is named relative to the config file
     model = load_trained(config.model, registry, "cpu")
     for name, unknown in unknowns.items():
-        assert name in model.simulator.scene.property_names or isinstance(unknown, VelocityUnknown)
+        assert name in model.simulator.setup.property_names or isinstance(unknown, VelocityUnknown)
 
 
 @pytest.mark.parametrize("path", sorted((ROOT / "inversions").glob("*.yaml")))

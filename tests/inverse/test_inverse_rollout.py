@@ -72,7 +72,7 @@ def test_walls_hold_as_in_gns_rollout_and_gradients_still_flow(shipped_float64, 
     first = state.position_sequence[:, -1].detach()
     # Walls just inside the cloud: particles pass them at every step and are put back.
     walls = torch.stack([first.min(0).values + 0.01, first.max(0).values - 0.01], dim=1).numpy()
-    guard = RolloutGuard.from_spec(shipped_float64.scene, RolloutGuardSpec(margin=0.0, on_violation="clamp"))
+    guard = RolloutGuard.from_spec(shipped_float64.setup, RolloutGuardSpec(margin=0.0, on_violation="clamp"))
     guard = guard.with_bounds(walls)
     predicted = differentiable_rollout(shipped_float64, state, problem.prescribed, checkpoint_every, guard)
     sequence, frames = state.position_sequence.detach(), []

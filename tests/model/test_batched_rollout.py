@@ -49,7 +49,7 @@ def test_a_batch_guards_each_scene_by_its_own_walls_and_reports_its_own_particle
     simulator = tiny_simulator(REGISTRY, 2)
     inside = _scene(0, 30)
     small_box = replace(_scene(1, 30), bounds=np.array([[0.0, 0.5], [0.0, 1.0]], np.float32))
-    guard = RolloutGuard(simulator.scene, margin=0.0, on_violation="clamp")
+    guard = RolloutGuard(simulator.setup, margin=0.0, on_violation="clamp")
     first, second = rollout_batch(simulator, [inside, small_box], steps=3, guard=guard)
     assert first.guard_violations == ()
     assert second.guard_violations

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import warnings
+
+import numpy as np
+import pytest
 import torch
 
 from gns_framework.assembly.learned import build_learned_simulator
@@ -9,6 +13,9 @@ from gns_framework.config.recipe import ModelSpec
 from gns_framework.contracts import ModelSetup
 from gns_framework.data.batch import ParticleBatch
 from gns_framework.data.metadata import DatasetMetadata
+from gns_framework.data.trajectory import Trajectory
+from gns_framework.model.learned_simulator import LearnedSimulator
+from gns_framework.model.rollout import rollout
 from gns_framework.plugins import load_registry
 
 
@@ -77,3 +84,34 @@ def test_the_training_target_corrects_the_velocity_noise_but_not_the_position_no
 def test_the_predicted_mask_is_the_non_kinematic_types():
     model = simulator()
     assert model.predicted_mask(torch.tensor([3, 5, 5, 3])).tolist() == [False, True, True, False]
+
+
+def test_the_setup_under_its_old_name_scene_warns_and_is_the_setup():
+    model = simulator()
+    with pytest.warns(DeprecationWarning, match=r"LearnedSimulator\.scene is now \.setup; the old name goes in 0\.3"):
+        assert model.scene is model.setup
+    with pytest.warns(DeprecationWarning, match=r"FeatureBuilder\.scene is now \.setup"):
+        assert model.features.scene is model.setup
+    assert model.setup.particle_types == (3, 5) and model.features.setup is model.setup
+
+
+def test_a_simulator_still_takes_its_setup_as_scene_with_a_warning():
+    model = simulator()
+    parts = {name: getattr(model, name) for name in ("features", "graph_builder", "encoder", "processor", "decoder")}
+    parts |= {"integrator": model.integrator, "output_stats": model.output_stats}
+    with pytest.warns(DeprecationWarning, match=r"LearnedSimulator\(scene=...\) is now LearnedSimulator\(setup=...\)"):
+        again = LearnedSimulator(scene=model.setup, **parts)
+    assert again.setup is model.setup
+
+
+def test_training_and_rollout_read_no_deprecated_scene():
+    """The package itself reads the setup by its new name: a step and a rollout warn of nothing deprecated."""
+    model, current = simulator(), batch()
+    generator = np.random.default_rng(2)
+    position = 0.3 + 0.4 * generator.random((1, 12, 2)) + 0.002 * generator.standard_normal((9, 12, 2)).cumsum(0)
+    trajectory = Trajectory(position.astype(np.float32), np.array([3, 5] * 6), None, None, "t")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)
+        model(current, torch.zeros_like(current.position_sequence))
+        with torch.no_grad():
+            rollout(model, trajectory, steps=2)

@@ -63,7 +63,7 @@ def test_periodic_scene_trains_and_rolls_out_inside_the_box(tmp_path):
     assert any(np.abs(np.diff(wrapped(t).position[..., 0], axis=0)).max() > 0.5 for t in splits["train"])
 
     trainer = tiny_trainer(tiny_recipe(tmp_path / "data", graph_builder={"name": "periodic_radius"}), tmp_path / "run")
-    scene = trainer.simulator.scene
+    scene = trainer.simulator.setup
     assert scene.periodic_dims == (0,) and scene.wall_dims == (1,)
     losses = trainer.train(5)
     # Wrapped jumps of 0.8 would give normalised targets in the thousands.

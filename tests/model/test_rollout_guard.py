@@ -203,5 +203,5 @@ def test_a_trajectory_with_its_own_domain_is_guarded_by_its_own_walls():
     simulator = tiny_simulator(REGISTRY, 2)
     stay = resting()
     own = replace(stay, position=stay.position * 0.5, bounds=np.array([[0.0, 0.2], [0.0, 0.2]], np.float32))
-    result = rollout(simulator, own, steps=3, guard=RolloutGuard(simulator.scene, margin=0.0, on_violation="clamp"))
+    result = rollout(simulator, own, steps=3, guard=RolloutGuard(simulator.setup, margin=0.0, on_violation="clamp"))
     assert result.guard_violations and all(v.cause.startswith("left the domain") for v in result.guard_violations)

@@ -113,7 +113,7 @@ def test_a_rollout_step_reads_back_only_the_edge_count(
 ):
     trainer = tiny_trainer(tiny_recipe(dataset_multimaterial, registry), tmp_path, registry)
     trajectory = trainer.data.dataset.split("test")[0]
-    guard = RolloutGuard(trainer.data.scene, margin=0.5, on_violation=on_violation)
+    guard = RolloutGuard(trainer.data.setup, margin=0.5, on_violation=on_violation)
     documented: list = []
     step = rollout_module.rollout_step
 
@@ -134,7 +134,7 @@ def test_the_read_back_free_rollout_equals_the_cpu_one(as_on_a_gpu, dataset_mult
     trajectory = trainer.data.dataset.split("test")[0]
     for _ in range(3):
         trainer.train_step()
-    guard = RolloutGuard(trainer.data.scene, margin=0.05, on_violation="clamp")
+    guard = RolloutGuard(trainer.data.setup, margin=0.05, on_violation="clamp")
     gpu_like = rollout(trainer.simulator, trajectory, steps=12, guard=guard)
     as_on_a_gpu.undo()
     cpu = rollout(trainer.simulator, trajectory, steps=12, guard=guard)
@@ -146,7 +146,7 @@ def test_the_read_back_free_rollout_equals_the_cpu_one(as_on_a_gpu, dataset_mult
 
 
 def test_the_guard_continues_from_the_frame_its_check_returns(registry, dataset_multimaterial, tmp_path):
-    scene = tiny_trainer(tiny_recipe(dataset_multimaterial, registry), tmp_path, registry).data.scene
+    scene = tiny_trainer(tiny_recipe(dataset_multimaterial, registry), tmp_path, registry).data.setup
     previous = torch.full((5, scene.dim), 0.5)
     position = previous + 0.01
     position[1, 0] = float("nan")

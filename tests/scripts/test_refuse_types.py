@@ -54,7 +54,7 @@ def test_data_holding_a_refused_type_is_named_with_the_reason(trained, dataset_m
     model = load_trained(out, registry)
     assert model.envelope is not None
     data = open_dataset(model.recipe.dataset, registry, dataset_multimaterial)
-    scene = model.simulator.scene
+    scene = model.simulator.setup
     lines = outside_envelope(model.envelope, data.metadata(), data.split("test"), scene.history, scene.kinematic_types)
     # The synthetic data's frictions are random: the test split may lie outside the trained range too.
     (line,) = [line for line in lines if "refused" in line]

@@ -121,7 +121,7 @@ def test_processor_swapped_by_one_recipe_line(dataset_2d, tmp_path):
 def test_rollout_keeps_kinematic_particles_on_ground_truth(dataset_multimaterial, tmp_path, registry):
     _train(tiny_recipe_mapping(dataset_multimaterial, tmp_path), registry, 3)
     loaded = load_trained(list_checkpoints(tmp_path / "checkpoints")[-1][1], registry)
-    scene = loaded.simulator.scene
+    scene = loaded.simulator.setup
     assert scene.particle_types == (3, 5, 6) and scene.kinematic_types == (3,)
     assert scene.property_names == ("friction",)
     from gns_framework.assembly.data import open_dataset

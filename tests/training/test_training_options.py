@@ -161,7 +161,7 @@ def test_a_strided_model_rolls_out_on_strided_frames(dataset_2d, registry, tmp_p
     test = open_dataset(loaded.recipe.dataset, registry).split("test")[0]
     frames = open_dataset(validate_recipe(tiny_recipe_mapping(dataset_2d), registry).dataset, registry).split("test")[0]
     result = rollout(loaded.simulator, test)
-    assert result.predicted.shape[0] == math.ceil(frames.num_steps / 2) - loaded.simulator.scene.history
+    assert result.predicted.shape[0] == math.ceil(frames.num_steps / 2) - loaded.simulator.setup.history
 
 
 def test_bad_frame_stride_is_refused(dataset_2d, registry):

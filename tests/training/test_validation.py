@@ -94,7 +94,7 @@ def test_nothing_to_validate_measures_nothing(tmp_path):
 def test_measure_scores_the_rollouts_and_leaves_the_model_training(dataset_2d, registry, tmp_path):
     trainer = tiny_trainer(tiny_recipe(dataset_2d, registry), tmp_path / "run", registry)
     simulator, valid = trainer.simulator, trainer.data.valid
-    batches = validation_windows(valid, simulator.scene.history, count=4, batch_size=2, where="data")
+    batches = validation_windows(valid, simulator.setup.history, count=4, batch_size=2, where="data")
     seen = []
 
     def score(model, trajectory):
@@ -114,7 +114,7 @@ def test_a_process_that_does_not_report_measures_with_the_others_and_returns_not
     """A split validation's rank other than 0: it takes part in each one-step measure and rollout, and reports none."""
     trainer = tiny_trainer(tiny_recipe(dataset_2d, registry), tmp_path / "run", registry)
     simulator, valid = trainer.simulator, trainer.data.valid
-    batches = validation_windows(valid, simulator.scene.history, count=4, batch_size=2, where="data")
+    batches = validation_windows(valid, simulator.setup.history, count=4, batch_size=2, where="data")
     measured, scored = [], []
 
     def one_step(model, batch):

@@ -28,6 +28,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from gns_framework.api import avoids_read_backs
+
 SOURCE = Path(__file__).with_name("fused_kernels.c")
 FLAGS = ("-O3", "-march=native", "-fopenmp", "-fPIC", "-shared")
 
@@ -96,7 +98,12 @@ def _kernels() -> ctypes.CDLL:
 
 
 def applies(*tensors: Tensor | None) -> bool:
-    """Whether the kernels can take these tensors: float32 (int64 indices), contiguous, on CPU, and built."""
+    """Whether the kernels can take these tensors: float32 (int64 indices), contiguous, on CPU, and built.
+
+    Not while the CPU stands in for an accelerator (a captured step's emulation cannot see ctypes kernels).
+    """
+    if avoids_read_backs(torch.device("cpu")):
+        return False
     for t in tensors:
         if t is not None and not (
             t.device.type == "cpu" and t.dtype in (torch.float32, torch.int64) and t.is_contiguous()

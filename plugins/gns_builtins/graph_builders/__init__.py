@@ -6,6 +6,7 @@ from .knn import KnnGraphBuilder
 from .no_edges import NoEdgesGraphBuilder
 from .periodic_radius import PeriodicRadiusGraphBuilder
 from .radius import RadiusGraphBuilder
+from .radius_fixed_capacity import FixedCapacityRadiusGraphBuilder
 from .radius_torch_cluster import TorchClusterRadiusGraphBuilder
 
 
@@ -13,6 +14,7 @@ from .radius_torch_cluster import TorchClusterRadiusGraphBuilder
 def gns_graph_builders():
     return [
         RadiusGraphBuilder,
+        FixedCapacityRadiusGraphBuilder,
         TorchClusterRadiusGraphBuilder,
         KnnGraphBuilder,
         PeriodicRadiusGraphBuilder,

@@ -34,14 +34,14 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
     class Params(ComponentParams):
         pass
 
-    def __init__(self, params: Params, scene: ModelSetup):
-        super().__init__(params, scene)
-        self.box = PeriodicBox(scene)
+    def __init__(self, params: Params, setup: ModelSetup):
+        super().__init__(params, setup)
+        self.box = PeriodicBox(setup)
         self._shifts = PerDevice(self._make_shifts)
         short = [
             (k, float(length))
             for k, length in zip(self.box.dims, self.box.length, strict=True)
-            if not length > 2 * scene.connectivity_radius
+            if not length > 2 * setup.connectivity_radius
         ]
         if short:
             raise RecipeError(
@@ -50,7 +50,7 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
                     (
                         "model.connectivity_radius",
                         f"the periodic box lengths {short} (dimension, length) must exceed 2R = "
-                        f"{2 * scene.connectivity_radius} for minimum-image neighbours",
+                        f"{2 * setup.connectivity_radius} for minimum-image neighbours",
                     )
                 ],
             )
@@ -58,13 +58,13 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
     def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:
         n = position.shape[0]
         if not self.box.active:
-            senders, receivers = radius_pairs(position, batch, self.scene.connectivity_radius)
+            senders, receivers = radius_pairs(position, batch, self.setup.connectivity_radius)
             return Graph(senders, receivers, position[senders] - position[receivers], n, receivers_sorted=True)
         position = self.box.wrap(position)
         ghost_position, ghost_of, ghost_batch = self._ghosts(position, batch)
         all_position = torch.cat([position, ghost_position])
         all_batch = torch.cat([batch, ghost_batch])
-        senders, receivers = radius_pairs(all_position, all_batch, self.scene.connectivity_radius)
+        senders, receivers = radius_pairs(all_position, all_batch, self.setup.connectivity_radius)
         real = receivers < n
         senders, receivers = senders[real], receivers[real]
         displacement = all_position[senders] - all_position[receivers]
@@ -79,7 +79,7 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
         Which particles are near a face is data: selecting them reads a count back
         from the device, as the cell list's edge count does.
         """
-        radius = self.scene.connectivity_radius
+        radius = self.setup.connectivity_radius
         dims, lower, length = self.box.constants(position)
         index = torch.arange(position.shape[0], device=position.device)
         positions, owners = [], []

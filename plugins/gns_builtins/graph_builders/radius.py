@@ -32,12 +32,12 @@ class RadiusGraphBuilder(GraphBuilder):
             description="Verlet-list skin in connectivity radii (0: search every frame); the graph is the same",
         )
 
-    def __init__(self, params: Params, scene: ModelSetup):
-        super().__init__(params, scene)
-        radius = scene.connectivity_radius
+    def __init__(self, params: Params, setup: ModelSetup):
+        super().__init__(params, setup)
+        radius = setup.connectivity_radius
         self.verlet = VerletList(radius, params.skin * radius) if params.skin > 0 else None
 
     def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:
-        search = self.verlet.pairs if self.verlet else partial(radius_pairs, radius=self.scene.connectivity_radius)
+        search = self.verlet.pairs if self.verlet else partial(radius_pairs, radius=self.setup.connectivity_radius)
         senders, receivers = search(position, batch)
         return Graph(senders, receivers, position[senders] - position[receivers], len(position), receivers_sorted=True)

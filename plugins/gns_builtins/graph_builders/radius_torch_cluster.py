@@ -41,8 +41,8 @@ class TorchClusterRadiusGraphBuilder(GraphBuilder):
 
     params: Params  # the validated Params above (the base class assigns it)
 
-    def __init__(self, params: Params, scene: ModelSetup):
-        super().__init__(params, scene)
+    def __init__(self, params: Params, setup: ModelSetup):
+        super().__init__(params, setup)
         try:
             self._torch_cluster = importlib.import_module("torch_cluster")
         except ImportError as exc:
@@ -53,7 +53,7 @@ class TorchClusterRadiusGraphBuilder(GraphBuilder):
             ) from None
 
     def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:
-        radius = self.scene.connectivity_radius
+        radius = self.setup.connectivity_radius
         cap = self.params.initial_max_neighbors
         n = position.shape[0]
         while True:

@@ -156,6 +156,9 @@ class GridProcessor(Processor):
         local = edge_latent.new_zeros(node_latent.shape).index_add(0, graph.receivers, edge_latent)
         node_latent = node_latent + self.edge_mlp(torch.cat([node_latent, local.to(node_latent.dtype)], dim=-1))
         grid = ParticleGrid(graph.position, graph.batch, graph.num_examples, self.spacing)
+        if graph.node_particle is not None:  # a fixed-size graph's sink nodes leave no trace on the grid
+            nodes = torch.arange(graph.num_nodes, device=node_latent.device)
+            grid.weights = grid.weights * (graph.node_particle == nodes)[:, None].to(grid.weights.dtype)
         for round_ in self.rounds:
             node_latent = round_(node_latent, grid)
         return node_latent, edge_latent

@@ -18,7 +18,13 @@ def build(name, scene, position, batch, num_examples, **params):
 
 
 def edge_set(graph):
-    return set(zip(graph.senders.tolist(), graph.receivers.tolist(), strict=True))
+    """The (sender, receiver) pairs between particles: a fixed-size graph's padding edges (between its sink
+    nodes, those past the particles of ``node_particle``) left out."""
+    pairs = set(zip(graph.senders.tolist(), graph.receivers.tolist(), strict=True))
+    if graph.node_particle is None:
+        return pairs
+    particles = int(graph.node_particle.max()) + 1
+    return {(s, r) for s, r in pairs if r < particles}
 
 
 def brute_force_radius(position, batch, radius, box_length=None):

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 
 from gns_framework.testing import small_scene
 
-RADIUS_BUILDERS = ["radius", "periodic_radius"] + (
+RADIUS_BUILDERS = ["radius", "radius_fixed_capacity", "periodic_radius"] + (
     ["radius_torch_cluster"] if importlib.util.find_spec("torch_cluster") else []
 )
 

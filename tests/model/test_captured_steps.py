@@ -1,0 +1,48 @@
+"""Rollouts replayed from one captured step (model/captured_steps.py, emulated on the CPU): the frames of the eager
+rollout, a fresh capture after the graph builder grows its buffers, and a clear refusal where the step waits."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fixed_capacity_cases import small_simulator, wandering_trajectory
+
+from gns_framework.model import captured_steps
+from gns_framework.model.rollout import rollout
+from gns_framework.runtime.capture import CaptureError
+
+PAPER = {"name": "interaction_network", "message_passing_steps": 2, "edge_block": "plain"}
+
+
+@pytest.fixture
+def counted(monkeypatch):
+    """Every CapturedSteps the rollouts make, in order."""
+    made = []
+    original = captured_steps.CapturedSteps.__init__
+
+    def remember(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        made.append(self)
+
+    monkeypatch.setattr(captured_steps.CapturedSteps, "__init__", remember)
+    return made
+
+
+@pytest.mark.parametrize("edge_block", ["plain", "fused"])
+def test_a_captured_rollout_gives_the_eager_frames_and_captures_again_after_growth(edge_block, counted):
+    processor = {**PAPER, "edge_block": edge_block}
+    trajectory = wandering_trajectory()
+    eager = rollout(small_simulator("radius_fixed_capacity", processor, acc_std=0.02), trajectory)
+    model = small_simulator("radius_fixed_capacity", processor, acc_std=0.02)
+    captured = rollout(model, trajectory, capture=True)
+    assert model.graph_builder.search.sizings > 1, "the scene never outgrew its buffers: make it"
+    assert counted[0].captures >= 2, "grown buffers need a fresh capture"
+    # plain: the same operations, bitwise; fused: eagerly the CPU's C kernels, captured the accelerators' torch
+    # path, equal within float32 rounding of positions ~0.5 m.
+    tolerance = 0.0 if edge_block == "plain" else 1e-5
+    np.testing.assert_allclose(captured.predicted, eager.predicted, rtol=0, atol=tolerance)
+
+
+def test_a_step_that_waits_for_the_device_is_refused_naming_the_builder_to_use(counted):
+    with pytest.raises(CaptureError, match=r"reads back.*use radius_fixed_capacity"):
+        rollout(small_simulator("radius", PAPER), wandering_trajectory(frames=10), capture=True)
