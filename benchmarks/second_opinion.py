@@ -105,13 +105,13 @@ def scene_figures(primary, second, data: Path, registry, opinion: dict | None = 
         (mine, _), (theirs, offset) = predictions
         theirs = dataclasses.replace(theirs, position=np.asarray(theirs.position) - np.float32(offset))
         # The second model's rollout in place of the truth: the same first frames, its prediction after them.
-        opinion = dataclasses.replace(
+        as_truth = dataclasses.replace(
             case, position=np.concatenate([case.position[:history], np.asarray(theirs.position, case.position.dtype)])
         )
         out[case.key] = {
             "error": deposit(mine, case, history, metadata, granular),
             "second_error": deposit(theirs, case, history, metadata, granular),
-            "disagreement": deposit(mine, opinion, history, metadata, granular),
+            "disagreement": deposit(mine, as_truth, history, metadata, granular),
         }
     return out
 
