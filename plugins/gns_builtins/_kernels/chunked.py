@@ -18,6 +18,8 @@ from torch import Tensor
 
 from . import fused_kernels
 
+IMPLEMENTS = "processors/interaction_network.py: InteractionStep with edge_block: plain"  # see reading_cost.py
+
 ROWS_PER_THREAD = 1024
 """Rows per chunk and intra-op thread on CPU: each thread's share of a 128-wide chunk
 activation is 512 KiB, so its working set stays in its core's L2. Chunks grow with the

@@ -49,6 +49,8 @@ from .chunked import (
 from .edge_order import EdgeOrder
 from .segment_sum import needs_ordered_sums, segment_sum_, sorted_segment_sum_
 
+IMPLEMENTS = "processors/interaction_network.py: InteractionStep with edge_block: plain"  # see reading_cost.py
+
 
 def node_table(x: Tensor, first_weight: Tensor, first_bias: Tensor) -> Tensor:
     """(2N, H) ``[x W_r^T + b_1; x W_s^T]``: the node columns of the first edge layer, with its bias.

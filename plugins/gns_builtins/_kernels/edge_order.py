@@ -19,6 +19,8 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+IMPLEMENTS = "processors/interaction_network.py: InteractionStep with edge_block: plain"  # see reading_cost.py
+
 
 def run_offsets(sorted_keys: Tensor, num_keys: int) -> Tensor:
     """(num_keys + 1,) int64: ``offsets[i]`` is the first position whose key is >= i.

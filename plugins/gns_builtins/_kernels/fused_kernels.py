@@ -30,6 +30,8 @@ from torch import Tensor
 
 from gns_framework.api import avoids_read_backs
 
+IMPLEMENTS = "processors/interaction_network.py: InteractionStep with edge_block: plain"  # see reading_cost.py
+
 SOURCE = Path(__file__).with_name("fused_kernels.c")
 FLAGS = ("-O3", "-march=native", "-fopenmp", "-fPIC", "-shared")
 

@@ -28,6 +28,8 @@ from torch import Tensor
 
 from gns_framework.api import deterministic_sums
 
+IMPLEMENTS = "processors/interaction_network.py: InteractionStep with edge_block: plain"  # see reading_cost.py
+
 
 def needs_ordered_sums(device: torch.device) -> bool:
     """Whether sums on ``device`` go through :func:`segment_sum_`: accelerators, unless deterministic sums are off."""

@@ -42,6 +42,8 @@ from torch import Tensor
 from .chunked import for_products
 from .edge_order import EdgeOrder
 
+IMPLEMENTS = "processors/interaction_network.py: InteractionStep with edge_block: plain"  # see reading_cost.py
+
 BLOCK_NODES = 16
 """Receivers per forward program: the one-hot sum's rows (tl.dot needs at least 16)."""
 

@@ -8,6 +8,8 @@ update they compute: ``triton_edge_block.py``.
 import triton
 import triton.language as tl
 
+IMPLEMENTS = "processors/interaction_network.py: InteractionStep with edge_block: plain"  # see reading_cost.py
+
 
 @triton.jit
 def _dot(a, b, PRECISION: tl.constexpr, UPCAST: tl.constexpr):

@@ -1,7 +1,6 @@
 """The reference processor: M unshared interaction-network steps with residuals.
 
-One step, with node latents x and edge latents e (Battaglia et al. 2016; the
-paper's Eq. in Sec. 2)::
+One step, with node latents x and edge latents e (Battaglia et al. 2016; the paper's Eq. in Sec. 2)::
 
     e'_k = LN(MLP_e([e_k, x_receiver(k), x_sender(k)]))
     a_i  = sum of e'_k over edges k whose receiver is i
@@ -28,7 +27,6 @@ from .._kernels.edge_block import edge_block, edge_order, node_table, table_rows
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-
 EdgeBlock = Literal["fused", "plain"]
 """How the edge update runs: ``plain`` is the paper's three lines in torch, the code to read; ``fused``
 (default) runs it in cache-sized chunks with fused CPU loops and a hand-written backward (``_kernels/edge_block.py``),
@@ -46,18 +44,22 @@ class InteractionStep(nn.Module):
         self.node_mlp = NormedMLP(2 * latent, hidden, hidden_layers, latent)
 
     def forward(self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor, order=None) -> tuple[Tensor, Tensor]:
-        if self.edge_block == "fused":
-            return self._fused(x, e, senders, receivers, order)
-        # The edge update: each edge sees its own latent and the two particles it joins.
-        edge_update = self.edge_mlp(torch.cat([e, x[receivers], x[senders]], dim=-1))
-        # Aggregation: every particle sums the messages of the edges it receives.
-        aggregate = x.new_zeros(x.shape).index_add(0, receivers, edge_update.to(x.dtype))
+        if (
+            self.edge_block == "fused"
+        ):  # the next two lines as one chunked pass (or Triton kernel), equal within rounding
+            edge_latent, aggregate = self._edge_update_and_aggregate(x, e, senders, receivers, order)
+        else:
+            # The edge update: each edge sees its own latent and the two particles it joins.
+            edge_update = self.edge_mlp(torch.cat([e, x[receivers], x[senders]], dim=-1))
+            # Aggregation: every particle sums the messages of the edges it receives.
+            aggregate = x.new_zeros(x.shape).index_add(0, receivers, edge_update.to(x.dtype))
+            edge_latent = e + edge_update
         # The node update from the particle's latent and its aggregate; residuals on both.
         node_update = self.node_mlp(torch.cat([x, aggregate], dim=-1))
-        return x + node_update, e + edge_update
+        return x + node_update, edge_latent
 
-    def _fused(self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor, order) -> tuple[Tensor, Tensor]:
-        """The same step with the edge update and aggregation in one chunked, fused pass."""
+    def _edge_update_and_aggregate(self, x: Tensor, e: Tensor, senders: Tensor, receivers: Tensor, order):
+        """``(e + edge update, aggregate at receivers)`` in one chunked, fused pass (``_kernels/edge_block.py``)."""
         mlp = self.edge_mlp.mlp
         linears = cast("Sequence[nn.Linear]", mlp.linears)  # layers.MLP: a ModuleList of nn.Linear
         first = linears[0]
@@ -67,9 +69,7 @@ class InteractionStep(nn.Module):
         rows = table_rows(senders, receivers, x.shape[0])
         weights = [first.weight[:, : self.latent]] + [linear.weight for linear in linears[1:]]
         biases: list[Tensor] = [linear.bias for linear in linears[1:]]
-        e_new, aggregate = edge_block(e, table, rows, receivers, weights, biases, self.edge_mlp.norm, order=order)
-        node_update = self.node_mlp(torch.cat([x, aggregate], dim=-1))
-        return x + node_update, e_new
+        return edge_block(e, table, rows, receivers, weights, biases, self.edge_mlp.norm, order=order)
 
 
 class InteractionNetwork(Processor):
