@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+from rollouts import small_metadata
 
 from gns_framework.assembly.learned import build_learned_simulator
 from gns_framework.config.recipe import ModelSpec
 from gns_framework.contracts import ModelSetup
-from gns_framework.data.metadata import DatasetMetadata
 from gns_framework.data.trajectory import Trajectory
 from gns_framework.plugins import load_registry
 
@@ -18,17 +18,7 @@ SETUP = ModelSetup(dim=2, bounds=((0.0, 1.0), (0.0, 1.0)), connectivity_radius=0
 
 def small_simulator(builder: str, processor: dict, acc_std: float = 0.001):
     """A small untrained 2D model with ``builder`` (fixed-capacity builders at capacity 1.0: overflows come soon)."""
-    metadata = DatasetMetadata(
-        bounds=[(0.0, 1.0), (0.0, 1.0)],
-        sequence_length=10,
-        default_connectivity_radius=0.1,
-        dim=2,
-        dt=0.01,
-        vel_mean=[0.0, 0.0],
-        vel_std=[0.01, 0.01],
-        acc_mean=[0.0, 0.0],
-        acc_std=[acc_std, acc_std],
-    )
+    metadata = small_metadata().model_copy(update={"vel_std": [0.01, 0.01], "acc_std": [acc_std, acc_std]})
     torch.manual_seed(0)
     spec = ModelSpec(
         latent_size=8,
