@@ -298,3 +298,33 @@ def test_capture_of_a_step_that_waits_for_the_device_is_one_clear_line(tiny_mode
     batched = gns("rollout", str(tiny_model), "--capture", "--batch", "2", "--out", str(tmp_path / "b"))
     assert batched.returncode != 0 and "combines with neither --batch nor --partitions" in batched.stderr
     assert not (tmp_path / "b").exists()
+
+
+def test_a_rollout_over_two_nodes_writes_what_one_process_writes(tiny_model, tmp_path):
+    """Two torchrun launches, one per "node", meeting at a c10d rendezvous (issue 50, item 4), as on two hosts."""
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    common = [str(tiny_model), "--steps", "4", "--outside-envelope", "--no-progress"]
+    one = gns("rollout", *common, "--out", str(tmp_path / "one"))
+    assert one.returncode == 0, one.stderr
+    with socket.socket() as probe:  # a free port for the rendezvous
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    launcher = [sys.executable, "-m", "torch.distributed.run", "--nnodes", "2", "--nproc-per-node", "1"]
+    launcher += ["--rdzv-backend", "c10d", "--rdzv-endpoint", f"127.0.0.1:{port}", "--rdzv-id", "two-nodes"]
+    command = ["-m", "gns_framework.cli", "rollout", *common, "--partitions", "2", "--out", str(tmp_path / "two")]
+    nodes = [
+        subprocess.Popen(launcher + command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        for _ in range(2)
+    ]
+    outputs = [node.communicate(timeout=600) for node in nodes]
+    assert all(node.returncode == 0 for node in nodes), "\n".join(err for _, err in outputs)
+    assert any("2 slabs along dimension" in out for out, _ in outputs)
+    with np.load(tmp_path / "one" / "test_0000.npz") as a, np.load(tmp_path / "two" / "test_0000.npz") as b:
+        scale = np.abs(a["predicted_rollout"]).max()
+        tolerance = np.finfo(np.float32).eps * scale * a["predicted_rollout"].shape[0]
+        np.testing.assert_allclose(b["predicted_rollout"], a["predicted_rollout"], rtol=0, atol=tolerance)
