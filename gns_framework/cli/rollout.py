@@ -124,7 +124,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="replay each step from one captured step: a CUDA graph on a GPU, one launch per step instead of "
         "hundreds (on a CPU an emulation, for tests, not faster); the model's graph builder must not wait for the "
-        "device (radius_fixed_capacity, or no edges); one scene at a time (no --batch or --partitions)",
+        "device (radius_fixed_capacity, or no edges); with --batch, one capture per batch; not with --partitions",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
@@ -152,10 +152,8 @@ def _processes(args: argparse.Namespace) -> Processes:
         raise GnsError("gns rollout: --partition-axis, --cut, --rebalance and --halo need --partitions P with P > 1")
     if args.cut == "blocks" and args.partition_axis is not None:
         raise GnsError("gns rollout: --partition-axis cuts slabs across one dimension; --cut blocks has no one axis")
-    if args.capture and (args.partitions > 1 or args.batch > 1):
-        raise GnsError(
-            "gns rollout: --capture replays one scene's step: it combines with neither --batch nor --partitions"
-        )
+    if args.capture and args.partitions > 1:
+        raise GnsError("gns rollout: --capture does not combine with --partitions (a piece's particles change)")
     if args.partitions > 1 and args.batch > 1:
         raise GnsError("gns rollout: --partitions and --batch do not combine: a partitioned scene is rolled out alone")
     if processes.world_size % args.partitions:
@@ -294,7 +292,9 @@ def _rollouts(
         while stop < count and stop - start < args.batch and trajectories[stop].num_steps == length:
             stop += 1
         group = [trajectories[i] for i in range(start, stop)]
-        results = rollout_batch(simulator, group, steps, device, guard=guard, precision=args.precision)
+        results = rollout_batch(
+            simulator, group, steps, device, guard=guard, precision=args.precision, capture=args.capture
+        )
         yield from zip(range(start, stop), results, strict=True)
         start = stop
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Sequence
+from contextlib import closing
 from dataclasses import replace
 
 import numpy as np
@@ -25,9 +26,8 @@ from ..data.batch import collate, window
 from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..runtime.precision import Precision
-from .history import advance_window
 from .learned_simulator import LearnedSimulator
-from .rollout import check_simulates, rollout_step
+from .rollout import check_simulates, rollout_step, sound_frames
 from .rollout_guard import GuardViolation, RolloutGuard
 
 
@@ -64,12 +64,14 @@ def rollout_batch(
     device: torch.device | str = "cpu",
     guard: RolloutGuard | None = None,
     precision: Precision = "float32",
+    capture: bool = False,
 ) -> list[Rollout]:
     """Predict ``steps`` frames of every trajectory from its first C, all scenes in one batch per step.
 
     ``steps`` defaults to the shortest trajectory's frames after the C inputs (every
     scene is rolled out as far as all of them go). Returns one :class:`Rollout` per
     trajectory, in order, each with the guard's violations of its own particles.
+    ``capture`` replays one captured step for the whole batch, as :func:`~.rollout.rollout` does for one scene.
     """
     if not trajectories:
         return []
@@ -94,23 +96,21 @@ def rollout_batch(
     kinematic_truth = truth[:, kinematic.cpu()].to(device)
     predicted = torch.empty_like(truth)
     previous = torch.from_numpy(np.concatenate([t.position[history - 1] for t in trajectories]))
-    sequence = state.position_sequence
     violations: list[list[GuardViolation]] = [[] for _ in trajectories]
     label = ", ".join(t.key for t in trajectories[:3]) + (
         f", ... ({len(trajectories)} in all)" if len(trajectories) > 3 else ""
     )
-    for step in range(steps):
-        current = replace(state, position_sequence=sequence)
-        next_position, continued = rollout_step(simulator, guard, current, kinematic, kinematic_truth[step], precision)
-        frame = next_position.cpu()
-        predicted[step], found = guard.check(step, frame, previous, f"batch [{label}]")
-        previous = predicted[step]
-        for violation in found:
-            for index, (lo, hi) in enumerate(itertools.pairwise(ends)):
-                mine = violation.particles[(violation.particles >= lo) & (violation.particles < hi)] - lo
-                if mine.size:
-                    violations[index].append(replace(violation, particles=mine))
-        sequence = advance_window(sequence, continued)
+    one_step = lambda current, nxt: rollout_step(simulator, guard, current, kinematic, nxt, precision)  # noqa: E731
+    frames = sound_frames(simulator.graph_builder, one_step, state, kinematic_truth, steps, capture=capture)
+    with closing(frames):  # a guard's stop closes it: the builder checks its own builds again
+        for step, next_position in frames:
+            predicted[step], found = guard.check(step, next_position.cpu(), previous, f"batch [{label}]")
+            previous = predicted[step]
+            for violation in found:
+                for index, (lo, hi) in enumerate(itertools.pairwise(ends)):
+                    mine = violation.particles[(violation.particles >= lo) & (violation.particles < hi)] - lo
+                    if mine.size:
+                        violations[index].append(replace(violation, particles=mine))
     moving_host = moving.cpu().numpy()
     return [
         Rollout(

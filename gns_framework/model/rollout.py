@@ -9,8 +9,8 @@ silently.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Iterator
+from contextlib import closing, contextmanager
 from dataclasses import replace
 
 import numpy as np
@@ -90,7 +90,6 @@ def rollout(
     # stays on the host (12 GB per 1000 frames of 1M particles in 3D would not fit beside the model).
     kinematic = (~moving).nonzero()[:, 0]
     kinematic_truth = truth[:, kinematic.cpu()].to(device)
-    sequence = state.position_sequence
     predicted = torch.empty_like(truth)
     context = None if trajectory.step_context is None else torch.from_numpy(trajectory.step_context).to(device)
     violations: list[GuardViolation] = []
@@ -103,13 +102,52 @@ def rollout(
         predicted[step], found = guard.check(step, raw, previous, trajectory.key)
         violations += found
 
-    builder = simulator.graph_builder
     one_step = lambda current, nxt: rollout_step(simulator, guard, current, kinematic, nxt, precision)  # noqa: E731
+    bar = tqdm(total=steps, desc=f"rollout {trajectory.key}", unit="step", disable=not progress)
+    predictions = sound_frames(
+        simulator.graph_builder, one_step, state, kinematic_truth, steps, context, capture, bar.update
+    )
+    with bar, closing(predictions):  # a guard's stop closes it: the builder checks its own builds again
+        for step, next_position in predictions:
+            for done, raw in frames.push(step, next_position):
+                checked(done, raw)
+    for done, raw in frames.drain():
+        checked(done, raw)
+    return Rollout(
+        truth=trajectory.first_frames(history + steps),
+        predicted=predicted.numpy(),
+        history=history,
+        predicted_particles=moving.cpu().numpy(),
+        guard_violations=tuple(violations),
+    )
+
+
+def sound_frames(
+    builder: GraphBuilder,
+    one_step: Callable[[ParticleBatch, Tensor], tuple[Tensor, Tensor]],
+    state: ParticleBatch,
+    kinematic_truth: Tensor,
+    steps: int,
+    context: Tensor | None = None,
+    capture: bool = False,
+    progress: Callable[[int], object] = lambda done: None,
+) -> Iterator[tuple[int, Tensor]]:
+    """``(step, predicted frame)`` of ``steps`` steps from ``state``, in order, each once its graph is known complete.
+
+    ``one_step(current, kinematic_next)`` is one rollout step (:func:`rollout_step`, its model bound);
+    ``kinematic_truth`` (S, K, d) the kinematic particles' next positions, ``context`` (T, F) the step context
+    of every stored frame (the first C are the inputs). With a fixed-capacity graph builder the frames come in
+    runs of :data:`CAPACITY_CHECK_EVERY`, after the check that their graphs had every edge; a run whose check
+    fails is redone with grown buffers. With ``capture`` the steps replay one captured step
+    (:class:`~.captured_steps.CapturedSteps`), captured again when the buffers grow. ``progress(n)`` is told of
+    every ``n`` steps done.
+    """
+    history = state.position_sequence.shape[1]
     steps_of = CapturedSteps(one_step, state, builder) if capture else None
+    sequence = state.position_sequence
     step, sound_step, sound_sequence = 0, 0, sequence
     unchecked: list[tuple[int, Tensor]] = []
-    bar = tqdm(total=steps, desc=f"rollout {trajectory.key}", unit="step", disable=not progress)
-    with bar, capacity_checks(builder) as every:
+    with capacity_checks(builder) as every:
         while step < steps:
             frame_context = None if context is None else context[history - 1 + step][None]
             if steps_of is not None:
@@ -128,20 +166,10 @@ def rollout(
                 if steps_of is not None:
                     steps_of.invalidate()  # the buffers' shapes changed
                 continue
-            for done, raw in (ready for pending in unchecked for ready in frames.push(*pending)):
-                checked(done, raw)
-            bar.update(step - sound_step)
+            yield from unchecked
+            progress(step - sound_step)
             unchecked.clear()
             sound_step, sound_sequence = step, sequence
-    for done, raw in frames.drain():
-        checked(done, raw)
-    return Rollout(
-        truth=trajectory.first_frames(history + steps),
-        predicted=predicted.numpy(),
-        history=history,
-        predicted_particles=moving.cpu().numpy(),
-        guard_violations=tuple(violations),
-    )
 
 
 def rollout_step(

@@ -127,11 +127,11 @@ def batches_of(lengths: list[int], count: int, batch: int, monkeypatch) -> list[
     calls = []
     trajectories = [SimpleNamespace(num_steps=length, index=i) for i, length in enumerate(lengths)]
 
-    def one(simulator, trajectory, steps, device, progress, guard, precision):
+    def one(simulator, trajectory, steps, device, progress, guard, precision, capture):
         calls.append([trajectory.index])
         return f"rollout {trajectory.index}"
 
-    def many(simulator, group, steps, device, guard, precision):
+    def many(simulator, group, steps, device, guard, precision, capture):
         calls.append([t.index for t in group])
         return [f"rollout {t.index}" for t in group]
 
@@ -295,8 +295,8 @@ def test_capture_of_a_step_that_waits_for_the_device_is_one_clear_line(tiny_mode
     assert refused.returncode != 0, refused.stdout
     assert "cannot be captured" in refused.stderr and "use radius_fixed_capacity" in refused.stderr
     assert "Traceback" not in refused.stderr
-    batched = gns("rollout", str(tiny_model), "--capture", "--batch", "2", "--out", str(tmp_path / "b"))
-    assert batched.returncode != 0 and "combines with neither --batch nor --partitions" in batched.stderr
+    split = gns("rollout", str(tiny_model), "--capture", "--partitions", "2", "--out", str(tmp_path / "b"))
+    assert split.returncode != 0 and "--capture does not combine with --partitions" in split.stderr
     assert not (tmp_path / "b").exists()
 
 
