@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from .work import quantile_cut
+
 CHUNK = 65_536
 """Particles compared with every box at once: (CHUNK, P, d) float64 temporaries, 100 MB at P = 64 in 3D."""
 
@@ -58,10 +60,11 @@ class BlockPartition:
         depth: float,
         periodic_dims: tuple[int, ...] = (),
         bounds: tuple[tuple[float, float], ...] | None = None,
+        weight: Tensor | None = None,
     ) -> BlockPartition:
-        """Boxes by recursive bisection of ``position`` (N, d): each cut halves the particles (in proportion to the
-        processes on either side) across the dimension they spread farthest in; ``bounds`` gives the periodic box of
-        ``periodic_dims``."""
+        """Boxes by recursive bisection of ``position`` (N, d): each cut halves the particles' ``weight`` (N,; default:
+        their count), in proportion to the processes on either side, across the dimension they spread farthest in;
+        ``bounds`` gives the periodic box of ``periodic_dims``."""
         if parts < 1:
             raise ValueError(f"partitions must be at least 1, got {parts}")
         dim = int(position.shape[1])
@@ -71,7 +74,7 @@ class BlockPartition:
             box[k] = (float(bounds[k][0]), float(bounds[k][1]))
         lower: list[tuple[float, ...]] = []
         upper: list[tuple[float, ...]] = []
-        _bisect(position.detach().to(torch.float64), parts, [-math.inf] * dim, [math.inf] * dim, lower, upper)
+        _bisect(position.detach().to(torch.float64), weight, parts, [-math.inf] * dim, [math.inf] * dim, lower, upper)
         return cls(tuple(lower), tuple(upper), float(depth), tuple(box))
 
     def owner(self, position: Tensor) -> Tensor:
@@ -118,13 +121,15 @@ class BlockPartition:
 
 def _bisect(
     position: Tensor,
+    weight: Tensor | None,
     parts: int,
     lower: list[float],
     upper: list[float],
     lowers: list[tuple[float, ...]],
     uppers: list[tuple[float, ...]],
 ) -> None:
-    """Append the ``parts`` boxes of the particles ``position`` (n, d) inside ``[lower, upper)``, lower side first."""
+    """Append the ``parts`` boxes of the particles ``position`` (n, d) of ``weight`` (n,) inside ``[lower, upper)``,
+    lower side first."""
     if parts == 1:
         lowers.append(tuple(lower))
         uppers.append(tuple(upper))
@@ -134,15 +139,15 @@ def _bisect(
     if n:
         spread = position.max(0).values - position.min(0).values
         axis = int(torch.argmax(spread))
-        coordinate = torch.sort(position[:, axis]).values
-        cut = float(coordinate[min(n - 1, (n * below) // parts)])
+        cut = quantile_cut(position[:, axis], weight, below, parts)
     else:
         # No particle left to share (fewer particles than processes): the boxes only need to tile space.
         axis = 0
         cut = _middle(lower[axis], upper[axis])
     first = position[:, axis] < cut
-    _bisect(position[first], below, lower, [*upper[:axis], cut, *upper[axis + 1 :]], lowers, uppers)
-    _bisect(position[~first], parts - below, [*lower[:axis], cut, *lower[axis + 1 :]], upper, lowers, uppers)
+    mine, theirs = (None, None) if weight is None else (weight[first], weight[~first])
+    _bisect(position[first], mine, below, lower, [*upper[:axis], cut, *upper[axis + 1 :]], lowers, uppers)
+    _bisect(position[~first], theirs, parts - below, [*lower[:axis], cut, *lower[axis + 1 :]], upper, lowers, uppers)
 
 
 def _middle(low: float, high: float) -> float:

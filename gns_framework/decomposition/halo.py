@@ -29,6 +29,7 @@ from ..model.learned_simulator import LearnedSimulator
 from .exchange import Routing
 from .particles import Particles
 from .partition import Cut, Partition, balanced_partition
+from .work import particle_work
 
 HaloKind = Literal["auto", "positions", "latents"]
 
@@ -94,13 +95,16 @@ def partition_for(
     axis: int | None = None,
     cut: Cut = "auto",
 ) -> tuple[Partition, Literal["positions", "latents"]]:
-    """Pieces of equal particle count of the scene at ``position`` (N, d), cut as ``cut`` says
-    (:func:`.partition.balanced_partition`), with the halo ``halo`` resolves to."""
+    """Pieces of equal work of the scene at ``position`` (N, d) (each particle one plus the edges it receives in
+    the model's graph, :func:`.work.particle_work`), cut as ``cut`` says (:func:`.partition.balanced_partition`),
+    with the halo ``halo`` resolves to."""
     kind = halo_kind(simulator, halo)
     setup = simulator.setup
     depth = halo_depth(simulator, kind)
+    with torch.no_grad():
+        weight = particle_work(simulator.graph_builder, position)
     partition = balanced_partition(
-        position, parts, depth, cut, axis, periodic_dims=setup.periodic_dims, bounds=setup.bounds
+        position, parts, depth, cut, axis, periodic_dims=setup.periodic_dims, bounds=setup.bounds, weight=weight
     )
     return partition, kind
 

@@ -1,6 +1,7 @@
 """How a scene is cut into one piece per process: slabs or blocks, whichever leaves the smaller halo.
 
-Both cuts balance the particle count; they differ in the halo. A slab's halo is two faces
+Both cuts balance the work (each particle weighing one plus the edges it receives, :mod:`.work`), or the
+particle count; they differ in the halo. A slab's halo is two faces
 as large as the domain's cross-section, whatever P; a block's shrinks as P grows. Which is
 smaller depends on the scene's shape and P, and costs one pass over the particles to
 count, so ``auto`` counts both and takes the smaller (slabs on a tie: at P = 2 they are the
@@ -51,8 +52,10 @@ def balanced_partition(
     axis: int | None = None,
     periodic_dims: tuple[int, ...] = (),
     bounds: tuple[tuple[float, float], ...] | None = None,
+    weight: Tensor | None = None,
 ) -> Partition:
-    """``parts`` pieces of equal particle count of the scene at ``position`` (N, d), cut as ``cut`` says.
+    """``parts`` pieces of equal ``weight`` (N,: each particle's work, :mod:`.work`; default: equal particle
+    count) of the scene at ``position`` (N, d), cut as ``cut`` says.
 
     ``axis`` fixes the dimension slabs are cut across (so ``auto`` means slabs); ``bounds``
     (d pairs) gives the periodic box of ``periodic_dims``.
@@ -61,9 +64,13 @@ def balanced_partition(
         raise ValueError(f"a cut into blocks has no single axis, got axis {axis}: use slabs or leave the axis out")
     slabs = blocks = None
     if cut != "blocks":
-        slabs = SlabPartition.balanced(position, parts, depth, axis, periodic_dims=periodic_dims, bounds=bounds)
+        slabs = SlabPartition.balanced(
+            position, parts, depth, axis, periodic_dims=periodic_dims, bounds=bounds, weight=weight
+        )
     if cut == "blocks" or (cut == "auto" and axis is None and parts > 2):
-        blocks = BlockPartition.balanced(position, parts, depth, periodic_dims=periodic_dims, bounds=bounds)
+        blocks = BlockPartition.balanced(
+            position, parts, depth, periodic_dims=periodic_dims, bounds=bounds, weight=weight
+        )
     if slabs is None:
         assert blocks is not None
         return blocks

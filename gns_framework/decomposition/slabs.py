@@ -1,4 +1,4 @@
-"""Slabs: the domain cut along one axis into P pieces of about equal particle count, one per process.
+"""Slabs: the domain cut along one axis into P pieces of about equal work (or particle count), one per process.
 
 Process r owns the particles whose coordinate along the axis lies in ``[cut_r, cut_{r+1})``
 (the first slab open below, the last open above; in a periodic axis the box's faces close
@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import torch
 from torch import Tensor
+
+from .work import quantile_cut
 
 
 @dataclass(frozen=True)
@@ -48,8 +50,9 @@ class SlabPartition:
         axis: int | None = None,
         periodic_dims: tuple[int, ...] = (),
         bounds: tuple[tuple[float, float], ...] | None = None,
+        weight: Tensor | None = None,
     ) -> SlabPartition:
-        """Cuts at the particle-count quantiles of ``position`` (N, d) along ``axis``.
+        """Cuts at the quantiles of ``weight`` (N,; default: the particle count) of ``position`` (N, d) along ``axis``.
 
         ``axis`` defaults to the dimension in which the particles spread farthest (a
         periodic one counts its box length): the thinnest slabs relative to the halo.
@@ -67,9 +70,8 @@ class SlabPartition:
         if axis in periodic_dims:
             assert bounds is not None, "a periodic dimension needs the box bounds"
             box = (float(bounds[axis][0]), float(bounds[axis][1]))
-        coordinate = torch.sort(position[:, axis].to(torch.float64)).values
-        n = coordinate.shape[0]
-        cuts = tuple(float(coordinate[min(n - 1, (n * k) // parts)]) for k in range(1, parts)) if n else ()
+        coordinate = position[:, axis].to(torch.float64)
+        cuts = tuple(quantile_cut(coordinate, weight, k, parts) for k in range(1, parts)) if len(coordinate) else ()
         return cls(axis=axis, cuts=cuts, depth=float(depth), box=box)
 
     def owner(self, position: Tensor) -> Tensor:

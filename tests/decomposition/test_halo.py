@@ -21,6 +21,7 @@ def test_the_built_in_components_declare_their_reach():
     builders = {e.name: e.cls.joins_within_radius for e in registry.entries("graph_builder")}
     assert {name: builders[name] for name in TINY_GRAPH_BUILDERS} == {
         "radius": True,
+        "radius_fixed_capacity": True,  # the same edges, padded
         "periodic_radius": True,
         "radius_torch_cluster": True,
         "knn": False,  # its edges depend on which other particles are near

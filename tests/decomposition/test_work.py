@@ -1,0 +1,76 @@
+"""Pieces cut by work (decomposition/work.py): each particle one plus the edges it receives; a dense pile beside
+loose spray gets pieces of equal work, not of equal particle count."""
+
+from __future__ import annotations
+
+import torch
+
+from gns_builtins.graph_builders.no_edges import NoEdgesGraphBuilder
+from gns_builtins.graph_builders.radius import RadiusGraphBuilder
+from gns_builtins.graph_builders.radius_fixed_capacity import FixedCapacityRadiusGraphBuilder
+from gns_framework.contracts import ModelSetup
+from gns_framework.decomposition.partition import balanced_partition
+from gns_framework.decomposition.work import particle_work, quantile_cut
+
+SETUP = ModelSetup(dim=2, bounds=((0.0, 1.0), (0.0, 1.0)), connectivity_radius=0.05, particle_types=(6,))
+
+
+def _pile_and_spray(seed: int = 0) -> torch.Tensor:
+    """600 particles packed in the left tenth of the box, 600 spread over the rest: 8x the neighbours on the left."""
+    generator = torch.Generator().manual_seed(seed)
+    pile = torch.rand(600, 2, generator=generator) * torch.tensor([0.1, 0.5])
+    spray = torch.rand(600, 2, generator=generator) * torch.tensor([0.9, 0.5]) + torch.tensor([0.1, 0.0])
+    return torch.cat([pile, spray]).double()
+
+
+def test_a_cut_by_count_is_the_unweighted_quantile():
+    coordinate = torch.tensor([0.5, 0.1, 0.9, 0.3, 0.7])
+    assert quantile_cut(coordinate, None, 1, 2) == float(torch.sort(coordinate).values[2])
+    for below, parts in ((1, 2), (1, 3), (2, 3), (3, 4)):
+        assert quantile_cut(coordinate, torch.ones(5), below, parts) == quantile_cut(coordinate, None, below, parts)
+    # The particle at 0.9 weighs 4 of 8: half the weight lies below it, and the cut moves there from 0.5.
+    assert quantile_cut(coordinate, torch.tensor([1.0, 1.0, 4.0, 1.0, 1.0]), 1, 2) == float(torch.tensor(0.9))
+
+
+def test_work_is_one_plus_the_edges_received_and_padding_is_no_work():
+    position = _pile_and_spray()
+    radius = RadiusGraphBuilder(RadiusGraphBuilder.Params(), SETUP)
+    graph = radius.build(position, torch.zeros(len(position), dtype=torch.long), 1)
+    expected = 1.0 + torch.bincount(graph.receivers, minlength=len(position)).double()
+    assert torch.equal(particle_work(radius, position), expected)
+    fixed = FixedCapacityRadiusGraphBuilder(FixedCapacityRadiusGraphBuilder.Params(), SETUP)
+    assert torch.equal(particle_work(fixed, position), expected), "the sink node's padding is nobody's work"
+    assert torch.equal(
+        particle_work(NoEdgesGraphBuilder(NoEdgesGraphBuilder.Params(), SETUP), position),
+        torch.ones(1200, dtype=torch.float64),
+    )
+
+
+def test_pieces_cut_by_work_receive_about_equal_edges_where_pieces_by_count_do_not():
+    position = _pile_and_spray()
+    work = particle_work(RadiusGraphBuilder(RadiusGraphBuilder.Params(), SETUP), position)
+
+    def piece_work(partition) -> torch.Tensor:
+        owner = partition.owner(position)
+        return torch.stack([work[owner == r].sum() for r in range(4)])
+
+    for cut in ("slabs", "blocks"):
+        by_count = piece_work(balanced_partition(position, 4, 0.1, cut))
+        by_work = piece_work(balanced_partition(position, 4, 0.1, cut, weight=work))
+        assert by_count.max() / by_count.min() > 3, (cut, by_count)  # the pile's pieces carry most of the edges
+        assert by_work.max() / by_work.min() < 1.25, (cut, by_work)
+
+
+def test_a_partitioned_rollout_cuts_its_pieces_by_the_models_work():
+    # partition_for, as the partitioned rollout and training call it, weighs the particles by the model's own graph.
+    from decomposition_cases import case_simulator
+
+    from gns_framework.decomposition.halo import partition_for
+
+    simulator = case_simulator("2d_walls")  # R = 0.1: the pile's particles have ~8x the spray's neighbours
+    position = _pile_and_spray().float()
+    partition, _ = partition_for(simulator, position, 4, "latents", cut="slabs")
+    work = particle_work(simulator.graph_builder, position)
+    owner = partition.owner(position)
+    shares = torch.stack([work[owner == r].sum() for r in range(4)])
+    assert shares.max() / shares.min() < 1.25, shares
