@@ -94,6 +94,7 @@ def partition_for(
     halo: HaloKind = "auto",
     axis: int | None = None,
     cut: Cut = "auto",
+    weight: Tensor | None = None,
 ) -> tuple[Partition, Literal["positions", "latents"]]:
     """Pieces of equal work of the scene at ``position`` (N, d) (each particle one plus the edges it receives in
     the model's graph, :func:`.work.particle_work`), cut as ``cut`` says (:func:`.partition.balanced_partition`),
@@ -101,8 +102,9 @@ def partition_for(
     kind = halo_kind(simulator, halo)
     setup = simulator.setup
     depth = halo_depth(simulator, kind)
-    with torch.no_grad():
-        weight = particle_work(simulator.graph_builder, position)
+    if weight is None:  # the work of every particle, from the whole scene's graph (a re-cut passes what it knows)
+        with torch.no_grad():
+            weight = particle_work(simulator.graph_builder, position)
     partition = balanced_partition(
         position, parts, depth, cut, axis, periodic_dims=setup.periodic_dims, bounds=setup.bounds, weight=weight
     )

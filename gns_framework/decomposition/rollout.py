@@ -49,6 +49,7 @@ from .halo import HaloKind, partition_for, with_halo
 from .particles import Particles
 from .partition import Cut, Partition
 from .piece import on_piece
+from .work import particle_work
 
 if TYPE_CHECKING:
     from ..runtime.processes import Processes
@@ -178,7 +179,10 @@ def partitioned_rollout(
             and _most_held(owned, processes) > rebalance * start.num_particles / world
         ):
             frame = rows_everywhere(owned.ids, owned.sequence[:, -1], start.num_particles, world, processes.group)
-            partition, _ = partition_for(simulator, frame, world, kind, axis, cut)
+            # Each process weighs its own particles on its piece's graph: no process builds the whole scene's.
+            work = _owned_work(simulator, owned, partition, processes)
+            work = rows_everywhere(owned.ids, work[:, None], start.num_particles, world, processes.group)[:, 0]
+            partition, _ = partition_for(simulator, frame, world, kind, axis, cut, weight=work)
             owned, moved = _migrate(owned, partition, processes)
             migrations += moved
             rebalances += 1
@@ -241,6 +245,15 @@ def _frames(path: Path | None, shape: tuple[int, int, int]) -> Tensor:
     if path is None:
         return torch.empty(shape)
     return torch.from_numpy(np.lib.format.open_memmap(path, mode="w+", dtype=np.float32, shape=shape))
+
+
+def _owned_work(simulator: LearnedSimulator, owned: Particles, partition: Partition, processes: Processes) -> Tensor:
+    """(n,) float64 work of this process's particles (:func:`.work.particle_work`), on its piece with its halo:
+    the halo holds every neighbour within the connectivity radius, so each owned particle's edges are all there."""
+    local = with_halo(owned, partition, processes.world_size, processes.group)
+    with torch.no_grad():
+        work = particle_work(simulator.graph_builder, local.local.sequence[:, -1])
+    return work[local.owned_rows]
 
 
 def _most_held(owned: Particles, processes: Processes) -> int:
