@@ -9,7 +9,7 @@ silently.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from contextlib import closing, contextmanager
 from dataclasses import replace
 
@@ -131,7 +131,7 @@ def sound_frames(
     context: Tensor | None = None,
     capture: bool = False,
     progress: Callable[[int], object] = lambda done: None,
-) -> Iterator[tuple[int, Tensor]]:
+) -> Generator[tuple[int, Tensor], None, None]:
     """``(step, predicted frame)`` of ``steps`` steps from ``state``, in order, each once its graph is known complete.
 
     ``one_step(current, kinematic_next)`` is one rollout step (:func:`rollout_step`, its model bound);
