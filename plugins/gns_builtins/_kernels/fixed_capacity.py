@@ -20,8 +20,8 @@ from gns_framework.api import read_back
 from .padded_cell_list import CellGrid, PaddedPairs, padded_radius_pairs
 
 CELLS_PER_PARTICLE = 4
-"""The grid holds at most about this many cells per particle (and example): a scene spread far relative to R
-gets cells larger than R (more candidates each) rather than counts and offsets larger than its particles."""
+"""The grids of a batch's examples hold at most about this many cells per particle together: a scene spread far
+relative to R gets cells larger than R (more candidates each) rather than counts larger than its particles."""
 
 
 class FixedCapacityRadius:
@@ -37,8 +37,8 @@ class FixedCapacityRadius:
     def __init__(self, radius: float, growth: float):
         self.radius, self.growth = radius, growth
         self.sizings = 0
-        self.scene: tuple | None = None
-        self.scene_particles = 0
+        self.sized_for: tuple | None = None
+        self.max_cells = 0
         self.grid: CellGrid | None = None
         self.candidate_capacity = self.edge_capacity = 0
         self.needed: Tensor | None = None
@@ -50,9 +50,9 @@ class FixedCapacityRadius:
         otherwise the caller calls :meth:`overflowed` later and redoes what it built since.
         """
         scene = (position.shape, position.device, num_examples)
-        if scene != self.scene:
+        if scene != self.sized_for:
             self._size(position, batch, num_examples)
-            self.scene = scene
+            self.sized_for = scene
         found = self._search(position, batch, num_examples)
         if check_now:
             while self.overflowed():
@@ -79,7 +79,7 @@ class FixedCapacityRadius:
             self.edge_capacity = max(self.edge_capacity, math.ceil(self.growth * count))
             self.sizings += 1
         if any(need > have for need, have in zip(cells, self.grid.cells_per_axis, strict=True)):
-            self.grid = self._grid(cells, self.scene_particles)
+            self.grid = self._grid(cells)
         return short
 
     def _search(self, position: Tensor, batch: Tensor, num_examples: int) -> PaddedPairs:
@@ -97,10 +97,11 @@ class FixedCapacityRadius:
 
     def _size(self, position: Tensor, batch: Tensor, num_examples: int) -> None:
         """The buffers for a new scene: its extent, then its candidates, then its pairs (three read-backs)."""
-        self.scene_particles = max(position.shape[0], 1) * num_examples
+        # Every example has its own copy of the grid's counts: the cap is on all of them together.
+        self.max_cells = max(CELLS_PER_PARTICLE * position.shape[0] // num_examples, 3 ** position.shape[1])
         finite = position.detach()[torch.isfinite(position.detach()).all(1)]
         extent = read_back(finite.amax(0) - finite.amin(0)) if len(finite) else [0.0] * position.shape[1]
-        self.grid = CellGrid.for_extent(tuple(extent), self.radius, CELLS_PER_PARTICLE * self.scene_particles)
+        self.grid = CellGrid.for_extent(tuple(extent), self.radius, self.max_cells)
         self.candidate_capacity = self.edge_capacity = 0
         self.needed = None
         for _ in range(2):  # the candidates' count is exact with no buffer; the pairs' once candidates fit
@@ -111,8 +112,8 @@ class FixedCapacityRadius:
         self.needed = None
         self.sizings += 1
 
-    def _grid(self, cells: list[int], particles: int) -> CellGrid:
+    def _grid(self, cells: list[int]) -> CellGrid:
         """A grid ``growth`` times the span that ``cells`` cells of the current grid cover."""
         assert self.grid is not None
         extent = tuple((need - 2) * self.grid.cell * self.growth for need in cells)
-        return CellGrid.for_extent(extent, self.radius, CELLS_PER_PARTICLE * particles)
+        return CellGrid.for_extent(extent, self.radius, self.max_cells)
