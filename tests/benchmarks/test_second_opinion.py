@@ -73,3 +73,16 @@ def test_the_shifted_opinion_moves_the_scene_and_its_walls_and_is_moved_back():
     assert first is case and none == 0.0 and offset == 0.01
     assert np.allclose(second.position, 0.01) and np.allclose(second.bounds, case.bounds + 0.01)
     assert second_opinion.shifted(Walled(case.position, None), 0.5).bounds is None
+
+
+def test_a_simulators_cloud_stands_in_for_the_truth_with_its_own_particles():
+    from gns_framework.data.trajectory import Trajectory
+    from gns_framework.evaluation.records import Prediction
+
+    case = Trajectory(np.zeros((8, 3, 2), np.float32), np.array([6, 6, 6]), key="c")
+    other = Prediction(np.ones((2, 5, 2), np.float32), np.full(5, 6), np.full((5, 2), 0.5, np.float32))
+    truth = second_opinion._as_case(other, case, history=6)
+    assert truth.position.shape == (8, 5, 2) and (truth.particle_type == 6).all()
+    assert np.allclose(truth.position[:6], 0.5) and np.allclose(truth.position[6:], 1.0)
+    own = second_opinion._own_particles(Prediction(np.zeros((2, 3, 2), np.float32)), case, history=6)
+    assert own.particle_type is case.particle_type and np.array_equal(own.start, case.position[5])
