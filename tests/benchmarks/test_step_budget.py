@@ -68,6 +68,15 @@ def test_with_fixed_capacity_a_rollout_step_never_waits_for_the_device():
     assert dict(captured["top"])["cuda_graph.replay"] == 1
 
 
+def test_the_chunked_training_step_sorts_its_graph_once():
+    # Issue 45, item 1: on accelerators without Triton the ordered sums need the senders' order: made once per
+    # graph (edge_order's ChunkOrder), not per backward call; the receivers, sorted by the builder, not re-sorted.
+    step = step_budget.measure(400, 3, triton=False)["training_step"]
+    names = dict(step["top"])
+    assert names["aten.sort"] <= 8, "the graph build's sorts and one for the senders"
+    assert step["launching"] <= 1200, step["top"]
+
+
 def test_the_script_ends_with_its_json_line():
     result = subprocess.run(
         [sys.executable, str(REPO / "benchmarks/step_budget.py"), "--particles", "300", "--json"],

@@ -77,29 +77,30 @@ class Plan(NamedTuple):
     ordered_sums: bool
 
     @staticmethod
-    def of(e: Tensor, receivers: Tensor, products: torch.dtype) -> Plan:
-        # Graph builders sort edges by receiver; the fused CPU kernels rely on it and check it once per call
-        # (a read-back, so only on the CPU, where it costs nothing).
-        receivers_sorted = not avoids_read_backs(e.device) and bool((receivers[1:] >= receivers[:-1]).all())
-        return Plan(chunk_size(e.device), products, receivers_sorted, needs_ordered_sums(e.device))
+    def of(e: Tensor, receivers: Tensor, products: torch.dtype, known_sorted: bool = False) -> Plan:
+        # Graph builders sort edges by receiver (``known_sorted``: the graph says so, Graph.receivers_sorted); else
+        # the fused CPU kernels, which rely on it, check once per call (a read-back, so only on the CPU).
+        check = not avoids_read_backs(e.device) and bool((receivers[1:] >= receivers[:-1]).all())
+        return Plan(chunk_size(e.device), products, known_sorted or check, needs_ordered_sums(e.device))
 
 
-def _sender_order(rows: Tensor, num_edges: int, size: int) -> Tensor:
-    """(E,) edge indices sorted by chunk, then by sender row, in one sort for the whole backward.
+def chunk_sender_order(senders: Tensor, size: int) -> Tensor:
+    """(E,) edge indices sorted by chunk of ``size`` edges, then by sender: made once per graph, for every backward.
 
     The ordered sums need each chunk's sender rows in key order; chunks are contiguous edge
     ranges, so sorting by (chunk, sender) puts chunk ``[lo, hi)``'s edges at positions
-    ``[lo, hi)``, sorted by sender: one stable sort per call instead of one per chunk.
+    ``[lo, hi)``, sorted by sender: one stable sort per graph instead of one per chunk and call.
     """
-    senders = rows[1::2]
-    chunk = torch.arange(num_edges, device=rows.device) // size
+    num_edges = senders.shape[0]
+    chunk = torch.arange(num_edges, device=senders.device) // size
     return torch.argsort(chunk * (senders.max() + 1) + senders, stable=True) if num_edges else senders
 
 
-def _add_at(out: Tensor, index: Tensor, rows: Tensor, plan: Plan) -> None:
-    """``out[index[k]] += rows[k]``: in a fixed order where ``index_add_`` has none (GPUs)."""
+def _add_at(out: Tensor, index: Tensor, rows: Tensor, plan: Plan, receivers: bool = False) -> None:
+    """``out[index[k]] += rows[k]``: in a fixed order where ``index_add_`` has none (GPUs); ``index`` the
+    receivers (``receivers``), when the plan knows them sorted, needs no sort."""
     if plan.ordered_sums:
-        segment_sum_(out, index, rows)
+        (sorted_segment_sum_ if receivers and plan.receivers_sorted else segment_sum_)(out, index, rows)
     else:
         out.index_add_(0, index, rows)
 
@@ -159,7 +160,7 @@ def _layer_norm_residual(a, bias, norm, e, out, aggregate, receivers, stats, pla
     else:
         update, mean, rstd = torch.layer_norm(a, (a.shape[1],), norm_weight, norm_bias, eps), None, None
     torch.add(e, update, out=out)
-    _add_at(aggregate, receivers, update, plan)
+    _add_at(aggregate, receivers, update, plan, receivers=True)
     return mean, rstd
 
 
@@ -197,11 +198,14 @@ def _layer_norm_backward(grad_aggregate, receivers, grad_out, a, mean, rstd, nor
 
 class _EdgeBlock(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, e, table, rows, receivers, eps, num_layers, products, norm_weight, norm_bias, *parameters):
+    def forward(
+        ctx, e, table, rows, receivers, sender_order, eps, num_layers, products, norm_weight, norm_bias, *parameters
+    ):
         weights, biases = parameters[:num_layers], parameters[num_layers:]
         out = torch.empty_like(e)
+        ctx.sender_order = sender_order
         ctx.stored = None if recompute_activations() else []
-        ctx.plan = Plan.of(e, receivers, products)
+        ctx.plan = Plan.of(e, receivers, products, known_sorted=sender_order is not None)
         aggregate = _forward(
             e, table, rows, receivers, norm_weight, norm_bias, eps, weights, biases, out, ctx.plan, ctx.stored
         )
@@ -232,7 +236,9 @@ class _EdgeBlock(torch.autograd.Function):
         if grad_aggregate is not None:
             # Often a column slice of the node MLP's input gradient; its rows are gathered per edge.
             grad_aggregate = grad_aggregate.contiguous()
-        sender_order = _sender_order(rows, e.shape[0], size) if ctx.plan.ordered_sums else None
+        sender_order = None
+        if ctx.plan.ordered_sums:  # the graph's, when the processor made it; else this call's
+            sender_order = ctx.sender_order if ctx.sender_order is not None else chunk_sender_order(rows[1::2], size)
         for index, (lo, hi) in enumerate(chunks(e.shape[0], size)):
             chunk_rows, e_chunk = rows[2 * lo : 2 * hi], e[lo:hi]
             if ctx.stored is None:
@@ -260,7 +266,7 @@ class _EdgeBlock(torch.autograd.Function):
             )
             add_product(grad_weights[0], grad_a.t(), e_chunk.to(products))
             grad_a_summed = grad_a.to(dtype)
-            _add_at(grad_table, chunk_rows[0::2], grad_a_summed, ctx.plan)
+            _add_at(grad_table, chunk_rows[0::2], grad_a_summed, ctx.plan, receivers=True)
             if sender_order is None:
                 _add_at(grad_table, chunk_rows[1::2], grad_a_summed, ctx.plan)
             else:
@@ -279,6 +285,7 @@ class _EdgeBlock(torch.autograd.Function):
             None,
             None,
             None,
+            None,
             grad_norm_weight,
             grad_norm_bias,
             *grad_weights,
@@ -292,18 +299,28 @@ def uses_triton(latent: Tensor, weight: Tensor, num_weights: int) -> bool:
     return weight.dtype == torch.float32 and triton_edge_block.applies(latent, weight.shape[0], num_weights)
 
 
-def edge_order(step, e: Tensor, graph) -> EdgeOrder | None:
-    """The graph's edge orders, made once for all the message-passing steps of a processor call, where an
-    interaction step like ``step`` (``InteractionStep``) runs its edge block as Triton kernels; else None.
+class ChunkOrder(NamedTuple):
+    """The chunked path's order of a graph's edges for ordered sums at senders (:func:`chunk_sender_order`)."""
+
+    sender_order: Tensor
+
+
+def edge_order(step, e: Tensor, graph) -> EdgeOrder | ChunkOrder | None:
+    """The graph's edge orders, made once for all the message-passing steps of a processor call: an
+    :class:`EdgeOrder` where an interaction step like ``step`` (``InteractionStep``) runs its edge block as Triton
+    kernels, a :class:`ChunkOrder` where the chunked path sums in a fixed order (accelerators without Triton),
+    else None (the CPU: sums in edge order, nothing to sort).
 
     Shapes: e (E, L) edge latents; ``graph`` a :class:`~gns_framework.contracts.Graph`.
     """
     if step.edge_block != "fused" or not graph.receivers_sorted:
         return None
     linears = step.edge_mlp.mlp.linears
-    if not uses_triton(e, linears[0].weight, len(linears)):
-        return None
-    return EdgeOrder.of(graph.senders, graph.receivers, graph.num_nodes)
+    if uses_triton(e, linears[0].weight, len(linears)):
+        return EdgeOrder.of(graph.senders, graph.receivers, graph.num_nodes)
+    if needs_ordered_sums(e.device):
+        return ChunkOrder(chunk_sender_order(graph.senders, chunk_size(e.device)))
+    return None
 
 
 def edge_block(
@@ -315,7 +332,7 @@ def edge_block(
     biases: list[Tensor],
     norm: torch.nn.LayerNorm,
     in_place: bool = False,
-    order: EdgeOrder | None = None,
+    order: EdgeOrder | ChunkOrder | None = None,
 ) -> tuple[Tensor, Tensor]:
     """The edge update of one interaction step: ``(e + u, aggregate of u at receivers)``.
 
@@ -328,8 +345,9 @@ def edge_block(
         biases: the biases of the layers after the first.
         norm: the LayerNorm after the MLP.
         in_place: write ``e + u`` into ``e`` (allowed only without autograd; the Triton kernels write anew).
-        order: the graph's :class:`~.edge_order.EdgeOrder`, given where the Triton kernels take the block
-            (:func:`uses_triton`): on CUDA they run it in one pass per step.
+        order: the graph's orders (:func:`edge_order`): an :class:`~.edge_order.EdgeOrder` where the Triton
+            kernels take the block (:func:`uses_triton`: on CUDA one pass per step), a :class:`ChunkOrder` where
+            the chunked backward sums at senders in a fixed order (made per graph, not per call).
 
     Under autocast to a lower precision (bfloat16 or float16) the products run in that
     dtype, as autocast would run the unsplit MLP's Linears; LayerNorm, the residual,
@@ -342,7 +360,7 @@ def edge_block(
     weights, biases = [w.to(dtype) for w in weights], [b.to(dtype) for b in biases]
     norm_weight, norm_bias = norm.weight.to(dtype), norm.bias.to(dtype)
     with torch.autocast(device_type, enabled=False):
-        if order is not None and dtype == torch.float32:
+        if isinstance(order, EdgeOrder) and dtype == torch.float32:
             return triton_edge_block.triton_edge_block(
                 e,
                 table.to(dtype),
@@ -359,10 +377,22 @@ def edge_block(
         if torch.is_grad_enabled() and any(t.requires_grad for t in (e, table, *weights, *biases, norm_weight)):
             if in_place:
                 raise ValueError("in_place edge updates cannot be differentiated")
+            sender_order = order.sender_order if isinstance(order, ChunkOrder) else None
             return _EdgeBlock.apply(
-                e, table, rows, receivers, norm.eps, len(weights), products, norm_weight, norm_bias, *weights, *biases
+                e,
+                table,
+                rows,
+                receivers,
+                sender_order,
+                norm.eps,
+                len(weights),
+                products,
+                norm_weight,
+                norm_bias,
+                *weights,
+                *biases,
             )
         out = e if in_place else torch.empty_like(e)
-        plan = Plan.of(e, receivers, products)
+        plan = Plan.of(e, receivers, products, known_sorted=isinstance(order, ChunkOrder))
         aggregate = _forward(e, table, rows, receivers, norm_weight, norm_bias, norm.eps, weights, biases, out, plan)
     return out, aggregate

@@ -177,3 +177,27 @@ def test_under_bfloat16_autocast_the_edge_latents_are_kept_in_bfloat16_with_the_
     assert saved.dtype == torch.float32
     for a, b in zip(kept_in_bfloat16, kept_as_given, strict=True):
         assert a.dtype == b.dtype and torch.equal(a, b)
+
+
+def test_a_graphs_chunk_order_gives_the_bits_of_the_per_call_sort(small_chunks, monkeypatch):
+    # The accelerators' ordered sums (run here on the CPU): the senders' order made once per graph (ChunkOrder,
+    # by edge_order) instead of per backward call, and receivers known sorted instead of sorted again.
+    from gns_builtins._kernels.chunked import chunk_size
+    from gns_builtins._kernels.edge_block import ChunkOrder, chunk_sender_order
+
+    monkeypatch.setattr(edge_block_module, "needs_ordered_sums", lambda device: True)
+    torch.manual_seed(3)
+    n, latent, hidden = 13, 6, 5
+    receivers, senders = torch.randint(0, n, (50,)).sort().values, torch.randint(0, n, (50,))
+    mlp = NormedMLP(3 * latent, hidden, 2, latent)
+    x = torch.randn(n, latent, requires_grad=True)
+    e = torch.randn(50, latent, requires_grad=True)
+    order = ChunkOrder(chunk_sender_order(senders, chunk_size(e.device)))
+    results = []
+    for given in (None, order):
+        table, rows, weights, biases = split_inputs(mlp, x, senders, receivers)
+        e_new, aggregate = edge_block(e, table, rows, receivers, weights, biases, mlp.norm, order=given)
+        grads = torch.autograd.grad((e_new.square().sum() + aggregate.sin().sum()), [x, e, *mlp.parameters()])
+        results.append([e_new, aggregate, *grads])
+    for a, b in zip(*results, strict=True):
+        assert torch.equal(a, b)
