@@ -1,8 +1,8 @@
 """One scene split over P processes: time per step, memory per process and halo against P, and a projection to GPUs.
 
-    python benchmarks/decomposition_scaling.py --particles 100000 --processes 1 2 4 [--aspect 8]
+    python benchmarks/decomposition_scaling.py --particles 100000 --processes 1 2 4 [--aspect 8] [--dim 3]
         [--hops 5 --latent 64] [--halo positions latents] [--steps 5] [--train-steps 3] [--json]
-        [--plot docs/images/decomposition_scaling.png]
+        [--plot docs/images/decomposition_scaling.png] [--results docs/decomposition_results.json]
 
 The scene is a 2D layer of water-like particles on a jittered lattice (about 20
 neighbours each, benchmarks/lattice_scene.py's spacing and radius), ``--aspect``
@@ -18,7 +18,9 @@ message-passing steps).
 Per P and halo kind it prints: seconds per rollout step and per training step (the slowest process
 sets the pace), the time spent in all-to-all exchanges, the halo fraction (halo particles
 over owned ones), and the peak resident memory each process added beyond what it held
-before the first step (the model, the scene and torch itself are not counted).
+before the first step (the model, the scene and torch itself are not counted); ``--json`` and
+``--results`` also give each process's absolute peak (``peak_rss_mb_per_process``: input, output
+and torch included), the figure issue 50 compares against one process.
 On a machine with fewer cores than processes they share the cores (oversubscribed):
 then times are not speed-ups, and the script says so; memory and halo are unaffected.
 
@@ -46,19 +48,20 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-SPACING = 0.0058
+SPACING = {2: 0.0058, 3: 0.0085}
+"""Lattice spacing per dimension: about 20 neighbours within RADIUS in 2D and in 3D (benchmarks/lattice_scene.py)."""
 RADIUS = 0.015
 JITTER = 0.15
 HISTORY = 6
 
 
-def scene_particles(particles: int, aspect: float) -> tuple[int, int]:
-    """Lattice sites across (nx) and up (ny), nx = aspect * ny, nx * ny >= particles."""
-    high = max(1, round(math.sqrt(particles / aspect)))
-    return math.ceil(particles / high), high
+def scene_sites(particles: int, aspect: float, dim: int = 2) -> tuple[int, ...]:
+    """Lattice sites per axis: the first ``aspect`` times each other one, their product >= particles."""
+    side = max(1, round((particles / aspect) ** (1 / dim)))
+    return (math.ceil(particles / side ** (dim - 1)), *[side] * (dim - 1))
 
 
-def build(particles: int, aspect: float, hops: int, latent: int, frames: int):
+def build(particles: int, aspect: float, hops: int, latent: int, frames: int, dim: int = 2):
     """The simulator and a trajectory of ``frames`` frames (a slow random walk), the same in every process."""
     import numpy as np
 
@@ -69,25 +72,27 @@ def build(particles: int, aspect: float, hops: int, latent: int, frames: int):
     from gns_framework.data.trajectory import Trajectory
     from gns_framework.plugins import load_registry
 
-    across, up = scene_particles(particles, aspect)
+    sites = scene_sites(particles, aspect, dim)
     rng = np.random.default_rng(0)
-    grid = np.stack(np.meshgrid(np.arange(across), np.arange(up), indexing="ij"), -1).reshape(-1, 2)[:particles]
-    start = (grid + rng.uniform(-JITTER, JITTER, grid.shape)) * SPACING + 2 * SPACING
-    upper = [float(start[:, k].max()) + 2 * SPACING for k in range(2)]
-    velocity = rng.normal(0.0, 2e-4, (frames, particles, 2))
-    position = (start[None] + np.cumsum(velocity, 0)).astype(np.float32)
-    bounds = ((0.0, upper[0]), (0.0, upper[1]))
-    scene = ModelSetup(dim=2, bounds=bounds, connectivity_radius=RADIUS, particle_types=(5,), history=HISTORY)
+    axes = np.meshgrid(*[np.arange(n) for n in sites], indexing="ij")
+    grid = np.stack(axes, -1).reshape(-1, dim)[:particles]
+    spacing = SPACING[dim]
+    start = (grid + rng.uniform(-JITTER, JITTER, grid.shape)) * spacing + 2 * spacing
+    upper = [float(start[:, k].max()) + 2 * spacing for k in range(dim)]
+    velocity = rng.normal(0.0, 2e-4, (frames, particles, dim)).astype(np.float32)
+    position = (start[None].astype(np.float32) + np.cumsum(velocity, 0)).astype(np.float32)
+    bounds = tuple((0.0, upper[k]) for k in range(dim))
+    scene = ModelSetup(dim=dim, bounds=bounds, connectivity_radius=RADIUS, particle_types=(5,), history=HISTORY)
     metadata = DatasetMetadata(
         bounds=[list(b) for b in bounds],
         sequence_length=frames,
         default_connectivity_radius=RADIUS,
-        dim=2,
+        dim=dim,
         dt=0.0025,
-        vel_mean=[0.0, 0.0],
-        vel_std=[2e-4, 2e-4],
-        acc_mean=[0.0, 0.0],
-        acc_std=[2e-4, 2e-4],
+        vel_mean=[0.0] * dim,
+        vel_std=[2e-4] * dim,
+        acc_mean=[0.0] * dim,
+        acc_std=[2e-4] * dim,
     )
     model = ModelSpec(
         latent_size=latent,
@@ -143,7 +148,7 @@ def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
     try:
         steps, train_steps = config["steps"], config["train_steps"]
         simulator, trajectory = build(
-            config["particles"], config["aspect"], config["hops"], config["latent"], HISTORY + steps + 1
+            config["particles"], config["aspect"], config["hops"], config["latent"], HISTORY + steps + 1, config["dim"]
         )
         before = _resident_mb()
         halo = config["halo"]
@@ -181,6 +186,7 @@ def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
             "rollout_exchange_calls": rollout_calls["count"],
             "rollout_exchange_bytes": rollout_calls["bytes"],
             "rollout_peak_mb": rollout_peak,
+            "rollout_peak_rss_mb": _peak_mb(),
             "train_seconds": statistics.median(times[1:]),
             "train_exchange_seconds": statistics.median(train_exchange[1:]),
             "train_peak_mb": _peak_mb() - before,
@@ -216,6 +222,11 @@ def measure(processes: int, config: dict) -> dict:
         "train_seconds": max(r["train_seconds"] for r in ranks),
         "train_exchange_seconds": max(r["train_exchange_seconds"] for r in ranks),
         "rollout_peak_mb_per_process": max(r["rollout_peak_mb"] for r in ranks),
+        # The issue's record (docs/decomposition_results.json): absolute peak resident memory, input included.
+        "particles": config["particles"],
+        "dim": config["dim"],
+        "peak_rss_mb_per_process": max(r["rollout_peak_rss_mb"] for r in ranks),
+        "seconds_per_step": max(r["rollout_seconds"] for r in ranks),
         "train_peak_mb_per_process": max(r["train_peak_mb"] for r in ranks),
         "halo_fraction": ranks[0]["halo_fraction"],
         "partition": ranks[0]["partition"],
@@ -329,15 +340,23 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--project-aspect", type=float, default=8.0, help="its length / cross-section side")
     parser.add_argument("--project-gpus", type=int, nargs="+", default=[1, 8, 16, 32, 64])
+    parser.add_argument("--dim", type=int, choices=(2, 3), default=2, help="a 2D layer or a 3D block of particles")
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--plot", type=Path, help="write a figure of time and memory per process against P")
+    parser.add_argument(
+        "--results",
+        type=Path,
+        help="append each measured run (particles, processes, peak_rss_mb_per_process, seconds_per_step, ...) to "
+        "this JSON list (docs/decomposition_results.json)",
+    )
     args = parser.parse_args(argv)
     cores = len(os.sched_getaffinity(0))
-    config = {k: getattr(args, k) for k in ("particles", "aspect", "hops", "latent", "steps", "train_steps", "cut")}
-    across, up = scene_particles(args.particles, args.aspect)
+    keys = ("particles", "aspect", "hops", "latent", "steps", "train_steps", "cut", "dim")
+    config = {k: getattr(args, k) for k in keys}
+    sites = scene_sites(args.particles, args.aspect, args.dim)
     print(
-        f"scene: {args.particles} particles, {across} x {up} lattice sites, halo depth {args.hops} x R = "
-        f"{args.hops * RADIUS / SPACING:.1f} sites; {cores} core(s)"
+        f"scene: {args.particles} particles, {' x '.join(map(str, sites))} lattice sites, halo depth {args.hops} x R "
+        f"= {args.hops * RADIUS / SPACING[args.dim]:.1f} sites; {cores} core(s)"
     )
     rows = []
     for p in args.processes:
@@ -376,9 +395,30 @@ def main(argv: list[str] | None = None) -> int:
             )
     if args.plot:
         plot(rows, args.plot)
+    if args.results:
+        append_results(args.results, rows, config)
     if args.json:
         print(json.dumps({"config": config, "cores": cores, "rows": rows, "projection": projected}))
     return 0
+
+
+def append_results(path: Path, rows: list[dict], config: dict) -> None:
+    """Each measured run appended to the JSON list at ``path`` (made when absent), with the date and the commit."""
+    import datetime
+    import subprocess
+
+    commit = subprocess.run(
+        ["git", "-C", str(Path(__file__).resolve().parents[1]), "rev-parse", "--short", "HEAD"],
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    runs = json.loads(path.read_text()) if path.exists() else []
+    if not isinstance(runs, list):
+        raise SystemExit(f"decomposition_scaling.py: {path} holds no JSON list of runs")
+    stamp = {"date": datetime.date.today().isoformat(), "commit": commit or "unknown", "cores": os.cpu_count()}
+    runs += [{**stamp, **{k: config[k] for k in ("hops", "latent", "cut")}, **row} for row in rows]
+    path.write_text(json.dumps(runs, indent=1) + "\n")
+    print(f"decomposition_scaling.py: {len(runs)} run(s) in {path}")
 
 
 def plot(rows: list[dict], path: Path) -> None:
