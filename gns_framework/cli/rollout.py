@@ -124,7 +124,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="replay each step from one captured step: a CUDA graph on a GPU, one launch per step instead of "
         "hundreds (on a CPU an emulation, for tests, not faster); the model's graph builder must not wait for the "
-        "device (radius_fixed_capacity, or no edges); with --batch, one capture per batch; not with --partitions",
+        "device (graph builder radius_fixed_capacity; grid_cnn cannot be captured yet); with --batch, one capture per "
+        "batch; not with --partitions",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(

@@ -4,8 +4,9 @@
 (:class:`~gns_framework.runtime.capture.CapturedStep`: a CUDA graph on CUDA, an emulation
 elsewhere); each step copies its window, its step context and the kinematic particles'
 next positions into those tensors and replays. The step must not wait for the device:
-the graph builder must write into fixed-size buffers (``radius_fixed_capacity``, or no
-edges at all). When the builder grows its buffers the shapes change, so the rollout calls
+the graph builder must write into fixed-size buffers (``radius_fixed_capacity``), and the
+processor read nothing back (``grid_cnn`` reads its grid's size back: not capturable yet).
+When the builder grows its buffers the shapes change, so the rollout calls
 :meth:`CapturedSteps.invalidate` and the next step captures afresh.
 """
 
@@ -64,10 +65,9 @@ class CapturedSteps:
         try:
             self.captured = CapturedStep(lambda: self.step(current, static_kinematic), sequence.device)
         except (CaptureError, RuntimeError) as error:
-            hint = (
-                ""
-                if self.builder.fixed_capacity
-                else f"; the graph builder {self.builder.name!r} waits for the device: use radius_fixed_capacity"
-            )
+            # A radius search of exact size reads its edge count back: the fixed-capacity one does not.
+            waits = self.builder.joins_within_radius and not self.builder.fixed_capacity
+            hint = f"; the graph builder {self.builder.name!r} waits for the device: use radius_fixed_capacity"
+            hint = hint if waits else ""
             raise CaptureError(f"this model's rollout step cannot be captured: {error}{hint}") from error
         self.captures += 1

@@ -67,7 +67,7 @@ def rollout(
 
     ``capture``: run each step as a replay of one captured step (:mod:`.captured_steps`: a CUDA
     graph on CUDA, an emulation elsewhere, which is not faster); the step must not wait for the
-    device, so the graph builder must be ``radius_fixed_capacity`` or build no edges.
+    device, so the graph builder must be ``radius_fixed_capacity`` (``grid_cnn`` reads its grid's size back).
     """
     check_simulates(simulator, trajectory)
     guard = guard if guard is not None else RolloutGuard(simulator.setup)

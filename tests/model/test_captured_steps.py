@@ -63,3 +63,24 @@ def test_a_captured_batch_gives_each_scene_its_own_rollout(counted):
         alone = rollout(small_simulator("radius", PAPER, acc_std=0.02), scene)
         # Only the matrix products see the other scenes' rows: float32 rounding over 10 steps of ~0.5 m positions.
         np.testing.assert_allclose(result.predicted, alone.predicted, rtol=0, atol=1e-5)
+
+
+def test_a_grid_processor_that_reads_back_is_refused_naming_its_line_not_the_builder(counted):
+    from fixed_capacity_cases import SETUP
+    from rollouts import small_metadata
+
+    from gns_framework.assembly.learned import build_learned_simulator
+    from gns_framework.config.recipe import ModelSpec
+    from gns_framework.plugins import load_registry
+
+    spec = ModelSpec(
+        latent_size=8,
+        mlp_hidden_size=8,
+        mlp_hidden_layers=1,
+        graph_builder={"name": "no_edges"},
+        processor={"name": "grid_cnn", "message_passing_steps": 1},
+    )
+    model = build_learned_simulator(SETUP, small_metadata(), spec, load_registry()).eval()
+    with pytest.raises(CaptureError, match=r"grid_cnn\.py") as refused:
+        rollout(model, wandering_trajectory(frames=10), capture=True)
+    assert "radius_fixed_capacity" not in str(refused.value)  # no_edges does not wait: the hint would mislead
