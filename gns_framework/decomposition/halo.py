@@ -95,14 +95,17 @@ def partition_for(
     axis: int | None = None,
     cut: Cut = "auto",
     weight: Tensor | None = None,
+    by_work: bool = True,
 ) -> tuple[Partition, Literal["positions", "latents"]]:
     """Pieces of equal work of the scene at ``position`` (N, d) (each particle one plus the edges it receives in
-    the model's graph, :func:`.work.particle_work`), cut as ``cut`` says (:func:`.partition.balanced_partition`),
-    with the halo ``halo`` resolves to."""
+    the model's graph, :func:`.work.particle_work`, unless ``weight`` gives it), cut as ``cut`` says
+    (:func:`.partition.balanced_partition`), with the halo ``halo`` resolves to. ``by_work`` False: pieces of
+    equal particle count (a training step cuts its windows afresh every step: weighing them would add a graph).
+    """
     kind = halo_kind(simulator, halo)
     setup = simulator.setup
     depth = halo_depth(simulator, kind)
-    if weight is None:  # the work of every particle, from the whole scene's graph (a re-cut passes what it knows)
+    if weight is None and by_work:  # from the whole scene's graph (a re-cut passes what each process weighed)
         with torch.no_grad():
             weight = particle_work(simulator.graph_builder, position)
     partition = balanced_partition(

@@ -81,7 +81,7 @@ def _decomposed_next_frame(
     """
     world, rank = processes.world_size, processes.rank
     current = batch.position_sequence[:, -1]
-    partition, kind = partition_for(simulator, current, world, halo, cut=cut)
+    partition, kind = partition_for(simulator, current, world, halo, cut=cut, by_work=False)
     everyone = Particles(
         torch.arange(batch.num_particles, device=current.device),
         batch.position_sequence,

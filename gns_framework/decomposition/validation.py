@@ -55,7 +55,7 @@ def partitioned_one_step_errors(
     """
     assert batch.next_position is not None, "validation windows have their target"
     world, rank = processes.world_size, processes.rank
-    partition, kind = partition_for(simulator, batch.position_sequence[:, -1], world, halo, cut=cut)
+    partition, kind = partition_for(simulator, batch.position_sequence[:, -1], world, halo, cut=cut, by_work=False)
     owned = owned_share(batch, torch.zeros_like(batch.position_sequence), partition, rank)
     particles = with_halo(owned, partition, world, processes.group)
     local, owned_rows = particles.local, particles.owned_rows

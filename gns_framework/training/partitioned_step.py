@@ -42,7 +42,8 @@ class PartitionedTrainingStep(TrainingStep):
 
     def gradients(self, batch: ParticleBatch, noise: Tensor, mask: Tensor) -> Tensor:
         """Fresh gradients of the global batch's loss on every process, each computing its piece's share."""
-        partition, halo = partition_for(self.simulator, batch.position_sequence[:, -1], self.team.world_size)
+        position = batch.position_sequence[:, -1]
+        partition, halo = partition_for(self.simulator, position, self.team.world_size, by_work=False)
         owned = owned_share(batch, noise, partition, self.team.rank)
         self.optimizer.zero_grad(set_to_none=True)
         loss = partitioned_gradients(
