@@ -178,10 +178,13 @@ def partitioned_rollout(
             and world > 1
             and _most_held(owned, processes) > rebalance * start.num_particles / world
         ):
-            frame = rows_everywhere(owned.ids, owned.sequence[:, -1], start.num_particles, world, processes.group)
             # Each process weighs its own particles on its piece's graph: no process builds the whole scene's.
+            # The work (whole edge counts, exact in float32) travels beside the positions, in one exchange.
             work = _owned_work(simulator, owned, partition, processes)
-            work = rows_everywhere(owned.ids, work[:, None], start.num_particles, world, processes.group)[:, 0]
+            last = owned.sequence[:, -1]
+            rows = torch.cat([last, work[:, None].to(last.dtype)], dim=1)
+            everywhere = rows_everywhere(owned.ids, rows, start.num_particles, world, processes.group)
+            frame, work = everywhere[:, :-1], everywhere[:, -1].to(torch.float64)
             partition, _ = partition_for(simulator, frame, world, kind, axis, cut, weight=work)
             owned, moved = _migrate(owned, partition, processes)
             migrations += moved
