@@ -27,7 +27,7 @@ from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..runtime.precision import Precision
 from .learned_simulator import LearnedSimulator
-from .rollout import check_simulates, rollout_step, sound_frames
+from .rollout import check_simulates, sound_frames
 from .rollout_guard import GuardViolation, RolloutGuard
 
 
@@ -100,8 +100,7 @@ def rollout_batch(
     label = ", ".join(t.key for t in trajectories[:3]) + (
         f", ... ({len(trajectories)} in all)" if len(trajectories) > 3 else ""
     )
-    one_step = lambda current, nxt: rollout_step(simulator, guard, current, kinematic, nxt, precision)  # noqa: E731
-    frames = sound_frames(simulator.graph_builder, one_step, state, kinematic_truth, steps, capture=capture)
+    frames = sound_frames(simulator, guard, state, kinematic, kinematic_truth, steps, precision, capture=capture)
     with closing(frames):  # a guard's stop closes it: the builder checks its own builds again
         for step, next_position in frames:
             predicted[step], found = guard.check(step, next_position.cpu(), previous, f"batch [{label}]")

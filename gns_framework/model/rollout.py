@@ -102,10 +102,9 @@ def rollout(
         predicted[step], found = guard.check(step, raw, previous, trajectory.key)
         violations += found
 
-    one_step = lambda current, nxt: rollout_step(simulator, guard, current, kinematic, nxt, precision)  # noqa: E731
     bar = tqdm(total=steps, desc=f"rollout {trajectory.key}", unit="step", disable=not progress)
     predictions = sound_frames(
-        simulator.graph_builder, one_step, state, kinematic_truth, steps, context, capture, bar.update
+        simulator, guard, state, kinematic, kinematic_truth, steps, precision, context, capture, bar.update
     )
     with bar, closing(predictions):  # a guard's stop closes it: the builder checks its own builds again
         for step, next_position in predictions:
@@ -123,19 +122,21 @@ def rollout(
 
 
 def sound_frames(
-    builder: GraphBuilder,
-    one_step: Callable[[ParticleBatch, Tensor], tuple[Tensor, Tensor]],
+    simulator: LearnedSimulator,
+    guard: RolloutGuard,
     state: ParticleBatch,
+    kinematic: Tensor,
     kinematic_truth: Tensor,
     steps: int,
+    precision: Precision,
     context: Tensor | None = None,
     capture: bool = False,
     progress: Callable[[int], object] = lambda done: None,
 ) -> Generator[tuple[int, Tensor], None, None]:
     """``(step, predicted frame)`` of ``steps`` steps from ``state``, in order, each once its graph is known complete.
 
-    ``one_step(current, kinematic_next)`` is one rollout step (:func:`rollout_step`, its model bound);
-    ``kinematic_truth`` (S, K, d) the kinematic particles' next positions, ``context`` (T, F) the step context
+    Each step is :func:`rollout_step`; ``kinematic`` (K,) are the kinematic particles' rows and
+    ``kinematic_truth`` (S, K, d) their next positions, ``context`` (T, F) the step context
     of every stored frame (the first C are the inputs). With a fixed-capacity graph builder the frames come in
     runs of :data:`CAPACITY_CHECK_EVERY`, after the check that their graphs had every edge; a run whose check
     fails is redone with grown buffers. With ``capture`` the steps replay one captured step
@@ -143,6 +144,11 @@ def sound_frames(
     every ``n`` steps done.
     """
     history = state.position_sequence.shape[1]
+    builder = simulator.graph_builder
+
+    def one_step(current: ParticleBatch, kinematic_next: Tensor) -> tuple[Tensor, Tensor]:
+        return rollout_step(simulator, guard, current, kinematic, kinematic_next, precision)
+
     steps_of = CapturedSteps(one_step, state, builder) if capture else None
     sequence = state.position_sequence
     step, sound_step, sound_sequence = 0, 0, sequence
