@@ -68,3 +68,9 @@ def add_allow_pickle(parser: argparse.ArgumentParser) -> None:
         "command reads; only for data you trust, as unpickling can run code stored in the files. geoelements "
         "files of numpy arrays read without it. Recipes and checkpoints never grant it",
     )
+
+
+def add_overwrite(parser: argparse.ArgumentParser, grant: str) -> None:
+    """``--overwrite``: the grant to write where the output holds something else, ``grant`` saying what it lets
+    the command replace or write into (off by default: nothing already written is lost unasked)."""
+    parser.add_argument("--overwrite", action="store_true", help=grant)

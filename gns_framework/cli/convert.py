@@ -10,7 +10,7 @@ from ..errors import GnsError, RecipeError
 from ..outputs import check_folder, replaced_whole
 from ..plugins import load_registry
 from ..safe_names import require_component
-from .arguments import add_allow_pickle
+from .arguments import add_allow_pickle, add_overwrite
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,11 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="renumber particle types, e.g. 0=5,1=3: LagrangeBench's fluid (0) and walls (1) as this framework's "
         "water (5) and rigid (3); types not named keep their id (gns plugins lists the materials' ids)",
     )
-    parser.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace --out whole even when it holds something other than an earlier gns convert result",
-    )
+    add_overwrite(parser, "replace --out whole even when it holds something other than an earlier gns convert result")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -10,7 +10,7 @@ from pathlib import Path
 from ..errors import GnsError
 from ..io.run_folder import RunFolder
 from ..safe_names import ensure_inside, require_component, safe_component, unique_components
-from .arguments import add_allow_pickle, positive_int
+from .arguments import add_allow_pickle, add_overwrite, positive_int
 from .envelope_option import add_outside_envelope, enforce_envelope
 from .progress import report_progress
 
@@ -101,11 +101,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--gif", action="store_true", help="also write a prediction-vs-truth GIF of each model's first rollout"
     )
-    parser.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="write into --out even when it holds something other than a report",
-    )
+    add_overwrite(parser, "write into --out even when it holds something other than a report")
     add_outside_envelope(parser)
 
 

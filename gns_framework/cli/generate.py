@@ -14,7 +14,7 @@ from ..limits import check_scene
 from ..outputs import check_folder, replaced_whole
 from ..plugins import load_registry
 from ..specs import ComponentSpec
-from .arguments import non_negative_int
+from .arguments import add_overwrite, non_negative_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,11 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--device", help="simulator device, e.g. cpu or cuda (overrides simulator.device)")
     parser.add_argument("--force", action="store_true", help="regenerate even if DIR already holds this dataset")
-    parser.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace DIR whole even when it holds something other than a dataset gns generate wrote",
-    )
+    add_overwrite(parser, "replace DIR whole even when it holds something other than a dataset gns generate wrote")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

@@ -56,8 +56,7 @@ def _component_row(entry: ComponentEntry) -> dict:
         "name": entry.name,
         "class": f"{entry.cls.__module__}.{entry.cls.__qualname__}",
         "source": entry.source_file,
-        "plugin": entry.plugin,
-        "distribution": f"{entry.distribution} {entry.version}",
+        **_provider(entry),
     }
     if entry.kind == "material":
         row.update(particle_type=entry.cls.particle_type, kinematic=entry.cls.kinematic)
@@ -75,8 +74,7 @@ def _metric_row(entry: MetricEntry) -> dict:
         "unit": entry.metric.unit,
         "validation": entry.metric.tracked_as,
         "source": source,
-        "plugin": entry.plugin,
-        "distribution": f"{entry.distribution} {entry.version}",
+        **_provider(entry),
     }
 
 
@@ -93,9 +91,13 @@ def _command_row(entry: CommandEntry) -> dict:
         "help": entry.command.help,
         "module": entry.command.module,
         "source": source,
-        "plugin": entry.plugin,
-        "distribution": f"{entry.distribution} {entry.version}",
+        **_provider(entry),
     }
+
+
+def _provider(entry: ComponentEntry | MetricEntry | CommandEntry) -> dict:
+    """The plugin and the installed distribution (with its version) that provide an entry."""
+    return {"plugin": entry.plugin, "distribution": f"{entry.distribution} {entry.version}"}
 
 
 def _table(rows: list[dict], columns: tuple[str, ...]) -> str:

@@ -8,7 +8,7 @@ import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from .arguments import positive_int
+from .arguments import add_overwrite, positive_int
 
 
 def _gif_path(value: str) -> Path:
@@ -30,11 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--every", type=positive_int, default=1, metavar="K", help="animate every K-th frame (default 1)"
     )
-    parser.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace an existing --gif file, or write into a --vtk folder holding something else",
-    )
+    add_overwrite(parser, "replace an existing --gif file, or write into a --vtk folder holding something else")
     parser.add_argument("--fps", type=positive_int, default=20, help="frames per second of the GIF (default 20)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 

@@ -38,7 +38,14 @@ from ..runtime.teams import team_of
 from ..safe_names import ensure_inside, require_component, safe_component
 from ..training.distributed import from_chief, processes_from_environment, start, stop
 from ..training.mlflow_tracker import log_to_recorded_run
-from .arguments import add_allow_pickle, non_negative_float, non_negative_int, positive_int, ratio_above_one_or_never
+from .arguments import (
+    add_allow_pickle,
+    add_overwrite,
+    non_negative_float,
+    non_negative_int,
+    positive_int,
+    ratio_above_one_or_never,
+)
 from .envelope_option import add_outside_envelope, enforce_envelope
 
 
@@ -128,11 +135,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "batch; not with --partitions",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="write into --out even when it holds something other than rollouts",
-    )
+    add_overwrite(parser, "write into --out even when it holds something other than rollouts")
     add_outside_envelope(parser)
 
 

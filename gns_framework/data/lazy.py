@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from abc import abstractmethod
 from collections.abc import Callable, Sequence
 from functools import lru_cache
 
@@ -9,7 +10,21 @@ from .file_identity import unchanged_reads
 from .trajectory import DomainCheck, Trajectory
 
 
-class TrajectorySequence(Sequence[Trajectory]):
+class Split(Sequence[Trajectory]):
+    """A split's trajectories by index (negative from the end) or slice (a list); ``_at`` reads index i."""
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        if not -len(self) <= index < len(self):
+            raise IndexError(f"trajectory {index} of a split of {len(self)}")
+        return self._at(index % len(self))
+
+    @abstractmethod
+    def _at(self, index: int) -> Trajectory: ...
+
+
+class TrajectorySequence(Split):
     """Trajectories of one split file.
 
     Args:
@@ -31,13 +46,7 @@ class TrajectorySequence(Sequence[Trajectory]):
     def __len__(self) -> int:
         return len(self.keys)
 
-    def __getitem__(self, index):
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(len(self)))]
-        if index < 0:
-            index += len(self)
-        if not 0 <= index < len(self):
-            raise IndexError(index)
+    def _at(self, index: int) -> Trajectory:
         return self._get(index)
 
     def _validated(self, index: int) -> Trajectory:

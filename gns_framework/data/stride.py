@@ -20,6 +20,7 @@ from collections.abc import Collection, Sequence
 from dataclasses import replace
 
 from ..contracts import Dataset
+from .lazy import Split
 from .metadata import DatasetMetadata, compute_statistics
 from .trajectory import Trajectory
 
@@ -37,7 +38,7 @@ def strided(trajectory: Trajectory, stride: int, offset: int = 0) -> Trajectory:
     return replace(trajectory, position=trajectory.position[offset::stride], step_context=context, key=key)
 
 
-class StridedSplit(Sequence[Trajectory]):
+class StridedSplit(Split):
     """A split whose trajectories are strided on access (the underlying split stays lazy).
 
     With ``offsets`` k' > 1, stored trajectory i gives items i k' .. i k' + k' - 1, its
@@ -56,13 +57,7 @@ class StridedSplit(Sequence[Trajectory]):
     def __len__(self) -> int:
         return len(self._split) * self._offsets
 
-    def __getitem__(self, index):
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(len(self)))]
-        if index < 0:
-            index += len(self)
-        if not 0 <= index < len(self):
-            raise IndexError(f"trajectory {index} of a split of {len(self)}")
+    def _at(self, index: int) -> Trajectory:
         stored, offset = divmod(index, self._offsets)
         return strided(self._split[stored], self._stride, offset)
 

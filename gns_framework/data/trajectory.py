@@ -97,24 +97,8 @@ class Trajectory:
         ptype = ptype.astype(np.int64)
         if ptype.min() < 0:
             raise DatasetError(f"{where}: particle_type: ids must be >= 0, got [{ptype.min()}, {ptype.max()}]")
-        prop = self.material_property
-        if prop is not None:
-            prop = np.asarray(prop, dtype=np.float32)
-            if prop.ndim == 1:
-                prop = prop[:, None]
-            if prop.ndim != 2 or prop.shape[0] != n:
-                raise DatasetError(f"{where}: material_property: expected shape ({n},) or ({n}, P), got {prop.shape}")
-            if not np.isfinite(prop).all():
-                raise DatasetError(f"{where}: material_property: contains NaN or Inf")
-        ctx = self.step_context
-        if ctx is not None:
-            ctx = np.asarray(ctx, dtype=np.float32)
-            if ctx.ndim == 1:
-                ctx = ctx[:, None]
-            if ctx.ndim != 2 or ctx.shape[0] != t:
-                raise DatasetError(f"{where}: step_context: expected shape ({t}, C), got {ctx.shape}")
-            if not np.isfinite(ctx).all():
-                raise DatasetError(f"{where}: step_context: contains NaN or Inf")
+        prop = _table(self.material_property, n, f"{where}: material_property", f"({n},) or ({n}, P)")
+        ctx = _table(self.step_context, t, f"{where}: step_context", f"({t}, C)")
         bounds = self.bounds
         if bounds is not None:
             bounds = np.asarray(bounds, dtype=np.float32)
@@ -137,6 +121,20 @@ class Trajectory:
                 )
         _check_placement(where, pos, bounds, domain)
         return Trajectory(pos.astype(np.float32, copy=False), ptype, prop, ctx, self.key, bounds, walls)
+
+
+def _table(values, rows: int, field: str, expected: str) -> np.ndarray | None:
+    """``values`` as a finite float32 (rows, k) table (a (rows,) vector becomes one column); None stays None."""
+    if values is None:
+        return None
+    table = np.asarray(values, dtype=np.float32)
+    if table.ndim == 1:
+        table = table[:, None]
+    if table.ndim != 2 or table.shape[0] != rows:
+        raise DatasetError(f"{field}: expected shape {expected}, got {table.shape}")
+    if not np.isfinite(table).all():
+        raise DatasetError(f"{field}: contains NaN or Inf")
+    return table
 
 
 def _check_placement(where: str, pos: np.ndarray, own_bounds: np.ndarray | None, domain: DomainCheck | None) -> None:

@@ -115,6 +115,15 @@ class _Evaluator:
         return value, gradient
 
 
+def _adam_on(u0: np.ndarray, lr: float, lr_decay: float | None):
+    """(u, Adam over it, its exponential step-size decay or None): ``u`` a float64 copy of ``u0`` with a zero grad."""
+    u = torch.tensor(u0, dtype=torch.float64)
+    u.grad = torch.zeros_like(u)
+    optimizer = torch.optim.Adam([u], lr=lr)
+    schedule = None if lr_decay is None else torch.optim.lr_scheduler.ExponentialLR(optimizer, gamma=lr_decay)
+    return u, optimizer, schedule
+
+
 def adam(
     loss: LossFunction,
     u0: np.ndarray,
@@ -132,13 +141,10 @@ def adam(
     The returned ``u`` is the point after the last step, which no iteration evaluated.
     ``u0`` (M, k) searches M starts at once (:func:`_adam_starts`).
     """
-    if np.ndim(u0) == 2:
-        return _adam_starts(loss, u0, lr, iterations, on_iteration, describe, dtype, lr_decay)
     evaluate = _Evaluator(loss, describe, dtype)
-    u = torch.tensor(u0, dtype=torch.float64)
-    u.grad = torch.zeros_like(u)
-    optimizer = torch.optim.Adam([u], lr=lr)
-    schedule = None if lr_decay is None else torch.optim.lr_scheduler.ExponentialLR(optimizer, gamma=lr_decay)
+    if np.ndim(u0) == 2:
+        return _adam_starts(evaluate, u0, lr, iterations, on_iteration, lr_decay)
+    u, optimizer, schedule = _adam_on(u0, lr, lr_decay)
     for iteration in range(1, iterations + 1):
         value, gradient = evaluate(u.detach().numpy())
         on_iteration(Iterate(iteration, value, u.detach().numpy().copy(), evaluate.held_out))
@@ -153,14 +159,7 @@ def adam(
 
 
 def _adam_starts(
-    loss: LossFunction,
-    u0: np.ndarray,
-    lr: float,
-    iterations: int,
-    on_iteration: Observer,
-    describe: Callable[[np.ndarray], str],
-    dtype: torch.dtype,
-    lr_decay: float | None,
+    evaluate: _Evaluator, u0: np.ndarray, lr: float, iterations: int, on_iteration: Observer, lr_decay: float | None
 ) -> Solution:
     """Adam from each row of ``u0`` (M, k), every start's loss from one batched evaluation.
 
@@ -168,11 +167,7 @@ def _adam_starts(
     steps are undone, it reports no more iterates) and the others go on; a non-finite
     value at a start's very first point, or every start stopping, is an error.
     """
-    evaluate = _Evaluator(loss, describe, dtype)
-    u = torch.tensor(u0, dtype=torch.float64)
-    u.grad = torch.zeros_like(u)
-    optimizer = torch.optim.Adam([u], lr=lr)
-    schedule = None if lr_decay is None else torch.optim.lr_scheduler.ExponentialLR(optimizer, gamma=lr_decay)
+    u, optimizer, schedule = _adam_on(u0, lr, lr_decay)
     stopped = np.zeros(len(u0), dtype=bool)
     previous = u.detach().clone()
     for iteration in range(1, iterations + 1):
@@ -183,7 +178,7 @@ def _adam_starts(
             first = int(np.flatnonzero(newly)[0])
             raise InversionDiverged(
                 f"loss: non-finite value or gradient at the starting point of start {first} "
-                f"({describe(points[first])}): narrow the unknowns' bounds"
+                f"({evaluate.describe(points[first])}): narrow the unknowns' bounds"
             )
         stopped |= newly
         if stopped.all():

@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -334,14 +334,7 @@ def solve(inversion: Inversion, on_iteration=lambda iterate: None) -> InversionR
     problem, spec = inversion.problem, inversion.config.optimizer
     parameters = problem.parameters
     history: list[Iterate] = []
-
-    def observe(iterate: Iterate) -> None:
-        history.append(iterate)
-        on_iteration(iterate)
-
-    def describe(u: np.ndarray) -> str:
-        values = parameters.values(torch.from_numpy(np.asarray(u, dtype=np.float64))).tolist()
-        return ", ".join(f"{name} {value:.4g}" for name, value in zip(parameters.names, values, strict=True))
+    observe, describe = _recorder(history, on_iteration), _describer(parameters)
 
     started = time.perf_counter()
     with activations_recomputed(problem.checkpoint_every > 0):
@@ -392,6 +385,26 @@ def solve(inversion: Inversion, on_iteration=lambda iterate: None) -> InversionR
     )
 
 
+def _recorder(history: list[Iterate], on_iteration) -> Callable[[Iterate], None]:
+    """A callback that appends each iterate to ``history`` and passes it on to ``on_iteration``."""
+
+    def observe(iterate: Iterate) -> None:
+        history.append(iterate)
+        on_iteration(iterate)
+
+    return observe
+
+
+def _describer(parameters) -> Callable[[np.ndarray], str]:
+    """``u`` (the optimiser's unconstrained vector) as "name value, ..." in the unknowns' own units."""
+
+    def describe(u: np.ndarray) -> str:
+        values = parameters.values(torch.from_numpy(np.asarray(u, dtype=np.float64))).tolist()
+        return ", ".join(f"{name} {value:.4g}" for name, value in zip(parameters.names, values, strict=True))
+
+    return describe
+
+
 def solve_starts(inversion: Inversion, on_iteration=lambda iterate: None) -> InversionResult:
     """Adam from ``optimizer.starts`` starting points at once, every iteration one batched rollout of them all.
 
@@ -402,14 +415,7 @@ def solve_starts(inversion: Inversion, on_iteration=lambda iterate: None) -> Inv
     problem, spec = inversion.problem, inversion.config.optimizer
     parameters = problem.parameters
     history: list[Iterate] = []
-
-    def observe(iterate: Iterate) -> None:
-        history.append(iterate)
-        on_iteration(iterate)
-
-    def describe(u: np.ndarray) -> str:
-        values = parameters.values(torch.from_numpy(np.asarray(u, dtype=np.float64))).tolist()
-        return ", ".join(f"{name} {value:.4g}" for name, value in zip(parameters.names, values, strict=True))
+    observe, describe = _recorder(history, on_iteration), _describer(parameters)
 
     u0 = spread_starts(problem.start, spec.starts, spec.seed, parameters.high == parameters.low)
     started = time.perf_counter()

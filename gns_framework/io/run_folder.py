@@ -30,6 +30,11 @@ def checkpoint_name(step: int) -> str:
     return f"checkpoint-{step:09d}.pt"
 
 
+def _below(name: str, folder: str = "root") -> property:
+    """A read-only ``Path``: the entry named by the class constant ``name`` inside the run's ``folder``."""
+    return property(lambda run: getattr(run, folder) / getattr(run, name), doc=f"<{folder}>/{name}")
+
+
 @dataclass(frozen=True)
 class RunFolder:
     """The files of the run in ``root``."""
@@ -55,49 +60,20 @@ class RunFolder:
         """The run a checkpoint file belongs to: the folder above its ``checkpoints/``."""
         return cls(Path(checkpoint).parent.parent)
 
-    @property
-    def checkpoints(self) -> Path:
-        return self.root / self.CHECKPOINTS
+    checkpoints = _below("CHECKPOINTS")
+    best_checkpoint = _below("BEST_CHECKPOINT", "checkpoints")
+    best_record = _below("BEST_RECORD", "checkpoints")
+    recipe = _below("RECIPE")
+    params = _below("PARAMS")
+    metrics = _below("METRICS")
+    mlflow_run = _below("MLFLOW_RUN")
+    mlflow_unsent = _below("MLFLOW_UNSENT")
+    lock = _below("LOCK")
+    rollouts = _below("ROLLOUTS")
 
     def checkpoint(self, step: int) -> Path:
         """``checkpoints/checkpoint-<step, 9 digits>.pt``: names sort by step."""
         return self.checkpoints / checkpoint_name(step)
-
-    @property
-    def best_checkpoint(self) -> Path:
-        return self.checkpoints / self.BEST_CHECKPOINT
-
-    @property
-    def best_record(self) -> Path:
-        return self.checkpoints / self.BEST_RECORD
-
-    @property
-    def recipe(self) -> Path:
-        return self.root / self.RECIPE
-
-    @property
-    def params(self) -> Path:
-        return self.root / self.PARAMS
-
-    @property
-    def metrics(self) -> Path:
-        return self.root / self.METRICS
-
-    @property
-    def mlflow_run(self) -> Path:
-        return self.root / self.MLFLOW_RUN
-
-    @property
-    def mlflow_unsent(self) -> Path:
-        return self.root / self.MLFLOW_UNSENT
-
-    @property
-    def lock(self) -> Path:
-        return self.root / self.LOCK
-
-    @property
-    def rollouts(self) -> Path:
-        return self.root / self.ROLLOUTS
 
     def refuse_links(self) -> None:
         """Refuse a run folder whose own files or folders are symbolic links (LinkRefused naming the first).

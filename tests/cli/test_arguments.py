@@ -10,6 +10,7 @@ import pytest
 
 from gns_framework.cli.arguments import (
     add_allow_pickle,
+    add_overwrite,
     non_negative_float,
     non_negative_int,
     positive_float,
@@ -73,3 +74,13 @@ def test_a_rebalance_ratio_is_a_number_above_one_or_never():
             ratio_above_one_or_never(text)
     with pytest.raises(argparse.ArgumentTypeError, match=r"^expected a number > 1 or 'never', got 'often'$"):
         ratio_above_one_or_never("often")
+
+
+def test_overwrite_is_off_unless_asked_and_its_help_says_what_it_replaces():
+    parser = argparse.ArgumentParser()
+    add_overwrite(parser, "replace DIR whole even when it holds something else")
+    assert parser.parse_args([]).overwrite is False
+    assert parser.parse_args(["--overwrite"]).overwrite is True
+    assert "replace DIR whole" in parser.format_help()
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--overwrite=yes"])

@@ -280,12 +280,7 @@ class _EdgeBlock(torch.autograd.Function):
         return (
             grad_e,
             grad_table,
-            None,
-            None,
-            None,
-            None,
-            None,
-            None,
+            *(None,) * 6,  # the graph's indices and the options: no gradient
             grad_norm_weight,
             grad_norm_bias,
             *grad_weights,

@@ -236,12 +236,7 @@ class _TritonEdgeBlock(torch.autograd.Function):
         return (
             grad_e,
             grad_table.to(table.dtype),
-            None,
-            None,
-            None,
-            None,
-            None,
-            None,
+            *(None,) * 6,  # the graph's indices and the options: no gradient
             grad_gamma_tiles.sum(0).to(gamma.dtype),
             grad_beta_tiles.sum(0).to(beta.dtype),
             *grad_weights,

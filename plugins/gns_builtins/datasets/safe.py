@@ -33,7 +33,6 @@ from gns_framework.api import (
     mapped_member,
     write_text_atomic,
 )
-from gns_framework.contracts import ComponentParams
 
 from ._formats.npz_common import NpzSplitsDataset, open_npz, read_member
 
@@ -45,9 +44,6 @@ class SafeDataset(NpzSplitsDataset):
 
     name = "safe"
     writable = True
-
-    class Params(ComponentParams):
-        pass
 
     def split(self, name: str) -> Sequence[Trajectory]:
         file = self.path / f"{name}.npz"

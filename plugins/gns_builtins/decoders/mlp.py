@@ -13,10 +13,7 @@ class MLPDecoder(Decoder):
 
     name = "mlp"
 
-    class Params(ComponentParams):
-        pass
-
-    def __init__(self, params: Params, sizes: ModelSizes):
+    def __init__(self, params: ComponentParams, sizes: ModelSizes):
         super().__init__(params, sizes)
         self.mlp = MLP(sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers, sizes.output)
 

@@ -21,10 +21,7 @@ class MLPEncoder(Encoder):
 
     name = "mlp"
 
-    class Params(ComponentParams):
-        pass
-
-    def __init__(self, params: Params, sizes: ModelSizes):
+    def __init__(self, params: ComponentParams, sizes: ModelSizes):
         super().__init__(params, sizes)
         self.node_mlp = NormedMLP(sizes.node_in, sizes.mlp_hidden, sizes.mlp_hidden_layers, sizes.latent)
         self.edge_mlp = NormedMLP(sizes.edge_in, sizes.mlp_hidden, sizes.mlp_hidden_layers, sizes.latent)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from gns_framework.contracts import ComponentParams, Graph, GraphBuilder
+from gns_framework.contracts import Graph, GraphBuilder
 
 
 class NoEdgesGraphBuilder(GraphBuilder):
@@ -23,9 +23,6 @@ class NoEdgesGraphBuilder(GraphBuilder):
     """
 
     name = "no_edges"
-
-    class Params(ComponentParams):
-        pass
 
     def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:
         empty = torch.empty(0, dtype=torch.long, device=position.device)

@@ -31,10 +31,7 @@ class PeriodicRadiusGraphBuilder(GraphBuilder):
     joins_within_radius = True
     supports_periodic = True
 
-    class Params(ComponentParams):
-        pass
-
-    def __init__(self, params: Params, setup: ModelSetup):
+    def __init__(self, params: ComponentParams, setup: ModelSetup):
         super().__init__(params, setup)
         self.box = PeriodicBox(setup)
         self._shifts = PerDevice(self._make_shifts)

@@ -6,10 +6,10 @@ from collections.abc import Callable
 
 from torch import Tensor
 
-from gns_framework.contracts import ComponentParams, Integrator
+from .semi_implicit_euler import SemiImplicitEuler
 
 
-class ExplicitEuler(Integrator):
+class ExplicitEuler(SemiImplicitEuler):
     """``p[t+1] = p[t] + v[t]``, ``v[t+1] = v[t] + a[t]`` with dt = 1 frame.
 
     History form: a position step uses the velocity *before* the current
@@ -31,22 +31,9 @@ class ExplicitEuler(Integrator):
     """
 
     name = "explicit_euler"
-    predicts = "acceleration"
     same_position_map_as = "semi_implicit_euler"
     symplectic = False
     stability_bound = 0.0
-
-    class Params(ComponentParams):
-        pass
-
-    def next_position(self, position_sequence: Tensor, prediction: Tensor) -> Tensor:
-        position = position_sequence[:, -1]
-        velocity = (position - position_sequence[:, -2]) + prediction
-        return position + velocity
-
-    def target(self, position_sequence: Tensor, next_position: Tensor) -> Tensor:
-        position = position_sequence[:, -1]
-        return (next_position - position) - (position - position_sequence[:, -2])
 
     @staticmethod
     def advance(

@@ -6,7 +6,7 @@ from collections.abc import Callable
 
 from torch import Tensor
 
-from gns_framework.contracts import ComponentParams, Integrator
+from gns_framework.contracts import Integrator
 
 
 class SemiImplicitEuler(Integrator):
@@ -25,9 +25,6 @@ class SemiImplicitEuler(Integrator):
     predicts = "acceleration"
     symplectic = True
     stability_bound = 2.0
-
-    class Params(ComponentParams):
-        pass
 
     def next_position(self, position_sequence: Tensor, prediction: Tensor) -> Tensor:
         most_recent_position = position_sequence[:, -1]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from gns_framework.contracts import ComponentParams, Integrator
+from gns_framework.contracts import Integrator
 
 
 class VelocityEuler(Integrator):
@@ -23,9 +23,6 @@ class VelocityEuler(Integrator):
 
     name = "velocity_euler"
     predicts = "velocity"
-
-    class Params(ComponentParams):
-        pass
 
     def next_position(self, position_sequence: Tensor, prediction: Tensor) -> Tensor:
         return position_sequence[:, -1] + prediction

@@ -6,10 +6,10 @@ from collections.abc import Callable
 
 from torch import Tensor
 
-from gns_framework.contracts import ComponentParams, Integrator
+from .semi_implicit_euler import SemiImplicitEuler
 
 
-class VelocityVerlet(Integrator):
+class VelocityVerlet(SemiImplicitEuler):
     """``p[t+1] = p[t] + v[t] + a[t]/2``, ``v[t+1] = v[t] + (a[t] + a[t+1])/2``, dt = 1 frame.
 
     History form: the backward difference ``p[t] - p[t-1]`` is the leapfrog
@@ -30,23 +30,9 @@ class VelocityVerlet(Integrator):
     """
 
     name = "velocity_verlet"
-    predicts = "acceleration"
     same_position_map_as = "semi_implicit_euler"
     symplectic = True
     stability_bound = 2.0
-
-    class Params(ComponentParams):
-        pass
-
-    def next_position(self, position_sequence: Tensor, prediction: Tensor) -> Tensor:
-        position = position_sequence[:, -1]
-        half_step_velocity = position - position_sequence[:, -2]
-        velocity = half_step_velocity + 0.5 * prediction
-        return position + velocity + 0.5 * prediction
-
-    def target(self, position_sequence: Tensor, next_position: Tensor) -> Tensor:
-        position = position_sequence[:, -1]
-        return (next_position - position) - (position - position_sequence[:, -2])
 
     @staticmethod
     def advance(

@@ -80,7 +80,7 @@ class InteractionNetwork(Processor):
     exchanges_latents = True
 
     class Params(ComponentParams):
-        message_passing_steps: int = Field(10, ge=1, description="M, number of unshared steps")
+        message_passing_steps: int = Field(10, ge=1, description="M, number of message-passing steps")
         edge_block: EdgeBlock = Field(
             "fused", description="fused (chunked, fast) or plain (the paper's lines); equal results"
         )

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from pydantic import Field
 from torch import Tensor
 
-from gns_framework.contracts import ComponentParams, Graph, ModelSizes, Processor
+from gns_framework.contracts import Graph, ModelSizes, Processor
 
 from .._kernels.edge_block import edge_order
-from .interaction_network import EdgeBlock, InteractionStep
+from .interaction_network import InteractionNetwork, InteractionStep
 
 
 class SharedInteractionNetwork(Processor):
@@ -22,15 +21,10 @@ class SharedInteractionNetwork(Processor):
     hops_param = "message_passing_steps"
     exchanges_latents = True
 
-    class Params(ComponentParams):
-        message_passing_steps: int = Field(10, ge=1, description="M, times the one step is applied")
-        edge_block: EdgeBlock = Field(
-            "fused", description="fused (chunked, fast) or plain (the paper's lines); equal results"
-        )
+    Params = InteractionNetwork.Params  # M (here the times the one step is applied) and the edge block
+    params: InteractionNetwork.Params  # the validated Params (the base class assigns it)
 
-    params: Params  # the validated Params above (the base class assigns it)
-
-    def __init__(self, params: Params, sizes: ModelSizes):
+    def __init__(self, params: InteractionNetwork.Params, sizes: ModelSizes):
         super().__init__(params, sizes)
         self.step = InteractionStep(sizes.latent, sizes.mlp_hidden, sizes.mlp_hidden_layers, params.edge_block)
 
