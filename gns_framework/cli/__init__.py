@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import functools
 import importlib
+import os
 import sys
 import warnings
 
@@ -91,6 +92,11 @@ def _run(argv: list[str], commands: dict[str, Command] | None) -> int:
     except KeyboardInterrupt:
         print(f"gns {args.command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader of stdout left (``gns plugins --json | head``): not an error of the command. Python
+        # would report the failed flush of stdout at exit, so stdout goes to nowhere from here on.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, as a shell reports a pipe's writer stopped by its reader
 
 
 if __name__ == "__main__":

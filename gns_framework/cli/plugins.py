@@ -51,48 +51,44 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _component_row(entry: ComponentEntry) -> dict:
-    row = {
-        "kind": entry.kind,
-        "name": entry.name,
-        "class": f"{entry.cls.__module__}.{entry.cls.__qualname__}",
-        "source": entry.source_file,
-        **_provider(entry),
-    }
-    if entry.kind == "material":
-        row.update(particle_type=entry.cls.particle_type, kinematic=entry.cls.kinematic)
-    return row
+    cls = entry.cls
+    facts = {"particle_type": cls.particle_type, "kinematic": cls.kinematic} if entry.kind == "material" else {}
+    row = _row(entry, entry.kind, entry.name, entry.source_file, {"class": f"{cls.__module__}.{cls.__qualname__}"})
+    return row | facts
 
 
 def _metric_row(entry: MetricEntry) -> dict:
-    try:
-        source = inspect.getsourcefile(entry.metric.function) or "<unknown>"
-    except TypeError:  # a callable object or partial: no file of its own
-        source = "<unknown>"
-    return {
-        "kind": "metric",
-        "name": entry.metric.name,
-        "unit": entry.metric.unit,
-        "validation": entry.metric.tracked_as,
-        "source": source,
-        **_provider(entry),
-    }
+    metric = entry.metric
+    described = {"unit": metric.unit, "validation": metric.tracked_as}
+    return _row(entry, "metric", metric.name, _function_file(metric.function), described)
 
 
 def _command_row(entry: CommandEntry) -> dict:
+    command = entry.command
+    described = {"help": command.help, "module": command.module}
+    return _row(entry, "command", command.name, _module_file(command.module), described)
+
+
+def _row(entry: ComponentEntry | MetricEntry | CommandEntry, kind: str, name: str, source: str, described: dict):
+    """One row of the listing: kind and name, what describes the entry, its source file, and who provides it."""
+    return {"kind": kind, "name": name, **described, "source": source, **_provider(entry)}
+
+
+def _function_file(function) -> str:
+    """The file defining ``function``; "<unknown>" for a callable object or partial (no file of its own)."""
     try:
-        # find_spec locates the module without running it (its parent packages are imported).
-        spec = importlib.util.find_spec(entry.command.module)
-        source = spec.origin if spec is not None and spec.origin else "<not found>"
+        return inspect.getsourcefile(function) or "<unknown>"
+    except TypeError:
+        return "<unknown>"
+
+
+def _module_file(module: str) -> str:
+    """The file of ``module``, found without running it (its parent packages are imported); "<not found>"."""
+    try:
+        spec = importlib.util.find_spec(module)
     except (ImportError, ValueError):
-        source = "<not found>"
-    return {
-        "kind": "command",
-        "name": entry.command.name,
-        "help": entry.command.help,
-        "module": entry.command.module,
-        "source": source,
-        **_provider(entry),
-    }
+        return "<not found>"
+    return spec.origin if spec is not None and spec.origin else "<not found>"
 
 
 def _provider(entry: ComponentEntry | MetricEntry | CommandEntry) -> dict:

@@ -19,6 +19,11 @@ if TYPE_CHECKING:
     from .metadata import DatasetMetadata
 
 
+def _of_truth(name: str, doc: str) -> property:
+    """A read-only attribute of the rollout that is its ground-truth trajectory's ``name``."""
+    return property(lambda rollout: getattr(rollout.truth, name), doc=doc)
+
+
 @dataclass(frozen=True)
 class Rollout:
     """A predicted trajectory beside its ground truth.
@@ -69,33 +74,16 @@ class Rollout:
         """(S, N, d): true positions of the predicted frames."""
         return self.truth.position[self.history :]
 
-    @property
-    def particle_type(self) -> np.ndarray:
-        """(N,) int64 particle-type ids."""
-        return self.truth.particle_type
-
-    @property
-    def material_property(self) -> np.ndarray | None:
-        """(N, P) per-particle material properties, or None."""
-        return self.truth.material_property
-
-    @property
-    def key(self) -> str:
-        """The trajectory's name (file names and messages)."""
-        return self.truth.key
+    particle_type = _of_truth("particle_type", "(N,) int64 particle-type ids.")
+    material_property = _of_truth("material_property", "(N, P) per-particle material properties, or None.")
+    key = _of_truth("key", "The trajectory's name (file names and messages).")
+    num_particles = _of_truth("num_particles", "N.")
+    dim = _of_truth("dim", "d, the spatial dimensions.")
 
     @property
     def num_steps(self) -> int:
         """S, the number of rolled-out frames."""
         return int(self.predicted.shape[0])
-
-    @property
-    def num_particles(self) -> int:
-        return self.truth.num_particles
-
-    @property
-    def dim(self) -> int:
-        return self.truth.dim
 
     @property
     def position_mse(self) -> float:

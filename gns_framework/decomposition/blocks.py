@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from .space import check_parts, distance_to_interval, periodic_boxes
 from .work import quantile_cut
 
 CHUNK = 65_536
@@ -65,13 +66,9 @@ class BlockPartition:
         """Boxes by recursive bisection of ``position`` (N, d): each cut halves the particles' ``weight`` (N,; default:
         their count), in proportion to the processes on either side, across the dimension they spread farthest in;
         ``bounds`` gives the periodic box of ``periodic_dims``."""
-        if parts < 1:
-            raise ValueError(f"partitions must be at least 1, got {parts}")
+        check_parts(parts)
         dim = int(position.shape[1])
-        box: list[tuple[float, float] | None] = [None] * dim
-        for k in periodic_dims:
-            assert bounds is not None, "a periodic dimension needs the box bounds"
-            box[k] = (float(bounds[k][0]), float(bounds[k][1]))
+        box = periodic_boxes(dim, periodic_dims, bounds)
         lower: list[tuple[float, ...]] = []
         upper: list[tuple[float, ...]] = []
         _bisect(position.detach().to(torch.float64), weight, parts, [-math.inf] * dim, [math.inf] * dim, lower, upper)
@@ -101,12 +98,12 @@ class BlockPartition:
             if wrap is not None:
                 lower[:, k] = lower[:, k].clamp(min=wrap[0])
                 upper[:, k] = upper[:, k].clamp(max=wrap[1])
-        gap = _distance_to_interval(x, lower, upper)
+        gap = distance_to_interval(x, lower, upper)
         for k, wrap in enumerate(self.box):
             if wrap is not None:
                 length = wrap[1] - wrap[0]
                 for image in (x[..., k] + length, x[..., k] - length):
-                    nearer = _distance_to_interval(image[..., None], lower[:, k : k + 1], upper[:, k : k + 1])
+                    nearer = distance_to_interval(image[..., None], lower[:, k : k + 1], upper[:, k : k + 1])
                     gap[..., k] = torch.minimum(gap[..., k], nearer[..., 0])
         near = gap.square().sum(dim=-1) <= self.depth**2
         near[torch.arange(position.shape[0], device=position.device), self.owner(position)] = False
@@ -157,8 +154,3 @@ def _middle(low: float, high: float) -> float:
     if math.isfinite(low):
         return low
     return high if math.isfinite(high) else 0.0
-
-
-def _distance_to_interval(x: Tensor, lower: Tensor, upper: Tensor) -> Tensor:
-    """(N, 1, d) coordinates, (P, d) intervals -> (N, P, d) distance to each interval per dimension (0 inside)."""
-    return torch.clamp(torch.maximum(lower - x, x - upper), min=0)

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from .space import check_parts, distance_to_interval, periodic_boxes
 from .work import quantile_cut
 
 
@@ -58,18 +59,13 @@ class SlabPartition:
         periodic one counts its box length): the thinnest slabs relative to the halo.
         ``bounds`` (d pairs) gives the periodic box of ``periodic_dims``.
         """
-        if parts < 1:
-            raise ValueError(f"partitions must be at least 1, got {parts}")
+        check_parts(parts)
+        boxes = periodic_boxes(int(position.shape[1]), periodic_dims, bounds)
         if axis is None:
             spread = (position.max(0).values - position.min(0).values).tolist()
-            for k in periodic_dims:
-                assert bounds is not None, "a periodic dimension needs the box bounds"
-                spread[k] = bounds[k][1] - bounds[k][0]
+            spread = [s if b is None else b[1] - b[0] for s, b in zip(spread, boxes, strict=True)]
             axis = max(range(len(spread)), key=lambda k: spread[k])
-        box = None
-        if axis in periodic_dims:
-            assert bounds is not None, "a periodic dimension needs the box bounds"
-            box = (float(bounds[axis][0]), float(bounds[axis][1]))
+        box = boxes[axis]
         coordinate = position[:, axis].to(torch.float64)
         cuts = tuple(quantile_cut(coordinate, weight, k, parts) for k in range(1, parts)) if len(coordinate) else ()
         return cls(axis=axis, cuts=cuts, depth=float(depth), box=box)
@@ -87,17 +83,12 @@ class SlabPartition:
         upper = torch.tensor((*self.cuts, inf), dtype=torch.float64, device=position.device)
         if self.box is not None:
             lower[0], upper[-1] = self.box
-        distance = _distance_to_interval(x, lower, upper)
+        distance = distance_to_interval(x, lower, upper)
         if self.box is not None:
             length = self.box[1] - self.box[0]
             # Through the periodic faces: the particle's images one box length away.
-            distance = torch.minimum(distance, _distance_to_interval(x + length, lower, upper))
-            distance = torch.minimum(distance, _distance_to_interval(x - length, lower, upper))
+            distance = torch.minimum(distance, distance_to_interval(x + length, lower, upper))
+            distance = torch.minimum(distance, distance_to_interval(x - length, lower, upper))
         near = distance <= self.depth
         near[torch.arange(position.shape[0], device=position.device), self.owner(position)] = False
         return near
-
-
-def _distance_to_interval(x: Tensor, lower: Tensor, upper: Tensor) -> Tensor:
-    """(N, 1) coordinates, (P,) intervals -> (N, P) distance to each interval (0 inside)."""
-    return torch.clamp(torch.maximum(lower - x, x - upper), min=0)

@@ -12,7 +12,7 @@ from pydantic import (
     model_validator,
 )
 
-from .scene_values import Spec, Value, check_weights
+from .scene_values import Spec, Value, Weighted
 
 
 def _wall_condition(value: Any) -> Any:
@@ -52,16 +52,10 @@ WallOption = Annotated[
 ]
 
 
-class WallChoice(Spec):
+class WallChoice(Weighted):
     """One of several face conditions picked per trajectory (``weights``: their probabilities)."""
 
     one_of: list[WallOption] = Field(min_length=1)
-    weights: list[float] | None = None
-
-    @model_validator(mode="after")
-    def _weights(self) -> WallChoice:
-        check_weights(self.weights, len(self.one_of))
-        return self
 
 
 WallDraw = Annotated[

@@ -8,7 +8,7 @@ a fraction of the room the body leaves free there (scene_spec.py says more).
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import (
     BaseModel,
@@ -27,9 +27,28 @@ class Spec(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, coerce_numbers_to_str=True)
 
 
-class Range(Spec):
+class _Interval(Spec):
+    """An interval ``[low, high]`` held in the field named by ``_bounds``."""
+
+    _bounds: ClassVar[str]
+
+    @property
+    def low(self) -> float:
+        return getattr(self, self._bounds)[0]
+
+    @property
+    def high(self) -> float:
+        return getattr(self, self._bounds)[1]
+
+    @property
+    def is_fixed(self) -> bool:
+        return self.low == self.high
+
+
+class Range(_Interval):
     """A value drawn uniformly from ``[low, high]``; a plain number is a range of width 0."""
 
+    _bounds: ClassVar[str] = "range"
     range: tuple[float, float]
     per: Literal["trajectory", "particle"] = "trajectory"
 
@@ -39,20 +58,8 @@ class Range(Spec):
             raise ValueError(f"range must be [low, high] with low <= high, got {list(self.range)}")
         return self
 
-    @property
-    def low(self) -> float:
-        return self.range[0]
 
-    @property
-    def high(self) -> float:
-        return self.range[1]
-
-    @property
-    def is_fixed(self) -> bool:
-        return self.range[0] == self.range[1]
-
-
-class Span(Spec):
+class Span(_Interval):
     """A position along one axis as a fraction of the room a body leaves free there.
 
     The body's lower corner is ``lower wall + u * (domain extent - body size)`` with
@@ -60,6 +67,7 @@ class Span(Spec):
     1 against the upper one. Only positions take spans.
     """
 
+    _bounds: ClassVar[str] = "span"
     span: tuple[float, float]
 
     @model_validator(mode="before")
@@ -76,18 +84,6 @@ class Span(Spec):
         return self
 
     per: Literal["trajectory"] = "trajectory"
-
-    @property
-    def low(self) -> float:
-        return self.span[0]
-
-    @property
-    def high(self) -> float:
-        return self.span[1]
-
-    @property
-    def is_fixed(self) -> bool:
-        return self.span[0] == self.span[1]
 
 
 def _number_or_range(value: Any) -> Any:
@@ -118,30 +114,28 @@ Single = Annotated[
 """A number, ``{range: [low, high], per: trajectory|particle}`` or ``{span: [low, high]}``."""
 
 
-def check_weights(weights: list[float] | None, options: int) -> None:
-    """The probabilities of a ``one_of``: one per option, >= 0, with a positive sum (None: equal)."""
-    if weights is None:
-        return
-    if len(weights) != options:
-        raise ValueError(f"weights: expected {options} values (one per option), got {len(weights)}")
-    if min(weights) < 0 or sum(weights) <= 0:
-        raise ValueError(f"weights must be >= 0 with a positive sum, got {weights}")
+class Weighted(Spec):
+    """A pick among the options of ``one_of`` (a subclass's field), ``weights`` their probabilities (None:
+    equal), normalised: one per option, >= 0, with a positive sum."""
 
-
-class OneOf(Spec):
-    """One of several options (numbers, ranges or spans), picked per trajectory, then drawn.
-
-    ``weights`` (default: equal) are the options' probabilities, normalised.
-    """
-
-    one_of: list[Single] = Field(min_length=1)
     weights: list[float] | None = None
 
     @model_validator(mode="after")
-    def _weights(self) -> OneOf:
-        check_weights(self.weights, len(self.one_of))
+    def _weights(self) -> Weighted:
+        options = len(getattr(self, "one_of"))  # noqa: B009 (declared by each subclass, with its own option type)
+        if self.weights is None:
+            return self
+        if len(self.weights) != options:
+            raise ValueError(f"weights: expected {options} values (one per option), got {len(self.weights)}")
+        if min(self.weights) < 0 or sum(self.weights) <= 0:
+            raise ValueError(f"weights must be >= 0 with a positive sum, got {self.weights}")
         return self
 
+
+class OneOf(Weighted):
+    """One of several options (numbers, ranges or spans), picked per trajectory, then drawn."""
+
+    one_of: list[Single] = Field(min_length=1)
     per: Literal["trajectory"] = "trajectory"
 
     @property

@@ -36,6 +36,25 @@ def test_plugins_lists_builtins_with_source():
     assert "semi_implicit_euler" in table and "interaction_network" not in table
 
 
+def test_a_reader_that_leaves_early_ends_the_command_quietly():
+    """``gns plugins --json | head -1``: the reader closed the pipe (here before the command writes at all),
+    and the command stops with the shell's status for a stopped writer and no traceback."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        result = subprocess.run(
+            [sys.executable, "-m", "gns_framework.cli", "plugins", "--json"],
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=600,
+        )
+    finally:
+        os.close(write_end)
+    assert result.returncode == 141
+    assert "Traceback" not in result.stderr and "BrokenPipeError" not in result.stderr, result.stderr
+
+
 def test_check_reports_each_problem_and_fails(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text(

@@ -26,7 +26,6 @@ from gns_framework.api import (
     DatasetMetadata,
     Trajectory,
     TrajectorySequence,
-    atomic_path,
     write_text_atomic,
 )
 
@@ -66,19 +65,19 @@ class GeoelementsNpzDataset(NpzSplitsDataset):
     @classmethod
     def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:
         path = Path(path)
-        for split, trajectories in splits.items():
-            arrays: dict[str, Any] = {}  # Any: numpy's stub would match **arrays to savez_compressed's allow_pickle too
-            for index, traj in enumerate(trajectories):
-                if traj.step_context is not None:
-                    raise DatasetError(f"{path / split}.npz: {traj.key}: the geoelements layout has no step_context")
-                fields = [np.asarray(traj.position, np.float32), np.asarray(traj.particle_type, np.int64)]
-                if traj.material_property is not None:
-                    prop = np.asarray(traj.material_property, np.float32)
-                    fields.append(prop[:, 0] if prop.shape[1] == 1 else prop)
-                item = np.empty(len(fields), dtype=object)
-                item[:] = fields
-                arrays[traj.key or f"simulation_trajectory_{index}"] = item
-            with atomic_path(path / f"{split}.npz", suffix=".npz") as tmp:
-                np.savez_compressed(tmp, **arrays)
+        cls.write_split_files(path, splits, _geoelements_item, lambda file, arrays: np.savez_compressed(file, **arrays))
         document = {**metadata.to_json_dict(), "sequence_length": metadata.sequence_length - 1}
         write_text_atomic(path / "metadata.json", json.dumps(document, indent=2) + "\n")
+
+
+def _geoelements_item(file: Path, index: int, traj: Trajectory) -> dict[str, Any]:
+    """A trajectory as geoelements stores it: one object array (positions, types[, material property])."""
+    if traj.step_context is not None:
+        raise DatasetError(f"{file}: {traj.key}: the geoelements layout has no step_context")
+    fields = [np.asarray(traj.position, np.float32), np.asarray(traj.particle_type, np.int64)]
+    if traj.material_property is not None:
+        prop = np.asarray(traj.material_property, np.float32)
+        fields.append(prop[:, 0] if prop.shape[1] == 1 else prop)
+    item = np.empty(len(fields), dtype=object)
+    item[:] = fields
+    return {traj.key or f"simulation_trajectory_{index}": item}

@@ -29,7 +29,6 @@ from gns_framework.api import (
     DatasetMetadata,
     Trajectory,
     TrajectorySequence,
-    atomic_path,
     mapped_member,
     write_text_atomic,
 )
@@ -84,20 +83,21 @@ class SafeDataset(NpzSplitsDataset):
     @classmethod
     def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:
         path = Path(path)
-        for split, trajectories in splits.items():
-            arrays: dict[str, Any] = {}  # Any: numpy's stub would match **arrays to savez_compressed's allow_pickle too
-            for index, traj in enumerate(trajectories):
-                key = traj.key or f"trajectory_{index:05d}"
-                arrays[f"{key}/position"] = np.asarray(traj.position, dtype=np.float32)
-                arrays[f"{key}/particle_type"] = np.asarray(traj.particle_type, dtype=np.int64)
-                if traj.material_property is not None:
-                    arrays[f"{key}/material_property"] = np.asarray(traj.material_property, dtype=np.float32)
-                for name in ("step_context", "bounds", "walls"):
-                    if getattr(traj, name) is not None:
-                        arrays[f"{key}/{name}"] = np.asarray(getattr(traj, name), dtype=np.float32)
-            with atomic_path(path / f"{split}.npz", suffix=".npz") as tmp:
-                _write_npz(tmp, arrays)
+        cls.write_split_files(path, splits, _members, _write_npz)
         write_text_atomic(path / "metadata.json", json.dumps(metadata.to_json_dict(), indent=2) + "\n")
+
+
+def _members(file: Path, index: int, traj: Trajectory) -> dict[str, Any]:
+    """A trajectory's plain arrays, ``<key>/<field>``: positions and types, and the optional fields it has."""
+    key = traj.key or f"trajectory_{index:05d}"
+    arrays: dict[str, Any] = {
+        f"{key}/position": np.asarray(traj.position, dtype=np.float32),
+        f"{key}/particle_type": np.asarray(traj.particle_type, dtype=np.int64),
+    }
+    for name in ("material_property", "step_context", "bounds", "walls"):
+        if getattr(traj, name) is not None:
+            arrays[f"{key}/{name}"] = np.asarray(getattr(traj, name), dtype=np.float32)
+    return arrays
 
 
 def _write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:

@@ -3,11 +3,21 @@
 from __future__ import annotations
 
 import zipfile
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from gns_framework.api import DatasetError, DatasetMetadata, check_array_header, check_zip_member, load_metadata
+from gns_framework.api import (
+    DatasetError,
+    DatasetMetadata,
+    Trajectory,
+    atomic_path,
+    check_array_header,
+    check_zip_member,
+    load_metadata,
+)
 from gns_framework.contracts import Dataset
 
 from .array_pickle import RefusedGlobal, read_npy_object_array
@@ -21,6 +31,23 @@ class NpzSplitsDataset(Dataset):
 
     def has_split(self, name: str) -> bool:
         return (self.path / f"{name}.npz").is_file()
+
+    @staticmethod
+    def write_split_files(
+        path: Path,
+        splits: Mapping[str, Sequence[Trajectory]],
+        members: Callable[[Path, int, Trajectory], dict[str, Any]],
+        save: Callable[[Path, dict[str, Any]], None],
+    ) -> None:
+        """Each split as ``path/<split>.npz``, written whole or not at all (an earlier file stays until then):
+        ``members(file, index, trajectory)`` names a trajectory's arrays, ``save(file, arrays)`` writes them."""
+        for split, trajectories in splits.items():
+            file = path / f"{split}.npz"
+            arrays: dict[str, Any] = {}  # Any: numpy's stub would match **arrays to savez_compressed's allow_pickle too
+            for index, trajectory in enumerate(trajectories):
+                arrays.update(members(file, index, trajectory))
+            with atomic_path(file, suffix=".npz") as tmp:
+                save(tmp, arrays)
 
 
 def open_npz(path: Path, allow_pickle: bool = False) -> np.lib.npyio.NpzFile:

@@ -1,0 +1,30 @@
+"""What slabs and blocks both need of space: the periodic box of each dimension, and distances to intervals."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+
+def check_parts(parts: int) -> None:
+    if parts < 1:
+        raise ValueError(f"partitions must be at least 1, got {parts}")
+
+
+def periodic_boxes(
+    dim: int, periodic_dims: tuple[int, ...], bounds: tuple[tuple[float, float], ...] | None
+) -> list[tuple[float, float] | None]:
+    """Per dimension, the (low, high) of its periodic box (length units), or None where it is not periodic."""
+    box: list[tuple[float, float] | None] = [None] * dim
+    for k in periodic_dims:
+        assert bounds is not None, "a periodic dimension needs the box bounds"
+        box[k] = (float(bounds[k][0]), float(bounds[k][1]))
+    return box
+
+
+def distance_to_interval(x: Tensor, lower: Tensor, upper: Tensor) -> Tensor:
+    """Distance of coordinates ``x`` to intervals ``[lower, upper]``, broadcast (0 inside).
+
+    Shapes: (N, 1) coordinates and (P,) intervals give (N, P); (N, 1, d) and (P, d) give (N, P, d).
+    """
+    return torch.clamp(torch.maximum(lower - x, x - upper), min=0)
