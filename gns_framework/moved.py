@@ -2,8 +2,9 @@
 
 A module that moved leaves a stub whose module-level ``__getattr__`` is
 ``old_home(__name__, default_home, {name: home, ...})``. A renamed attribute leaves
-``old = renamed_attribute("old", "new")`` in its class, and a renamed keyword a
-``@renamed_keywords(old="new")`` on its function.
+``old = renamed_attribute("old", "new")`` in its class, a renamed keyword a
+``@renamed_keywords(old="new")`` on its function, and a class whose attribute and constructor
+keyword were renamed together a ``@renamed("old", "new")``.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Any, ParamSpec, TypeVar
 
 P = ParamSpec("P")
 R = TypeVar("R")
+C = TypeVar("C", bound=type)
 
 
 def old_home(old: str, default_home: str, homes: dict[str, str] | None = None) -> Callable[[str], Any]:
@@ -73,5 +75,17 @@ def renamed_keywords(**renames: str) -> Callable[[Callable[P, R]], Callable[P, R
             return function(*args, **kwargs)
 
         return renamed
+
+    return decorate
+
+
+def renamed(old: str, new: str) -> Callable[[C], C]:
+    """A class decorator for an attribute renamed together with its constructor keyword: ``old`` still reads
+    (:func:`renamed_attribute`) and the class's ``__init__`` still takes ``old=`` (:func:`renamed_keywords`)."""
+
+    def decorate(cls: C) -> C:
+        setattr(cls, old, renamed_attribute(old, new))
+        cls.__init__ = renamed_keywords(**{old: new})(cls.__init__)  # type: ignore[misc]
+        return cls
 
     return decorate

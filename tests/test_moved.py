@@ -6,7 +6,7 @@ import importlib
 
 import pytest
 
-from gns_framework.moved import renamed_attribute, renamed_keywords
+from gns_framework.moved import renamed, renamed_attribute, renamed_keywords
 from gns_framework.runtime import processes, teams
 
 MOVED = [
@@ -64,3 +64,16 @@ def test_a_function_that_still_has_the_old_parameter_is_left_as_it_is():
         return old
 
     assert renamed_keywords(old="new")(function) is function
+
+
+def test_a_class_renamed_at_once_takes_and_reads_the_old_name_with_warnings():
+    @renamed("old", "new")
+    class Renamed:
+        def __init__(self, new):
+            self.new = new
+
+    with pytest.warns(DeprecationWarning, match=r"Renamed\(old=...\) is now .*Renamed\(new=...\)"):
+        held = Renamed(old=5)
+    with pytest.warns(DeprecationWarning, match=r"^Renamed\.old is now \.new"):
+        assert held.old == 5
+    assert Renamed(new=6).new == 6

@@ -23,7 +23,7 @@ import torch
 from torch import Tensor, nn
 
 from ..contracts import Graph, ModelSetup
-from ..moved import renamed_attribute, renamed_keywords
+from ..moved import renamed
 from .normalization import Stats
 
 
@@ -55,6 +55,7 @@ def edge_feature_size(setup: ModelSetup) -> int:
     return setup.dim + 1
 
 
+@renamed("scene", "setup")  # its names until 0.2
 class FeatureBuilder(nn.Module):
     """Builds node and edge features; owns the particle-type embedding when one is needed."""
 
@@ -63,9 +64,6 @@ class FeatureBuilder(nn.Module):
     walled_bounds: Tensor
     walled_faces: Tensor
     type_row: Tensor
-    scene = renamed_attribute("scene", "setup")  # its name until 0.2
-
-    @renamed_keywords(scene="setup")
     def __init__(
         self,
         setup: ModelSetup,

@@ -13,20 +13,18 @@ from torch import Tensor, nn
 
 from ..contracts import Decoder, Encoder, Graph, GraphBuilder, Integrator, ModelSetup, Processor
 from ..data.batch import ParticleBatch
-from ..moved import renamed_attribute, renamed_keywords
+from ..moved import renamed
 from ..runtime.host_sync import avoids_read_backs
 from .features import FeatureBuilder
 from .normalization import Stats
 from .periodic import PeriodicBox
 
 
+@renamed("scene", "setup")  # its names until 0.2
 class LearnedSimulator(nn.Module):
     """Predicts the next positions of every particle from its last C positions."""
 
     kinematic_type: Tensor  # a buffer (register_buffer)
-    scene = renamed_attribute("scene", "setup")  # its name until 0.2
-
-    @renamed_keywords(scene="setup")
     def __init__(
         self,
         setup: ModelSetup,
