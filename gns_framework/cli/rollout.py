@@ -13,23 +13,26 @@ the warning in every rollout file's metadata and the MLflow run.
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
-import tempfile
 from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
 
 from ..assembly.data import open_dataset
 from ..assembly.trained import load_trained
-from ..decomposition.rollout import partitioned_rollout
+from ..data.metadata import DatasetMetadata
+from ..decomposition.rollout import WrittenRollout, sharded_rollout
 from ..errors import DatasetError, GnsError
 from ..io.rollout_file import write_rollout
 from ..io.run_folder import RunFolder
+from ..io.sharded_rollout import SUFFIX, is_sharded_rollout
 from ..model.batched_rollout import rollout_batch
 from ..model.rollout import rollout
 from ..model.rollout_guard import RolloutGuard
-from ..outputs import check_folder, claim_folder
+from ..outputs import MARKER, check_folder, claim_folder
 from ..plugins import load_registry
 from ..runtime.device import resolve_device
 from ..runtime.precision import PRECISIONS
@@ -212,15 +215,18 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
     def claim() -> None:
         claim_folder(out, "rollout", args.overwrite, own=_only_rollouts)
 
+    written = _Output(out, safe_component(split_name), recorded, claim)
     for position, (index, result) in enumerate(
-        _rollouts(loaded.simulator, trajectories, count, steps, device, guard, args, processes, claim)
+        _rollouts(loaded.simulator, trajectories, count, steps, device, guard, args, processes, written)
     ):
         if result is None:
-            continue  # a partitioned rollout's frames are on its team's first process
-        if position == 0 and args.partitions == 1:
-            claim()
-        file = ensure_inside(out / f"{safe_component(split_name)}_{index:04d}.npz", out)
-        path = write_rollout(file, result, recorded)
+            continue  # a partitioned rollout is reported by its team's first process
+        if isinstance(result, WrittenRollout):
+            path = result.folder
+        else:
+            if position == 0:
+                claim()
+            path = write_rollout(written.file(index), result, recorded)
         clamped = f", clamped at {len(result.guard_violations)} check(s)" if result.guard_violations else ""
         print(f"{path}: {result.num_steps} steps, position MSE {result.position_mse:.4g}{clamped}")
         for violation in result.guard_violations:
@@ -252,25 +258,15 @@ def _rollouts(
     guard: RolloutGuard,
     args,
     processes: Processes,
-    claim: Callable[[], None],
+    output: _Output,
 ):
     """(index, rollout) of the first ``count`` trajectories, in order; ``--batch`` of one length at a time.
 
-    With ``--partitions`` every process rolls out its piece of each scene, and only its team's first
-    process gets the rollout (None elsewhere); ``claim`` is then run by rank 0 once the first scenes are
-    rolled out, before any is written.
+    With ``--partitions`` every process rolls out its piece of each scene and writes its shard
+    (:func:`_partitioned_rollouts`); its team's first process gets what was written (None elsewhere).
     """
     if args.partitions > 1:
-        team = team_of(processes, args.partitions)
-        # A team's first process keeps each rollout's frames in a memory-mapped file (TMPDIR) until it is written.
-        scratch = tempfile.TemporaryDirectory(prefix="gns-rollout-frames-") if team.is_chief else None
-        try:
-            yield from _partitioned_rollouts(
-                simulator, trajectories, count, steps, device, guard, args, processes, team, scratch, claim
-            )
-        finally:
-            if scratch is not None:
-                scratch.cleanup()
+        yield from _partitioned_rollouts(simulator, trajectories, count, steps, device, guard, args, processes, output)
         return
     if args.batch == 1:
         for index in range(count):
@@ -303,6 +299,27 @@ def _rollouts(
         start = stop
 
 
+@dataclass(frozen=True)
+class _Output:
+    """Where the rollouts go: ``out/<split>_<index, 4 digits>.npz``, or a folder ``....rollout`` of shards for a
+    partitioned scene, written first as a hidden ``.<name>.partial`` beside it; ``claim`` marks ``out`` as gns
+    rollout's before anything is written into it."""
+
+    out: Path
+    split: str
+    metadata: DatasetMetadata
+    claim: Callable[[], None]
+
+    def file(self, index: int) -> Path:
+        return ensure_inside(self.out / f"{self.split}_{index:04d}.npz", self.out)
+
+    def folder(self, index: int) -> Path:
+        return ensure_inside(self.out / f"{self.split}_{index:04d}{SUFFIX}", self.out)
+
+    def partial(self, index: int) -> Path:
+        return ensure_inside(self.out / f".{self.folder(index).name}.partial", self.out)
+
+
 def _partitioned_rollouts(
     simulator,
     trajectories,
@@ -312,30 +329,36 @@ def _partitioned_rollouts(
     guard: RolloutGuard,
     args,
     processes: Processes,
-    team: Processes,
-    scratch: tempfile.TemporaryDirectory | None,
-    claim: Callable[[], None],
+    output: _Output,
 ):
-    """(index, rollout) of each scene split over a team's processes (None except on the team's first process,
-    whose frames are in ``scratch``).
+    """(index, written rollout) of each scene split over a team's processes, each writing its own shard (None
+    except on the team's first process).
 
-    Teams take the scenes in turn: in round k, team t rolls out scene ``k * teams + t``. After
-    each round every process learns whether any team's rollout stopped (then all stop, the team's
-    own error or one naming the other team), so no process waits for a team that is gone; after
-    the first, rank 0 runs ``claim`` before anything is written. A rollout's frames file is
-    removed once the caller has written it (when the next round starts).
+    Teams take the scenes in turn: in round k, team t rolls out scene ``k * teams + t``. Rank 0
+    claims the output folder before the first round. Each scene is written into a hidden partial
+    folder, renamed to its name once every team's round went well; when a team's rollout stops,
+    every process learns it (the team's own error, or one naming the other team), the partial
+    folders are removed, and an output folder this command made and left empty goes too.
     """
+    team = team_of(processes, args.partitions)
     teams, mine = processes.world_size // team.world_size, processes.rank // team.world_size
+    made = from_chief(processes, lambda: not output.out.exists())
+    from_chief(processes, output.claim)
     for first in range(0, count, teams):
         index = first + mine
-        result, frames, failure = None, None, None
+        written, stats, failure = None, None, None
         if index < count:
-            frames = None if scratch is None else Path(scratch.name) / f"{index}.npy"
+            partial = output.partial(index)
+            if team.is_chief and partial.exists():
+                shutil.rmtree(partial)  # shards of an earlier command that stopped
+            team.barrier()
             try:
-                result, stats = partitioned_rollout(
+                written, stats = sharded_rollout(
                     simulator,
                     trajectories[index],
                     team,
+                    partial,
+                    output.metadata,
                     steps,
                     device,
                     guard,
@@ -344,33 +367,45 @@ def _partitioned_rollouts(
                     args.halo,
                     args.cut,
                     args.rebalance,
-                    frames,
                 )
             except Exception as exc:
                 failure = exc
         # On the processes' device: NCCL reduces CUDA tensors only.
         if processes.sum(torch.tensor([failure is not None], dtype=torch.long, device=device)).item():
+            if index < count and team.is_chief:
+                shutil.rmtree(output.partial(index), ignore_errors=True)
+            processes.barrier()
+            if processes.is_chief and made and not any(p.name != MARKER for p in output.out.iterdir()):
+                shutil.rmtree(output.out)
             if failure is not None:
                 raise failure
             raise GnsError(
                 f"gns rollout: another team's rollout stopped in round {first // teams} (its error says why)"
             )
-        if first == 0:
-            from_chief(processes, claim)
-        if result is not None:
-            print(
-                f"{trajectories[index].key or index}: {stats.partition.describe()}, "
-                f"halo of {stats.halo_kind} {stats.halo_fraction:.1%} of the particles, "
-                f"{stats.migrations} moved between processes, cut afresh {stats.rebalances} times"
-            )
-        yield index, result
-        del result
-        if frames is not None:
-            frames.unlink(missing_ok=True)
+        if written is None or stats is None or not team.is_chief:
+            yield index, None
+            continue
+        folder = output.folder(index)
+        if folder.is_dir():
+            shutil.rmtree(folder)  # an earlier result: the claim allowed writing over it
+        elif folder.exists():
+            folder.unlink()
+        written.folder.rename(folder)
+        print(
+            f"{trajectories[index].key or index}: {stats.partition.describe()}, "
+            f"halo of {stats.halo_kind} {stats.halo_fraction:.1%} of the particles, "
+            f"{stats.migrations} moved between processes, cut afresh {stats.rebalances} times"
+        )
+        yield index, replace(written, folder=folder)
 
 
 def _only_rollouts(folder: Path) -> bool:
-    """A folder gns rollout wrote before output folders were marked: rollout files (``<split>_NNNN.npz``) only."""
+    """A folder gns rollout wrote before output folders were marked: rollout files (``<split>_NNNN.npz``) and
+    sharded rollouts (``<split>_NNNN.rollout`` folders) only."""
     import re
 
-    return all(re.fullmatch(r"[A-Za-z0-9_.-]+_\d{4}\.npz", p.name) and p.is_file() for p in folder.iterdir())
+    return all(
+        (re.fullmatch(r"[A-Za-z0-9_.-]+_\d{4}\.npz", p.name) and p.is_file())
+        or (re.fullmatch(r"[A-Za-z0-9_.-]+_\d{4}\.rollout", p.name) and is_sharded_rollout(p))
+        for p in folder.iterdir()
+    )

@@ -10,8 +10,10 @@ Every step, on every process (rank r of P):
    the radius graph lists edges by (receiver, sender), so every owned particle sums its
    messages in the same order as in the whole scene, and its prediction is the same (with a
    halo of latents the halo's node latents come from their owners between message-passing steps);
-3. **gather** the owned particles' next positions on rank 0, which checks the frame with the
-   rollout guard as a single process does, and keeps it;
+3. **check and hand over**: each process runs the rollout guard on its own particles' next
+   positions (only the verdict travels, one sum) and hands their rows to the output: gathered
+   into whole frames on rank 0 (:func:`partitioned_rollout`, for scenes that fit one process),
+   or written by every process into its own shard of a sharded rollout (:func:`sharded_rollout`);
 4. **migrate**: particles whose new position lies in another piece move to that process;
 5. **rebalance**: when a process now holds more than ``rebalance`` times its share of the
    particles (they crowd as a column collapses or a flow runs out), every process receives
@@ -20,8 +22,8 @@ Every step, on every process (rank r of P):
 
 With a halo of positions, its outermost particles miss some of their own neighbours, but what
 they get wrong travels one edge per message-passing step and never reaches an owned particle. Memory per
-process is its share of the scene plus the halo; rank 0 alone also holds the predicted
-frames (as the rollout file does), in memory or in a memory-mapped file (``frames``).
+process is its share of the scene plus the halo; with gathered frames rank 0 also holds the predicted
+frames (as the rollout file does), with a sharded output no process does.
 """
 
 from __future__ import annotations
@@ -29,20 +31,22 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from ..data.batch import window
+from ..data.metadata import DatasetMetadata
 from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..errors import GnsError, RolloutDiverged
+from ..io.sharded_rollout import RolloutShard, shard_violations, write_manifest
 from ..model.history import advance_window
 from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import check_simulates, rollout_step
-from ..model.rollout_guard import GuardViolation, RolloutGuard
+from ..model.rollout_guard import GuardViolation, RolloutGuard, merged_violations
 from ..runtime.precision import Precision
 from .exchange import rows_everywhere, send_rows
 from .halo import HaloKind, partition_for, with_halo
@@ -80,7 +84,6 @@ class DecompositionStats:
         return self.halo / max(self.owned, 1)
 
 
-@torch.inference_mode()
 def partitioned_rollout(
     simulator: LearnedSimulator,
     trajectory: Trajectory,
@@ -93,15 +96,16 @@ def partitioned_rollout(
     halo: HaloKind = "auto",
     cut: Cut = "auto",
     rebalance: float | None = 1.25,
-    frames: Path | None = None,
 ) -> tuple[Rollout | None, DecompositionStats]:
-    """Predict ``steps`` frames from the first C of ``trajectory``, the scene split over ``processes``.
+    """Predict ``steps`` frames from the first C of ``trajectory``, the scene split over ``processes``, every
+    frame gathered on rank 0: for scenes that fit one process (validation, tests); :func:`sharded_rollout`
+    writes a large one in pieces instead.
 
     Every process of the (started) process group calls it with the same arguments. Returns,
     on rank 0, the rollout as :func:`gns_framework.model.rollout.rollout` gives it (None on the
     others), and on every process the decomposition's statistics. A guard stop raises
-    :class:`~gns_framework.errors.RolloutDiverged` on every process (rank 0 the guard's, the
-    others one naming the step).
+    :class:`~gns_framework.errors.RolloutDiverged` on every process (the guard's on the process
+    whose particles it stopped, one naming the step on the others).
 
     Args:
         axis: the dimension cut into slabs (default: the one the particles spread farthest in); slabs only.
@@ -112,9 +116,94 @@ def partitioned_rollout(
             exchanges them (:mod:`.halo`).
         rebalance: cut the pieces afresh when a process holds more than this many times its share
             of the particles (> 1; None: keep the first frame's pieces).
-        frames: where rank 0 keeps the predicted frames, a ``.npy`` file it memory-maps, so
-            that a long rollout of a large scene need not fit in its memory (steps x N x d
-            float32); None: in memory. The rollout's ``predicted`` is then backed by that file.
+    """
+    output = _Gathered(processes)
+    stats, violations = _roll(
+        simulator, trajectory, processes, output, steps, device, guard, precision, axis, halo, cut, rebalance
+    )
+    everyone = merged_violations(v for found in processes.all_gather(violations) for v in found)
+    if output.predicted is None:
+        return None, stats
+    return (
+        Rollout(
+            truth=trajectory.first_frames(simulator.setup.history + len(output.predicted)),
+            predicted=output.predicted.numpy(),
+            history=simulator.setup.history,
+            predicted_particles=simulator.predicted_mask(torch.as_tensor(trajectory.particle_type)).numpy(),
+            guard_violations=tuple(everyone),
+        ),
+        stats,
+    )
+
+
+@dataclass(frozen=True)
+class WrittenRollout:
+    """What :func:`sharded_rollout` wrote: the folder, the frames predicted, the position MSE over them (over
+    steps, predicted particles and dimensions, as :attr:`Rollout.position_mse`), and what the guard clamped."""
+
+    folder: Path
+    num_steps: int
+    position_mse: float
+    guard_violations: tuple[GuardViolation, ...]
+
+
+def sharded_rollout(
+    simulator: LearnedSimulator,
+    trajectory: Trajectory,
+    processes: Processes,
+    folder: Path,
+    metadata: DatasetMetadata,
+    steps: int | None = None,
+    device: torch.device | str = "cpu",
+    guard: RolloutGuard | None = None,
+    precision: Precision = "float32",
+    axis: int | None = None,
+    halo: HaloKind = "auto",
+    cut: Cut = "auto",
+    rebalance: float | None = 1.25,
+) -> tuple[WrittenRollout, DecompositionStats]:
+    """:func:`partitioned_rollout` written in pieces: each process writes its own particles' frames into its
+    shard of a sharded rollout in ``folder`` as the rollout goes (:mod:`gns_framework.io.sharded_rollout`),
+    rank 0 the manifest with ``metadata`` once all are complete; no process ever gathers a frame. A rollout
+    that stops leaves no shard behind. Returns the same record on every process."""
+    shard = RolloutShard(folder, processes.rank)
+    output = _Sharded(shard, trajectory, simulator.setup.history, simulator)
+    try:
+        stats, violations = _roll(
+            simulator, trajectory, processes, output, steps, device, guard, precision, axis, halo, cut, rebalance
+        )
+    except BaseException:
+        shard.abandon()
+        raise
+    shard.finish(violations)
+    squared, count = processes.sum(torch.tensor([output.squared_error, output.predicted_values])).tolist()
+    processes.barrier()  # every shard complete before the manifest says so
+    if processes.is_chief:
+        write_manifest(folder, trajectory, output.steps, simulator.setup.history, processes.world_size, metadata)
+    written = WrittenRollout(
+        folder, output.steps, squared / max(count, 1.0), tuple(shard_violations(folder, processes.world_size))
+    )
+    return written, stats
+
+
+@torch.inference_mode()
+def _roll(
+    simulator: LearnedSimulator,
+    trajectory: Trajectory,
+    processes: Processes,
+    output: _Output,
+    steps: int | None,
+    device: torch.device | str,
+    guard: RolloutGuard | None,
+    precision: Precision,
+    axis: int | None,
+    halo: HaloKind,
+    cut: Cut,
+    rebalance: float | None,
+) -> tuple[DecompositionStats, list[GuardViolation]]:
+    """The rollout's steps on this process: its particles' checked frames go to ``output`` step by step.
+
+    Returns the statistics and what the guard found on this process's particles (numbered in the scene).
     """
     if rebalance is not None and not rebalance > 1:
         raise ValueError(f"rebalance must be more than 1 (a process's most particles over its share), got {rebalance}")
@@ -139,14 +228,12 @@ def partitioned_rollout(
     )
     mine = partition.owner(start.position_sequence[:, -1]) == rank
     owned = everyone.select(mine).to(device)
+    output.begin(owned, steps, start.num_particles)
     # What the whole scene shares (its walls) is the same on every process; the particle fields are set per step.
     nothing = start.particle_type[:0]
     shared = replace(start, position_sequence=start.position_sequence[:0], particle_type=nothing, batch=nothing)
     shared = replace(shared, material_property=None).to(device)
     context = None if trajectory.step_context is None else torch.from_numpy(trajectory.step_context).to(device)
-    chief = rank == 0
-    predicted = _frames(frames, (steps, start.num_particles, setup.dim)) if chief else None
-    last_input = torch.from_numpy(np.array(trajectory.position[history - 1])) if chief else None
     violations: list[GuardViolation] = []
     halo_count = migrations = rebalances = 0
     for step in range(steps):
@@ -166,10 +253,9 @@ def partitioned_rollout(
         else:
             next_position, continued = result
         next_owned, continued_owned = next_position[owned_rows], continued[owned_rows]
-        previous = None if predicted is None else (predicted[step - 1] if step > 0 else last_input)
-        violations += _gather_and_check(
-            owned.ids, next_owned, predicted, previous, step, guard, trajectory.key, processes
-        )
+        checked, found = _checked(guard, step, next_owned, owned, trajectory.key, processes)
+        violations += found
+        output.frame(step, owned, checked)
         owned = replace(owned, sequence=advance_window(owned.sequence, continued_owned))
         owned, moved = _migrate(owned, partition, processes)
         migrations += moved
@@ -191,63 +277,98 @@ def partitioned_rollout(
             rebalances += 1
     totals = processes.sum(torch.tensor([halo_count, migrations], dtype=torch.long, device=device))
     stats = DecompositionStats(start.num_particles * steps, int(totals[0]), int(totals[1]), partition, kind, rebalances)
-    if not chief:
-        return None, stats
-    assert predicted is not None
-    return (
-        Rollout(
-            truth=trajectory.first_frames(history + steps),
-            predicted=predicted.numpy(),
-            history=history,
-            predicted_particles=simulator.predicted_mask(start.particle_type.to(device)).cpu().numpy(),
-            guard_violations=tuple(violations),
-        ),
-        stats,
-    )
+    return stats, violations
 
 
-def _gather_and_check(
-    ids: Tensor,
-    next_owned: Tensor,
-    predicted: Tensor | None,
-    previous: Tensor | None,
-    step: int,
-    guard: RolloutGuard,
-    key: str,
-    processes: Processes,
-) -> list[GuardViolation]:
-    """Frame ``step`` assembled in ``predicted`` on rank 0 and checked by the guard against ``previous``.
+def _checked(
+    guard: RolloutGuard, step: int, next_owned: Tensor, owned: Particles, key: str, processes: Processes
+) -> tuple[Tensor, list[GuardViolation]]:
+    """This process's particles' next positions as the guard lets them stand, and what it found on them.
 
-    Returns what the guard clamped. A guard stop raises RolloutDiverged on every process: rank 0
-    the guard's, the others one that points to it.
+    Each process checks its own particles; only the verdict travels (one sum). A guard stop raises
+    RolloutDiverged on every process: the guard's own where it stopped, one naming the step elsewhere.
     """
-    gathered_ids, gathered = send_rows(torch.zeros_like(ids), [ids, next_owned], processes.world_size, processes.group)
-    found: list[GuardViolation] = []
     failure: GnsError | None = None
-    if predicted is not None:
-        assert gathered_ids is not None and gathered is not None and previous is not None
-        frame = torch.empty_like(predicted[step])
-        frame[gathered_ids.cpu()] = gathered.cpu()
-        try:
-            predicted[step], found = guard.check(step, frame, previous, key)
-        except GnsError as exc:
-            failure = exc
-    # Only rank 0 checks, so the sum over the processes is its verdict, on every process.
+    try:
+        checked, found = guard.check(step, next_owned, owned.sequence[:, -1], key, ids=owned.ids)
+    except GnsError as exc:
+        failure, checked, found = exc, next_owned, []
     stopped = processes.sum(torch.tensor([failure is not None], dtype=torch.long, device=next_owned.device))
     if failure is not None:
         raise failure
     if bool(stopped):
         raise RolloutDiverged(
-            f"rank 0 stopped the rollout of trajectory {key!r} at step {step} (its error says why)", key, step
+            f"another process stopped the rollout of trajectory {key!r} at step {step} (its error says why)", key, step
         )
-    return found
+    return checked, found
 
 
-def _frames(path: Path | None, shape: tuple[int, int, int]) -> Tensor:
-    """(steps, N, d) float32 frames: in memory, or in a memory-mapped ``.npy`` file at ``path``."""
-    if path is None:
-        return torch.empty(shape)
-    return torch.from_numpy(np.lib.format.open_memmap(path, mode="w+", dtype=np.float32, shape=shape))
+class _Output(Protocol):
+    """Where a partitioned rollout's frames go, each process handing over its own particles' rows."""
+
+    def begin(self, owned: Particles, steps: int, particles: int) -> None:
+        """The particles this process owns at the start (their C input frames), before the first step."""
+
+    def frame(self, step: int, owned: Particles, position: Tensor) -> None:
+        """Step ``step``'s checked positions (n, d) of the particles this process owns at that step."""
+
+
+class _Gathered:
+    """Every frame on rank 0, each process sending it its particles' rows (whole frames on one process)."""
+
+    def __init__(self, processes: Processes):
+        self.processes = processes
+        self.predicted: Tensor | None = None
+
+    def begin(self, owned: Particles, steps: int, particles: int) -> None:
+        if self.processes.is_chief:
+            self.predicted = torch.empty((steps, particles, owned.sequence.shape[-1]))
+
+    def frame(self, step: int, owned: Particles, position: Tensor) -> None:
+        rows = _on_chief(self.processes, owned.ids, position)
+        if rows is not None and self.predicted is not None:
+            self.predicted[step] = rows.cpu()
+
+
+class _Sharded:
+    """Each process's rows into its own shard (:class:`~gns_framework.io.sharded_rollout.RolloutShard`), beside
+    their true positions; the squared error of the predicted particles summed on the way."""
+
+    def __init__(self, shard: RolloutShard, trajectory: Trajectory, history: int, simulator: LearnedSimulator):
+        self.shard, self.trajectory, self.history, self.simulator = shard, trajectory, history, simulator
+        self.squared_error = self.predicted_values = 0.0
+        self.steps = 0
+
+    def begin(self, owned: Particles, steps: int, particles: int) -> None:
+        self.steps = steps
+        prop = owned.material_property
+        self.shard.start(
+            owned.ids.cpu().numpy(),
+            owned.sequence.transpose(0, 1).cpu().numpy(),
+            owned.particle_type.cpu().numpy(),
+            None if prop is None else prop.cpu().numpy(),
+            self.simulator.predicted_mask(owned.particle_type).cpu().numpy(),
+        )
+
+    def frame(self, step: int, owned: Particles, position: Tensor) -> None:
+        ids = owned.ids.cpu().numpy()
+        truth = np.asarray(self.trajectory.position[self.history + step][ids], dtype=np.float32)
+        predicted = position.cpu().numpy()
+        self.shard.frame(ids, predicted, truth)
+        moving = self.simulator.predicted_mask(owned.particle_type).cpu().numpy()
+        self.squared_error += float(((predicted[moving] - truth[moving]).astype(np.float64) ** 2).sum())
+        self.predicted_values += float(moving.sum() * predicted.shape[-1])
+
+
+def _on_chief(processes: Processes, ids: Tensor, rows: Tensor) -> Tensor | None:
+    """Every process's ``rows`` placed by their global ``ids``, on rank 0 (None elsewhere)."""
+    gathered_ids, gathered = send_rows(torch.zeros_like(ids), [ids, rows], processes.world_size, processes.group)
+    if not processes.is_chief:
+        return None
+    assert gathered_ids is not None and gathered is not None
+    placed = gathered.new_empty((len(gathered_ids), *gathered.shape[1:]))
+    placed[gathered_ids] = gathered
+    return placed
 
 
 def _owned_work(simulator: LearnedSimulator, owned: Particles, partition: Partition, processes: Processes) -> Tensor:

@@ -21,7 +21,8 @@ result to report, not a malformed file); every other array must be finite.
 
 In memory a file is a :class:`~gns_framework.data.rollout.Rollout`: its true
 trajectory is ``initial_positions`` followed by ``ground_truth_rollout``, named
-after the file.
+after the file. A rollout over several processes is written as shards instead
+(:mod:`.sharded_rollout`), which :func:`load_rollout` reads as one rollout too.
 """
 
 from __future__ import annotations
@@ -152,9 +153,14 @@ def save_rollout(path: str | Path, rollout: Rollout) -> Path:
 
 
 def load_rollout(path: str | Path) -> Rollout:
-    """Read and validate a rollout file; never unpickles (``allow_pickle=False``)."""
+    """Read and validate a rollout file, or a sharded rollout's folder (:mod:`.sharded_rollout`, written by a
+    rollout over several processes) as one rollout; never unpickles (``allow_pickle=False``)."""
     path = Path(path)
     src = str(path)
+    if path.is_dir():
+        from .sharded_rollout import load_sharded_rollout
+
+        return load_sharded_rollout(path)
     if not path.is_file():
         raise DatasetError(f"{src}: rollout file not found")
     # np.load would try to unpickle anything that is not an archive: check first.
@@ -186,13 +192,19 @@ def load_rollout(path: str | Path) -> Rollout:
     if not isinstance(metadata_dict, dict):
         raise DatasetError(located(src, "metadata_json", f"expected a JSON object, got {type(metadata_dict).__name__}"))
     metadata = parse_metadata(metadata_dict, f"{src}: metadata_json")
+    return rollout_from_fields(src, fields, metadata, path.stem)
+
+
+def rollout_from_fields(src: str, fields: dict[str, np.ndarray | None], metadata: DatasetMetadata, key: str) -> Rollout:
+    """The rollout of a file's arrays (named as in the table above; the optional ones may be None), checked as a
+    rollout file's are: DatasetError naming ``src`` and the field at fault."""
     arrays = _validated_fields(src, fields, metadata)
     initial = arrays["initial_positions"]
     truth = Trajectory(
         np.concatenate([initial, arrays["ground_truth_rollout"]]),
         arrays["particle_type"],
         arrays["material_property"],
-        key=path.stem,
+        key=key,
         bounds=arrays["bounds"],
         walls=arrays["walls"],
     )

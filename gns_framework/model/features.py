@@ -64,6 +64,7 @@ class FeatureBuilder(nn.Module):
     walled_bounds: Tensor
     walled_faces: Tensor
     type_row: Tensor
+
     def __init__(
         self,
         setup: ModelSetup,

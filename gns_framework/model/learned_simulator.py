@@ -25,6 +25,7 @@ class LearnedSimulator(nn.Module):
     """Predicts the next positions of every particle from its last C positions."""
 
     kinematic_type: Tensor  # a buffer (register_buffer)
+
     def __init__(
         self,
         setup: ModelSetup,

@@ -11,7 +11,9 @@ particles back and records what it did.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,6 +34,7 @@ class GuardViolation:
     """What one check found: the step (0-based, frame ``step + C``), the particles and the cause.
 
     ``escaped``: the particles left the domain (under ``clamp``, a wall held them); else they were non-finite.
+    ``excess``: for escaped particles, how far the farthest of them was beyond a wall (length units).
     """
 
     step: int
@@ -39,6 +42,7 @@ class GuardViolation:
     particles: np.ndarray
     cause: str
     escaped: bool = False
+    excess: float = 0.0
 
     def describe(self) -> str:
         shown = ", ".join(str(int(i)) for i in self.particles[:SHOWN_PARTICLES])
@@ -85,12 +89,14 @@ class RolloutGuard:
         return guard
 
     def check(
-        self, step: int, position: Tensor, previous: Tensor, trajectory: str = ""
+        self, step: int, position: Tensor, previous: Tensor, trajectory: str = "", ids: Tensor | None = None
     ) -> tuple[Tensor, list[GuardViolation]]:
         """Check the predicted frame ``position`` (N, d); ``previous`` (N, d) is the frame before it.
 
         Returns the frame to continue from (``position`` itself when nothing was wrong)
         and the violations found (empty when none). Raises RolloutDiverged under ``stop``.
+        ``ids`` (N,): the particles' numbers in the scene, when ``position`` holds some of them
+        (a process's piece); reports name those. Default: the rows' own indices.
         """
         non_finite = ~torch.isfinite(position).all(dim=-1)
         excess = self._beyond_walls(position)
@@ -100,17 +106,20 @@ class RolloutGuard:
             return position, []
         frame = step + self.history
         violations = []
+        number = None if ids is None else ids.cpu().numpy()
+        named = (lambda rows: rows) if number is None else (lambda rows: np.sort(number[rows]))
         if non_finite.any():
             violations.append(
-                GuardViolation(step, frame, _indices(non_finite), "have non-finite positions (NaN or Inf)")
+                GuardViolation(step, frame, named(_indices(non_finite)), "have non-finite positions (NaN or Inf)")
             )
         if escaped.any():
             farthest = int(torch.argmax(torch.where(escaped, excess, torch.zeros_like(excess))))
+            beyond, farthest_id = float(excess[farthest]), farthest if number is None else int(number[farthest])
             cause = (
                 f"left the domain by more than the margin {self.margin:g} "
-                f"(farthest: particle {farthest}, {float(excess[farthest]):.4g} beyond a wall)"
+                f"(farthest: particle {farthest_id}, {beyond:.4g} beyond a wall)"
             )
-            violations.append(GuardViolation(step, frame, _indices(escaped), cause, escaped=True))
+            violations.append(GuardViolation(step, frame, named(_indices(escaped)), cause, True, beyond))
         if self.on_violation == "stop":
             first = violations[0]
             where = f"rollout of trajectory {trajectory!r}" if trajectory else "rollout"
@@ -174,3 +183,18 @@ def held_particles(violations) -> int:
     """How many particles a wall held (put back after they left the domain) in one rollout's ``violations``."""
     held = [v.particles for v in violations if v.escaped]
     return int(np.unique(np.concatenate(held)).size) if held else 0
+
+
+def merged_violations(found: Iterable[GuardViolation]) -> list[GuardViolation]:
+    """Violations found on the pieces of one scene (one process's particles each) as one check of the whole
+    frame reports them: per step, the non-finite particles, then the escaped ones with the farthest escape's
+    cause, their numbers sorted."""
+    groups: dict[tuple[int, bool], list[GuardViolation]] = {}
+    for violation in found:
+        groups.setdefault((violation.step, violation.escaped), []).append(violation)
+    return [
+        dataclasses.replace(
+            max(parts, key=lambda v: v.excess), particles=np.sort(np.concatenate([v.particles for v in parts]))
+        )
+        for _, parts in sorted(groups.items())
+    ]

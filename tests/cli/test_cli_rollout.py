@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from argparse import Namespace
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -16,6 +17,7 @@ from tiny import tiny_recipe_mapping
 
 from gns_framework.cli import main
 from gns_framework.cli import rollout as rollout_command
+from gns_framework.io.rollout_file import load_rollout
 from gns_framework.runtime.processes import Processes
 
 
@@ -138,7 +140,7 @@ def batches_of(lengths: list[int], count: int, batch: int, monkeypatch) -> list[
     monkeypatch.setattr(rollout_command, "rollout", one)
     monkeypatch.setattr(rollout_command, "rollout_batch", many)
     args = Namespace(batch=batch, no_progress=True, precision="float32", partitions=1, capture=False)
-    rolled = rollout_command._rollouts(None, trajectories, count, None, "cpu", None, args, Processes(), lambda: None)
+    rolled = rollout_command._rollouts(None, trajectories, count, None, "cpu", None, args, Processes(), None)
     results = list(rolled)
     # Every rollout comes back under its own index, in order, whatever the grouping.
     assert results == [(i, f"rollout {i}") for i in range(count)]
@@ -168,6 +170,11 @@ def test_only_rollout_files_make_a_folder_rollout_may_write_into(tmp_path):
     (folder / "test_001.npz").unlink()
     (folder / "test_0001.npz").mkdir()  # the name of a rollout file, but a folder
     assert not rollout_command._only_rollouts(folder)
+    (folder / "test_0001.npz").rmdir()
+    (folder / "test_0001.rollout").mkdir()  # a sharded rollout's name, without its manifest
+    assert not rollout_command._only_rollouts(folder)
+    (folder / "test_0001.rollout" / "rollout.json").write_text("{}")
+    assert rollout_command._only_rollouts(folder)
 
 
 def test_a_rollout_partitioned_over_two_processes_writes_what_one_process_writes(tiny_model, tmp_path):
@@ -187,13 +194,31 @@ def test_a_rollout_partitioned_over_two_processes_writes_what_one_process_writes
     two = subprocess.run(launcher + command, capture_output=True, text=True, timeout=600, env=env)
     assert two.returncode == 0, two.stderr
     assert "2 slabs along dimension" in two.stdout and "moved between processes" in two.stdout  # P = 2: slabs
-    assert sorted(p.name for p in (tmp_path / "two").iterdir()) == sorted(p.name for p in (tmp_path / "one").iterdir())
-    assert not [p for p in scratch.rglob("*") if "frames" in p.name], "rank 0's frame files are removed"
-    with np.load(tmp_path / "one" / "test_0000.npz") as a, np.load(tmp_path / "two" / "test_0000.npz") as b:
-        scale = np.abs(a["predicted_rollout"]).max()
-        tolerance = np.finfo(np.float32).eps * scale * a["predicted_rollout"].shape[0]
-        np.testing.assert_allclose(b["predicted_rollout"], a["predicted_rollout"], rtol=0, atol=tolerance)
-        np.testing.assert_array_equal(b["ground_truth_rollout"], a["ground_truth_rollout"])
+    written = sorted(p.name for p in (tmp_path / "one").iterdir())
+    assert sorted(p.name for p in (tmp_path / "two").iterdir()) == [n.replace(".npz", ".rollout") for n in written]
+    kept_aside = [p for p in scratch.rglob("*") if p.suffix in (".npy", ".h5", ".npz")]
+    assert not kept_aside, "no frames are kept aside: every process writes its own shard"
+    assert sorted(p.name for p in (tmp_path / "two" / "test_0000.rollout").iterdir()) == [
+        "rollout.json",
+        "shard-00000.h5",
+        "shard-00001.h5",
+    ]
+    _same_rollout(tmp_path / "one" / "test_0000.npz", tmp_path / "two" / "test_0000.rollout")
+    rendered = gns("render", str(tmp_path / "two" / "test_0000.rollout"), "--gif", str(tmp_path / "two.gif"))
+    assert rendered.returncode == 0 and (tmp_path / "two.gif").stat().st_size > 0, rendered.stderr
+    again = subprocess.run(launcher + command, capture_output=True, text=True, timeout=600, env=env)
+    assert again.returncode == 0, again.stderr  # its own earlier result: written over
+    _same_rollout(tmp_path / "one" / "test_0000.npz", tmp_path / "two" / "test_0000.rollout")
+
+
+def _same_rollout(one_process: Path, sharded: Path) -> None:
+    """The sharded rollout reads back as the single-process file: predictions to float32 rounding, the rest exact."""
+    a, b = load_rollout(one_process), load_rollout(sharded)
+    tolerance = np.finfo(np.float32).eps * np.abs(a.predicted).max() * a.num_steps
+    np.testing.assert_allclose(b.predicted, a.predicted, rtol=0, atol=tolerance)
+    np.testing.assert_array_equal(b.truth.position, a.truth.position)
+    np.testing.assert_array_equal(b.particle_type, a.particle_type)
+    assert b.metadata == a.metadata and b.key == a.key
 
 
 def test_two_teams_of_two_processes_roll_out_the_scenes_in_turn(tiny_model, tmp_path):
@@ -224,13 +249,10 @@ def test_two_teams_of_two_processes_roll_out_the_scenes_in_turn(tiny_model, tmp_
     assert teams.returncode == 0, teams.stderr
     assert teams.stdout.count("moved between processes") == 3
     written = sorted(p.name for p in (tmp_path / "one").iterdir())
-    assert len(written) >= 3 and sorted(p.name for p in (tmp_path / "teams").iterdir()) == written
+    assert len(written) >= 3
+    assert sorted(p.name for p in (tmp_path / "teams").iterdir()) == [n.replace(".npz", ".rollout") for n in written]
     for index in range(3):
-        name = f"test_{index:04d}.npz"
-        with np.load(tmp_path / "one" / name) as a, np.load(tmp_path / "teams" / name) as b:
-            scale = np.abs(a["predicted_rollout"]).max()
-            tolerance = np.finfo(np.float32).eps * scale * a["predicted_rollout"].shape[0]
-            np.testing.assert_allclose(b["predicted_rollout"], a["predicted_rollout"], rtol=0, atol=tolerance)
+        _same_rollout(tmp_path / "one" / f"test_{index:04d}.npz", tmp_path / "teams" / f"test_{index:04d}.rollout")
 
 
 def test_a_team_whose_rollout_stops_stops_every_team_and_nothing_is_written(tiny_model, tmp_path):
@@ -324,7 +346,4 @@ def test_a_rollout_over_two_nodes_writes_what_one_process_writes(tiny_model, tmp
     outputs = [node.communicate(timeout=600) for node in nodes]
     assert all(node.returncode == 0 for node in nodes), "\n".join(err for _, err in outputs)
     assert any("2 slabs along dimension" in out for out, _ in outputs)
-    with np.load(tmp_path / "one" / "test_0000.npz") as a, np.load(tmp_path / "two" / "test_0000.npz") as b:
-        scale = np.abs(a["predicted_rollout"]).max()
-        tolerance = np.finfo(np.float32).eps * scale * a["predicted_rollout"].shape[0]
-        np.testing.assert_allclose(b["predicted_rollout"], a["predicted_rollout"], rtol=0, atol=tolerance)
+    _same_rollout(tmp_path / "one" / "test_0000.npz", tmp_path / "two" / "test_0000.rollout")

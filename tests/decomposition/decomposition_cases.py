@@ -46,18 +46,6 @@ def case_simulator(name: str) -> LearnedSimulator:
         property_names=("friction",) if with_property else (),
         periodic=tuple(k in periodic for k in range(dim)),
     )
-    std = [0.01] * dim
-    metadata = DatasetMetadata(
-        bounds=[(0.0, 1.0)] * dim,
-        sequence_length=FRAMES,
-        default_connectivity_radius=radius,
-        dim=dim,
-        dt=0.01,
-        vel_mean=[0.0] * dim,
-        vel_std=std,
-        acc_mean=[0.0] * dim,
-        acc_std=[1e-3] * dim,
-    )
     model = ModelSpec(
         latent_size=16,
         mlp_hidden_size=16,
@@ -67,7 +55,33 @@ def case_simulator(name: str) -> LearnedSimulator:
         processor={"name": "interaction_network", "message_passing_steps": HOPS},
     )
     torch.manual_seed(0)
-    return build_learned_simulator(scene, metadata, model, load_registry()).eval()
+    return build_learned_simulator(scene, case_metadata(name), model, load_registry()).eval()
+
+
+def case_metadata(name: str) -> DatasetMetadata:
+    """The statistics the case's model normalises with (velocities of about 0.01 per frame)."""
+    dim, _, _, _, radius = {**CASES, **DRIFT, **FEW}[name]
+    return DatasetMetadata(
+        bounds=[(0.0, 1.0)] * dim,
+        sequence_length=FRAMES,
+        default_connectivity_radius=radius,
+        dim=dim,
+        dt=0.01,
+        vel_mean=[0.0] * dim,
+        vel_std=[0.01] * dim,
+        acc_mean=[0.0] * dim,
+        acc_std=[1e-3] * dim,
+    )
+
+
+def narrow_guard(name: str):
+    """A guard whose walls stand at 0.2 and 0.8 (the scene's are 0 and 1) with no margin, clamping: it holds
+    particles back at most steps, on every process's piece."""
+    from gns_framework.model.rollout_guard import RolloutGuard
+
+    simulator = case_simulator(name)
+    guard = RolloutGuard(simulator.setup, margin=0.0, on_violation="clamp")
+    return guard.with_bounds(np.array([[0.2, 0.8]] * simulator.setup.dim))
 
 
 def case_trajectory(name: str) -> Trajectory:
@@ -124,29 +138,45 @@ def partitioned_worker(
     halo: str = "positions",
     cut: str = "auto",
     rebalance: float | None = 1.25,
-    frames: bool = False,
+    sharded: bool = False,
+    narrow: bool = False,
 ) -> None:
-    """Roll every case out over ``world`` gloo processes; rank 0 saves ``<case>.npy`` and ``<case>.json``
-    (with ``frames``, it keeps the frames in ``<case>-frames.npy`` as it goes).
+    """Roll every case out over ``world`` gloo processes; rank 0 saves ``<case>.npy`` and ``<case>.json``.
 
-    ``depth_scale`` < 1 shrinks the halo below what ``halo`` needs: a broken decomposition.
+    With ``sharded`` every process writes its shard into ``<case>.rollout`` and rank 0 saves what reads back
+    from it, with the guard's clamps; ``narrow``: under :func:`narrow_guard`. ``depth_scale`` < 1 shrinks the
+    halo below what ``halo`` needs: a broken decomposition.
     """
     from gns_framework.decomposition import rollout as decomposed
+    from gns_framework.io.rollout_file import load_rollout
     from gns_framework.training.distributed import stop
 
     processes = _join(rank, world, port)
     _scale_halo_depth(depth_scale)
     try:
         for name in cases:
-            result, stats = decomposed.partitioned_rollout(
-                case_simulator(name),
-                case_trajectory(name),
-                processes,
-                halo=halo,  # type: ignore[arg-type]
-                cut=cut,  # type: ignore[arg-type]
-                rebalance=rebalance,
-                frames=Path(out) / f"{name}-frames.npy" if frames and rank == 0 else None,
-            )
+            options = dict(halo=halo, cut=cut, rebalance=rebalance, guard=narrow_guard(name) if narrow else None)
+            if sharded:
+                folder = Path(out) / f"{name}.rollout"
+                simulator, trajectory, metadata = case_simulator(name), case_trajectory(name), case_metadata(name)
+                written, stats = decomposed.sharded_rollout(
+                    simulator,
+                    trajectory,
+                    processes,
+                    folder,
+                    metadata,
+                    **options,  # type: ignore[arg-type]
+                )
+                result = load_rollout(folder) if rank == 0 else None
+                clamps = [v.describe() for v in written.guard_violations]
+            else:
+                result, stats = decomposed.partitioned_rollout(
+                    case_simulator(name),
+                    case_trajectory(name),
+                    processes,
+                    **options,  # type: ignore[arg-type]
+                )
+                clamps = None if result is None else [v.describe() for v in result.guard_violations]
             if rank == 0:
                 assert result is not None
                 np.save(Path(out) / f"{name}.npy", result.predicted)
@@ -156,6 +186,8 @@ def partitioned_worker(
                     "kind": stats.halo_kind,
                     "partition": stats.partition.describe(),
                     "rebalances": stats.rebalances,
+                    "clamps": clamps,
+                    "read_back_clamps": [v.describe() for v in result.guard_violations],
                 }
                 (Path(out) / f"{name}.json").write_text(json.dumps(summary))
     finally:

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import json
 
+import h5py
 import numpy as np
 import pytest
-from decomposition_cases import CASES, case_simulator, case_trajectory, partitioned_worker
+from decomposition_cases import CASES, case_simulator, case_trajectory, narrow_guard, partitioned_worker
 from spawned import free_loopback_port, run_processes
 
 from gns_framework.decomposition.rollout import partitioned_rollout
+from gns_framework.io.rollout_file import load_rollout
 from gns_framework.model.rollout import rollout
 from gns_framework.runtime.processes import Processes
 
@@ -29,9 +31,11 @@ def _partitioned(
     cases: tuple[str, ...] = tuple(CASES),
     cut: str = "slabs",
     rebalance: float | None = 1.25,
-    frames: bool = False,
+    sharded: bool = False,
+    narrow: bool = False,
 ) -> dict[str, np.ndarray]:
-    arguments = (processes, free_loopback_port(), str(tmp_path), list(cases), depth_scale, halo, cut, rebalance, frames)
+    options = (depth_scale, halo, cut, rebalance, sharded, narrow)
+    arguments = (processes, free_loopback_port(), str(tmp_path), list(cases), *options)
     run_processes(partitioned_worker, arguments, processes)
     return {name: np.load(tmp_path / f"{name}.npy") for name in cases}
 
@@ -101,13 +105,38 @@ def test_pieces_cut_afresh_as_the_particles_crowd_give_the_same_rollout(tmp_path
     assert summary["rebalances"] >= 1 and summary["migrations"] > 0
 
 
-def test_rank_0_can_keep_the_frames_in_a_memory_mapped_file(tmp_path, single_process):
-    name = "3d_periodic"
-    partitioned = _partitioned(tmp_path, 2, "latents", cases=(name,), frames=True)[name]
-    kept = np.load(tmp_path / f"{name}-frames.npy", mmap_mode="r")
-    np.testing.assert_array_equal(kept, partitioned)
+@pytest.mark.parametrize("name", ["3d_periodic", "2d_walls"])
+def test_a_rollout_written_in_shards_reads_back_as_the_single_process_one(tmp_path, single_process, name):
+    """Each process writes its own particles' frames; the shards read back as one rollout equal to one process's."""
+    partitioned = _partitioned(tmp_path, 2, "latents", cases=(name,), sharded=True)[name]
     reference = single_process[name]
     np.testing.assert_allclose(partitioned, reference, rtol=0, atol=_tolerance(reference))
+    folder = tmp_path / f"{name}.rollout"
+    assert sorted(p.name for p in folder.iterdir()) == ["rollout.json", "shard-00000.h5", "shard-00001.h5"]
+    particles = reference.shape[1]
+    for shard in sorted(folder.glob("*.h5")):
+        with h5py.File(shard, "r") as opened:
+            offsets = opened["frames/offsets"][()]
+            rows = np.diff(offsets)
+            assert len(rows) == reference.shape[0] and rows.min() > 0 and rows.max() < particles, shard.name
+    read = load_rollout(folder)
+    truth = case_trajectory(name).position[6:]
+    np.testing.assert_array_equal(read.ground_truth, truth)
+    assert read.predicted_particles is not None and read.predicted_particles.sum() == 2 * particles // 3
+
+
+def test_the_guard_checks_each_process_s_particles_and_its_clamps_add_up_to_one_process_s(tmp_path):
+    """Walls narrower than the scene hold particles back at most steps, on both pieces: the clamps the processes
+    report (and the shards keep) are those of one process guarding whole frames, particle for particle."""
+    name = "2d_walls"
+    reference = rollout(case_simulator(name), case_trajectory(name), guard=narrow_guard(name))
+    assert len(reference.guard_violations) >= 6, "the narrow walls must hold particles back at several steps"
+    for sharded in (False, True):
+        partitioned = _partitioned(tmp_path, 2, "latents", cases=(name,), sharded=sharded, narrow=True)[name]
+        np.testing.assert_allclose(partitioned, reference.predicted, rtol=0, atol=_tolerance(reference.predicted))
+        summary = json.loads((tmp_path / f"{name}.json").read_text())
+        expected = [v.describe() for v in reference.guard_violations]
+        assert summary["clamps"] == expected and summary["read_back_clamps"] == expected, sharded
 
 
 def test_a_rebalance_ratio_of_one_or_less_is_refused():
