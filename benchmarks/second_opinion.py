@@ -147,21 +147,22 @@ def _own_particles(prediction, case, history: int):
     return dataclasses.replace(prediction, particle_type=case.particle_type, start=case.position[history - 1])
 
 
-def rates(rows: list[dict], threshold: float) -> dict[str, float | int]:
-    """Hit rate on bad scenes and false-alarm rate on good ones when a disagreement above ``threshold`` flags."""
+def flag_rates(rows: list[dict], flagged) -> dict[str, float | int]:
+    """Hit rate on bad scenes (extent or height error above ``BAD``) and false-alarm rate on good ones of the
+    predicate ``flagged(row)``."""
     bad = [r for r in rows if max(r["error"].values()) > BAD]
     good = [r for r in rows if max(r["error"].values()) <= BAD]
-
-    def flagged(row) -> bool:
-        return max(row["disagreement"].values()) > threshold
-
     return {
-        "threshold_pct": threshold,
         "bad": len(bad),
         "good": len(good),
         "hit_rate": sum(map(flagged, bad)) / len(bad) if bad else float("nan"),
         "false_alarm_rate": sum(map(flagged, good)) / len(good) if good else float("nan"),
     }
+
+
+def rates(rows: list[dict], threshold: float) -> dict[str, float | int]:
+    """Hit rate on bad scenes and false-alarm rate on good ones when a disagreement above ``threshold`` flags."""
+    return {"threshold_pct": threshold, **flag_rates(rows, lambda row: max(row["disagreement"].values()) > threshold)}
 
 
 def opinion_of(args) -> dict:
