@@ -274,7 +274,8 @@ def rule_sweep(rows: list[dict]) -> list[dict]:
 def best_thresholds(rows: list[dict]) -> dict[str, dict]:
     """Per scalar candidate (the leading front's run share, the fronts' motion at the end, and the other signals,
     either way up): the false-alarm rate of the threshold that flags every bad scene of ``rows``, tuned on them (so
-    optimistic)."""
+    optimistic). A signal that is undefined (NaN) on a scene counts as flagging it: a threshold cannot clear a
+    bad scene it cannot see, nor spare a good one."""
     bad = np.array([is_bad(r) for r in rows])
     if not bad.any():
         return {}
@@ -287,9 +288,10 @@ def best_thresholds(rows: list[dict]) -> dict[str, dict]:
     for name, value in values.items():
         value = np.asarray(value, float)
         for sign, way in ((1.0, ">="), (-1.0, "<=")):
-            threshold = (sign * value[bad]).min()
+            finite_bad = (sign * value[bad])[np.isfinite(value[bad])]
+            threshold = finite_bad.min() if len(finite_bad) else -np.inf
             good = sign * value[~bad]
-            rate = float((good >= threshold).mean()) if len(good) else float("nan")
+            rate = float(((good >= threshold) | np.isnan(good)).mean()) if len(good) else float("nan")
             if name not in out or rate < out[name]["false_alarm_rate"]:
                 out[name] = {"flag_when": f"{way} {sign * threshold:.3g}", "false_alarm_rate": rate}
     return out

@@ -10,6 +10,10 @@ from pathlib import Path
 
 from .arguments import add_overwrite, positive_int
 
+ROLLOUT_HELP = (
+    "what gns rollout wrote: a rollout file (.npz), or the folder of a rollout over several processes (.rollout)"
+)
+
 
 def _gif_path(value: str) -> Path:
     path = Path(value)
@@ -19,7 +23,7 @@ def _gif_path(value: str) -> Path:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("rollout", type=Path, metavar="ROLLOUT.npz", help="rollout file written by gns rollout")
+    parser.add_argument("rollout", type=Path, metavar="ROLLOUT", help=ROLLOUT_HELP)
     parser.add_argument(
         "--vtk",
         type=Path,

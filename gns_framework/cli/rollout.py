@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import shutil
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -24,12 +24,14 @@ import torch
 from ..assembly.data import open_dataset
 from ..assembly.trained import load_trained
 from ..data.metadata import DatasetMetadata
+from ..data.trajectory import Trajectory
 from ..decomposition.rollout import WrittenRollout, sharded_rollout
 from ..errors import DatasetError, GnsError
 from ..io.rollout_file import write_rollout
 from ..io.run_folder import RunFolder
 from ..io.sharded_rollout import SUFFIX, is_sharded_rollout
 from ..model.batched_rollout import rollout_batch
+from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import rollout
 from ..model.rollout_guard import RolloutGuard
 from ..outputs import MARKER, check_folder, claim_folder
@@ -93,9 +95,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=positive_int,
         default=1,
         metavar="P",
-        help="split each scene into P pieces (slabs or blocks) of about equal particle count, one per process, for "
+        help="split each scene into P pieces (slabs or blocks) of about equal work, one per process, for "
         "scenes too large for one device: launch as torchrun --nproc-per-node P -m gns_framework.cli rollout ...; "
-        "under a multiple of P processes, teams of P roll out the scenes in turn (default 1)",
+        "each process writes its particles' frames into its shard of <split>_NNNN.rollout/, which gns render "
+        "reads as one rollout; under a multiple of P processes, teams of P roll out the scenes in turn (default 1)",
     )
     parser.add_argument(
         "--partition-axis",
@@ -216,9 +219,8 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
         claim_folder(out, "rollout", args.overwrite, own=_only_rollouts)
 
     written = _Output(out, safe_component(split_name), recorded, claim)
-    for position, (index, result) in enumerate(
-        _rollouts(loaded.simulator, trajectories, count, steps, device, guard, args, processes, written)
-    ):
+    job = _Job(loaded.simulator, trajectories, count, steps, device, guard)
+    for position, (index, result) in enumerate(_rollouts(job, args, processes, written)):
         if result is None:
             continue  # a partitioned rollout is reported by its team's first process
         if isinstance(result, WrittenRollout):
@@ -249,36 +251,39 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
     return 0
 
 
-def _rollouts(
-    simulator,
-    trajectories,
-    count: int,
-    steps: int | None,
-    device,
-    guard: RolloutGuard,
-    args,
-    processes: Processes,
-    output: _Output,
-):
-    """(index, rollout) of the first ``count`` trajectories, in order; ``--batch`` of one length at a time.
+@dataclass(frozen=True)
+class _Job:
+    """What to roll out: the first ``count`` of ``trajectories``, ``steps`` steps each (None: to their ends)."""
+
+    simulator: LearnedSimulator
+    trajectories: Sequence[Trajectory]
+    count: int
+    steps: int | None
+    device: torch.device
+    guard: RolloutGuard
+
+
+def _rollouts(job: _Job, args, processes: Processes, output: _Output):
+    """(index, rollout) of the job's trajectories, in order; ``--batch`` of one length at a time.
 
     With ``--partitions`` every process rolls out its piece of each scene and writes its shard
     (:func:`_partitioned_rollouts`); its team's first process gets what was written (None elsewhere).
     """
     if args.partitions > 1:
-        yield from _partitioned_rollouts(simulator, trajectories, count, steps, device, guard, args, processes, output)
+        yield from _partitioned_rollouts(job, args, processes, output)
         return
+    trajectories = job.trajectories
     if args.batch == 1:
-        for index in range(count):
+        for index in range(job.count):
             yield (
                 index,
                 rollout(
-                    simulator,
+                    job.simulator,
                     trajectories[index],
-                    steps,
-                    device,
+                    job.steps,
+                    job.device,
                     progress=not args.no_progress,
-                    guard=guard,
+                    guard=job.guard,
                     precision=args.precision,
                     capture=args.capture,
                 ),
@@ -286,14 +291,14 @@ def _rollouts(
         return
     # Consecutive trajectories of one length form a batch, so every scene still runs to its own end.
     start = 0
-    while start < count:
+    while start < job.count:
         length = trajectories[start].num_steps
         stop = start + 1
-        while stop < count and stop - start < args.batch and trajectories[stop].num_steps == length:
+        while stop < job.count and stop - start < args.batch and trajectories[stop].num_steps == length:
             stop += 1
         group = [trajectories[i] for i in range(start, stop)]
         results = rollout_batch(
-            simulator, group, steps, device, guard=guard, precision=args.precision, capture=args.capture
+            job.simulator, group, job.steps, job.device, guard=job.guard, precision=args.precision, capture=args.capture
         )
         yield from zip(range(start, stop), results, strict=True)
         start = stop
@@ -320,17 +325,7 @@ class _Output:
         return ensure_inside(self.out / f".{self.folder(index).name}.partial", self.out)
 
 
-def _partitioned_rollouts(
-    simulator,
-    trajectories,
-    count: int,
-    steps: int | None,
-    device,
-    guard: RolloutGuard,
-    args,
-    processes: Processes,
-    output: _Output,
-):
+def _partitioned_rollouts(job: _Job, args, processes: Processes, output: _Output):
     """(index, written rollout) of each scene split over a team's processes, each writing its own shard (None
     except on the team's first process).
 
@@ -344,35 +339,35 @@ def _partitioned_rollouts(
     teams, mine = processes.world_size // team.world_size, processes.rank // team.world_size
     made = from_chief(processes, lambda: not output.out.exists())
     from_chief(processes, output.claim)
-    for first in range(0, count, teams):
+    for first in range(0, job.count, teams):
         index = first + mine
         written, stats, failure = None, None, None
-        if index < count:
+        if index < job.count:
             partial = output.partial(index)
             if team.is_chief and partial.exists():
                 shutil.rmtree(partial)  # shards of an earlier command that stopped
             team.barrier()
             try:
                 written, stats = sharded_rollout(
-                    simulator,
-                    trajectories[index],
+                    job.simulator,
+                    job.trajectories[index],
                     team,
                     partial,
                     output.metadata,
-                    steps,
-                    device,
-                    guard,
-                    args.precision,
-                    args.partition_axis,
-                    args.halo,
-                    args.cut,
-                    args.rebalance,
+                    steps=job.steps,
+                    device=job.device,
+                    guard=job.guard,
+                    precision=args.precision,
+                    axis=args.partition_axis,
+                    halo=args.halo,
+                    cut=args.cut,
+                    rebalance=args.rebalance,
                 )
             except Exception as exc:
                 failure = exc
         # On the processes' device: NCCL reduces CUDA tensors only.
-        if processes.sum(torch.tensor([failure is not None], dtype=torch.long, device=device)).item():
-            if index < count and team.is_chief:
+        if processes.sum(torch.tensor([failure is not None], dtype=torch.long, device=job.device)).item():
+            if index < job.count and team.is_chief:
                 shutil.rmtree(output.partial(index), ignore_errors=True)
             processes.barrier()
             if processes.is_chief and made and not any(p.name != MARKER for p in output.out.iterdir()):
@@ -392,7 +387,7 @@ def _partitioned_rollouts(
             folder.unlink()
         written.folder.rename(folder)
         print(
-            f"{trajectories[index].key or index}: {stats.partition.describe()}, "
+            f"{job.trajectories[index].key or index}: {stats.partition.describe()}, "
             f"halo of {stats.halo_kind} {stats.halo_fraction:.1%} of the particles, "
             f"{stats.migrations} moved between processes, cut afresh {stats.rebalances} times"
         )

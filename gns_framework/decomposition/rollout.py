@@ -31,7 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, TypedDict, Unpack
 
 import numpy as np
 import torch
@@ -136,6 +136,19 @@ def partitioned_rollout(
     )
 
 
+class RolloutOptions(TypedDict, total=False):
+    """The options of :func:`partitioned_rollout` after its first three arguments, by keyword."""
+
+    steps: int | None
+    device: torch.device | str
+    guard: RolloutGuard | None
+    precision: Precision
+    axis: int | None
+    halo: HaloKind
+    cut: Cut
+    rebalance: float | None
+
+
 @dataclass(frozen=True)
 class WrittenRollout:
     """What :func:`sharded_rollout` wrote: the folder, the frames predicted, the position MSE over them (over
@@ -153,25 +166,17 @@ def sharded_rollout(
     processes: Processes,
     folder: Path,
     metadata: DatasetMetadata,
-    steps: int | None = None,
-    device: torch.device | str = "cpu",
-    guard: RolloutGuard | None = None,
-    precision: Precision = "float32",
-    axis: int | None = None,
-    halo: HaloKind = "auto",
-    cut: Cut = "auto",
-    rebalance: float | None = 1.25,
+    **options: Unpack[RolloutOptions],
 ) -> tuple[WrittenRollout, DecompositionStats]:
     """:func:`partitioned_rollout` written in pieces: each process writes its own particles' frames into its
     shard of a sharded rollout in ``folder`` as the rollout goes (:mod:`gns_framework.io.sharded_rollout`),
     rank 0 the manifest with ``metadata`` once all are complete; no process ever gathers a frame. A rollout
-    that stops leaves no shard behind. Returns the same record on every process."""
+    that stops leaves no shard behind. Returns the same record on every process; ``options`` are
+    :func:`partitioned_rollout`'s."""
     shard = RolloutShard(folder, processes.rank)
     output = _Sharded(shard, trajectory, simulator.setup.history, simulator)
     try:
-        stats, violations = _roll(
-            simulator, trajectory, processes, output, steps, device, guard, precision, axis, halo, cut, rebalance
-        )
+        stats, violations = _roll(simulator, trajectory, processes, output, **options)
     except BaseException:
         shard.abandon()
         raise
@@ -192,14 +197,14 @@ def _roll(
     trajectory: Trajectory,
     processes: Processes,
     output: _Output,
-    steps: int | None,
-    device: torch.device | str,
-    guard: RolloutGuard | None,
-    precision: Precision,
-    axis: int | None,
-    halo: HaloKind,
-    cut: Cut,
-    rebalance: float | None,
+    steps: int | None = None,
+    device: torch.device | str = "cpu",
+    guard: RolloutGuard | None = None,
+    precision: Precision = "float32",
+    axis: int | None = None,
+    halo: HaloKind = "auto",
+    cut: Cut = "auto",
+    rebalance: float | None = 1.25,
 ) -> tuple[DecompositionStats, list[GuardViolation]]:
     """The rollout's steps on this process: its particles' checked frames go to ``output`` step by step.
 

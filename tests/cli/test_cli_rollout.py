@@ -140,7 +140,8 @@ def batches_of(lengths: list[int], count: int, batch: int, monkeypatch) -> list[
     monkeypatch.setattr(rollout_command, "rollout", one)
     monkeypatch.setattr(rollout_command, "rollout_batch", many)
     args = Namespace(batch=batch, no_progress=True, precision="float32", partitions=1, capture=False)
-    rolled = rollout_command._rollouts(None, trajectories, count, None, "cpu", None, args, Processes(), None)
+    job = rollout_command._Job(None, trajectories, count, None, "cpu", None)  # type: ignore[arg-type]
+    rolled = rollout_command._rollouts(job, args, Processes(), None)  # type: ignore[arg-type]
     results = list(rolled)
     # Every rollout comes back under its own index, in order, whatever the grouping.
     assert results == [(i, f"rollout {i}") for i in range(count)]
