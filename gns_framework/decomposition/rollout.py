@@ -16,8 +16,9 @@ Every step, on every process (rank r of P):
    or written by every process into its own shard of a sharded rollout (:func:`sharded_rollout`);
 4. **migrate**: particles whose new position lies in another piece move to that process;
 5. **rebalance**: when a process now holds more than ``rebalance`` times its share of the
-   particles (they crowd as a column collapses or a flow runs out), every process receives
-   the whole frame, the pieces are cut afresh from it, and the particles migrate to them.
+   particles (they crowd as a column collapses or a flow runs out), the pieces are cut afresh
+   from the scene's work on a coarse grid (:func:`.work.work_summary`: no process holds the
+   whole frame), and the particles whose owner changed migrate.
    Ownership changes nothing in the predictions, only who computes them.
 
 With a halo of positions, its outermost particles miss some of their own neighbours, but what
@@ -48,12 +49,12 @@ from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import check_simulates, rollout_step
 from ..model.rollout_guard import GuardViolation, RolloutGuard, merged_violations
 from ..runtime.precision import Precision
-from .exchange import rows_everywhere, send_rows
+from .exchange import send_rows
 from .halo import HaloKind, partition_for, with_halo
 from .particles import Particles
 from .partition import Cut, Partition
 from .piece import on_piece
-from .work import particle_work
+from .work import particle_work, work_summary
 
 if TYPE_CHECKING:
     from ..runtime.processes import Processes
@@ -269,14 +270,11 @@ def _roll(
             and world > 1
             and _most_held(owned, processes) > rebalance * start.num_particles / world
         ):
-            # Each process weighs its own particles on its piece's graph: no process builds the whole scene's.
-            # The work (whole edge counts, exact in float32) travels beside the positions, in one exchange.
+            # Each process weighs its own particles on its piece's graph and bins that work on a coarse grid:
+            # no process builds the whole scene's graph or holds its frame, and only those that change owner move.
             work = _owned_work(simulator, owned, partition, processes)
-            last = owned.sequence[:, -1]
-            rows = torch.cat([last, work[:, None].to(last.dtype)], dim=1)
-            everywhere = rows_everywhere(owned.ids, rows, start.num_particles, world, processes.group)
-            frame, work = everywhere[:, :-1], everywhere[:, -1].to(torch.float64)
-            partition, _ = partition_for(simulator, frame, world, kind, axis, cut, weight=work)
+            centres, cell_work = work_summary(owned.sequence[:, -1], work, start.num_particles, processes)
+            partition, _ = partition_for(simulator, centres, world, kind, axis, cut, weight=cell_work)
             owned, moved = _migrate(owned, partition, processes)
             migrations += moved
             rebalances += 1

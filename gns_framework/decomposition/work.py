@@ -5,6 +5,11 @@ a piece of a dense pile with as many particles as a piece of loose spray has sev
 its edges. So pieces are cut at quantiles of the work, each particle weighing one plus the
 edges it receives (its neighbours within the connectivity radius, itself included), as the
 model's own graph builder counts them; a builder without edges leaves every particle one.
+
+A re-cut during a rollout needs the whole scene's work but no process holds the whole scene:
+each bins its own particles' work on a coarse grid over the scene's box (:func:`work_summary`),
+one sum gives every process the same grid, and the pieces are cut at the quantiles of the
+occupied cells' work, which is balanced to within a cell.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ import torch
 from torch import Tensor
 
 from ..contracts import GraphBuilder
+from ..runtime.processes import Processes
 
 
 def particle_work(builder: GraphBuilder, position: Tensor) -> Tensor:
@@ -36,3 +42,34 @@ def quantile_cut(coordinate: Tensor, weight: Tensor | None, below: int, parts: i
     cumulative = torch.cumsum(weight[order].to(torch.float64), 0)
     index = int(torch.searchsorted(cumulative, cumulative[-1] * below / parts, right=True))
     return float(ordered[min(index, n - 1)])
+
+
+SUMMARY_CELLS = 1 << 21
+"""Most cells in a work summary's grid (16 MB of float64 to sum over the processes)."""
+
+
+def work_summary(position: Tensor, work: Tensor, particles: int, processes: Processes) -> tuple[Tensor, Tensor]:
+    """The whole scene's work on a coarse grid, from this process's own particles at ``position`` (n, d) with
+    ``work`` (n,): (M, d) float64 centres of the occupied cells and (M,) their summed work, the same on every
+    process. The grid spans the scene's box (two small gathers) with about ``SUMMARY_CELLS`` cells of equal shape
+    (fewer for a scene of fewer particles than that), so a cut, which cannot split a slice of cells, balances the
+    pieces to within one slice's work; one sum over the processes. ``particles``: the scene's particle count."""
+    dim = position.shape[1]
+    inf = torch.full((dim,), torch.inf, dtype=torch.float64)
+    local = position.detach().to("cpu", torch.float64)
+    lower = local.min(0).values if len(local) else inf
+    upper = local.max(0).values if len(local) else -inf
+    corners = processes.all_gather((lower, upper))
+    lower = torch.stack([c[0] for c in corners]).min(0).values
+    upper = torch.stack([c[1] for c in corners]).max(0).values
+    per_axis = max(1, int(min(max(particles, 4096) * 64, SUMMARY_CELLS) ** (1.0 / dim)))
+    size = torch.clamp((upper - lower) / per_axis, min=torch.finfo(torch.float64).tiny)
+    index = torch.clamp(((local - lower) / size).floor().long(), 0, per_axis - 1)
+    flat = torch.zeros(len(local), dtype=torch.long)
+    for axis in range(dim):
+        flat = flat * per_axis + index[:, axis]
+    grid = torch.bincount(flat, weights=work.detach().to("cpu", torch.float64), minlength=per_axis**dim)
+    grid = processes.sum(grid.to(position.device)).cpu()
+    occupied = grid.nonzero()[:, 0]
+    cell = torch.stack([(occupied // per_axis ** (dim - 1 - axis)) % per_axis for axis in range(dim)], dim=1)
+    return lower + (cell.to(torch.float64) + 0.5) * size, grid[occupied]

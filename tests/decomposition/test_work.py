@@ -74,3 +74,27 @@ def test_a_partitioned_rollout_cuts_its_pieces_by_the_models_work():
     owner = partition.owner(position)
     shares = torch.stack([work[owner == r].sum() for r in range(4)])
     assert shares.max() / shares.min() < 1.25, shares
+
+
+def test_the_work_summary_keeps_the_whole_work_and_cuts_pieces_balanced_to_within_a_slice_of_cells():
+    """The pile and spray binned on the summary's grid: the same total work, and pieces cut from the occupied cells
+    hold the particles' work in equal shares up to what one slice of cells holds (a cut cannot split one);
+    checked against the particles themselves."""
+    from gns_framework.decomposition.work import work_summary
+    from gns_framework.runtime.processes import Processes
+
+    position = _pile_and_spray()
+    work = particle_work(RadiusGraphBuilder(RadiusGraphBuilder.Params(), SETUP), position)
+    centres, cell_work = work_summary(position, work, len(position), Processes())
+    assert torch.isclose(cell_work.sum(), work.sum(), rtol=1e-12)
+    assert (cell_work > 0).all() and len(centres) <= len(position)  # occupied cells only
+    slices = [torch.unique(centres[:, axis], return_inverse=True)[1] for axis in range(2)]
+    heaviest_slice = max(float(torch.bincount(s, weights=cell_work).max()) for s in slices) / float(work.sum())
+    assert heaviest_slice < 0.05, "the grid must be fine enough for the bound below to mean something"
+    for cut in ("slabs", "blocks"):
+        pieces = balanced_partition(centres, 4, 0.05, cut, weight=cell_work)
+        shares = torch.bincount(pieces.owner(position), weights=work, minlength=4) / work.sum()
+        assert (shares - 0.25).abs().max() <= 2 * heaviest_slice, (cut, shares.tolist(), heaviest_slice)
+        by_cells = balanced_partition(centres, 4, 0.05, cut)  # every occupied cell alike: not the work
+        off = torch.bincount(by_cells.owner(position), weights=work, minlength=4) / work.sum()
+        assert (off - 0.25).abs().max() > 4 * heaviest_slice, "the test needs cells unlike in work"
