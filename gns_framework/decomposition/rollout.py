@@ -226,15 +226,19 @@ def _roll(
         raise ValueError(
             f"trajectory {trajectory.key!r} has {trajectory.num_steps} frames; rollout needs more than {history}"
         )
-    rank, world = processes.rank, processes.world_size
-    start = window(trajectory, 0, history, with_target=False)
-    partition, kind = partition_for(simulator, start.position_sequence[:, -1], world, halo, axis, cut)
-    everyone = Particles(
-        torch.arange(start.num_particles), start.position_sequence, start.particle_type, start.material_property
-    )
-    mine = partition.owner(start.position_sequence[:, -1]) == rank
-    owned = everyone.select(mine).to(device)
-    output.begin(owned, steps, start.num_particles)
+    world, total = processes.world_size, trajectory.num_particles
+    # Each process reads an equal run of the particles' input frames, the pieces are cut by count from a coarse
+    # summary of them, the particles go to their owners, and the pieces are cut again by the work each process
+    # weighs on its own piece: no process reads or holds the whole scene's frames.
+    start = window(_particle_run(trajectory, processes), 0, history, with_target=False)
+    owned = Particles(
+        _run_ids(total, processes), start.position_sequence, start.particle_type, start.material_property
+    ).to(device)
+    centres, counts = work_summary(owned.sequence[:, -1], torch.ones(owned.count), total, processes)
+    partition, kind = partition_for(simulator, centres, world, halo, axis, cut, weight=counts)
+    owned, _ = _migrate(owned, partition, processes)
+    partition, owned, _ = _recut(simulator, owned, partition, processes, kind, axis, cut, total)
+    output.begin(owned, steps, total)
     # What the whole scene shares (its walls) is the same on every process; the particle fields are set per step.
     nothing = start.particle_type[:0]
     shared = replace(start, position_sequence=start.position_sequence[:0], particle_type=nothing, batch=nothing)
@@ -265,21 +269,12 @@ def _roll(
         owned = replace(owned, sequence=advance_window(owned.sequence, continued_owned))
         owned, moved = _migrate(owned, partition, processes)
         migrations += moved
-        if (
-            rebalance is not None
-            and world > 1
-            and _most_held(owned, processes) > rebalance * start.num_particles / world
-        ):
-            # Each process weighs its own particles on its piece's graph and bins that work on a coarse grid:
-            # no process builds the whole scene's graph or holds its frame, and only those that change owner move.
-            work = _owned_work(simulator, owned, partition, processes)
-            centres, cell_work = work_summary(owned.sequence[:, -1], work, start.num_particles, processes)
-            partition, _ = partition_for(simulator, centres, world, kind, axis, cut, weight=cell_work)
-            owned, moved = _migrate(owned, partition, processes)
+        if rebalance is not None and world > 1 and _most_held(owned, processes) > rebalance * total / world:
+            partition, owned, moved = _recut(simulator, owned, partition, processes, kind, axis, cut, total)
             migrations += moved
             rebalances += 1
     totals = processes.sum(torch.tensor([halo_count, migrations], dtype=torch.long, device=device))
-    stats = DecompositionStats(start.num_particles * steps, int(totals[0]), int(totals[1]), partition, kind, rebalances)
+    stats = DecompositionStats(total * steps, int(totals[0]), int(totals[1]), partition, kind, rebalances)
     return stats, violations
 
 
@@ -372,6 +367,51 @@ def _on_chief(processes: Processes, ids: Tensor, rows: Tensor) -> Tensor | None:
     placed = gathered.new_empty((len(gathered_ids), *gathered.shape[1:]))
     placed[gathered_ids] = gathered
     return placed
+
+
+def _particle_run(trajectory: Trajectory, processes: Processes) -> Trajectory:
+    """The trajectory's particles ``[r N / P, (r + 1) N / P)`` for rank r of P, the rest of it kept: a view of its
+    arrays (of a memory-mapped file, nothing is read until a frame of these particles is)."""
+    rows = slice(*_run_bounds(trajectory.num_particles, processes))
+    prop = trajectory.material_property
+    return replace(
+        trajectory,
+        position=trajectory.position[:, rows],
+        particle_type=trajectory.particle_type[rows],
+        material_property=None if prop is None else prop[rows],
+    )
+
+
+def _run_bounds(particles: int, processes: Processes) -> tuple[int, int]:
+    return particles * processes.rank // processes.world_size, particles * (processes.rank + 1) // processes.world_size
+
+
+def _run_ids(particles: int, processes: Processes) -> Tensor:
+    """(n,) int64 the scene's numbers of this process's run of particles (:func:`_particle_run`)."""
+    return torch.arange(*_run_bounds(particles, processes))
+
+
+def _recut(
+    simulator: LearnedSimulator,
+    owned: Particles,
+    partition: Partition,
+    processes: Processes,
+    kind: HaloKind,
+    axis: int | None,
+    cut: Cut,
+    particles: int,
+) -> tuple[Partition, Particles, int]:
+    """Pieces cut afresh by work, this process's particles after those whose owner changed moved, and how many of
+    its particles left.
+
+    Each process weighs its own particles on its piece's graph and bins that work on a coarse grid
+    (:func:`.work.work_summary`, one sum): no process builds the whole scene's graph or holds its frame.
+    """
+    work = _owned_work(simulator, owned, partition, processes)
+    centres, cell_work = work_summary(owned.sequence[:, -1], work, particles, processes)
+    partition, _ = partition_for(simulator, centres, processes.world_size, kind, axis, cut, weight=cell_work)
+    owned, moved = _migrate(owned, partition, processes)
+    return partition, owned, moved
 
 
 def _owned_work(simulator: LearnedSimulator, owned: Particles, partition: Partition, processes: Processes) -> Tensor:

@@ -398,3 +398,25 @@ def halo_worker(rank: int, world: int, port: int, out: str) -> None:
         torch.save(saved, Path(out) / f"rank{rank}.pt")
     finally:
         stop()
+
+
+def reading_worker(rank: int, world: int, port: int, out: str, name: str) -> None:
+    """Roll ``name`` out over ``world`` processes, recording how many particles' frames each process reads at
+    once (every whole-scene read of a rollout goes through ``window``); ``<out>/reads-<rank>.json``."""
+    from gns_framework.decomposition import rollout as decomposed
+    from gns_framework.training.distributed import stop
+
+    processes = _join(rank, world, port)
+    read: list[int] = []
+    window = decomposed.window
+
+    def recorded(trajectory, *args, **kwargs):
+        read.append(trajectory.num_particles)
+        return window(trajectory, *args, **kwargs)
+
+    decomposed.window = recorded  # type: ignore[assignment]
+    try:
+        decomposed.partitioned_rollout(case_simulator(name), case_trajectory(name), processes, halo="latents")
+        (Path(out) / f"reads-{rank}.json").write_text(json.dumps(read))
+    finally:
+        stop()

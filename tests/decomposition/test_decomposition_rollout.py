@@ -7,7 +7,14 @@ import json
 import h5py
 import numpy as np
 import pytest
-from decomposition_cases import CASES, case_simulator, case_trajectory, narrow_guard, partitioned_worker
+from decomposition_cases import (
+    CASES,
+    case_simulator,
+    case_trajectory,
+    narrow_guard,
+    partitioned_worker,
+    reading_worker,
+)
 from spawned import free_loopback_port, run_processes
 
 from gns_framework.decomposition.rollout import partitioned_rollout
@@ -137,6 +144,17 @@ def test_the_guard_checks_each_process_s_particles_and_its_clamps_add_up_to_one_
         summary = json.loads((tmp_path / f"{name}.json").read_text())
         expected = [v.describe() for v in reference.guard_violations]
         assert summary["clamps"] == expected and summary["read_back_clamps"] == expected, sharded
+
+
+def test_each_process_reads_only_its_run_of_the_particles_frames(tmp_path):
+    """The pieces are cut from a coarse summary of each process's own run of particles: no process reads the
+    whole scene's input frames (the 4 runs of 420 particles hold 105 each)."""
+    name = "3d_walls"
+    run_processes(reading_worker, (4, free_loopback_port(), str(tmp_path), name), 4)
+    particles = case_trajectory(name).num_particles
+    for rank in range(4):
+        read = json.loads((tmp_path / f"reads-{rank}.json").read_text())
+        assert read and max(read) <= -(-particles // 4), (rank, read)
 
 
 def test_a_rebalance_ratio_of_one_or_less_is_refused():
