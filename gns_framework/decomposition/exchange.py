@@ -15,6 +15,8 @@ import torch
 import torch.distributed as dist
 from torch import Tensor
 
+from ..runtime.processes import Processes
+
 
 @dataclass(frozen=True)
 class Routing:
@@ -80,6 +82,16 @@ def rows_everywhere(ids: Tensor, rows: Tensor, total: int, world_size: int, grou
     placed = rows.new_empty((total, *rows.shape[1:]))
     placed[every_id] = every_row
     return placed
+
+
+def objects_everywhere(processes: Processes, value: Any) -> list[Any]:
+    """Every process's ``value`` (any picklable object: a few numbers, a list of guard reports), in rank order,
+    on every process."""
+    if not processes.distributed:
+        return [value]
+    gathered: list[Any] = [None] * processes.world_size
+    dist.all_gather_object(gathered, value, group=processes.group)
+    return gathered
 
 
 class _AllToAll(torch.autograd.Function):

@@ -49,7 +49,7 @@ from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import check_simulates, rollout_step
 from ..model.rollout_guard import GuardViolation, RolloutGuard, merged_violations
 from ..runtime.precision import Precision
-from .exchange import send_rows
+from .exchange import objects_everywhere, send_rows
 from .halo import HaloKind, partition_for, with_halo
 from .particles import Particles
 from .partition import Cut, Partition
@@ -122,7 +122,7 @@ def partitioned_rollout(
     stats, violations = _roll(
         simulator, trajectory, processes, output, steps, device, guard, precision, axis, halo, cut, rebalance
     )
-    everyone = merged_violations(v for found in processes.all_gather(violations) for v in found)
+    everyone = merged_violations(v for found in objects_everywhere(processes, violations) for v in found)
     if output.predicted is None:
         return None, stats
     return (

@@ -19,6 +19,7 @@ from torch import Tensor
 
 from ..contracts import GraphBuilder
 from ..runtime.processes import Processes
+from .exchange import objects_everywhere
 
 
 def particle_work(builder: GraphBuilder, position: Tensor) -> Tensor:
@@ -59,7 +60,7 @@ def work_summary(position: Tensor, work: Tensor, particles: int, processes: Proc
     local = position.detach().to("cpu", torch.float64)
     lower = local.min(0).values if len(local) else inf
     upper = local.max(0).values if len(local) else -inf
-    corners = processes.all_gather((lower, upper))
+    corners = objects_everywhere(processes, (lower, upper))
     lower = torch.stack([c[0] for c in corners]).min(0).values
     upper = torch.stack([c[1] for c in corners]).max(0).values
     per_axis = max(1, int(min(max(particles, 4096) * 64, SUMMARY_CELLS) ** (1.0 / dim)))

@@ -50,7 +50,7 @@ from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..errors import DatasetError, located
 from ..model.rollout_guard import GuardViolation, merged_violations
-from .rollout_file import rollout_from_fields
+from .rollout_fields import rollout_from_fields
 
 FORMAT = "gns-sharded-rollout"
 VERSION = 1

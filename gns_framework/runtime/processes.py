@@ -84,11 +84,3 @@ class Processes:
         box = [value]
         dist.broadcast_object_list(box, group=self.group, group_src=0)
         return box[0]
-
-    def all_gather(self, value: Any) -> list[Any]:
-        """Every rank's ``value`` (any picklable object), in rank order, on every rank."""
-        if not self.distributed:
-            return [value]
-        gathered: list[Any] = [None] * self.world_size
-        dist.all_gather_object(gathered, value, group=self.group)
-        return gathered

@@ -28,3 +28,11 @@ def test_three_processes_receive_their_rows_ordered_by_sender(tmp_path):
         assert torch.equal(got["pairs"], torch.stack([got["label"], -got["label"]], dim=1).double())
         assert got["flags"].dtype == torch.bool and got["flags"].tolist() == [x % 2 == 0 for x in expected]
         assert got["none"] is None
+
+
+def test_one_process_holds_its_own_object_only():
+    from gns_framework.decomposition.exchange import objects_everywhere
+    from gns_framework.runtime.processes import Processes
+
+    report = {"clamped": [3, 5]}
+    assert objects_everywhere(Processes(), report) == [report]
