@@ -119,9 +119,10 @@ def partitioned_rollout(
             of the particles (> 1; None: keep the first frame's pieces).
     """
     output = _Gathered(processes)
-    stats, violations = _roll(
-        simulator, trajectory, processes, output, steps, device, guard, precision, axis, halo, cut, rebalance
+    options = RolloutOptions(
+        steps=steps, device=device, guard=guard, precision=precision, axis=axis, halo=halo, cut=cut, rebalance=rebalance
     )
+    stats, violations = _roll(simulator, trajectory, processes, output, options)
     everyone = merged_violations(v for found in objects_everywhere(processes, violations) for v in found)
     if output.predicted is None:
         return None, stats
@@ -177,7 +178,7 @@ def sharded_rollout(
     shard = RolloutShard(folder, processes.rank)
     output = _Sharded(shard, trajectory, simulator.setup.history, simulator)
     try:
-        stats, violations = _roll(simulator, trajectory, processes, output, **options)
+        stats, violations = _roll(simulator, trajectory, processes, output, options)
     except BaseException:
         shard.abandon()
         raise
@@ -198,19 +199,15 @@ def _roll(
     trajectory: Trajectory,
     processes: Processes,
     output: _Output,
-    steps: int | None = None,
-    device: torch.device | str = "cpu",
-    guard: RolloutGuard | None = None,
-    precision: Precision = "float32",
-    axis: int | None = None,
-    halo: HaloKind = "auto",
-    cut: Cut = "auto",
-    rebalance: float | None = 1.25,
+    options: RolloutOptions,
 ) -> tuple[DecompositionStats, list[GuardViolation]]:
     """The rollout's steps on this process: its particles' checked frames go to ``output`` step by step.
 
     Returns the statistics and what the guard found on this process's particles (numbered in the scene).
     """
+    steps, guard, precision = options.get("steps"), options.get("guard"), options.get("precision", "float32")
+    axis, halo, cut = options.get("axis"), options.get("halo", "auto"), options.get("cut", "auto")
+    rebalance = options.get("rebalance", 1.25)
     if rebalance is not None and not rebalance > 1:
         raise ValueError(f"rebalance must be more than 1 (a process's most particles over its share), got {rebalance}")
     check_simulates(simulator, trajectory)
@@ -218,7 +215,7 @@ def _roll(
     guard = guard if guard is not None else RolloutGuard(setup)
     if trajectory.bounds is not None:
         guard = guard.with_bounds(trajectory.bounds)
-    device = torch.device(device)
+    device = torch.device(options.get("device", "cpu"))
     history = setup.history
     available = trajectory.num_steps - history
     steps = available if steps is None else min(steps, available)

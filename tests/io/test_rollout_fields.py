@@ -5,26 +5,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from synthetic import synthetic_metadata
 
-from gns_framework.data.metadata import DatasetMetadata
+from gns_framework.data.trajectory import Trajectory
 from gns_framework.errors import DatasetError
 from gns_framework.io.rollout_fields import rollout_from_fields, validated_fields
 
-METADATA = DatasetMetadata(
-    bounds=[(0.0, 1.0)] * 2,
-    sequence_length=5,
-    default_connectivity_radius=0.1,
-    dim=2,
-    dt=0.01,
-    vel_mean=[0.0] * 2,
-    vel_std=[1.0] * 2,
-    acc_mean=[0.0] * 2,
-    acc_std=[1.0] * 2,
-)
+POSITION = np.random.default_rng(0).uniform(0.1, 0.9, (5, 4, 2)).astype(np.float32)
+METADATA = synthetic_metadata([Trajectory(POSITION, np.array([5, 5, 6, 3]))], 2)
 
 
 def _fields() -> dict:
-    position = np.random.default_rng(0).uniform(0.1, 0.9, (5, 4, 2)).astype(np.float32)
+    position = POSITION
     return {
         "initial_positions": position[:2],
         "predicted_rollout": position[2:] + 0.01,
