@@ -25,7 +25,7 @@ from ..assembly.data import open_dataset
 from ..assembly.trained import load_trained
 from ..data.metadata import DatasetMetadata
 from ..data.trajectory import Trajectory
-from ..decomposition.rollout import WrittenRollout, sharded_rollout
+from ..decomposition.rollout import RolloutOptions, WrittenRollout, sharded_rollout
 from ..errors import DatasetError, GnsError
 from ..io.rollout_file import write_rollout
 from ..io.run_folder import RunFolder
@@ -111,17 +111,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=("auto", "slabs", "blocks"),
         default="auto",
         help="with --partitions: slabs across one dimension, or blocks by recursive bisection (each cut halves the "
-        "particles across the dimension they spread farthest in); auto: whichever leaves fewer particles in the "
-        "halo at the first frame (default)",
+        "work across the dimension the particles spread farthest in); auto: whichever leaves the smaller halo at "
+        "the first frame (default)",
     )
     parser.add_argument(
         "--rebalance",
         type=ratio_above_one_or_never,
         default=1.25,
         metavar="RATIO",
-        help="with --partitions: cut the pieces afresh from the current frame when a process holds more than RATIO "
-        "times its share of the particles, as they crowd during a collapse or a runout; never: keep the first "
-        "frame's pieces (default 1.25)",
+        help="with --partitions: cut the pieces afresh by work when a process holds more than RATIO times its "
+        "share of the particles, as they crowd during a collapse or a runout (no process gathers the frame: only "
+        "the particles whose owner changes move); never: keep the first pieces (default 1.25)",
     )
     parser.add_argument(
         "--halo",
@@ -262,6 +262,12 @@ class _Job:
     device: torch.device
     guard: RolloutGuard
 
+    def options(self, args: argparse.Namespace) -> RolloutOptions:
+        """The options of this job split over processes (``sharded_rollout``'s)."""
+        own = RolloutOptions(steps=self.steps, device=self.device, guard=self.guard, precision=args.precision)
+        cutting = RolloutOptions(axis=args.partition_axis, halo=args.halo, cut=args.cut, rebalance=args.rebalance)
+        return own | cutting
+
 
 def _rollouts(job: _Job, args, processes: Processes, output: _Output):
     """(index, rollout) of the job's trajectories, in order; ``--batch`` of one length at a time.
@@ -348,21 +354,8 @@ def _partitioned_rollouts(job: _Job, args, processes: Processes, output: _Output
                 shutil.rmtree(partial)  # shards of an earlier command that stopped
             team.barrier()
             try:
-                written, stats = sharded_rollout(
-                    job.simulator,
-                    job.trajectories[index],
-                    team,
-                    partial,
-                    output.metadata,
-                    steps=job.steps,
-                    device=job.device,
-                    guard=job.guard,
-                    precision=args.precision,
-                    axis=args.partition_axis,
-                    halo=args.halo,
-                    cut=args.cut,
-                    rebalance=args.rebalance,
-                )
+                scene, options = job.trajectories[index], job.options(args)
+                written, stats = sharded_rollout(job.simulator, scene, team, partial, output.metadata, **options)
             except Exception as exc:
                 failure = exc
         # On the processes' device: NCCL reduces CUDA tensors only.
