@@ -20,7 +20,9 @@ sets the pace), the time spent in all-to-all exchanges, the halo fraction (halo 
 over owned ones), and the peak resident memory each process added beyond what it held
 before the first step (the model, the scene and torch itself are not counted); ``--json`` and
 ``--results`` also give each process's absolute peak (``peak_rss_mb_per_process``: input, output
-and torch included), the figure issue 50 compares against one process.
+and torch included), the figure issue 50 compares against one process, and the size of its
+shard of the output (``output_mb_per_process``). As ``gns rollout --partitions`` does, each
+process reads its particles from the scene's memory-mapped file and writes its own shard.
 On a machine with fewer cores than processes they share the cores (oversubscribed):
 then times are not speed-ups, and the script says so; memory and halo are unaffected.
 
@@ -61,16 +63,9 @@ def scene_sites(particles: int, aspect: float, dim: int = 2) -> tuple[int, ...]:
     return (math.ceil(particles / side ** (dim - 1)), *[side] * (dim - 1))
 
 
-def build(particles: int, aspect: float, hops: int, latent: int, frames: int, dim: int = 2):
-    """The simulator and a trajectory of ``frames`` frames (a slow random walk), the same in every process."""
+def lattice(particles: int, aspect: float, frames: int, dim: int = 2):
+    """(frames, N, d) float32 positions of the jittered lattice in a slow random walk, and the box's bounds."""
     import numpy as np
-
-    from gns_framework.assembly.learned import build_learned_simulator
-    from gns_framework.config.recipe import ModelSpec
-    from gns_framework.contracts import ModelSetup
-    from gns_framework.data.metadata import DatasetMetadata
-    from gns_framework.data.trajectory import Trajectory
-    from gns_framework.plugins import load_registry
 
     sites = scene_sites(particles, aspect, dim)
     rng = np.random.default_rng(0)
@@ -81,7 +76,17 @@ def build(particles: int, aspect: float, hops: int, latent: int, frames: int, di
     upper = [float(start[:, k].max()) + 2 * spacing for k in range(dim)]
     velocity = rng.normal(0.0, 2e-4, (frames, particles, dim)).astype(np.float32)
     position = (start[None].astype(np.float32) + np.cumsum(velocity, 0)).astype(np.float32)
-    bounds = tuple((0.0, upper[k]) for k in range(dim))
+    return position, tuple((0.0, upper[k]) for k in range(dim))
+
+
+def model(bounds, hops: int, latent: int, frames: int, dim: int = 2):
+    """The randomly initialised simulator of the scene in ``bounds`` (the same in every process), and its metadata."""
+    from gns_framework.assembly.learned import build_learned_simulator
+    from gns_framework.config.recipe import ModelSpec
+    from gns_framework.contracts import ModelSetup
+    from gns_framework.data.metadata import DatasetMetadata
+    from gns_framework.plugins import load_registry
+
     scene = ModelSetup(dim=dim, bounds=bounds, connectivity_radius=RADIUS, particle_types=(5,), history=HISTORY)
     metadata = DatasetMetadata(
         bounds=[list(b) for b in bounds],
@@ -94,16 +99,14 @@ def build(particles: int, aspect: float, hops: int, latent: int, frames: int, di
         acc_mean=[0.0] * dim,
         acc_std=[2e-4] * dim,
     )
-    model = ModelSpec(
+    spec = ModelSpec(
         latent_size=latent,
         mlp_hidden_size=latent,
         mlp_hidden_layers=2,
         processor={"name": "interaction_network", "message_passing_steps": hops},
     )
     torch.manual_seed(0)
-    simulator = build_learned_simulator(scene, metadata, model, load_registry())
-    trajectory = Trajectory(position, np.full(particles, 5, dtype=np.int64), key="layer")
-    return simulator, trajectory
+    return build_learned_simulator(scene, metadata, spec, load_registry()), metadata
 
 
 def _resident_mb() -> float:
@@ -117,12 +120,15 @@ def _peak_mb() -> float:
 
 def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
     """Measure one process of a P-process run; writes ``rank<r>.json``."""
+    import numpy as np
     import torch.distributed as dist
 
     from gns_framework.data.batch import window
+    from gns_framework.data.trajectory import Trajectory
     from gns_framework.decomposition.halo import partition_for
-    from gns_framework.decomposition.rollout import partitioned_rollout
+    from gns_framework.decomposition.rollout import sharded_rollout
     from gns_framework.decomposition.training_step import owned_share, partitioned_gradients
+    from gns_framework.io.sharded_rollout import shard_name
     from gns_framework.training.distributed import processes_from_environment, start, stop
 
     os.environ.update(
@@ -147,20 +153,26 @@ def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
         dist.all_to_all_single = timed
     try:
         steps, train_steps = config["steps"], config["train_steps"]
-        simulator, trajectory = build(
-            config["particles"], config["aspect"], config["hops"], config["latent"], HISTORY + steps + 1, config["dim"]
-        )
+        frames, dim = HISTORY + steps + 1, config["dim"]
+        simulator, metadata = model(tuple(map(tuple, config["bounds"])), config["hops"], config["latent"], frames, dim)
+        # The scene is a memory-mapped file, as a dataset's positions are: a process reads only what it touches.
+        position = np.load(Path(out) / "position.npy", mmap_mode="r")
+        trajectory = Trajectory(position, np.full(position.shape[1], 5, dtype=np.int64), key="layer")
         before = _resident_mb()
         halo = config["halo"]
         cut, axis = config["cut"], (0 if config["cut"] == "slabs" else None)
-        # Warm-up: allocations, kernels.
-        partitioned_rollout(simulator, trajectory, processes, steps=1, halo=halo, axis=axis, cut=cut)
+        options = dict(halo=halo, axis=axis, cut=cut)
+        # Warm-up: allocations, kernels. Then the rollout as gns rollout --partitions runs it: each process writes
+        # its own shard of the output.
+        sharded_rollout(simulator, trajectory, processes, Path(out) / "warm-up", metadata, steps=1, **options)
         exchanged[0] = 0.0
         calls.update(count=0, bytes=0)
         processes.barrier()
         began = time.perf_counter()
-        _, stats = partitioned_rollout(simulator, trajectory, processes, steps=steps, halo=halo, axis=axis, cut=cut)
+        folder = Path(out) / "rollout"
+        _, stats = sharded_rollout(simulator, trajectory, processes, folder, metadata, steps=steps, **options)
         rollout_seconds = (time.perf_counter() - began) / steps
+        output_mb = (folder / shard_name(rank)).stat().st_size / 1e6
         rollout_exchange = exchanged[0] / steps
         rollout_calls = dict(calls)
         rollout_peak = _peak_mb() - before
@@ -187,6 +199,7 @@ def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
             "rollout_exchange_bytes": rollout_calls["bytes"],
             "rollout_peak_mb": rollout_peak,
             "rollout_peak_rss_mb": _peak_mb(),
+            "output_mb": output_mb,
             "train_seconds": statistics.median(times[1:]),
             "train_exchange_seconds": statistics.median(train_exchange[1:]),
             "train_peak_mb": _peak_mb() - before,
@@ -207,7 +220,14 @@ def _free_port() -> int:
 
 
 def measure(processes: int, config: dict) -> dict:
+    import numpy as np
+
     with tempfile.TemporaryDirectory() as out:
+        frames = HISTORY + config["steps"] + 1
+        position, bounds = lattice(config["particles"], config["aspect"], frames, config["dim"])
+        np.save(Path(out) / "position.npy", position)
+        del position
+        config = dict(config, bounds=bounds)
         torch.multiprocessing.spawn(worker, args=(processes, _free_port(), out, config), nprocs=processes)
         ranks = [json.loads((Path(out) / f"rank{r}.json").read_text()) for r in range(processes)]
     return {
@@ -226,6 +246,7 @@ def measure(processes: int, config: dict) -> dict:
         "particles": config["particles"],
         "dim": config["dim"],
         "peak_rss_mb_per_process": max(r["rollout_peak_rss_mb"] for r in ranks),
+        "output_mb_per_process": max(r["output_mb"] for r in ranks),
         "seconds_per_step": max(r["rollout_seconds"] for r in ranks),
         "train_peak_mb_per_process": max(r["train_peak_mb"] for r in ranks),
         "halo_fraction": ranks[0]["halo_fraction"],

@@ -32,5 +32,7 @@ def test_a_run_appends_its_records(tmp_path, capsys):
     for run in runs:
         assert run["particles"] == 400 and run["dim"] == 3 and run["peak_rss_mb_per_process"] > 50
         assert run["seconds_per_step"] > 0 and run["commit"] and run["date"]
+    # Each process writes its own shard: two processes' shards are each about half of one process's output.
+    assert 0.35 < runs[1]["output_mb_per_process"] / runs[0]["output_mb_per_process"] < 0.75
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["rows"][1]["partition"].startswith("2 slabs")
