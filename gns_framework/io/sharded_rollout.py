@@ -57,7 +57,7 @@ VERSION = 1
 MANIFEST = "rollout.json"
 SUFFIX = ".rollout"
 CHUNK_ROWS = 65_536
-"""Rows per HDF5 chunk of a shard's frames: about 0.5 MB of positions in 2D, 0.8 MB in 3D."""
+"""Most rows per HDF5 chunk of a shard's frames: about 0.5 MB of positions in 2D, 0.8 MB in 3D."""
 
 
 def shard_name(rank: int) -> str:
@@ -101,10 +101,12 @@ class RolloutShard:
         if material_property is not None:
             initial["material_property"] = np.asarray(material_property, dtype=np.float32)
         dim = position.shape[-1]
+        # About 16 steps of the process's particles a chunk (a small piece's file stays small), at most CHUNK_ROWS.
+        rows = max(1024, min(CHUNK_ROWS, 16 * len(ids)))
         frames = self._file.create_group("frames")
-        frames.create_dataset("ids", (0,), maxshape=(None,), dtype=np.int64, chunks=(CHUNK_ROWS,))
+        frames.create_dataset("ids", (0,), maxshape=(None,), dtype=np.int64, chunks=(rows,))
         for name in ("predicted", "truth"):
-            frames.create_dataset(name, (0, dim), maxshape=(None, dim), dtype=np.float32, chunks=(CHUNK_ROWS, dim))
+            frames.create_dataset(name, (0, dim), maxshape=(None, dim), dtype=np.float32, chunks=(rows, dim))
 
     def frame(self, ids: np.ndarray, predicted: np.ndarray, truth: np.ndarray) -> None:
         """The next step's rows: the particles owned now (n,), their predicted and true positions (n, d)."""
