@@ -123,11 +123,8 @@ def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
     import numpy as np
     import torch.distributed as dist
 
-    from gns_framework.data.batch import window
     from gns_framework.data.trajectory import Trajectory
-    from gns_framework.decomposition.halo import partition_for
     from gns_framework.decomposition.rollout import sharded_rollout
-    from gns_framework.decomposition.training_step import owned_share, partitioned_gradients
     from gns_framework.io.sharded_rollout import shard_name
     from gns_framework.training.distributed import processes_from_environment, start, stop
 
@@ -175,40 +172,56 @@ def worker(rank: int, world: int, port: int, out: str, config: dict) -> None:
         output_mb = (folder / shard_name(rank)).stat().st_size / 1e6
         rollout_exchange = exchanged[0] / steps
         rollout_calls = dict(calls)
-        rollout_peak = _peak_mb() - before
-        simulator.train()
-        batch = window(trajectory, 0, HISTORY, with_target=True)
-        noise = torch.zeros_like(batch.position_sequence)
-        partition, kind = partition_for(simulator, batch.position_sequence[:, -1], world, halo, axis, cut)
-        owned = owned_share(batch, noise, partition, rank)
-        times, train_exchange = [], []
-        for _ in range(train_steps + 1):
-            simulator.zero_grad(set_to_none=True)
-            exchanged[0] = 0.0
-            processes.barrier()
-            began = time.perf_counter()
-            partitioned_gradients(simulator, owned, batch, partition, processes, kind)
-            times.append(time.perf_counter() - began)
-            train_exchange.append(exchanged[0])
+        rollout_peak_rss = _peak_mb()  # before training, which needs several times a rollout's memory
+        rollout_peak = rollout_peak_rss - before
+        training = _training(simulator, trajectory, processes, halo, axis, cut, train_steps, exchanged, before)
         result = {
             "rank": rank,
-            "owned": owned.count,
             "rollout_seconds": rollout_seconds,
             "rollout_exchange_seconds": rollout_exchange,
             "rollout_exchange_calls": rollout_calls["count"],
             "rollout_exchange_bytes": rollout_calls["bytes"],
             "rollout_peak_mb": rollout_peak,
-            "rollout_peak_rss_mb": _peak_mb(),
+            "rollout_peak_rss_mb": rollout_peak_rss,
             "output_mb": output_mb,
-            "train_seconds": statistics.median(times[1:]),
-            "train_exchange_seconds": statistics.median(train_exchange[1:]),
-            "train_peak_mb": _peak_mb() - before,
+            **training,
             "halo_fraction": stats.halo_fraction,
             "partition": stats.partition.describe(),
         }
         (Path(out) / f"rank{rank}.json").write_text(json.dumps(result))
     finally:
         stop()
+
+
+def _training(simulator, trajectory, processes, halo, axis, cut, train_steps: int, exchanged, before: float) -> dict:
+    """The median seconds of ``train_steps`` decomposed training steps (after one warm-up), the time in exchanges,
+    and the peak memory added; NaN without training steps (``--train-steps 0``: a rollout alone)."""
+    from gns_framework.data.batch import window
+    from gns_framework.decomposition.halo import partition_for
+    from gns_framework.decomposition.training_step import owned_share, partitioned_gradients
+
+    if train_steps == 0:
+        return {"owned": None, "train_seconds": math.nan, "train_exchange_seconds": math.nan, "train_peak_mb": math.nan}
+    simulator.train()
+    batch = window(trajectory, 0, HISTORY, with_target=True)
+    noise = torch.zeros_like(batch.position_sequence)
+    partition, kind = partition_for(simulator, batch.position_sequence[:, -1], processes.world_size, halo, axis, cut)
+    owned = owned_share(batch, noise, partition, processes.rank)
+    times, train_exchange = [], []
+    for _ in range(train_steps + 1):
+        simulator.zero_grad(set_to_none=True)
+        exchanged[0] = 0.0
+        processes.barrier()
+        began = time.perf_counter()
+        partitioned_gradients(simulator, owned, batch, partition, processes, kind)
+        times.append(time.perf_counter() - began)
+        train_exchange.append(exchanged[0])
+    return {
+        "owned": owned.count,
+        "train_seconds": statistics.median(times[1:]),
+        "train_exchange_seconds": statistics.median(train_exchange[1:]),
+        "train_peak_mb": _peak_mb() - before,
+    }
 
 
 def _free_port() -> int:
@@ -355,7 +368,9 @@ def main(argv: list[str] | None = None) -> int:
         help="how the measured scene is split: slabs across its width, blocks by recursive bisection, or auto",
     )
     parser.add_argument("--steps", type=int, default=5, help="rollout steps timed")
-    parser.add_argument("--train-steps", type=int, default=3, help="training steps timed (after one warm-up)")
+    parser.add_argument(
+        "--train-steps", type=int, default=3, help="training steps timed (after one warm-up); 0: the rollout alone"
+    )
     parser.add_argument(
         "--project-particles", type=float, default=1e7, help="the 3D scene of the GPU projection (default 10M)"
     )
