@@ -43,7 +43,7 @@ from ..data.metadata import DatasetMetadata
 from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..errors import GnsError, RolloutDiverged
-from ..io.sharded_rollout import RolloutShard, shard_violations, write_manifest
+from ..io.sharded_rollout import RolloutShard, write_manifest
 from ..model.history import advance_window
 from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import check_simulates, rollout_step
@@ -123,7 +123,7 @@ def partitioned_rollout(
         steps=steps, device=device, guard=guard, precision=precision, axis=axis, halo=halo, cut=cut, rebalance=rebalance
     )
     stats, violations = _roll(simulator, trajectory, processes, output, options)
-    everyone = merged_violations(v for found in objects_everywhere(processes, violations) for v in found)
+    everyone = _everyones(violations, processes)
     if output.predicted is None:
         return None, stats
     return (
@@ -187,10 +187,13 @@ def sharded_rollout(
     processes.barrier()  # every shard complete before the manifest says so
     if processes.is_chief:
         write_manifest(folder, trajectory, output.steps, simulator.setup.history, processes.world_size, metadata)
-    written = WrittenRollout(
-        folder, output.steps, squared / max(count, 1.0), tuple(shard_violations(folder, processes.world_size))
-    )
+    written = WrittenRollout(folder, output.steps, squared / max(count, 1.0), tuple(_everyones(violations, processes)))
     return written, stats
+
+
+def _everyones(violations: list[GuardViolation], processes: Processes) -> list[GuardViolation]:
+    """What the guard found on every process's particles, merged as one check of whole frames reports it."""
+    return merged_violations(v for found in objects_everywhere(processes, violations) for v in found)
 
 
 @torch.inference_mode()

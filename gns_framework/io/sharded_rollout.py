@@ -231,18 +231,6 @@ def load_sharded_rollout(folder: str | Path) -> Rollout:
     )
 
 
-def shard_violations(folder: str | Path, shards: int) -> list[GuardViolation]:
-    """What the guard found on the particles of every shard of ``folder``, merged as one check of whole frames
-    reports it (the shards' guard groups only: no frame is read)."""
-    found: list[GuardViolation] = []
-    for rank in range(shards):
-        path = Path(folder) / shard_name(rank)
-        with h5py.File(path, "r") as shard:
-            history = int(shard["initial/position"].shape[0])
-            found += _violations(shard, path, history)
-    return merged_violations(found)
-
-
 def _manifest(folder: Path) -> dict[str, Any]:
     """The manifest, checked field by field."""
     path = folder / MANIFEST
