@@ -9,7 +9,7 @@ model's own graph builder counts them; a builder without edges leaves every part
 A re-cut during a rollout needs the whole scene's work but no process holds the whole scene:
 each bins its own particles' work on a coarse grid over the scene's box (:func:`work_summary`),
 one sum gives every process the same grid, and the pieces are cut at the quantiles of the
-occupied cells' work, which is balanced to within a cell.
+occupied cells' work, which balances the pieces to within one slice of cells (a cut cannot split one).
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ SUMMARY_CELLS = 1 << 21
 def work_summary(position: Tensor, work: Tensor, particles: int, processes: Processes) -> tuple[Tensor, Tensor]:
     """The whole scene's work on a coarse grid, from this process's own particles at ``position`` (n, d) with
     ``work`` (n,): (M, d) float64 centres of the occupied cells and (M,) their summed work, the same on every
-    process. The grid spans the scene's box (two small gathers) with about ``SUMMARY_CELLS`` cells of equal shape
+    process. The grid spans the scene's box (one small gather of each process's corners) with about ``SUMMARY_CELLS`` cells of equal shape
     (fewer for a scene of fewer particles than that), so a cut, which cannot split a slice of cells, balances the
     pieces to within one slice's work; one sum over the processes. ``particles``: the scene's particle count."""
     dim = position.shape[1]
