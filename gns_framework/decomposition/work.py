@@ -52,9 +52,10 @@ SUMMARY_CELLS = 1 << 21
 def work_summary(position: Tensor, work: Tensor, particles: int, processes: Processes) -> tuple[Tensor, Tensor]:
     """The whole scene's work on a coarse grid, from this process's own particles at ``position`` (n, d) with
     ``work`` (n,): (M, d) float64 centres of the occupied cells and (M,) their summed work, the same on every
-    process. The grid spans the scene's box (one small gather of each process's corners) with about ``SUMMARY_CELLS`` cells of equal shape
-    (fewer for a scene of fewer particles than that), so a cut, which cannot split a slice of cells, balances the
-    pieces to within one slice's work; one sum over the processes. ``particles``: the scene's particle count."""
+    process. The grid spans the scene's box (one small gather of each process's corners) with about
+    ``SUMMARY_CELLS`` cells of equal shape (fewer for a scene of fewer particles than that), so a cut, which
+    cannot split a slice of cells, balances the pieces to within one slice's work; one sum over the processes.
+    ``particles``: the scene's particle count."""
     dim = position.shape[1]
     inf = torch.full((dim,), torch.inf, dtype=torch.float64)
     local = position.detach().to("cpu", torch.float64)
