@@ -4,7 +4,8 @@ A module that moved leaves a stub whose module-level ``__getattr__`` is
 ``old_home(__name__, default_home, {name: home, ...})``. A renamed attribute leaves
 ``old = renamed_attribute("old", "new")`` in its class, a renamed keyword a
 ``@renamed_keywords(old="new")`` on its function, and a class whose attribute and constructor
-keyword were renamed together a ``@renamed("old", "new")``.
+keyword were renamed together a ``@renamed("old", "new")``; parameters that became keyword-only a
+``@formerly_positional(...)`` on their function.
 """
 
 from __future__ import annotations
@@ -87,5 +88,34 @@ def renamed(old: str, new: str) -> Callable[[C], C]:
         setattr(cls, old, renamed_attribute(old, new))
         cls.__init__ = renamed_keywords(**{old: new})(cls.__init__)  # type: ignore[misc]
         return cls
+
+    return decorate
+
+
+def formerly_positional(*names: str, after: int) -> Callable[[Callable[P, R]], Callable[P, R]]:
+    """A decorator: parameters ``names`` that stood, in that order, after the first ``after`` arguments (``self``
+    counted) and are keyword-only now still take arguments by position, with a warning."""
+
+    def decorate(function: Callable[P, R]) -> Callable[P, R]:
+        name = function.__qualname__.removesuffix(".__init__")
+
+        @functools.wraps(function)
+        def by_keyword(*args: P.args, **kwargs: P.kwargs) -> R:
+            late = args[after:]
+            if not late:
+                return function(*args, **kwargs)
+            if len(late) > len(names):
+                raise TypeError(f"{name}() takes at most {after + len(names)} positional arguments, got {len(args)}")
+            moved = names[: len(late)]
+            by_position = f"{name}(): pass {', '.join(moved)} by keyword; by position goes in 0.3"
+            warnings.warn(by_position, DeprecationWarning, stacklevel=2)
+            for key, value in zip(moved, late, strict=True):
+                if key in kwargs:
+                    raise TypeError(f"{name}() got {key} by position and by keyword")
+                kwargs[key] = value
+            positional: Callable[..., R] = function  # P.args cut short is no longer P.args to a checker
+            return positional(*args[:after], **kwargs)
+
+        return by_keyword
 
     return decorate

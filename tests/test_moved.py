@@ -6,7 +6,8 @@ import importlib
 
 import pytest
 
-from gns_framework.moved import renamed, renamed_attribute, renamed_keywords
+from gns_framework.moved import formerly_positional, renamed, renamed_attribute, renamed_keywords
+from gns_framework.plugins import load_registry
 from gns_framework.runtime import processes, teams
 
 MOVED = [
@@ -77,3 +78,29 @@ def test_a_class_renamed_at_once_takes_and_reads_the_old_name_with_warnings():
     with pytest.warns(DeprecationWarning, match=r"^Renamed\.old is now \.new"):
         assert held.old == 5
     assert Renamed(new=6).new == 6
+
+
+class _Old:
+    @formerly_positional("first", "second", after=2)
+    def __init__(self, a: int, *, first: int = 1, second: int = 2):
+        self.values = (a, first, second)
+
+
+def test_formerly_positional_arguments_still_reach_their_keywords_with_a_warning():
+    assert _Old(0, first=5).values == (0, 5, 2)
+    with pytest.warns(DeprecationWarning, match=r"_Old\(\): pass first, second by keyword"):
+        assert _Old(0, 7, 8).values == (0, 7, 8)
+    with pytest.warns(DeprecationWarning), pytest.raises(TypeError, match="first by position and by keyword"):
+        _Old(0, 7, first=7)
+    with pytest.raises(TypeError, match="at most 4 positional arguments, got 5"):
+        _Old(0, 7, 8, 9)
+
+
+def test_the_trainer_still_takes_its_run_folder_by_position(tmp_path, dataset_2d):
+    from gns_framework.training.trainer import Trainer
+    from tests.tiny import tiny_recipe
+
+    registry = load_registry()
+    with pytest.warns(DeprecationWarning, match="pass run_dir by keyword"):
+        trainer = Trainer(tiny_recipe(dataset_2d, registry), registry, tmp_path / "run")
+    assert trainer.run_dir == tmp_path / "run"

@@ -7,6 +7,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
+from ..errors import DatasetError
 from .params import ComponentParams, Params
 
 if TYPE_CHECKING:
@@ -20,6 +21,8 @@ class Dataset(ABC):
     name: ClassVar[str]
     Params: ClassVar[type[Params]] = Params
     writable: ClassVar[bool] = False
+    split_suffix: ClassVar[str | None] = None
+    """In a layout of one file per split beside the metadata, that file's ending (``.npz``: ``train.npz``)."""
 
     def __init__(self, params: ComponentParams, path: Path, allow_pickle: bool = False):
         """``allow_pickle``: the user's grant to unpickle anything from the files under ``path``.
@@ -48,7 +51,17 @@ class Dataset(ABC):
         return [s for s in ("train", "valid", "test") if self.has_split(s)]
 
     def has_split(self, name: str) -> bool:
-        return False
+        """Whether split ``name`` is on disk: its file, in a layout of one file per split."""
+        return self.split_suffix is not None and (self.path / f"{name}{self.split_suffix}").is_file()
+
+    def split_file(self, name: str) -> Path:
+        """The file of split ``name`` in a layout of one file per split; a missing one is refused, naming it."""
+        if self.split_suffix is None:
+            raise TypeError(f"dataset layout {self.name!r} does not keep one file per split (no split_suffix)")
+        file = self.path / f"{name}{self.split_suffix}"
+        if not file.is_file():
+            raise DatasetError(f"{file}: split file not found")
+        return file
 
     @classmethod
     def write(cls, path: Path, metadata: DatasetMetadata, splits: Mapping[str, Sequence[Trajectory]]) -> None:

@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Unpack
 
 import torch
 from torch import Tensor
 
-from .space import check_parts, distance_to_interval, periodic_boxes
+from .space import CutOptions, check_parts, distance_to_interval, periodic_boxes
 from .work import quantile_cut
 
 CHUNK = 65_536
@@ -54,21 +55,14 @@ class BlockPartition:
         return f"{self.parts} blocks (recursive bisection)"
 
     @classmethod
-    def balanced(
-        cls,
-        position: Tensor,
-        parts: int,
-        depth: float,
-        periodic_dims: tuple[int, ...] = (),
-        bounds: tuple[tuple[float, float], ...] | None = None,
-        weight: Tensor | None = None,
-    ) -> BlockPartition:
+    def balanced(cls, position: Tensor, parts: int, depth: float, **options: Unpack[CutOptions]) -> BlockPartition:
         """Boxes by recursive bisection of ``position`` (N, d): each cut halves the particles' ``weight`` (N,; default:
         their count), in proportion to the processes on either side, across the dimension they spread farthest in;
         ``bounds`` gives the periodic box of ``periodic_dims``."""
         check_parts(parts)
         dim = int(position.shape[1])
-        box = periodic_boxes(dim, periodic_dims, bounds)
+        box = periodic_boxes(dim, options)
+        weight = options.get("weight")
         lower: list[tuple[float, ...]] = []
         upper: list[tuple[float, ...]] = []
         _bisect(position.detach().to(torch.float64), weight, parts, [-math.inf] * dim, [math.inf] * dim, lower, upper)

@@ -10,12 +10,13 @@ same cut).
 
 from __future__ import annotations
 
-from typing import Literal, Protocol
+from typing import Literal, Protocol, Unpack
 
 from torch import Tensor
 
 from .blocks import BlockPartition
 from .slabs import SlabPartition
+from .space import CutOptions
 
 Cut = Literal["auto", "slabs", "blocks"]
 
@@ -50,27 +51,20 @@ def balanced_partition(
     depth: float,
     cut: Cut = "auto",
     axis: int | None = None,
-    periodic_dims: tuple[int, ...] = (),
-    bounds: tuple[tuple[float, float], ...] | None = None,
-    weight: Tensor | None = None,
+    **options: Unpack[CutOptions],
 ) -> Partition:
-    """``parts`` pieces of equal ``weight`` (N,: each particle's work, :mod:`.work`; default: equal particle
-    count) of the scene at ``position`` (N, d), cut as ``cut`` says.
+    """``parts`` pieces of equal weight (:class:`~.space.CutOptions`; default: equal particle count) of the scene
+    at ``position`` (N, d), cut as ``cut`` says.
 
-    ``axis`` fixes the dimension slabs are cut across (so ``auto`` means slabs); ``bounds``
-    (d pairs) gives the periodic box of ``periodic_dims``.
+    ``axis`` fixes the dimension slabs are cut across (so ``auto`` means slabs).
     """
     if cut == "blocks" and axis is not None:
         raise ValueError(f"a cut into blocks has no single axis, got axis {axis}: use slabs or leave the axis out")
     slabs = blocks = None
     if cut != "blocks":
-        slabs = SlabPartition.balanced(
-            position, parts, depth, axis, periodic_dims=periodic_dims, bounds=bounds, weight=weight
-        )
+        slabs = SlabPartition.balanced(position, parts, depth, axis, **options)
     if cut == "blocks" or (cut == "auto" and axis is None and parts > 2):
-        blocks = BlockPartition.balanced(
-            position, parts, depth, periodic_dims=periodic_dims, bounds=bounds, weight=weight
-        )
+        blocks = BlockPartition.balanced(position, parts, depth, **options)
     if slabs is None:
         assert blocks is not None
         return blocks

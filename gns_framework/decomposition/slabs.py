@@ -11,11 +11,12 @@ holds a halo: every particle of another slab closer than ``depth`` to its own al
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Unpack
 
 import torch
 from torch import Tensor
 
-from .space import check_parts, distance_to_interval, periodic_boxes
+from .space import CutOptions, check_parts, distance_to_interval, periodic_boxes
 from .work import quantile_cut
 
 
@@ -44,14 +45,7 @@ class SlabPartition:
 
     @classmethod
     def balanced(
-        cls,
-        position: Tensor,
-        parts: int,
-        depth: float,
-        axis: int | None = None,
-        periodic_dims: tuple[int, ...] = (),
-        bounds: tuple[tuple[float, float], ...] | None = None,
-        weight: Tensor | None = None,
+        cls, position: Tensor, parts: int, depth: float, axis: int | None = None, **options: Unpack[CutOptions]
     ) -> SlabPartition:
         """Cuts at the quantiles of ``weight`` (N,; default: the particle count) of ``position`` (N, d) along ``axis``.
 
@@ -60,13 +54,14 @@ class SlabPartition:
         ``bounds`` (d pairs) gives the periodic box of ``periodic_dims``.
         """
         check_parts(parts)
-        boxes = periodic_boxes(int(position.shape[1]), periodic_dims, bounds)
+        boxes = periodic_boxes(int(position.shape[1]), options)
         if axis is None:
             spread = (position.max(0).values - position.min(0).values).tolist()
             spread = [s if b is None else b[1] - b[0] for s, b in zip(spread, boxes, strict=True)]
             axis = max(range(len(spread)), key=lambda k: spread[k])
         box = boxes[axis]
         coordinate = position[:, axis].to(torch.float64)
+        weight = options.get("weight")
         cuts = tuple(quantile_cut(coordinate, weight, k, parts) for k in range(1, parts)) if len(coordinate) else ()
         return cls(axis=axis, cuts=cuts, depth=float(depth), box=box)
 

@@ -2,8 +2,22 @@
 
 from __future__ import annotations
 
+from typing import TypedDict
+
 import torch
 from torch import Tensor
+
+
+class CutOptions(TypedDict, total=False):
+    """How slabs and blocks are cut beyond the positions, the piece count and the halo depth.
+
+    ``periodic_dims``: the dimensions that wrap around, within ``bounds`` (d (low, high) pairs, length units);
+    ``weight``: (N,) each particle's work (:mod:`.work`), default one each (the particle count).
+    """
+
+    periodic_dims: tuple[int, ...]
+    bounds: tuple[tuple[float, float], ...] | None
+    weight: Tensor | None
 
 
 def check_parts(parts: int) -> None:
@@ -11,12 +25,11 @@ def check_parts(parts: int) -> None:
         raise ValueError(f"partitions must be at least 1, got {parts}")
 
 
-def periodic_boxes(
-    dim: int, periodic_dims: tuple[int, ...], bounds: tuple[tuple[float, float], ...] | None
-) -> list[tuple[float, float] | None]:
+def periodic_boxes(dim: int, options: CutOptions) -> list[tuple[float, float] | None]:
     """Per dimension, the (low, high) of its periodic box (length units), or None where it is not periodic."""
     box: list[tuple[float, float] | None] = [None] * dim
-    for k in periodic_dims:
+    bounds = options.get("bounds")
+    for k in options.get("periodic_dims", ()):
         assert bounds is not None, "a periodic dimension needs the box bounds"
         box[k] = (float(bounds[k][0]), float(bounds[k][1]))
     return box

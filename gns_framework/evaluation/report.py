@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from functools import partial
 from pathlib import Path
+from typing import TypedDict, Unpack
 
 import numpy as np
 import torch
@@ -44,6 +45,7 @@ __all__ = [
     "Kind",
     "Prediction",
     "Report",
+    "ScoreOptions",
     "case_range",
     "evaluate",
     "installed",
@@ -196,30 +198,24 @@ def _timed_rollouts(
         )
 
 
-def score_rollout(
-    rollout: Rollout,
-    *,
-    horizons: Sequence[int] = DEFAULT_HORIZONS,
-    granular_types: Collection[int] = (),
-    material_names: Mapping[int, str] | None = None,
-    kinematic_types: Collection[int] | None = None,
-    metrics: Sequence[Metric] | None = None,
-) -> dict[str, float | None]:
-    """Every metric of a rollout's prediction against its ground truth (no timing); it needs its metadata."""
+class ScoreOptions(TypedDict, total=False):
+    """What :func:`score_prediction` measures and leaves out, beyond the prediction and its case."""
+
+    horizons: Sequence[int]
+    granular_types: Collection[int]
+    material_names: Mapping[int, str] | None
+    kinematic_types: Collection[int] | None
+    metrics: Sequence[Metric] | None
+
+
+def score_rollout(rollout: Rollout, **options: Unpack[ScoreOptions]) -> dict[str, float | None]:
+    """Every metric of a rollout's prediction against its ground truth (no timing); it needs its metadata.
+
+    ``options`` as :func:`score_prediction`'s."""
     if rollout.metadata is None:
         raise ValueError(f"{rollout.source}: scoring a rollout needs the dataset's metadata; the rollout has none")
-    scores = score_prediction(
-        Prediction(rollout.predicted),
-        rollout.truth,
-        rollout.history,
-        rollout.metadata,
-        horizons,
-        granular_types,
-        material_names,
-        kinematic_types=kinematic_types,
-        metrics=metrics,
-    )
-    return summarise(scores)
+    prediction = Prediction(rollout.predicted)
+    return summarise(score_prediction(prediction, rollout.truth, rollout.history, rollout.metadata, **options))
 
 
 def installed(

@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
+from typing import TypedDict, Unpack
 
 import torch
 
@@ -83,22 +84,24 @@ class TrainingParts:
     checkpoints: Checkpoints
 
 
-def build_training_parts(
-    recipe: Recipe,
-    registry: Registry,
-    run_dir: str | Path | None = None,
-    dataset_path: str | Path | None = None,
-    processes: Processes | None = None,
-    allow_pickle: Path | None = None,
-) -> TrainingParts:
-    """The parts of the run ``recipe`` describes (arguments as :class:`~.trainer.Trainer`'s)."""
-    return _Builder(recipe, registry, run_dir, dataset_path, processes, allow_pickle).build()
+class RunSources(TypedDict, total=False):
+    """Where a run's parts come from beside the recipe, each as :class:`~.trainer.Trainer` documents it."""
+
+    run_dir: str | Path | None
+    dataset_path: str | Path | None
+    processes: Processes | None
+    allow_pickle: Path | None
+
+
+def build_training_parts(recipe: Recipe, registry: Registry, **sources: Unpack[RunSources]) -> TrainingParts:
+    """The parts of the run ``recipe`` describes."""
+    return _Builder(recipe, registry, **sources).build()
 
 
 class _Builder:
     """Builds :class:`TrainingParts`, one method per part."""
 
-    def __init__(self, recipe, registry, run_dir, dataset_path, processes, allow_pickle):
+    def __init__(self, recipe, registry, run_dir=None, dataset_path=None, processes=None, allow_pickle=None):
         self.recipe: Recipe = recipe.on_dataset(dataset_path) if dataset_path is not None else recipe
         self.registry: Registry = registry
         self.run = RunFolder(Path(run_dir) if run_dir is not None else recipe.run_dir)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
+from typing import Unpack
 
 import numpy as np
 import torch
@@ -17,11 +18,11 @@ from ..config.recipe import Recipe
 from ..data.atomic import write_text_atomic
 from ..errors import DatasetError
 from ..io.checkpoint import list_checkpoints
+from ..moved import formerly_positional
 from ..plugins import Registry
 from ..runtime.host_sync import avoids_read_backs, read_back
-from ..runtime.processes import Processes
 from .ema import WeightAverage
-from .parts import build_training_parts
+from .parts import RunSources, build_training_parts
 from .progress import Deadline, Throughput, time_to_go
 from .provenance import git_commit
 from .tracking import JsonlTracker, Tracker
@@ -53,18 +54,17 @@ class Trainer:
     when distributed, so its backward averages the gradients over the ranks.
     """
 
+    @formerly_positional("run_dir", "dataset_path", "processes", "tracker", "progress", "allow_pickle", after=3)
     def __init__(
         self,
         recipe: Recipe,
         registry: Registry,
-        run_dir: str | Path | None = None,
-        dataset_path: str | Path | None = None,
-        processes: Processes | None = None,
+        *,
         tracker: Tracker | None = None,
         progress: bool = True,
-        allow_pickle: Path | None = None,
+        **sources: Unpack[RunSources],
     ):
-        parts = build_training_parts(recipe, registry, run_dir, dataset_path, processes, allow_pickle)
+        parts = build_training_parts(recipe, registry, **sources)
         self.recipe, self.registry, self.run, self.processes = parts.recipe, registry, parts.run, parts.processes
         self.run_dir, self.checkpoint_dir = self.run.root, self.run.checkpoints
         self.rank, self.world_size = self.processes.rank, self.processes.world_size

@@ -1,4 +1,5 @@
-"""The dataset-layout contract: metadata and split are required; splits, has_split, write and __init__ defaults."""
+"""The dataset-layout contract: metadata and split are required; splits, has_split, split files, write and
+__init__ defaults."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from gns_framework.contracts import Dataset, Params
+from gns_framework.errors import DatasetError
 
 
 def test_a_layout_without_metadata_or_split_cannot_be_built(tmp_path):
@@ -68,6 +70,28 @@ def test_a_layout_that_does_not_say_has_no_split(tmp_path):
             return []
 
     assert Silent(Params(), tmp_path).splits() == []
+
+
+def test_a_layout_of_one_file_per_split_finds_its_files_and_names_a_missing_one(tmp_path):
+    class PerFile(Dataset):
+        name = "per_file"
+        split_suffix = ".h5"
+
+        def metadata(self):
+            return None
+
+        def split(self, name):
+            return [self.split_file(name)]
+
+    (tmp_path / "valid.h5").write_bytes(b"")
+    (tmp_path / "train.npz").write_bytes(b"")  # another layout's ending
+    dataset = PerFile(Params(), tmp_path)
+    assert dataset.splits() == ["valid"]
+    assert dataset.split("valid") == [tmp_path / "valid.h5"]
+    with pytest.raises(DatasetError, match=r"train\.h5: split file not found"):
+        dataset.split("train")
+    with pytest.raises(TypeError, match="'listed' does not keep one file per split"):
+        Listed(Params(), tmp_path).split_file("train")
 
 
 def test_a_layout_is_read_only_unless_it_writes(tmp_path):

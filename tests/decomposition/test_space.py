@@ -5,15 +5,15 @@ from __future__ import annotations
 import pytest
 import torch
 
-from gns_framework.decomposition.space import check_parts, distance_to_interval, periodic_boxes
+from gns_framework.decomposition.space import CutOptions, check_parts, distance_to_interval, periodic_boxes
 
 
 def test_only_the_periodic_dimensions_get_their_box():
     bounds = ((0.0, 1.0), (-2.0, 3.0), (5.0, 6.0))
-    assert periodic_boxes(3, (1,), bounds) == [None, (-2.0, 3.0), None]
-    assert periodic_boxes(2, (), None) == [None, None]
+    assert periodic_boxes(3, CutOptions(periodic_dims=(1,), bounds=bounds)) == [None, (-2.0, 3.0), None]
+    assert periodic_boxes(2, CutOptions()) == [None, None]
     with pytest.raises(AssertionError, match="needs the box bounds"):
-        periodic_boxes(2, (0,), None)
+        periodic_boxes(2, CutOptions(periodic_dims=(0,)))
 
 
 def test_parts_start_at_one():

@@ -65,6 +65,7 @@ class LagrangeBenchDataset(Dataset):
 
     name = "lagrangebench"
     writable = True
+    split_suffix = ".h5"
 
     def metadata(self) -> DatasetMetadata:
         raw = self._raw_metadata()
@@ -93,15 +94,10 @@ class LagrangeBenchDataset(Dataset):
                     return int(handle[key]["position"].shape[0])
         raise DatasetError(f"{self.path}: no split file with a trajectory to take the sequence length from")
 
-    def has_split(self, name: str) -> bool:
-        return (self.path / f"{name}.h5").is_file()
-
     def split(self, name: str) -> Sequence[Trajectory]:
         import h5py
 
-        file = self.path / f"{name}.h5"
-        if not file.is_file():
-            raise DatasetError(f"{file}: split file not found")
+        file = self.split_file(name)
         metadata = self.metadata()
         steps = self._raw_metadata().get(f"sequence_length_{name}")
         if steps is not None and not (isinstance(steps, int) and steps >= 1):

@@ -43,7 +43,7 @@ class GeoelementsNpzDataset(NpzSplitsDataset):
         return stored.model_copy(update={"sequence_length": stored.sequence_length + 1})
 
     def split(self, name: str) -> Sequence[Trajectory]:
-        file = self.path / f"{name}.npz"
+        file = self.split_file(name)
         archive = open_npz(file, allow_pickle=self.allow_pickle)
         metadata = self.metadata()
 

@@ -45,7 +45,7 @@ class SafeDataset(NpzSplitsDataset):
     writable = True
 
     def split(self, name: str) -> Sequence[Trajectory]:
-        file = self.path / f"{name}.npz"
+        file = self.split_file(name)
         archive = open_npz(file)
         groups: dict[str, set[str]] = {}
         for member in archive.files:

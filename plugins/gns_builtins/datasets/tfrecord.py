@@ -48,6 +48,7 @@ class TfRecordDataset(Dataset):
 
     name = "tfrecord"
     writable = True
+    split_suffix = ".tfrecord"
 
     class Params(ComponentParams):
         verify_checksums: bool = Field(True, description="check every record's CRC-32C (slow without google-crc32c)")
@@ -58,13 +59,8 @@ class TfRecordDataset(Dataset):
         stored = load_metadata(self.path)
         return stored.model_copy(update={"sequence_length": stored.sequence_length + 1})
 
-    def has_split(self, name: str) -> bool:
-        return (self.path / f"{name}.tfrecord").is_file()
-
     def split(self, name: str) -> Sequence[Trajectory]:
-        file = self.path / f"{name}.tfrecord"
-        if not file.is_file():
-            raise DatasetError(f"{file}: split file not found")
+        file = self.split_file(name)
         metadata = self.metadata()
         records = list(read_records(file, verify=self.params.verify_checksums))
 

@@ -26,11 +26,10 @@ from .array_pickle import RefusedGlobal, read_npy_object_array
 class NpzSplitsDataset(Dataset):
     """Base of layouts storing ``metadata.json`` beside one ``<split>.npz`` per split."""
 
+    split_suffix = ".npz"
+
     def metadata(self) -> DatasetMetadata:
         return load_metadata(self.path)
-
-    def has_split(self, name: str) -> bool:
-        return (self.path / f"{name}.npz").is_file()
 
     @staticmethod
     def write_split_files(
