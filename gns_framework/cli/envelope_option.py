@@ -15,7 +15,9 @@ from collections.abc import Sequence
 from ..assembly.trained import LoadedModel
 from ..data.metadata import DatasetMetadata
 from ..data.trajectory import Trajectory
-from ..model.envelope import OutsideEnvelope, envelope_message, outside_envelope
+from ..decomposition.envelope import measured_in_parts
+from ..model.envelope import OutsideEnvelope, envelope_message, outside_envelope, outside_envelope_of
+from ..runtime.processes import Processes
 
 
 def add_outside_envelope(parser: argparse.ArgumentParser) -> None:
@@ -35,12 +37,17 @@ def enforce_envelope(
     allowed: bool,
     source: str,
     command: str,
+    *,
+    count: int | None = None,
+    processes: Processes | None = None,
 ) -> list[str]:
-    """Refuse data outside ``loaded``'s envelope (OutsideEnvelope) unless ``allowed``.
+    """Refuse the first ``count`` of ``trajectories`` (default: all) where they lie outside ``loaded``'s envelope
+    (OutsideEnvelope) unless ``allowed``.
 
     Returns the warnings to record with the outputs: one line per quantity outside,
     naming the model; empty when the data is inside (or the checkpoint records no
-    envelope, which is said on stderr).
+    envelope, which is said on stderr). Over several ``processes``, each measures its own run of every scene's
+    particles and none reads a scene whole (:func:`~gns_framework.decomposition.envelope.measured_in_parts`).
     """
     if loaded.envelope is None:
         print(
@@ -49,8 +56,13 @@ def enforce_envelope(
             file=sys.stderr,
         )
         return []
-    setup = loaded.simulator.setup
-    problems = outside_envelope(loaded.envelope, metadata, trajectories, setup.history, setup.kinematic_types)
+    setup, count = loaded.simulator.setup, len(trajectories) if count is None else count
+    if processes is not None and processes.world_size > 1:
+        measures = measured_in_parts(trajectories, count, metadata, setup, processes)
+        problems = outside_envelope_of(loaded.envelope, metadata, measures)
+    else:
+        scenes = [trajectories[i] for i in range(count)]
+        problems = outside_envelope(loaded.envelope, metadata, scenes, setup.history, setup.kinematic_types)
     if not problems:
         return []
     message = envelope_message(source, str(loaded.path), problems)

@@ -23,6 +23,7 @@ import torch
 
 from ..assembly.data import open_dataset
 from ..assembly.trained import load_trained
+from ..data.in_parts import scene_in_parts
 from ..data.metadata import DatasetMetadata
 from ..data.trajectory import Trajectory
 from ..decomposition.rollout import RolloutOptions, WrittenRollout, sharded_rollout
@@ -181,7 +182,10 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
     device = start(processes, resolve_device(args.device))
     loaded = load_trained(args.checkpoint, registry, device)
     spec = loaded.recipe.rollout
-    dataset = open_dataset(loaded.recipe.dataset, registry, args.dataset, args.allow_pickle)
+    # A scene split over processes is read in parts: a layout that can map its positions maps them (it does when
+    # it keeps few trajectories), so that each process reads only its own particles' frames.
+    keep = 1 if args.partitions > 1 else None
+    dataset = open_dataset(loaded.recipe.dataset, registry, args.dataset, args.allow_pickle, keep=keep)
     dim = dataset.metadata().dim
     if dim != loaded.simulator.setup.dim:
         raise DatasetError(
@@ -193,13 +197,9 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
     split_name = require_component(args.split or spec.split, "--split" if args.split else "the recipe's rollout.split")
     trajectories = dataset.split(split_name)
     count = min(len(trajectories), args.trajectories or spec.trajectories or len(trajectories))
+    source, allowed = f"{dataset.path} (split {split_name})", args.outside_envelope
     warnings = enforce_envelope(
-        loaded,
-        dataset.metadata(),
-        [trajectories[i] for i in range(count)],
-        args.outside_envelope,
-        f"{dataset.path} (split {split_name})",
-        "rollout",
+        loaded, dataset.metadata(), trajectories, allowed, source, "rollout", count=count, processes=processes
     )
     recorded = loaded.metadata.model_copy(update={"outside_envelope": warnings}) if warnings else loaded.metadata
     run = RunFolder.of_checkpoint(args.checkpoint)
@@ -347,14 +347,15 @@ def _partitioned_rollouts(job: _Job, args, processes: Processes, output: _Output
     from_chief(processes, output.claim)
     for first in range(0, job.count, teams):
         index = first + mine
-        written, stats, failure = None, None, None
+        written, stats, failure, key = None, None, None, ""
         if index < job.count:
             partial = output.partial(index)
             if team.is_chief and partial.exists():
                 shutil.rmtree(partial)  # shards of an earlier command that stopped
             team.barrier()
             try:
-                scene, options = job.trajectories[index], job.options(args)
+                scene, options = scene_in_parts(job.trajectories, index), job.options(args)
+                key = scene.key
                 written, stats = sharded_rollout(job.simulator, scene, team, partial, output.metadata, **options)
             except Exception as exc:
                 failure = exc
@@ -380,7 +381,7 @@ def _partitioned_rollouts(job: _Job, args, processes: Processes, output: _Output
             folder.unlink()
         written.folder.rename(folder)
         print(
-            f"{job.trajectories[index].key or index}: {stats.partition.describe()}, "
+            f"{key or index}: {stats.partition.describe()}, "
             f"halo of {stats.halo_kind} {stats.halo_fraction:.1%} of the particles, "
             f"{stats.migrations} moved between processes, cut afresh {stats.rebalances} times"
         )

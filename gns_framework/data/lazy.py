@@ -25,15 +25,10 @@ class Split(Sequence[Trajectory]):
 
 
 class TrajectorySequence(Split):
-    """Trajectories of one split file.
-
-    Args:
-        keys: trajectory keys in file order.
-        load: reads the raw trajectory of a key (may raise DatasetError).
-        source: the file, for error messages.
-        dim: spatial dimensions, or the domain every particle must lie in (``DatasetMetadata.domain_check()``).
-        keep: how many recently used trajectories stay in memory (None: every one read stays).
-    """
+    """Trajectories of one split file: ``keys`` in file order, each read by ``load(key)`` (which may raise
+    DatasetError) and validated against ``dim``, the spatial dimensions or the domain every particle must lie in
+    (``DatasetMetadata.domain_check()``); ``source``, the file, names them in errors; ``keep`` of the most recently
+    used stay in memory (None: every one read stays)."""
 
     def __init__(
         self, keys: Sequence[str], load: Callable[[str], Trajectory], source: str, dim: int | DomainCheck, keep=None
@@ -49,5 +44,9 @@ class TrajectorySequence(Split):
     def _at(self, index: int) -> Trajectory:
         return self._get(index)
 
-    def _validated(self, index: int) -> Trajectory:
-        return self._load(self.keys[index]).validated(self._source, dim=self._dim, domain=self._domain)
+    def in_parts(self, index: int) -> Trajectory:
+        """Trajectory ``index`` for processes that each read a run of its particles (``Trajectory.particles``)."""
+        return self._validated(index, in_parts=True)
+
+    def _validated(self, index: int, in_parts: bool = False) -> Trajectory:
+        return self._load(self.keys[index]).validated(self._source, self._dim, self._domain, in_parts)

@@ -20,6 +20,7 @@ from collections.abc import Collection, Sequence
 from dataclasses import replace
 
 from ..contracts import Dataset
+from .in_parts import scene_in_parts
 from .lazy import Split
 from .metadata import DatasetMetadata, compute_statistics
 from .trajectory import Trajectory
@@ -60,6 +61,11 @@ class StridedSplit(Split):
     def _at(self, index: int) -> Trajectory:
         stored, offset = divmod(index, self._offsets)
         return strided(self._split[stored], self._stride, offset)
+
+    def in_parts(self, index: int) -> Trajectory:
+        """Trajectory ``index`` for processes that each read a run of its particles (``Trajectory.particles``)."""
+        stored, offset = divmod(index, self._offsets)
+        return strided(scene_in_parts(self._split, stored), self._stride, offset)
 
 
 class FrameStrideDataset(Dataset):

@@ -42,6 +42,8 @@ class Trajectory:
             None (the dataset's ``metadata.bounds``).
         walls: (2d, 2) float32 condition of each face (x_min, x_max, y_min, ...): its Coulomb
             friction coefficient and 1 if no-slip else 0; or None (not recorded).
+        unchecked: the check of the positions' values still owed, for a scene read in parts (one run of its
+            particles per process, :meth:`particles`); None when they were checked (or are not yet validated).
     """
 
     position: np.ndarray
@@ -51,6 +53,7 @@ class Trajectory:
     key: str = ""
     bounds: np.ndarray | None = None
     walls: np.ndarray | None = None
+    unchecked: PositionCheck | None = None
 
     @property
     def num_steps(self) -> int:
@@ -69,10 +72,24 @@ class Trajectory:
         context = None if self.step_context is None else self.step_context[:count]
         return replace(self, position=self.position[:count], step_context=context)
 
-    def validated(self, source: str, dim: int | None = None, domain: DomainCheck | None = None) -> Trajectory:
+    def particles(self, rows: slice) -> Trajectory:
+        """The particles ``rows`` (every frame of them), the rest kept; positions still unchecked are checked on these
+        particles only, so of a memory-mapped scene nothing else is read."""
+        prop = self.material_property
+        part = replace(self, position=self.position[:, rows], particle_type=self.particle_type[rows], unchecked=None)
+        part = replace(part, material_property=None if prop is None else prop[rows])
+        if self.unchecked is not None:
+            self.unchecked.check(part.position, first_particle=rows.indices(self.num_particles)[0])
+        return part
+
+    def validated(
+        self, source: str, dim: int | None = None, domain: DomainCheck | None = None, in_parts: bool = False
+    ) -> Trajectory:
         """Check shapes, dtypes and values (type ids >= 0; inside ``domain`` when given); return a copy with canonical
         dtypes.
 
+        ``in_parts``: leave the positions' values to each reader of a run of the particles (:meth:`particles`; the
+        rest is checked now), for a scene split over processes that each read their own particles.
         Raises DatasetError naming ``source``, the trajectory key and the field (and frame and particle).
         """
         where = f"{source}: trajectory {self.key!r}"
@@ -86,9 +103,6 @@ class Trajectory:
             raise DatasetError(f"{where}: position: has d = {d} but metadata says dim = {dim}")
         if t < 2 or n < 1:
             raise DatasetError(f"{where}: position: needs at least 2 frames and 1 particle, got {pos.shape}")
-        if not np.isfinite(pos).all():
-            bad = np.argwhere(~np.isfinite(pos))[0]
-            raise DatasetError(f"{where}: position: non-finite value at frame {bad[0]}, particle {bad[1]}")
         ptype = np.asarray(self.particle_type)
         if ptype.shape != (n,):
             raise DatasetError(f"{where}: particle_type: expected shape ({n},), got {ptype.shape}")
@@ -119,8 +133,13 @@ class Trajectory:
                 raise DatasetError(
                     f"{where}: walls: expected friction >= 0 and a no-slip flag 0 or 1 per face, got {walls.tolist()}"
                 )
-        _check_placement(where, pos, bounds, domain)
-        return Trajectory(pos.astype(np.float32, copy=False), ptype, prop, ctx, self.key, bounds, walls)
+        if n > 1 and not np.ptp(pos[0], axis=0).any():  # frame 0 only: NaN there leaves it to the check below
+            raise DatasetError(f"{where}: position: all {n} particles of frame 0 are at one point {pos[0, 0].tolist()}")
+        check = PositionCheck(where, bounds, domain)
+        if not in_parts:
+            check.check(pos)
+        pos = pos.astype(np.float32, copy=False)
+        return Trajectory(pos, ptype, prop, ctx, self.key, bounds, walls, check if in_parts else None)
 
 
 def _table(values, rows: int, field: str, expected: str) -> np.ndarray | None:
@@ -137,29 +156,38 @@ def _table(values, rows: int, field: str, expected: str) -> np.ndarray | None:
     return table
 
 
-def _check_placement(where: str, pos: np.ndarray, own_bounds: np.ndarray | None, domain: DomainCheck | None) -> None:
-    """Refuse particles all at one point, or beyond the domain's walls by more than its margin (first one named).
+@dataclass(frozen=True)
+class PositionCheck:
+    """The check of a trajectory's position values: finite, and inside ``domain`` (with the trajectory's own
+    ``bounds`` where it has them); ``where`` names the trajectory in messages."""
 
-    Shapes: pos (T, N, d).
-    """
-    if pos.shape[1] > 1 and not np.ptp(pos[0], axis=0).any():
-        raise DatasetError(
-            f"{where}: position: all {pos.shape[1]} particles of frame 0 are at one point {pos[0, 0].tolist()}"
-        )
-    if domain is None:
-        return
-    bounds = np.asarray(own_bounds if own_bounds is not None else domain.bounds, dtype=np.float64)
-    if bounds.shape != (pos.shape[2], 2):
-        return  # the dimension check names it
-    lower, upper = bounds[:, 0] - domain.margin, bounds[:, 1] + domain.margin
-    for start in range(0, pos.shape[0], 64):  # in chunks of frames: a mapped trajectory is never copied whole
-        frames = pos[start : start + 64]
-        outside = (frames < lower) | (frames > upper)
-        if outside.any():
-            frame, particle, axis = (int(i) for i in np.argwhere(outside)[0])
-            value = float(frames[frame, particle, axis])
-            raise DatasetError(
-                f"{where}: position: particle {particle} at frame {start + frame} is at {value:.6g} on axis {axis}, "
-                f"outside the domain [{bounds[axis, 0]:.6g}, {bounds[axis, 1]:.6g}] by more than {domain.margin:.3g} "
-                "(the data contradicts its own bounds)"
-            )
+    where: str
+    bounds: np.ndarray | None
+    domain: DomainCheck | None
+
+    def check(self, pos: np.ndarray, first_particle: int = 0) -> None:
+        """Refuse the first bad value of (T, n, d) ``pos``, particles numbered from ``first_particle``; frames in
+        chunks, so that a mapped trajectory is never copied whole."""
+        where, domain = self.where, self.domain
+        bounds = None
+        if domain is not None:
+            bounds = np.asarray(self.bounds if self.bounds is not None else domain.bounds, dtype=np.float64)
+            if bounds.shape != (pos.shape[2], 2):
+                bounds = None  # the dimension check names it
+        for start in range(0, pos.shape[0], 64):
+            frames = pos[start : start + 64]
+            bad = ~np.isfinite(frames)
+            if bad.any():
+                frame, particle, _ = np.argwhere(bad)[0] + (start, first_particle, 0)
+                raise DatasetError(f"{where}: position: non-finite value at frame {frame}, particle {particle}")
+            if domain is None or bounds is None:
+                continue
+            outside = (frames < bounds[:, 0] - domain.margin) | (frames > bounds[:, 1] + domain.margin)
+            if outside.any():
+                frame, particle, axis = (int(i) for i in np.argwhere(outside)[0])
+                value = float(frames[frame, particle, axis])
+                raise DatasetError(
+                    f"{where}: position: particle {first_particle + particle} at frame {start + frame} is at "
+                    f"{value:.6g} on axis {axis}, outside the domain [{bounds[axis, 0]:.6g}, {bounds[axis, 1]:.6g}] "
+                    f"by more than {domain.margin:.3g} (the data contradicts its own bounds)"
+                )

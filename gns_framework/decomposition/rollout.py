@@ -29,6 +29,7 @@ frames (as the rollout file does), with a sharded output no process does.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
@@ -39,10 +40,11 @@ import torch
 from torch import Tensor
 
 from ..data.batch import window
+from ..data.in_parts import particle_run
 from ..data.metadata import DatasetMetadata
 from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
-from ..errors import GnsError, RolloutDiverged
+from ..errors import DatasetError, GnsError, RolloutDiverged
 from ..io.sharded_rollout import RolloutShard, write_manifest
 from ..model.history import advance_window
 from ..model.learned_simulator import LearnedSimulator
@@ -227,13 +229,13 @@ def _roll(
             f"trajectory {trajectory.key!r} has {trajectory.num_steps} frames; rollout needs more than {history}"
         )
     world, total = processes.world_size, trajectory.num_particles
-    # Each process reads an equal run of the particles' input frames, the pieces are cut by count from a coarse
-    # summary of them, the particles go to their owners, and the pieces are cut again by the work each process
-    # weighs on its own piece: no process reads or holds the whole scene's frames.
-    start = window(_particle_run(trajectory, processes), 0, history, with_target=False)
-    owned = Particles(
-        _run_ids(total, processes), start.position_sequence, start.particle_type, start.material_property
-    ).to(device)
+    # Each process reads and checks an equal run of the particles, the pieces are cut by count from a coarse
+    # summary of their input frames, the particles go to their owners, and the pieces are cut again by the work
+    # each process weighs on its own piece: no process reads or holds the whole scene's frames.
+    run = particle_run(total, processes.rank, world)
+    start = window(_checked_run(trajectory, run, processes, device), 0, history, with_target=False)
+    ids = torch.arange(run.start, run.stop)
+    owned = Particles(ids, start.position_sequence, start.particle_type, start.material_property).to(device)
     centres, counts = work_summary(owned.sequence[:, -1], torch.ones(owned.count), total, processes)
     partition, kind = partition_for(simulator, centres, world, halo, axis, cut, weight=counts)
     owned, _ = _migrate(owned, partition, processes)
@@ -291,14 +293,34 @@ def _checked(
         checked, found = guard.check(step, next_owned, owned.sequence[:, -1], key, ids=owned.ids)
     except GnsError as exc:
         failure, checked, found = exc, next_owned, []
-    stopped = processes.sum(torch.tensor([failure is not None], dtype=torch.long, device=next_owned.device))
+    message = f"another process stopped the rollout of trajectory {key!r} at step {step} (its error says why)"
+    _stop_together(failure, processes, next_owned.device, lambda: RolloutDiverged(message, key, step))
+    return checked, found
+
+
+def _checked_run(trajectory: Trajectory, run: slice, processes: Processes, device: torch.device) -> Trajectory:
+    """This process's ``run`` of the particles, its positions checked where the scene left them to the runs
+    (:mod:`gns_framework.data.in_parts`); data refused on any process stops every process."""
+    failure: GnsError | None = None
+    try:
+        part = trajectory.particles(run)
+    except GnsError as exc:
+        failure, part = exc, trajectory
+    message = f"trajectory {trajectory.key!r}: another process refused its particles (its error says why)"
+    _stop_together(failure, processes, device, lambda: DatasetError(message))
+    return part
+
+
+def _stop_together(
+    failure: GnsError | None, processes: Processes, device: torch.device, stopped: Callable[[], GnsError]
+) -> None:
+    """Where any process failed, every process stops (one sum): those that failed with their own error, the others
+    with ``stopped()``; on the processes' device, as NCCL reduces CUDA tensors only."""
+    failed = processes.sum(torch.tensor([failure is not None], dtype=torch.long, device=device))
     if failure is not None:
         raise failure
-    if bool(stopped):
-        raise RolloutDiverged(
-            f"another process stopped the rollout of trajectory {key!r} at step {step} (its error says why)", key, step
-        )
-    return checked, found
+    if bool(failed):
+        raise stopped()
 
 
 class _Output(Protocol):
@@ -367,28 +389,6 @@ def _on_chief(processes: Processes, ids: Tensor, rows: Tensor) -> Tensor | None:
     placed = gathered.new_empty((len(gathered_ids), *gathered.shape[1:]))
     placed[gathered_ids] = gathered
     return placed
-
-
-def _particle_run(trajectory: Trajectory, processes: Processes) -> Trajectory:
-    """The trajectory's particles ``[r N / P, (r + 1) N / P)`` for rank r of P, the rest of it kept: a view of its
-    arrays (of a memory-mapped file, nothing is read until a frame of these particles is)."""
-    rows = slice(*_run_bounds(trajectory.num_particles, processes))
-    prop = trajectory.material_property
-    return replace(
-        trajectory,
-        position=trajectory.position[:, rows],
-        particle_type=trajectory.particle_type[rows],
-        material_property=None if prop is None else prop[rows],
-    )
-
-
-def _run_bounds(particles: int, processes: Processes) -> tuple[int, int]:
-    return particles * processes.rank // processes.world_size, particles * (processes.rank + 1) // processes.world_size
-
-
-def _run_ids(particles: int, processes: Processes) -> Tensor:
-    """(n,) int64 the scene's numbers of this process's run of particles (:func:`_particle_run`)."""
-    return torch.arange(*_run_bounds(particles, processes))
 
 
 def _recut(

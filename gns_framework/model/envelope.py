@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import cast
 
 import numpy as np
@@ -323,6 +323,115 @@ def _within(value: float, low: float, high: float, slack: float) -> bool:
     return low - slack <= value <= high + slack
 
 
+@dataclass(frozen=True)
+class SceneMeasures:
+    """What the envelope check reads of one scene's input, from a run of its particles: the runs of a scene split
+    over processes (:mod:`gns_framework.data.in_parts`) merge into what the whole scene gives (:meth:`merged`).
+
+    Attributes:
+        key: the trajectory's key; ``particles``: its particle count (the whole scene's).
+        spacing: particle spacing of frame 0's moving particles and of its fixed ones (None: fewer than two),
+            measured on the whole frame by the run that starts at particle 0 (None on the others).
+        types: particle types in the run; ``moving``: whether any of the run's particles moves.
+        speed: largest input speed of the run's moving particles (m/s).
+        properties: per material property column, (low, high) over the run's moving particles, and over all of
+            its particles (the scene's all count where none of the scene's particles moves); None: no properties.
+        lowest, highest: (d,) per axis, the moving particles' extremes over every frame (None: none moves).
+        extent: (d,) the domain's edge lengths; ``bounds`` (d, 2) its walls; ``walls`` the face conditions.
+    """
+
+    key: str
+    particles: int
+    spacing: tuple[float, float | None] | None
+    types: frozenset[int]
+    moving: bool
+    speed: float
+    properties: tuple[tuple[tuple[float, float], tuple[float, float]], ...] | None
+    lowest: tuple[float, ...] | None
+    highest: tuple[float, ...] | None
+    bounds: tuple[tuple[float, float], ...]
+    walls: tuple[tuple[float, float], ...] | None
+
+    def merged(self, other: SceneMeasures) -> SceneMeasures:
+        """The measures of both runs' particles together (runs of the same scene)."""
+
+        def extreme(pick, a, b):
+            return b if a is None else a if b is None else tuple(pick(x, y) for x, y in zip(a, b, strict=True))
+
+        def span(a: tuple[float, float], b: tuple[float, float]) -> tuple[float, float]:
+            return min(a[0], b[0]), max(a[1], b[1])
+
+        properties = self.properties
+        if self.properties is not None and other.properties is not None:
+            moving = [(m, o) for m, o in zip(self.properties, other.properties, strict=True)]
+            properties = tuple(
+                (span(a[0], b[0]) if self.moving and other.moving else a[0] if self.moving else b[0], span(a[1], b[1]))
+                for a, b in moving
+            )
+        return replace(
+            self,
+            spacing=self.spacing if self.spacing is not None else other.spacing,
+            types=self.types | other.types,
+            moving=self.moving or other.moving,
+            speed=max(self.speed, other.speed),
+            properties=properties,
+            lowest=extreme(min, self.lowest, other.lowest),
+            highest=extreme(max, self.highest, other.highest),
+        )
+
+
+def scene_measures(
+    trajectory: Trajectory,
+    metadata: DatasetMetadata,
+    history: int,
+    kinematic_types: Sequence[int] = (),
+    rows: slice | None = None,
+) -> SceneMeasures:
+    """The envelope check's measures of ``trajectory``'s particles ``rows`` (default: all); positions the scene
+    left unchecked are checked on them (:meth:`~gns_framework.data.trajectory.Trajectory.particles`). Only the
+    input, the first ``history`` frames, counts for speed; every frame for the walls the particles come near."""
+    kinematic = np.asarray(list(kinematic_types), dtype=np.int64)
+    run = trajectory.particles(rows if rows is not None else slice(None))
+    moving = ~np.isin(run.particle_type, kinematic)
+    spacing = None
+    if rows is None or rows.start in (None, 0):
+        frame = np.asarray(trajectory.position[0])
+        spacing = _spacings(frame, ~np.isin(trajectory.particle_type, kinematic))
+    properties = None
+    if run.material_property is not None:
+        columns = np.asarray(run.material_property, dtype=np.float64)
+        properties = tuple((_range(columns[moving, k]), _range(columns[:, k])) for k in range(columns.shape[1]))
+    lowest = highest = None
+    if moving.any():
+        low, high = [], []
+        for first in range(0, run.num_steps, 64):  # in chunks of frames: a mapped run is never copied whole
+            frames = np.asarray(run.position[first : first + 64])[:, moving]
+            low.append(frames.min(axis=(0, 1)))
+            high.append(frames.max(axis=(0, 1)))
+        lowest, highest = tuple(np.min(low, axis=0).tolist()), tuple(np.max(high, axis=0).tolist())
+    bounds = np.asarray(trajectory.bounds if trajectory.bounds is not None else metadata.bounds, dtype=np.float64)
+    return SceneMeasures(
+        key=trajectory.key,
+        particles=trajectory.num_particles,
+        spacing=spacing,
+        types=frozenset(int(t) for t in np.unique(run.particle_type)),
+        moving=bool(moving.any()),
+        speed=_speed(np.asarray(run.position[:history]), moving, metadata.dt),
+        properties=properties,
+        lowest=lowest,
+        highest=highest,
+        bounds=tuple((float(lo), float(hi)) for lo, hi in bounds),
+        walls=None
+        if trajectory.walls is None
+        else tuple(map(tuple, np.asarray(trajectory.walls, np.float64).tolist())),
+    )
+
+
+def _range(values: np.ndarray) -> tuple[float, float]:
+    """(low, high) of ``values``; (inf, -inf) when there are none, which any span absorbs."""
+    return (float(values.min()), float(values.max())) if values.size else (math.inf, -math.inf)
+
+
 def outside_envelope(
     envelope: Envelope,
     metadata: DatasetMetadata,
@@ -336,6 +445,14 @@ def outside_envelope(
     inputs are judged (its first ``history`` frames, the speeds among them): the
     frames after them are what the model is asked to predict.
     """
+    if metadata.dim != envelope.dim:
+        return [f"dimension {metadata.dim}D (trained: {envelope.dim}D)"]
+    measures = [scene_measures(t, metadata, history, kinematic_types) for t in trajectories]
+    return outside_envelope_of(envelope, metadata, measures)
+
+
+def outside_envelope_of(envelope: Envelope, metadata: DatasetMetadata, scenes: Sequence[SceneMeasures]) -> list[str]:
+    """:func:`outside_envelope` of scenes already measured (:func:`scene_measures`, runs merged)."""
     findings = _Findings()
     if metadata.dim != envelope.dim:
         findings.add("dimension", f"{metadata.dim}D", f"{envelope.dim}D")
@@ -343,12 +460,11 @@ def outside_envelope(
     if not math.isclose(metadata.dt, envelope.step_dt, rel_tol=DT_TOLERANCE):
         findings.add("learned step", f"{metadata.dt:.4g} s", f"{envelope.step_dt:.4g} s")
     trained_types = set(envelope.particle_types)
-    kinematic = np.asarray(list(kinematic_types), dtype=np.int64)
     axes = "xyz"
-    for trajectory in trajectories:
-        key = trajectory.key
-        moving = ~np.isin(trajectory.particle_type, kinematic)
-        spacing, boundary = _spacings(trajectory.position[0], moving)
+    for scene in scenes:
+        key = scene.key
+        assert scene.spacing is not None, "the run that starts at particle 0 measures the spacing"
+        spacing, boundary = scene.spacing
         if abs(spacing / envelope.particle_spacing - 1) > SPACING_TOLERANCE:
             findings.add(
                 "nearest-neighbour distance (median)",
@@ -365,45 +481,47 @@ def outside_envelope(
                     f"{lo:.4g} .. {hi:.4g} m +-{SPACING_TOLERANCE:.0%}",
                     key,
                 )
-        present = set(np.unique(trajectory.particle_type).tolist())
-        unknown = sorted(present - trained_types)
+        unknown = sorted(scene.types - trained_types)
         if unknown:
             findings.add("particle types", f"{unknown}", f"{envelope.particle_types}", key)
         for refused, reason in envelope.refused_types.items():
-            if int(refused) in present:
+            if int(refused) in scene.types:
                 material = envelope.materials.get(refused, "?")
                 findings.add(
                     f"{material} particles (type {refused})", "present", f"on them, but refused: {reason}", key
                 )
         low, high = envelope.particle_count
-        if not COUNT_SLACK[0] * low <= trajectory.num_particles <= COUNT_SLACK[1] * high:
+        if not COUNT_SLACK[0] * low <= scene.particles <= COUNT_SLACK[1] * high:
             findings.add(
                 "particle count",
-                f"{trajectory.num_particles}",
+                f"{scene.particles}",
                 f"{low} .. {high}, accepted {COUNT_SLACK[0]:g}x .. {COUNT_SLACK[1]:g}x",
                 key,
             )
-        speed = _speed(trajectory.position[:history], moving, metadata.dt)
-        if speed > SPEED_SLACK * envelope.max_speed:
+        if scene.speed > SPEED_SLACK * envelope.max_speed:
             findings.add(
-                "input speed", f"{speed:.3g} m/s", f"up to {envelope.max_speed:.3g} m/s, accepted {SPEED_SLACK:g}x", key
+                "input speed",
+                f"{scene.speed:.3g} m/s",
+                f"up to {envelope.max_speed:.3g} m/s, accepted {SPEED_SLACK:g}x",
+                key,
             )
-        extent = _extent(trajectory, metadata)
-        for axis, (value, (lo, hi)) in enumerate(zip(extent, envelope.extent, strict=True)):
+        bounds = np.asarray(scene.bounds, dtype=np.float64)
+        for axis, (value, (lo, hi)) in enumerate(zip(bounds[:, 1] - bounds[:, 0], envelope.extent, strict=True)):
             if not _within(value, lo, hi, 2 * envelope.particle_spacing):
                 findings.add(f"domain {axes[axis]} extent", f"{value:.4g} m", f"{lo:.4g} .. {hi:.4g} m", key)
-        if trajectory.material_property is not None:
-            for column, (name, (lo, hi)) in enumerate(envelope.properties.items()):
-                if column >= trajectory.material_property.shape[1]:
-                    break
-                values = _property_values(trajectory, column, moving)
+        if scene.properties is not None:
+            # The columns both the data and the envelope have: a missing column has no values to judge.
+            pairs = zip(envelope.properties.items(), scene.properties, strict=False)
+            for (name, (lo, hi)), (of_moving, of_all) in pairs:
+                values = of_moving if scene.moving else of_all
                 slack = PROPERTY_SLACK * max(hi - lo, abs(hi), 1e-12)
-                outside = values[(values < lo - slack) | (values > hi + slack)]
-                if outside.size:
-                    findings.add(f"property {name}", f"{float(outside[0]):.4g}", f"{lo:.4g} .. {hi:.4g}", key)
-        if envelope.walls is not None and trajectory.walls is not None:
-            reached = _faces_reached(trajectory, metadata, moving, REACH_SPACINGS * envelope.particle_spacing)
-            for index, (friction, no_slip) in enumerate(np.asarray(trajectory.walls, dtype=np.float64)):
+                if values[0] < lo - slack:
+                    findings.add(f"property {name}", f"{values[0]:.4g}", f"{lo:.4g} .. {hi:.4g}", key)
+                elif values[1] > hi + slack:
+                    findings.add(f"property {name}", f"{values[1]:.4g}", f"{lo:.4g} .. {hi:.4g}", key)
+        if envelope.walls is not None and scene.walls is not None:
+            reached = _faces_reached(scene, REACH_SPACINGS * envelope.particle_spacing)
+            for index, (friction, no_slip) in enumerate(scene.walls):
                 face = FACES[index]
                 seen = envelope.walls.get(face)
                 if seen is None or not reached[index]:
@@ -426,16 +544,13 @@ REACH_SPACINGS = 4
 """A face is judged when a moving particle comes within this many particle spacings of it at any frame."""
 
 
-def _faces_reached(trajectory: Trajectory, metadata: DatasetMetadata, moving: np.ndarray, reach: float) -> list[bool]:
+def _faces_reached(scene: SceneMeasures, reach: float) -> list[bool]:
     """Per face (``FACES`` order), whether a moving particle comes within ``reach`` of it in any frame."""
-    bounds = np.asarray(trajectory.bounds if trajectory.bounds is not None else metadata.bounds, dtype=np.float64)
-    position = np.asarray(trajectory.position)[:, moving]  # compared in the data's own precision: no float64 copy
-    if position.size == 0:
-        return [False] * (2 * bounds.shape[0])
-    lowest, highest = position.min(axis=(0, 1)), position.max(axis=(0, 1))
+    if scene.lowest is None or scene.highest is None:
+        return [False] * (2 * len(scene.bounds))
     reached = []
-    for axis in range(bounds.shape[0]):
-        reached += [bool(lowest[axis] <= bounds[axis, 0] + reach), bool(highest[axis] >= bounds[axis, 1] - reach)]
+    for (lower, upper), lowest, highest in zip(scene.bounds, scene.lowest, scene.highest, strict=True):
+        reached += [lowest <= lower + reach, highest >= upper - reach]
     return reached
 
 

@@ -420,3 +420,38 @@ def reading_worker(rank: int, world: int, port: int, out: str, name: str) -> Non
         (Path(out) / f"reads-{rank}.json").write_text(json.dumps(read))
     finally:
         stop()
+
+
+def in_parts_worker(rank: int, world: int, port: int, out: str, name: str, bad_particle: int) -> None:
+    """Open case ``name`` in parts (a lazy split; a NaN at ``bad_particle`` when >= 0), measure it for the envelope
+    and roll it out over ``world`` processes; ``<out>/in-parts-<rank>.pkl`` holds the measures and the rollout's
+    prediction, or each step's error."""
+    import pickle
+
+    from gns_framework.data.in_parts import scene_in_parts
+    from gns_framework.data.lazy import TrajectorySequence
+    from gns_framework.decomposition.envelope import measured_in_parts
+    from gns_framework.decomposition.rollout import partitioned_rollout
+    from gns_framework.errors import GnsError
+    from gns_framework.training.distributed import stop
+
+    processes = _join(rank, world, port)
+    raw = case_trajectory(name)
+    if bad_particle >= 0:
+        raw.position[3, bad_particle, 0] = np.nan
+    metadata, simulator = case_metadata(name), case_simulator(name)
+    split = TrajectorySequence([raw.key], lambda key: raw, f"{name}.npz", raw.dim)  # its particles drift out
+    found: dict[str, object] = {}
+    try:
+        try:
+            found["measures"] = measured_in_parts(split, 1, metadata, simulator.setup, processes)
+        except GnsError as exc:
+            found["measures"] = str(exc)
+        try:
+            rolled, _ = partitioned_rollout(simulator, scene_in_parts(split, 0), processes, steps=3, halo="latents")
+            found["rollout"] = None if rolled is None else rolled.predicted
+        except GnsError as exc:
+            found["rollout"] = str(exc)
+        (Path(out) / f"in-parts-{rank}.pkl").write_bytes(pickle.dumps(found))
+    finally:
+        stop()

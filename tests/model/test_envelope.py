@@ -277,3 +277,50 @@ def test_a_face_the_material_never_comes_near_is_not_judged():
     assert [p.split(" (")[0] for p in outside_envelope(ENVELOPE, _metadata(), [near], history=6)] == [
         "wall x_max friction 0.9 in trajectory 'k'"
     ]
+
+
+def _mixed(key: str = "m") -> Trajectory:
+    """A column whose friction varies from particle to particle, with a kinematic floor (type 3) listed first and a
+    few fast particles last: runs of its particles differ in every quantity."""
+    column = _column(0.3, 0.4, key=key)
+    n = column.num_particles
+    friction = np.linspace(0.3, 1.2, n, dtype=np.float32)[:, None]
+    types = np.where(np.arange(n) < n // 2, 3, 6)
+    position = column.position.copy()
+    position[:, -5:] -= np.arange(8, dtype=np.float32)[:, None, None] * np.float32([0.0, 0.03])
+    return replace(column, position=position, particle_type=types, material_property=friction)
+
+
+@pytest.mark.parametrize("parts", [1, 2, 3, 7])
+def test_measures_of_runs_merge_into_those_of_the_whole_scene(parts):
+    from functools import reduce
+
+    from gns_framework.data.in_parts import particle_run
+    from gns_framework.model.envelope import SceneMeasures, outside_envelope_of, scene_measures
+
+    scene, metadata = _mixed(), _metadata()
+    whole = scene_measures(scene, metadata, 6, kinematic_types=(3,))
+    runs = [
+        scene_measures(scene, metadata, 6, (3,), rows=particle_run(scene.num_particles, rank, parts))
+        for rank in range(parts)
+    ]
+    assert sum(run.spacing is not None for run in runs) == 1, "the run from particle 0 measures the spacing"
+    merged = reduce(SceneMeasures.merged, runs)
+    assert merged == whole
+    assert outside_envelope_of(ENVELOPE, metadata, [merged]) == outside_envelope(
+        ENVELOPE, metadata, [scene], 6, kinematic_types=(3,)
+    )
+    assert any("property friction" in line for line in outside_envelope_of(ENVELOPE, metadata, [merged]))
+    if parts > 1:
+        assert not runs[0].moving and runs[-1].moving, "the first run holds only the floor: the test needs that"
+        assert any(run.speed < merged.speed for run in runs)
+
+
+def test_a_property_below_and_above_the_trained_range_names_the_farthest_value():
+    low = replace(_column(0.1, 0.2, key="k"), material_property=np.full((200, 1), 0.2, np.float32))
+    (line,) = outside_envelope(ENVELOPE, _metadata(), [low], history=6)
+    assert line.startswith("property friction 0.2 in trajectory 'k'")
+    values = np.full((200, 1), 0.7, np.float32)
+    values[17] = 1.5
+    (line,) = outside_envelope(ENVELOPE, _metadata(), [replace(low, material_property=values)], history=6)
+    assert line.startswith("property friction 1.5 in trajectory 'k'")
