@@ -25,7 +25,7 @@ import torch
 from torch import Tensor
 
 from .space import CutOptions, check_parts, distance_to_interval, periodic_boxes
-from .work import quantile_cut
+from .work import halo_cut, quantile_cut
 
 CHUNK = 65_536
 """Particles compared with every box at once: (CHUNK, P, d) float64 temporaries, 100 MB at P = 64 in 3D."""
@@ -62,10 +62,11 @@ class BlockPartition:
         check_parts(parts)
         dim = int(position.shape[1])
         box = periodic_boxes(dim, options)
-        weight = options.get("weight")
+        weight, halo = options.get("weight"), options.get("halo_weight")
         lower: list[tuple[float, ...]] = []
         upper: list[tuple[float, ...]] = []
-        _bisect(position.detach().to(torch.float64), weight, parts, [-math.inf] * dim, [math.inf] * dim, lower, upper)
+        cutting = _Cutting(weight, halo, float(depth))
+        _bisect(position.detach().to(torch.float64), cutting, parts, [-math.inf] * dim, [math.inf] * dim, lower, upper)
         return cls(tuple(lower), tuple(upper), float(depth), tuple(box))
 
     def owner(self, position: Tensor) -> Tensor:
@@ -110,17 +111,35 @@ class BlockPartition:
         return lower, upper
 
 
+@dataclass(frozen=True)
+class _Cutting:
+    """What a bisection weighs of the particles it cuts: their work and their halo's (either None: not weighed)."""
+
+    weight: Tensor | None
+    halo: Tensor | None
+    depth: float
+
+    def cut(self, coordinate: Tensor, below: int, parts: int) -> float:
+        if self.halo is None:
+            return quantile_cut(coordinate, self.weight, below, parts)
+        return halo_cut(coordinate, self.weight, self.halo, self.depth, below, parts)
+
+    def select(self, rows: Tensor) -> _Cutting:
+        weight, halo = self.weight, self.halo
+        return _Cutting(None if weight is None else weight[rows], None if halo is None else halo[rows], self.depth)
+
+
 def _bisect(
     position: Tensor,
-    weight: Tensor | None,
+    cutting: _Cutting,
     parts: int,
     lower: list[float],
     upper: list[float],
     lowers: list[tuple[float, ...]],
     uppers: list[tuple[float, ...]],
 ) -> None:
-    """Append the ``parts`` boxes of the particles ``position`` (n, d) of ``weight`` (n,) inside ``[lower, upper)``,
-    lower side first."""
+    """Append the ``parts`` boxes of the particles ``position`` (n, d) inside ``[lower, upper)``, each cut where
+    ``cutting`` balances their work, lower side first."""
     if parts == 1:
         lowers.append(tuple(lower))
         uppers.append(tuple(upper))
@@ -130,13 +149,13 @@ def _bisect(
     if n:
         spread = position.max(0).values - position.min(0).values
         axis = int(torch.argmax(spread))
-        cut = quantile_cut(position[:, axis], weight, below, parts)
+        cut = cutting.cut(position[:, axis], below, parts)
     else:
         # No particle left to share (fewer particles than processes): the boxes only need to tile space.
         axis = 0
         cut = _middle(lower[axis], upper[axis])
     first = position[:, axis] < cut
-    mine, theirs = (None, None) if weight is None else (weight[first], weight[~first])
+    mine, theirs = cutting.select(first), cutting.select(~first)
     _bisect(position[first], mine, below, lower, [*upper[:axis], cut, *upper[axis + 1 :]], lowers, uppers)
     _bisect(position[~first], theirs, parts - below, [*lower[:axis], cut, *lower[axis + 1 :]], upper, lowers, uppers)
 

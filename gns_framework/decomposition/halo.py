@@ -29,6 +29,7 @@ from ..model.learned_simulator import LearnedSimulator
 from .exchange import Routing
 from .particles import Particles
 from .partition import Cut, Partition, balanced_partition
+from .space import CutOptions
 from .work import particle_work
 
 HaloKind = Literal["auto", "positions", "latents"]
@@ -96,11 +97,15 @@ def partition_for(
     cut: Cut = "auto",
     weight: Tensor | None = None,
     by_work: bool = True,
+    halo_weight: Tensor | None = None,
 ) -> tuple[Partition, Literal["positions", "latents"]]:
     """Pieces of equal work of the scene at ``position`` (N, d) (each particle one plus the edges it receives in
     the model's graph, :func:`.work.particle_work`, unless ``weight`` gives it), cut as ``cut`` says
-    (:func:`.partition.balanced_partition`), with the halo ``halo`` resolves to. ``by_work`` False: pieces of
-    equal particle count (a training step cuts its windows afresh every step: weighing them would add a graph).
+    (:func:`.partition.balanced_partition`), with the halo ``halo`` resolves to. Each cut also weighs the halo it
+    makes (:func:`.work.halo_cut`): ``halo_weight`` (N,), by default each particle's work for a halo of positions
+    (the piece computes its edges too) and one for a halo of latents (a node). ``by_work`` False: pieces of
+    equal particle count, halos not weighed (a training step cuts its windows afresh every step: weighing them
+    would add a graph).
     """
     kind = halo_kind(simulator, halo)
     setup = simulator.setup
@@ -108,10 +113,10 @@ def partition_for(
     if weight is None and by_work:  # from the whole scene's graph (a re-cut passes what each process weighed)
         with torch.no_grad():
             weight = particle_work(simulator.graph_builder, position)
-    partition = balanced_partition(
-        position, parts, depth, cut, axis, periodic_dims=setup.periodic_dims, bounds=setup.bounds, weight=weight
-    )
-    return partition, kind
+    if by_work and halo_weight is None:
+        halo_weight = weight if kind == "positions" else torch.ones(len(position), device=position.device)
+    options = CutOptions(periodic_dims=setup.periodic_dims, bounds=setup.bounds, weight=weight, halo_weight=halo_weight)
+    return balanced_partition(position, parts, depth, cut, axis, **options), kind
 
 
 @dataclass(frozen=True)

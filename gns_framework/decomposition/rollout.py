@@ -236,8 +236,8 @@ def _roll(
     start = window(_checked_run(trajectory, run, processes, device), 0, history, with_target=False)
     ids = torch.arange(run.start, run.stop)
     owned = Particles(ids, start.position_sequence, start.particle_type, start.material_property).to(device)
-    centres, counts = work_summary(owned.sequence[:, -1], torch.ones(owned.count), total, processes)
-    partition, kind = partition_for(simulator, centres, world, halo, axis, cut, weight=counts)
+    centres, _, counts = work_summary(owned.sequence[:, -1], torch.ones(owned.count), total, processes)
+    partition, kind = partition_for(simulator, centres, world, halo, axis, cut, weight=counts, halo_weight=counts)
     owned, _ = _migrate(owned, partition, processes)
     partition, owned, _ = _recut(simulator, owned, partition, processes, kind, axis, cut, total)
     output.begin(owned, steps, total)
@@ -408,8 +408,11 @@ def _recut(
     (:func:`.work.work_summary`, one sum): no process builds the whole scene's graph or holds its frame.
     """
     work = _owned_work(simulator, owned, partition, processes)
-    centres, cell_work = work_summary(owned.sequence[:, -1], work, particles, processes)
-    partition, _ = partition_for(simulator, centres, processes.world_size, kind, axis, cut, weight=cell_work)
+    centres, cell_work, cell_count = work_summary(owned.sequence[:, -1], work, particles, processes)
+    halo_weight = cell_work if kind == "positions" else cell_count  # a halo particle: its edges too, or a node
+    partition, _ = partition_for(
+        simulator, centres, processes.world_size, kind, axis, cut, weight=cell_work, halo_weight=halo_weight
+    )
     owned, moved = _migrate(owned, partition, processes)
     return partition, owned, moved
 

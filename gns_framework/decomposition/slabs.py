@@ -17,7 +17,7 @@ import torch
 from torch import Tensor
 
 from .space import CutOptions, check_parts, distance_to_interval, periodic_boxes
-from .work import quantile_cut
+from .work import halo_cut, quantile_cut
 
 
 @dataclass(frozen=True)
@@ -61,8 +61,11 @@ class SlabPartition:
             axis = max(range(len(spread)), key=lambda k: spread[k])
         box = boxes[axis]
         coordinate = position[:, axis].to(torch.float64)
-        weight = options.get("weight")
-        cuts = tuple(quantile_cut(coordinate, weight, k, parts) for k in range(1, parts)) if len(coordinate) else ()
+        weight, halo = options.get("weight"), options.get("halo_weight")
+        if halo is not None:
+            cuts = tuple(_halo_cuts(coordinate, weight, halo, depth, parts))
+        else:
+            cuts = tuple(quantile_cut(coordinate, weight, k, parts) for k in range(1, parts)) if len(coordinate) else ()
         return cls(axis=axis, cuts=cuts, depth=float(depth), box=box)
 
     def owner(self, position: Tensor) -> Tensor:
@@ -87,3 +90,20 @@ class SlabPartition:
         near = distance <= self.depth
         near[torch.arange(position.shape[0], device=position.device), self.owner(position)] = False
         return near
+
+
+def _halo_cuts(
+    coordinate: Tensor, weight: Tensor | None, halo: Tensor, depth: float, parts: int, fallback: float = 0.0
+) -> list[float]:
+    """The ``parts - 1`` cuts of the particles at ``coordinate`` (n,) by bisection, each cut weighing the halo it
+    makes (:func:`.work.halo_cut`); a side without particles takes its parent's cut, ``fallback``."""
+    if parts == 1:
+        return []
+    if len(coordinate) == 0:
+        return [fallback] * (parts - 1)
+    below = parts // 2
+    cut = halo_cut(coordinate, weight, halo, depth, below, parts)
+    first = coordinate < cut
+    mine, theirs = (None, None) if weight is None else (weight[first], weight[~first])
+    lower = _halo_cuts(coordinate[first], mine, halo[first], depth, below, cut)
+    return [*lower, cut, *_halo_cuts(coordinate[~first], theirs, halo[~first], depth, parts - below, cut)]

@@ -12,12 +12,16 @@ class CutOptions(TypedDict, total=False):
     """How slabs and blocks are cut beyond the positions, the piece count and the halo depth.
 
     ``periodic_dims``: the dimensions that wrap around, within ``bounds`` (d (low, high) pairs, length units);
-    ``weight``: (N,) each particle's work (:mod:`.work`), default one each (the particle count).
+    ``weight``: (N,) each particle's work (:mod:`.work`), default one each (the particle count);
+    ``halo_weight``: (N,) the work each particle costs a piece that holds it as halo (a halo of positions: its
+    own work; of latents: one node), so that every cut weighs the halo it makes (:func:`.work.halo_cut`);
+    None: halos are not weighed.
     """
 
     periodic_dims: tuple[int, ...]
     bounds: tuple[tuple[float, float], ...] | None
     weight: Tensor | None
+    halo_weight: Tensor | None
 
 
 def check_parts(parts: int) -> None:

@@ -31,7 +31,8 @@ def test_the_runs_cover_every_particle_once_in_order(particles, world):
 def test_a_scene_in_parts_leaves_its_positions_to_the_runs_and_each_run_checks_only_its_own():
     raw = _scene()
     raw.position[3, 8, 1] = np.nan  # particle 8: the last run's
-    split = TrajectorySequence(["scene"], lambda key: raw, "data/test.npz", DomainCheck(np.array([[0, 1], [0, 1]]), 0.1))
+    domain = DomainCheck(np.array([[0.0, 1.0], [0.0, 1.0]]), 0.1)
+    split = TrajectorySequence(["scene"], lambda key: raw, "data/test.npz", domain)
     with pytest.raises(DatasetError, match="non-finite value at frame 3, particle 8"):
         split[0]  # checked whole
     scene = scene_in_parts(split, 0)

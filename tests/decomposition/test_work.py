@@ -3,6 +3,7 @@ loose spray gets pieces of equal work, not of equal particle count."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from gns_builtins.graph_builders.no_edges import NoEdgesGraphBuilder
@@ -85,9 +86,9 @@ def test_the_work_summary_keeps_the_whole_work_and_cuts_pieces_balanced_to_withi
 
     position = _pile_and_spray()
     work = particle_work(RadiusGraphBuilder(RadiusGraphBuilder.Params(), SETUP), position)
-    centres, cell_work = work_summary(position, work, len(position), Processes())
-    assert torch.isclose(cell_work.sum(), work.sum(), rtol=1e-12)
-    assert (cell_work > 0).all() and len(centres) <= len(position)  # occupied cells only
+    centres, cell_work, cell_count = work_summary(position, work, len(position), Processes())
+    assert torch.isclose(cell_work.sum(), work.sum(), rtol=1e-12) and int(cell_count.sum()) == len(position)
+    assert (cell_count >= 1).all() and len(centres) <= len(position)  # occupied cells only
     slices = [torch.unique(centres[:, axis], return_inverse=True)[1] for axis in range(2)]
     heaviest_slice = max(float(torch.bincount(s, weights=cell_work).max()) for s in slices) / float(work.sum())
     assert heaviest_slice < 0.05, "the grid must be fine enough for the bound below to mean something"
@@ -98,3 +99,44 @@ def test_the_work_summary_keeps_the_whole_work_and_cuts_pieces_balanced_to_withi
         by_cells = balanced_partition(centres, 4, 0.05, cut)  # every occupied cell alike: not the work
         off = torch.bincount(by_cells.owner(position), weights=work, minlength=4) / work.sum()
         assert (off - 0.25).abs().max() > 4 * heaviest_slice, "the test needs cells unlike in work"
+
+
+def _slowest_piece(partition, position: torch.Tensor, builder, kind: str) -> float:
+    """The work of the busiest piece: its own particles and, computed beside them, its halo (with a halo of
+    positions each halo particle with its edges, measured on the piece's own graph; of latents one node each)."""
+    owner, halo = partition.owner(position), partition.halo_of(position)
+    busiest = 0.0
+    for r in range(partition.parts):
+        own = owner == r
+        local = own | halo[:, r]
+        work = particle_work(builder, position[local])
+        total = work.sum() if kind == "positions" else work[own[local]].sum() + (~own[local]).sum()
+        busiest = max(busiest, float(total))
+    return busiest
+
+
+def test_a_cut_weighs_the_halo_it_makes():
+    from gns_framework.decomposition.work import halo_cut
+
+    coordinate = torch.arange(10, dtype=torch.float64)
+    # Without halo work the middle; a side gets the 3 particles within depth 3 across the cut as its halo.
+    halo = torch.zeros(10, dtype=torch.float64)
+    assert halo_cut(coordinate, None, halo, 3.0, 1, 2) == quantile_cut(coordinate, None, 1, 2) == 5.0
+    # Heavy halo on the right (particles 5-9 cost 10 each as halo): the left side, which holds some of them as
+    # halo, keeps fewer particles of its own.
+    heavy = torch.where(coordinate >= 5, 10.0, 0.0).double()
+    assert halo_cut(coordinate, None, heavy, 3.0, 1, 2) < 5.0
+
+
+@pytest.mark.parametrize("cut", ["slabs", "blocks"])
+def test_pieces_that_weigh_their_halo_finish_sooner_with_a_deep_halo_of_positions(cut):
+    """A deep halo of positions (depth 0.1, the pile's width): the pile's pieces compute most of it as halo.
+    Weighing the halo each cut makes shortens the busiest piece's work, which sets the step's time."""
+    position = _pile_and_spray()
+    builder = RadiusGraphBuilder(RadiusGraphBuilder.Params(), SETUP)
+    work = particle_work(builder, position)
+    own_only = balanced_partition(position, 4, 0.1, cut, weight=work)
+    with_halo = balanced_partition(position, 4, 0.1, cut, weight=work, halo_weight=work)
+    before = _slowest_piece(own_only, position, builder, "positions")
+    after = _slowest_piece(with_halo, position, builder, "positions")
+    assert after < 0.9 * before, (cut, before, after)
