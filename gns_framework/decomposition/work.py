@@ -80,9 +80,7 @@ SUMMARY_CELLS = 1 << 21
 """Most cells in a work summary's grid (their work and particle counts: 32 MB of float64 to sum over the processes)."""
 
 
-def work_summary(
-    position: Tensor, work: Tensor, particles: int, processes: Processes
-) -> tuple[Tensor, Tensor, Tensor]:
+def work_summary(position: Tensor, work: Tensor, particles: int, processes: Processes) -> tuple[Tensor, Tensor, Tensor]:
     """The whole scene's work on a coarse grid, from this process's own particles at ``position`` (n, d) with
     ``work`` (n,): (M, d) float64 centres of the occupied cells, (M,) their summed work and (M,) their particle
     counts, the same on every process. The grid spans the scene's box (one small gather of each process's corners)
