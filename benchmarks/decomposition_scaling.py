@@ -276,6 +276,26 @@ H200 = {
     "memory_bytes": 139e9,
     "parameters": 1.6e6,
 }
+GPU_RESULTS = Path(__file__).resolve().parents[1] / "docs" / "gpu_results.json"
+
+
+def gpu_terms(results: Path = GPU_RESULTS) -> tuple[dict[str, float], str]:
+    """The per-particle step times the projection scales, and where they come from: the newest device run in
+    ``results`` (benchmarks/gpu_results.py's records) that timed a rollout and a training step at the same
+    particle count (its largest), else the first H200 run (:data:`H200`). Memory per particle stays the first
+    run's, which a record does not hold."""
+    runs = json.loads(results.read_text()) if results.is_file() else []
+    for run in reversed(runs):
+        timed = set(run.get("rollout_ms") or {}) & set(run.get("training_ms") or {})
+        if timed:
+            n = max(timed, key=int)
+            terms = dict(H200)
+            terms["rollout_seconds_per_particle"] = run["rollout_ms"][n] / 1e3 / int(n)
+            terms["train_seconds_per_particle"] = run["training_ms"][n] / 1e3 / int(n)
+            return terms, f"{run['device']}, {run['date']} ({run['commit'][:7]}), {int(n):,} particles, {results.name}"
+    return dict(H200), "H200, 2026-12-04, 1,000,000 particles (docs/performance.md)"
+
+
 LINK = {"latency_s": 20e-6, "bytes_per_s": 25e9}
 """Between nodes: InfiniBand NDR (200 Gb/s, ~25 GB/s) and ~20 us per exchange; NVLink within a node is faster."""
 RADIUS_IN_SITES_3D = 0.015 / 0.0085
@@ -304,7 +324,9 @@ def lattice_halo_fractions(particles: float, aspect: float, depth: float, gpus: 
     return shares
 
 
-def projection(particles: float, aspect: float, hops: int, gpus: list[int], cut: str = "slabs") -> list[dict]:
+def projection(
+    particles: float, aspect: float, hops: int, gpus: list[int], cut: str = "slabs", terms: dict | None = None
+) -> list[dict]:
     """Step time and memory per GPU of a 3D scene split into P pieces (``cut``: slabs or blocks) on P H200s.
 
     The scene is a lattice ``aspect`` times as long as its square cross-section. Each piece
@@ -313,8 +335,10 @@ def projection(particles: float, aspect: float, hops: int, gpus: list[int], cut:
     A step costs the GPU's time per particle for N / P (1 + h) particles, plus the exchanges:
     the halo's positions (C x 3 float32 each), the predicted frame gathered on rank 0
     (rollout), the gradients' all-reduce (training; ring: twice the parameters' bytes), at
-    :data:`LINK`'s rate; with a halo of latents, 128 bfloat16 per halo particle after each hop.
+    :data:`LINK`'s rate; with a halo of latents, 128 bfloat16 per halo particle after each hop. ``terms``: the
+    GPU's per-particle figures (:func:`gpu_terms`; default: the first H200 run's).
     """
+    gpu = H200 if terms is None else terms
     deep = lattice_halo_fractions(particles, aspect, hops * RADIUS_IN_SITES_3D, gpus, cut)
     shallow = lattice_halo_fractions(particles, aspect, RADIUS_IN_SITES_3D, gpus, cut)
     rows = []
@@ -322,10 +346,10 @@ def projection(particles: float, aspect: float, hops: int, gpus: list[int], cut:
         per_gpu = particles / p * (1 + halo)
         halo_bytes = particles / p * halo * HISTORY * 3 * 4
         rollout_link = 3 * LINK["latency_s"] + (halo_bytes + particles / p * 3 * 4) / LINK["bytes_per_s"]
-        train_link = 2 * LINK["latency_s"] + (halo_bytes + 2 * 4 * H200["parameters"]) / LINK["bytes_per_s"]
-        train_bytes = per_gpu * H200["train_bytes_per_particle"]
-        ideal = particles / p * H200["train_seconds_per_particle"]
-        train_seconds = per_gpu * H200["train_seconds_per_particle"] + train_link
+        train_link = 2 * LINK["latency_s"] + (halo_bytes + 2 * 4 * gpu["parameters"]) / LINK["bytes_per_s"]
+        train_bytes = per_gpu * gpu["train_bytes_per_particle"]
+        ideal = particles / p * gpu["train_seconds_per_particle"]
+        train_seconds = per_gpu * gpu["train_seconds_per_particle"] + train_link
         latent_link = hops * (LINK["latency_s"] + particles / p * thin * 128 * 2 / LINK["bytes_per_s"])
         per_gpu_shallow = particles / p * (1 + thin)
         rows.append(
@@ -334,18 +358,18 @@ def projection(particles: float, aspect: float, hops: int, gpus: list[int], cut:
                 "cut": cut,
                 "halo_fraction": halo,
                 "halo_fraction_latents": thin,
-                "rollout_seconds": per_gpu * H200["rollout_seconds_per_particle"] + rollout_link,
+                "rollout_seconds": per_gpu * gpu["rollout_seconds_per_particle"] + rollout_link,
                 "train_seconds": train_seconds,
                 "train_efficiency": ideal / train_seconds,
-                "rollout_seconds_latents": per_gpu_shallow * H200["rollout_seconds_per_particle"]
+                "rollout_seconds_latents": per_gpu_shallow * gpu["rollout_seconds_per_particle"]
                 + rollout_link
                 + latent_link,
-                "train_seconds_latents": per_gpu_shallow * H200["train_seconds_per_particle"]
+                "train_seconds_latents": per_gpu_shallow * gpu["train_seconds_per_particle"]
                 + train_link
                 + 2 * latent_link,
                 "train_gb_per_gpu": train_bytes / 1e9,
-                "train_gb_per_gpu_latents": per_gpu_shallow * H200["train_bytes_per_particle"] / 1e9,
-                "fits": train_bytes < H200["memory_bytes"],
+                "train_gb_per_gpu_latents": per_gpu_shallow * gpu["train_bytes_per_particle"] / 1e9,
+                "fits": train_bytes < gpu["memory_bytes"],
             }
         )
     return rows
@@ -410,13 +434,15 @@ def main(argv: list[str] | None = None) -> int:
                 f"training {row['train_peak_mb_per_process']:.0f} MB{note}",
                 flush=True,
             )
+    terms, source = gpu_terms()
     print(
         f"\nprojection: the paper's model (10 x 128, bfloat16, recomputed activations) on a 3D scene of "
-        f"{args.project_particles:.3g} particles, {args.project_aspect:g}x as long as wide, on P H200s:"
+        f"{args.project_particles:.3g} particles, {args.project_aspect:g}x as long as wide, on P GPUs "
+        f"timed as in {source}:"
     )
     projected = []
     for cut in ("slabs", "blocks"):
-        rows_of_cut = projection(args.project_particles, args.project_aspect, 10, args.project_gpus, cut)
+        rows_of_cut = projection(args.project_particles, args.project_aspect, 10, args.project_gpus, cut, terms)
         projected += rows_of_cut
         for row in rows_of_cut:
             print(
