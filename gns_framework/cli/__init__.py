@@ -92,6 +92,14 @@ def _run(argv: list[str], commands: dict[str, Command] | None) -> int:
     except KeyboardInterrupt:
         print(f"gns {args.command}: interrupted", file=sys.stderr)
         return 130
+    except MemoryError:
+        # What the command holds did not fit what this process may use: a resource, not a bug to trace back.
+        print(
+            f"gns {args.command}: error: out of memory: what this command holds does not fit the memory this "
+            "process may use (a scene split over processes needs less in each: docs/domain_decomposition.md)",
+            file=sys.stderr,
+        )
+        return 1
     except BrokenPipeError:
         # The reader of stdout left (``gns plugins --json | head``): not an error of the command. Python
         # would report the failed flush of stdout at exit, so stdout goes to nowhere from here on.

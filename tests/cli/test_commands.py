@@ -82,3 +82,20 @@ def test_a_record_that_is_not_a_command_is_refused_naming_its_plugin():
 
     with pytest.raises(PluginError, match=r"plugin 'tuple-plugin' .* returned \('sieve'.*not a .*Command"):
         load_commands(load_entry_points=False, plugins=[("tuple-plugin", TuplePlugin)])
+
+
+def test_a_command_out_of_memory_ends_with_one_line(tmp_path, monkeypatch, capsys):
+    (tmp_path / "greedy_command.py").write_text(
+        "def add_arguments(parser):\n    pass\n\n\ndef run(args):\n    raise MemoryError\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+
+    class GreedyPlugin:
+        @staticmethod
+        @hookimpl
+        def gns_commands():
+            return [Command("greedy", "hold too much", "greedy_command")]
+
+    assert main(["greedy"], commands=load_commands(plugins=[("greedy-plugin", GreedyPlugin)])) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("gns greedy: error: out of memory: ") and err.count("\n") == 1, err
