@@ -18,7 +18,8 @@ Every step, on every process (rank r of P):
 5. **rebalance**: when a process now holds more than ``rebalance`` times its share of the
    particles (they crowd as a column collapses or a flow runs out), the pieces are cut afresh
    from the scene's work on a coarse grid (:func:`.work.work_summary`: no process holds the
-   whole frame), and the particles whose owner changed migrate.
+   whole frame), each cut weighing the halo it makes too (:func:`.work.halo_cut`), and the
+   particles whose owner changed migrate.
    Ownership changes nothing in the predictions, only who computes them.
 
 With a halo of positions, its outermost particles miss some of their own neighbours, but what
