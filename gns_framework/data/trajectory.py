@@ -133,11 +133,11 @@ class Trajectory:
                 raise DatasetError(
                     f"{where}: walls: expected friction >= 0 and a no-slip flag 0 or 1 per face, got {walls.tolist()}"
                 )
-        if n > 1 and not np.ptp(pos[0], axis=0).any():  # frame 0 only: NaN there leaves it to the check below
-            raise DatasetError(f"{where}: position: all {n} particles of frame 0 are at one point {pos[0, 0].tolist()}")
         check = PositionCheck(where, bounds, domain)
         if not in_parts:
-            check.check(pos)
+            check.check(pos)  # a non-finite value first: it is what makes any other check of it meaningless
+        if n > 1 and not np.ptp(pos[0], axis=0).any():  # frame 0 only: NaN there leaves it to the runs' check
+            raise DatasetError(f"{where}: position: all {n} particles of frame 0 are at one point {pos[0, 0].tolist()}")
         pos = pos.astype(np.float32, copy=False)
         return Trajectory(pos, ptype, prop, ctx, self.key, bounds, walls, check if in_parts else None)
 
