@@ -29,17 +29,25 @@ def run(args):
 '''
 
 
+def _providing(*commands: Command) -> type:
+    """A plugin whose ``gns_commands`` hook returns ``commands``."""
+
+    class Plugin:
+        @staticmethod
+        @hookimpl
+        def gns_commands():
+            return list(commands)
+
+    return Plugin
+
+
 def test_a_plugin_adds_a_command_that_help_lists_and_gns_runs(tmp_path, monkeypatch, capsys):
     (tmp_path / "sieve_command.py").write_text(COMMAND_MODULE)
     monkeypatch.syspath_prepend(str(tmp_path))
 
-    class SievePlugin:
-        @staticmethod
-        @hookimpl
-        def gns_commands():
-            return [Command("sieve", "count the grains", "sieve_command")]
-
-    commands = load_commands(plugins=[("sieve-plugin", SievePlugin)])
+    commands = load_commands(
+        plugins=[("sieve-plugin", _providing(Command("sieve", "count the grains", "sieve_command")))]
+    )
     assert next(iter(commands)) == "demo" and list(commands)[-1] == "sieve"  # built-ins first
     assert main(["sieve", "--grains", "7"], commands=commands) == 0
     assert "sieved 7 grains" in capsys.readouterr().out
@@ -47,14 +55,9 @@ def test_a_plugin_adds_a_command_that_help_lists_and_gns_runs(tmp_path, monkeypa
         main(["--help"], commands=commands)
     assert "count the grains" in capsys.readouterr().out
 
-    class ClashingPlugin:
-        @staticmethod
-        @hookimpl
-        def gns_commands():
-            return [Command("train", "another train", "sieve_command")]
-
+    clashing = _providing(Command("train", "another train", "sieve_command"))
     with pytest.raises(PluginError, match=r"two gns commands are named 'train'.*clash-plugin"):
-        load_commands(plugins=[("clash-plugin", ClashingPlugin)])
+        load_commands(plugins=[("clash-plugin", clashing)])
 
 
 def test_the_built_in_commands_come_in_their_order_from_gns_framework():
@@ -90,12 +93,7 @@ def test_a_command_out_of_memory_ends_with_one_line(tmp_path, monkeypatch, capsy
     )
     monkeypatch.syspath_prepend(str(tmp_path))
 
-    class GreedyPlugin:
-        @staticmethod
-        @hookimpl
-        def gns_commands():
-            return [Command("greedy", "hold too much", "greedy_command")]
-
-    assert main(["greedy"], commands=load_commands(plugins=[("greedy-plugin", GreedyPlugin)])) == 1
+    greedy = _providing(Command("greedy", "hold too much", "greedy_command"))
+    assert main(["greedy"], commands=load_commands(plugins=[("greedy-plugin", greedy)])) == 1
     err = capsys.readouterr().err
     assert err.startswith("gns greedy: error: out of memory: ") and err.count("\n") == 1, err
