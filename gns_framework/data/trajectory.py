@@ -75,9 +75,9 @@ class Trajectory:
     def particles(self, rows: slice) -> Trajectory:
         """The particles ``rows`` (every frame of them), the rest kept; positions still unchecked are checked on these
         particles only, so of a memory-mapped scene nothing else is read."""
-        prop = self.material_property
-        part = replace(self, position=self.position[:, rows], particle_type=self.particle_type[rows], unchecked=None)
-        part = replace(part, material_property=None if prop is None else prop[rows])
+        prop = None if self.material_property is None else self.material_property[rows]
+        position, particle_type = self.position[:, rows], self.particle_type[rows]
+        part = replace(self, position=position, particle_type=particle_type, material_property=prop, unchecked=None)
         if self.unchecked is not None:
             self.unchecked.check(part.position, first_particle=rows.indices(self.num_particles)[0])
         return part
