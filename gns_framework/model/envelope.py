@@ -337,7 +337,7 @@ class SceneMeasures:
         properties: per material property column, (low, high) over the run's moving particles, and over all of
             its particles (the scene's all count where none of the scene's particles moves); None: no properties.
         lowest, highest: (d,) per axis, the moving particles' extremes over every frame (None: none moves).
-        extent: (d,) the domain's edge lengths; ``bounds`` (d, 2) its walls; ``walls`` the face conditions.
+        bounds: (d, 2) the domain's walls (its edge lengths are its extent); ``walls`` the face conditions.
     """
 
     key: str
@@ -363,11 +363,9 @@ class SceneMeasures:
 
         properties = self.properties
         if self.properties is not None and other.properties is not None:
-            moving = [(m, o) for m, o in zip(self.properties, other.properties, strict=True)]
-            properties = tuple(
-                (span(a[0], b[0]) if self.moving and other.moving else a[0] if self.moving else b[0], span(a[1], b[1]))
-                for a, b in moving
-            )
+            # A run without moving particles has the empty range (inf, -inf), which a span absorbs.
+            pairs = zip(self.properties, other.properties, strict=True)
+            properties = tuple((span(a[0], b[0]), span(a[1], b[1])) for a, b in pairs)
         return replace(
             self,
             spacing=self.spacing if self.spacing is not None else other.spacing,
