@@ -32,6 +32,7 @@ from ..io.rollout_file import write_rollout
 from ..io.run_folder import RunFolder
 from ..io.sharded_rollout import SUFFIX, is_sharded_rollout
 from ..model.batched_rollout import rollout_batch
+from ..model.capacity_classes import CaptureClasses
 from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import rollout
 from ..model.rollout_guard import RolloutGuard
@@ -138,8 +139,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="replay each step from one captured step: a CUDA graph on a GPU, one launch per step instead of "
         "hundreds (on a CPU an emulation, for tests, not faster); the model's graph builder must not wait for the "
-        "device (graph builder radius_fixed_capacity; grid_cnn cannot be captured yet); with --batch, one capture per "
-        "batch; not with --partitions",
+        "device (graph builder radius_fixed_capacity; grid_cnn cannot be captured yet); with --batch, each batch is "
+        "padded to a capacity class (particles rounded up by at most 25%%) and the batches of a class replay one "
+        "capture; not with --partitions",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_overwrite(parser, "write into --out even when it holds something other than rollouts")
@@ -296,6 +298,7 @@ def _rollouts(job: _Job, args, processes: Processes, output: _Output):
             )
         return
     # Consecutive trajectories of one length form a batch, so every scene still runs to its own end.
+    capture = CaptureClasses(args.batch) if args.capture else False
     start = 0
     while start < job.count:
         length = trajectories[start].num_steps
@@ -304,7 +307,7 @@ def _rollouts(job: _Job, args, processes: Processes, output: _Output):
             stop += 1
         group = [trajectories[i] for i in range(start, stop)]
         results = rollout_batch(
-            job.simulator, group, job.steps, job.device, guard=job.guard, precision=args.precision, capture=args.capture
+            job.simulator, group, job.steps, job.device, guard=job.guard, precision=args.precision, capture=capture
         )
         yield from zip(range(start, stop), results, strict=True)
         start = stop

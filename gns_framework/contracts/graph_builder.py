@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Hashable, Iterator
+from contextlib import contextmanager
 from typing import Any, ClassVar
 
 from torch import Tensor
@@ -48,7 +50,8 @@ class GraphBuilder(ABC):
 
     @abstractmethod
     def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:
-        """Connect particles of the same example.
+        """Connect particles of the same example. A particle whose position is not finite joins no edge (a batch
+        padded to a capacity class carries such rows: :mod:`gns_framework.model.capacity_classes`).
 
         Args:
             position: (N, d) current positions.
@@ -65,3 +68,13 @@ class GraphBuilder(ABC):
         its last call. A rollout calls it every few steps. Builders of exact size never overflow.
         """
         return False
+
+    @contextmanager
+    def buffers(self, key: Hashable) -> Iterator[None]:
+        """Builds within use the buffers of fixed size kept for ``key``.
+
+        A batched rollout keeps one captured step per capacity class; each replays the
+        buffers it was captured with and must be checked by :meth:`overflowed` against
+        those, not against another class's. Builders of exact size have no buffers.
+        """
+        yield

@@ -14,9 +14,10 @@ and its kinematic particles follow their prescribed positions.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 from collections.abc import Sequence
-from contextlib import closing
+from contextlib import AbstractContextManager, closing
 from dataclasses import replace
 
 import numpy as np
@@ -26,6 +27,8 @@ from ..data.batch import collate, window
 from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..runtime.precision import Precision
+from .capacity_classes import CaptureClasses, padded, particle_capacity
+from .captured_steps import CapturedSteps
 from .learned_simulator import LearnedSimulator
 from .rollout import check_simulates, sound_frames
 from .rollout_guard import GuardViolation, RolloutGuard
@@ -64,14 +67,16 @@ def rollout_batch(
     device: torch.device | str = "cpu",
     guard: RolloutGuard | None = None,
     precision: Precision = "float32",
-    capture: bool = False,
+    capture: bool | CaptureClasses = False,
 ) -> list[Rollout]:
     """Predict ``steps`` frames of every trajectory from its first C, all scenes in one batch per step.
 
     ``steps`` defaults to the shortest trajectory's frames after the C inputs (every
     scene is rolled out as far as all of them go). Returns one :class:`Rollout` per
     trajectory, in order, each with the guard's violations of its own particles.
-    ``capture`` replays one captured step for the whole batch, as :func:`~.rollout.rollout` does for one scene.
+    ``capture`` replays one captured step for the whole batch, as :func:`~.rollout.rollout` does for one scene;
+    :class:`~.capacity_classes.CaptureClasses` pads the batch to its capacity class and replays the class's capture
+    (made by the first batch of the class: batches of similar size share one).
     """
     if not trajectories:
         return []
@@ -84,26 +89,43 @@ def rollout_batch(
         raise ValueError(f"the shortest trajectory has {available + history} frames; rollout needs more than {history}")
     trajectories = _same_fields(simulator, trajectories)
     device = torch.device(device)
-    guard = guard if guard is not None else RolloutGuard(simulator.setup)
+    guard = base_guard = guard if guard is not None else RolloutGuard(simulator.setup)
     if trajectories[0].bounds is not None:  # all of them have their own box, or none (the model's)
         guard = guard.with_bounds(_per_particle_bounds(trajectories))
-    state = collate([window(t, 0, history, with_target=False) for t in trajectories]).to(device)
+    windows = [window(t, 0, history, with_target=False) for t in trajectories]
+    state = collate(windows).to(device)
     counts = [t.num_particles for t in trajectories]
     ends = np.cumsum([0, *counts])
     truth = torch.from_numpy(np.concatenate([t.position[history : history + steps] for t in trajectories], axis=1))
     moving = simulator.predicted_mask(state.particle_type)
     kinematic = (~moving).nonzero()[:, 0]
     kinematic_truth = truth[:, kinematic.cpu()].to(device)
+    step_guard = guard
+    step_capture: CapturedSteps | bool = bool(capture)
+    buffers: AbstractContextManager[None] = contextlib.nullcontext()
+    if isinstance(capture, CaptureClasses):  # padded to its class, whose capture it replays
+        capacity = particle_capacity(int(ends[-1]))
+        state = padded(windows, capacity, capture.scenes).to(device)
+        own = None if trajectories[0].bounds is None else _per_particle_bounds(trajectories)
+        bounds = None if own is None else torch.cat([own, own[-1:].expand(capacity - len(own), *own.shape[1:])])
+        kept = capture.of(simulator, base_guard, state, bounds, precision)
+        step_guard, kinematic, step_capture = kept.guard, kept.every_row, kept.steps
+        padding = torch.full((steps, capacity - len(moving), truth.shape[2]), float("nan"))
+        kinematic_truth = torch.cat([truth, padding], dim=1).to(device)
+        buffers = simulator.graph_builder.buffers(kept.key)
     predicted = torch.empty_like(truth)
     previous = torch.from_numpy(np.concatenate([t.position[history - 1] for t in trajectories]))
     violations: list[list[GuardViolation]] = [[] for _ in trajectories]
     label = ", ".join(t.key for t in trajectories[:3]) + (
         f", ... ({len(trajectories)} in all)" if len(trajectories) > 3 else ""
     )
-    frames = sound_frames(simulator, guard, state, kinematic, kinematic_truth, steps, precision, capture=capture)
-    with closing(frames):  # a guard's stop closes it: the builder checks its own builds again
+    frames = sound_frames(
+        simulator, step_guard, state, kinematic, kinematic_truth, steps, precision, capture=step_capture
+    )
+    with buffers, closing(frames):  # a guard's stop closes it: the builder checks its own builds again
         for step, next_position in frames:
-            predicted[step], found = guard.check(step, next_position.cpu(), previous, f"batch [{label}]")
+            real = next_position[: len(moving)].cpu()
+            predicted[step], found = guard.check(step, real, previous, f"batch [{label}]")
             previous = predicted[step]
             for violation in found:
                 for index, (lo, hi) in enumerate(itertools.pairwise(ends)):

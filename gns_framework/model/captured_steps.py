@@ -13,7 +13,8 @@ When the builder grows its buffers the shapes change, so the rollout calls
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import fields, replace
+from typing import Any
 
 from torch import Tensor
 
@@ -39,6 +40,7 @@ class CapturedSteps:
         self.captured: CapturedStep | None = None
         self.captures = 0
         self.inputs: tuple[Tensor, Tensor | None, Tensor] | None = None
+        self.static_state: ParticleBatch | None = None
 
     def __call__(self, sequence: Tensor, context: Tensor | None, kinematic_next: Tensor) -> tuple[Tensor, Tensor]:
         if self.captured is None:
@@ -52,6 +54,26 @@ class CapturedSteps:
         next_position, continued = self.captured()
         return next_position.clone(), continued.clone()
 
+    def rebound(self, state: ParticleBatch) -> CapturedSteps:
+        """These steps for another batch of the same shapes (the next batch of a capacity class).
+
+        Its fields (types, examples, properties, walls) are copied into the tensors the capture
+        reads, so the capture is replayed, not made again. The step function is the first
+        batch's: what it binds besides the batch (the model, its guard, the kinematic rows)
+        must be the same objects, rewritten in place where they change.
+        """
+        if self.static_state is not None:
+            examples = self.static_state.num_examples
+            if state.num_examples != examples:
+                raise ValueError(f"a batch of {state.num_examples} examples cannot replay a capture of {examples}")
+            for name, static, value in _tensor_fields(self.static_state, state):
+                if static.shape != value.shape:
+                    shapes = f"{tuple(value.shape)} cannot replay a capture of {tuple(static.shape)}"
+                    raise ValueError(f"a batch's {name} of shape {shapes}")
+                static.copy_(value)
+        self.state = state
+        return self
+
     def invalidate(self) -> None:
         """Capture again at the next step (the graph builder's buffers changed size)."""
         self.captured = None
@@ -61,7 +83,9 @@ class CapturedSteps:
         static_context = None if context is None else context.clone()
         static_kinematic = kinematic_next.clone()
         self.inputs = (static_sequence, static_context, static_kinematic)
-        current = replace(self.state, position_sequence=static_sequence, context=static_context)
+        own: dict[str, Any] = {name: value.clone() for name, value, _ in _tensor_fields(self.state, self.state)}
+        self.static_state = replace(self.state, **own)
+        current = replace(self.static_state, position_sequence=static_sequence, context=static_context)
         try:
             self.captured = CapturedStep(lambda: self.step(current, static_kinematic), sequence.device)
         except (CaptureError, RuntimeError) as error:
@@ -71,3 +95,15 @@ class CapturedSteps:
             hint = hint if waits else ""
             raise CaptureError(f"this model's rollout step cannot be captured: {error}{hint}") from error
         self.captures += 1
+
+
+def _tensor_fields(captured: ParticleBatch, batch: ParticleBatch) -> list[tuple[str, Tensor, Tensor]]:
+    """``(name, captured tensor, batch's tensor)`` of every tensor field both batches have."""
+    pairs = []
+    for field in fields(captured):
+        static, value = getattr(captured, field.name), getattr(batch, field.name)
+        if isinstance(static, Tensor) and isinstance(value, Tensor):
+            pairs.append((field.name, static, value))
+        elif isinstance(static, Tensor) != isinstance(value, Tensor):
+            raise ValueError(f"a batch without {field.name} cannot replay a capture with it, or the other way")
+    return pairs

@@ -130,7 +130,7 @@ def sound_frames(
     steps: int,
     precision: Precision,
     context: Tensor | None = None,
-    capture: bool = False,
+    capture: bool | CapturedSteps = False,
     progress: Callable[[int], object] = lambda done: None,
 ) -> Generator[tuple[int, Tensor], None, None]:
     """``(step, predicted frame)`` of ``steps`` steps from ``state``, in order, each once its graph is known complete.
@@ -140,8 +140,8 @@ def sound_frames(
     of every stored frame (the first C are the inputs). With a fixed-capacity graph builder the frames come in
     runs of :data:`CAPACITY_CHECK_EVERY`, after the check that their graphs had every edge; a run whose check
     fails is redone with grown buffers. With ``capture`` the steps replay one captured step
-    (:class:`~.captured_steps.CapturedSteps`), captured again when the buffers grow. ``progress(n)`` is told of
-    every ``n`` steps done.
+    (:class:`~.captured_steps.CapturedSteps`; given one, its capture), captured again when the buffers grow.
+    ``progress(n)`` is told of every ``n`` steps done.
     """
     history = state.position_sequence.shape[1]
     builder = simulator.graph_builder
@@ -149,7 +149,10 @@ def sound_frames(
     def one_step(current: ParticleBatch, kinematic_next: Tensor) -> tuple[Tensor, Tensor]:
         return rollout_step(simulator, guard, current, kinematic, kinematic_next, precision)
 
-    steps_of = CapturedSteps(one_step, state, builder) if capture else None
+    if isinstance(capture, CapturedSteps):  # a capacity class's capture, replayed by this batch too
+        steps_of: CapturedSteps | None = capture.rebound(state)
+    else:
+        steps_of = captured_rollout_steps(simulator, guard, state, kinematic, precision) if capture else None
     sequence = state.position_sequence
     step, sound_step, sound_sequence = 0, 0, sequence
     unchecked: list[tuple[int, Tensor]] = []
@@ -176,6 +179,17 @@ def sound_frames(
             progress(step - sound_step)
             unchecked.clear()
             sound_step, sound_sequence = step, sequence
+
+
+def captured_rollout_steps(
+    simulator: LearnedSimulator, guard: RolloutGuard, state: ParticleBatch, kinematic: Tensor, precision: Precision
+) -> CapturedSteps:
+    """:func:`rollout_step` of ``state``'s particles, replayed from one capture (:class:`CapturedSteps`)."""
+
+    def one_step(current: ParticleBatch, kinematic_next: Tensor) -> tuple[Tensor, Tensor]:
+        return rollout_step(simulator, guard, current, kinematic, kinematic_next, precision)
+
+    return CapturedSteps(one_step, state, simulator.graph_builder)
 
 
 def rollout_step(

@@ -88,6 +88,22 @@ class RolloutGuard:
         guard._walled = PerDevice(guard._make_walled)
         return guard
 
+    def rewrite_bounds(self, bounds) -> None:
+        """Other walls of the same shape as :meth:`with_bounds` gave, written in place: on the host and on every
+        device this guard has met, so that a captured step reading them replays with these (the next batch of a
+        capacity class, :mod:`.capacity_classes`)."""
+        walls = torch.as_tensor(np.asarray(bounds), dtype=torch.float64)
+        lower, upper = walls[..., self.walled, 0], walls[..., self.walled, 1]
+        if lower.shape != self.lower.shape:
+            raise ValueError(
+                f"walls of shape {tuple(lower.shape)} cannot replace walls of shape {tuple(self.lower.shape)}"
+            )
+        self.lower.copy_(lower)
+        self.upper.copy_(upper)
+        for _dims, on_device_lower, on_device_upper in self._walled.made.values():
+            on_device_lower.copy_(lower)
+            on_device_upper.copy_(upper)
+
     def check(
         self, step: int, position: Tensor, previous: Tensor, trajectory: str = "", ids: Tensor | None = None
     ) -> tuple[Tensor, list[GuardViolation]]:

@@ -46,15 +46,15 @@ class PerDevice(Generic[T]):
 
     Constants built on the host (index lists, box bounds) and moved to the device on
     every call would be a copy, and on a GPU a stream synchronisation, per call; made
-    once per device and dtype they cost nothing after the first step.
+    once per device and dtype (in ``made``) they cost nothing after the first step.
     """
 
     def __init__(self, make: Callable[[Tensor], T]):
         self._make = make
-        self._made: dict[tuple[torch.device, torch.dtype], T] = {}
+        self.made: dict[tuple[torch.device, torch.dtype], T] = {}
 
     def __call__(self, like: Tensor) -> T:
         key = (like.device, like.dtype)
-        if key not in self._made:
-            self._made[key] = self._make(like)
-        return self._made[key]
+        if key not in self.made:
+            self.made[key] = self._make(like)
+        return self.made[key]

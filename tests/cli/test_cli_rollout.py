@@ -156,6 +156,20 @@ def test_batches_hold_consecutive_trajectories_of_one_length_up_to_the_batch_siz
     assert batches_of(lengths, 3, 1, monkeypatch) == [[0], [1], [2]]  # --batch 1: one rollout call each
 
 
+def test_captured_batches_share_one_set_of_capacity_classes(monkeypatch):
+    # Issue 45, item 5: batches of similar size replay one capture, so every batch of the job gets the same classes.
+    from gns_framework.model.capacity_classes import CaptureClasses
+
+    given = []
+    monkeypatch.setattr(rollout_command, "rollout_batch", lambda *a, capture, **k: given.append(capture) or [0, 0])
+    args = Namespace(batch=2, no_progress=True, precision="float32", partitions=1, capture=True)
+    trajectories = [SimpleNamespace(num_steps=5) for _ in range(6)]
+    job = rollout_command._Job(None, trajectories, 6, None, "cpu", None)  # type: ignore[arg-type]
+    list(rollout_command._rollouts(job, args, Processes(), None))  # type: ignore[arg-type]
+    assert len(given) == 3 and all(c is given[0] for c in given)
+    assert isinstance(given[0], CaptureClasses) and given[0].scenes == 2
+
+
 def test_only_rollout_files_make_a_folder_rollout_may_write_into(tmp_path):
     folder = tmp_path / "rollouts"
     folder.mkdir()

@@ -205,3 +205,15 @@ def test_a_trajectory_with_its_own_domain_is_guarded_by_its_own_walls():
     own = replace(stay, position=stay.position * 0.5, bounds=np.array([[0.0, 0.2], [0.0, 0.2]], np.float32))
     result = rollout(simulator, own, steps=3, guard=RolloutGuard(simulator.setup, margin=0.0, on_violation="clamp"))
     assert result.guard_violations and all(v.cause.startswith("left the domain") for v in result.guard_violations)
+
+
+def test_rewritten_walls_reach_the_copies_a_captured_step_already_reads():
+    # A capacity class's next batch rewrites the walls in place (model/capacity_classes.py): the float32 copies
+    # made for the first batch's steps must hold the new walls, not only the float64 originals.
+    guard = RolloutGuard(BOX, margin=0.0, on_violation="clamp").with_bounds(np.array([[[0.0, 1.0], [0.0, 2.0]]] * 2))
+    position = torch.tensor([[1.5, 0.5], [0.5, 0.5]])
+    assert guard.continued(position, position)[0, 0] == 1.0  # makes the float32 copies, holds the particle
+    guard.rewrite_bounds(np.array([[[0.0, 2.0], [0.0, 2.0]]] * 2))
+    assert guard.continued(position, position)[0, 0] == 1.5
+    with pytest.raises(ValueError, match=r"walls of shape \(3, 2\) cannot replace walls of shape \(2, 2\)"):
+        guard.rewrite_bounds(np.zeros((3, 2, 2)))

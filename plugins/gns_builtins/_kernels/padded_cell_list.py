@@ -150,15 +150,18 @@ def padded_radius_pairs(
     cells = grid.num_cells
     detached = position.detach().to(torch.float64)
     finite = torch.isfinite(detached).all(1, keepdim=True)
-    # Non-finite particles (a diverged rollout) must not move the grid: they land in the margin cells.
+    # Non-finite particles (a diverged rollout, a capacity class's padding) must not move the grid.
     lower = torch.where(finite, detached, math.inf).amin(0).nan_to_num(posinf=0.0) - grid.cell
     coordinates = grid.coordinates(position, lower)
     cells_needed = _cells_needed(detached, finite, lower, grid.cell)
     example = batch.to(device=device, dtype=torch.long)
-    key = example * cells + grid.linear(coordinates)
+    # A non-finite particle joins no pair (its distances are NaN): it goes to a bucket after every cell, which no
+    # particle searches, and searches none itself; a batch padded with NaN rows (a capacity class) pays nothing.
+    absent = num_examples * cells
+    key = torch.where(finite[:, 0], example * cells + grid.linear(coordinates), absent)
 
     # Counting sort: particles per (example, cell), where each cell's run starts, particles in key order.
-    counts = torch.zeros(num_examples * cells, dtype=torch.long, device=device)
+    counts = torch.zeros(absent + 1, dtype=torch.long, device=device)
     counts.index_add_(0, key, torch.ones_like(key))
     starts = torch.cumsum(counts, 0) - counts
     order = torch.sort(key, stable=True).indices
@@ -167,7 +170,7 @@ def padded_radius_pairs(
     offsets = torch.cartesian_prod(*[torch.arange(-1, 2, device=device)] * dim).view(-1, dim)
     around = coordinates[:, None, :] + offsets[None]  # (N, 3^d, d)
     size = grid.sizes(device)
-    inside = ((around >= 0) & (around < size)).all(-1)
+    inside = ((around >= 0) & (around < size)).all(-1) & finite
     around_key = example[:, None] * cells + grid.linear(around.clamp(min=0).minimum(size - 1))
     range_count = torch.where(inside, counts[around_key], 0).reshape(-1)  # (N * 3^d,)
     range_start = starts[around_key].reshape(-1)

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Hashable, Iterator
+from contextlib import contextmanager
+
 import torch
 from pydantic import Field
 from torch import Tensor
@@ -43,6 +46,7 @@ class FixedCapacityRadiusGraphBuilder(GraphBuilder):
     def __init__(self, params: Params, setup: ModelSetup):
         super().__init__(params, setup)
         self.search = FixedCapacityRadius(setup.connectivity_radius, params.capacity)
+        self._kept: dict[Hashable, FixedCapacityRadius] = {}
 
     def build(self, position: Tensor, batch: Tensor, num_examples: int) -> Graph:
         n = len(position)
@@ -58,3 +62,13 @@ class FixedCapacityRadiusGraphBuilder(GraphBuilder):
 
     def overflowed(self) -> bool:
         return self.search.overflowed()
+
+    @contextmanager
+    def buffers(self, key: Hashable) -> Iterator[None]:
+        """Builds within search with the buffers kept for ``key`` (made on its first build), then the previous."""
+        outside = self.search
+        self.search = self._kept.setdefault(key, FixedCapacityRadius(outside.radius, outside.growth))
+        try:
+            yield
+        finally:
+            self.search = outside

@@ -108,3 +108,19 @@ def test_no_particles_give_padding_only():
         torch.zeros(0, 2), torch.zeros(0, dtype=torch.long), 1, 0.1, (1.0,) * 2, 8, 4
     )
     assert senders.shape == (4,) and int(count) == 0 and not overflow
+
+
+def test_non_finite_particles_join_no_pair_and_cost_no_candidates():
+    # A capacity class pads a batch with NaN rows (model/capacity_classes.py): all in one place, they would
+    # otherwise examine each other, (padding)^2 candidates for no pair.
+    position, batch = _scene(200, 2, seed=2)
+    alone = padded_radius_pairs(
+        position, batch, 1, 0.1, CellGrid.for_extent((1.0, 1.0), 0.1, 1 << 20), 1 << 14, 1 << 13
+    )
+    padded = torch.cat([position, torch.full((300, 2), float("nan")), torch.tensor([[float("inf"), 0.5]])])
+    grid = CellGrid.for_extent((1.0, 1.0), 0.1, 1 << 20)
+    found = padded_radius_pairs(padded, torch.zeros(501, dtype=torch.long), 1, 0.1, grid, 1 << 14, 1 << 13, pad=200)
+    count = int(found.pairs)
+    assert count == int(alone.pairs) > 200 and int(found.candidates) == int(alone.candidates)
+    assert torch.equal(found.senders[:count], alone.senders[:count])
+    assert torch.equal(found.receivers[:count], alone.receivers[:count])
