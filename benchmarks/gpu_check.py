@@ -48,6 +48,7 @@ import statistics  # noqa: E402
 import sys  # noqa: E402
 import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
+from unittest import mock  # noqa: E402
 
 SKIP = 77
 """Exit status of a part that cannot run here (it printed ``skipped: <why>``)."""
@@ -743,6 +744,72 @@ def _capture_case(scene, device, steps: int) -> dict:
     return figures
 
 
+def batched(args) -> None:
+    """Many small scenes (issue 45, item 5): ``--scenes`` 3D lattice scenes of ``--particles LO HI`` particles,
+    ``--steps`` steps each, rolled out one at a time (eager, as ``gns rollout``) and ``--batch`` at a time replaying
+    their capacity classes' captures (``gns rollout --capture --batch``), back to back; seconds per scene of each
+    (the captures' own cost included), the classes and captures made, and the largest difference of a batched
+    scene's frames from its own rollout (TF32 off)."""
+    import numpy as np
+    import torch
+
+    from gns_framework.data.trajectory import Trajectory
+    from gns_framework.model import captured_steps
+    from gns_framework.model.batched_rollout import rollout_batch
+    from gns_framework.model.capacity_classes import CaptureClasses
+    from gns_framework.model.rollout import rollout
+    from gns_framework.runtime.device import synchronize
+
+    device = torch.device(args.device)
+    sizes = np.random.default_rng(0).integers(args.particles[0], args.particles[1] + 1, args.scenes)
+    scenes = []
+    for k, particles in enumerate(sizes):
+        window = _lattice(int(particles)).batch.position_sequence.transpose(0, 1).numpy()
+        frames = np.concatenate([window, np.repeat(window[-1:], args.steps, axis=0)])  # no kinematic particles
+        scenes.append(Trajectory(frames, np.full(int(particles), 5), None, None, f"lattice_{k}"))
+    simulator = _simulator(_lattice(int(sizes.max())), device, "radius_fixed_capacity").eval()
+    classes = CaptureClasses(args.batch)
+    made = []
+    original = captured_steps.CapturedSteps.__init__
+
+    def counted(self, *a, **k):
+        original(self, *a, **k)
+        made.append(self)
+
+    timed, results = {}, {}
+    with _no_tf32(), mock.patch.object(captured_steps.CapturedSteps, "__init__", counted):
+        for name in ("alone", "batched"):
+            synchronize(device)
+            started = time.perf_counter()
+            if name == "alone":
+                results[name] = [rollout(simulator, scene, args.steps, device) for scene in scenes]
+            else:
+                groups = [scenes[i : i + args.batch] for i in range(0, len(scenes), args.batch)]
+                results[name] = [
+                    r for g in groups for r in rollout_batch(simulator, g, args.steps, device, capture=classes)
+                ]
+            synchronize(device)
+            timed[name] = (time.perf_counter() - started) / len(scenes)
+    difference = max(
+        float(np.abs(a.predicted - b.predicted).max())
+        for a, b in zip(results["alone"], results["batched"], strict=True)
+    )
+    emit(
+        "batched",
+        scenes=len(scenes),
+        particles=f"{int(sizes.min())}-{int(sizes.max())}",
+        steps=args.steps,
+        batch=args.batch,
+        s_per_scene=timed["batched"],
+        alone_s_per_scene=timed["alone"],
+        speedup=timed["alone"] / timed["batched"],
+        classes=len(classes.classes),
+        captures=sum(m.captures for m in made),
+        max_abs_diff=difference,
+        status="ok" if difference <= 1e-4 else "differ",
+    )
+
+
 @contextlib.contextmanager
 def _no_tf32():
     import torch
@@ -804,7 +871,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("imports")
-    for name in ("info", "ddp", "sums", "chunks", "scale", "capture", "mpm"):
+    for name in ("info", "ddp", "sums", "chunks", "scale", "capture", "batched", "mpm"):
         command = sub.add_parser(name)
         command.add_argument("--device", default="cuda")
     sub.add_parser("tests").add_argument("files", nargs="+")
@@ -832,6 +899,10 @@ def main() -> None:
     )
     sub.choices["capture"].add_argument("--sizes", type=int, nargs="+", default=[300, 10_000, 100_000])
     sub.choices["capture"].add_argument("--steps", type=int, default=20)
+    sub.choices["batched"].add_argument("--scenes", type=int, default=64)
+    sub.choices["batched"].add_argument("--particles", type=int, nargs=2, default=[250, 350], help="LO HI per scene")
+    sub.choices["batched"].add_argument("--steps", type=int, default=57, help="steps of each scene's rollout")
+    sub.choices["batched"].add_argument("--batch", type=int, default=16, help="scenes per batch")
     sub.choices["mpm"].add_argument("--frames", type=int, default=10)
     sub.choices["mpm"].add_argument("--grid", type=int, default=96, help="grid cells along the box (24: 768 particles)")
     sub.add_parser("data").add_argument("out")
@@ -845,6 +916,7 @@ def main() -> None:
         "chunks": chunks,
         "scale": scale,
         "capture": capture,
+        "batched": batched,
         "mpm": mpm,
         "data": data,
     }[args.command](args)
