@@ -13,8 +13,9 @@ class Graph:
     """Directed connectivity of one batch of particles.
 
     Attributes:
-        senders: (E,) int64 index of the particle each edge comes from.
-        receivers: (E,) int64 index of the particle each edge points to (messages
+        senders: (E,) int64 (or int32, which a builder may give on accelerators) index of the particle each
+            edge comes from; processors index with either.
+        receivers: (E,) the same dtype, index of the particle each edge points to (messages
             are summed at receivers). Built-in builders sort edges by
             (receiver, sender).
         displacement: (E, d) float, ``p_sender - p_receiver`` in dataset units

@@ -1,8 +1,9 @@
 """Triton kernels of the edge block (``triton_edge_block.py`` wraps them): forward, backward, segmented sums.
 
-Imported only where Triton is installed. Kernels index rows with the graph's int64
-indices; every sum over edges runs in a fixed order (no atomics). Shapes and the
-update they compute: ``triton_edge_block.py``.
+Imported only where Triton is installed. Kernels index rows with the graph's indices,
+int32 or int64, widened to int64 before a row's width multiplies them; every sum over
+edges runs in a fixed order (no atomics). Shapes and the update they compute:
+``triton_edge_block.py``.
 """
 
 import triton
@@ -42,8 +43,8 @@ def _activations(
 ):
     """One tile's pre-activations: (a_1, a_middle, h_last_in, a_last). Shapes (BE, H) and (BE, L)."""
     hcols = tl.arange(0, H)
-    receiver_rows = tl.load(rows_ptr + 2 * edges, mask=mask, other=0)
-    sender_rows = tl.load(rows_ptr + 2 * edges + 1, mask=mask, other=0)
+    receiver_rows = tl.load(rows_ptr + 2 * edges, mask=mask, other=0).to(tl.int64)
+    sender_rows = tl.load(rows_ptr + 2 * edges + 1, mask=mask, other=0).to(tl.int64)
     a1 = _dot(e.to(w1.dtype), tl.trans(w1), PRECISION, UPCAST)
     a1 += tl.load(table_ptr + receiver_rows[:, None] * H + hcols[None, :], mask=mask[:, None], other=0.0)
     a1 += tl.load(table_ptr + sender_rows[:, None] * H + hcols[None, :], mask=mask[:, None], other=0.0)
@@ -193,7 +194,7 @@ def backward_kernel(
         grad_out = tl.load(grad_out_ptr + edges[:, None] * L + lcols[None, :], mask=lmask, other=0.0)
         grad_u += grad_out
     if HAS_GRAD_AGGREGATE:
-        receivers = tl.load(rows_ptr + 2 * edges, mask=mask, other=0)
+        receivers = tl.load(rows_ptr + 2 * edges, mask=mask, other=0).to(tl.int64)
         grad_u += tl.load(grad_aggregate_ptr + receivers[:, None] * L + lcols[None, :], mask=lmask, other=0.0)
     grad_u = tl.where(lmask, grad_u, 0.0)
     # LayerNorm's per-tile column sums (gamma, beta), summed over tiles in a fixed order by the caller.
@@ -254,7 +255,7 @@ def segment_sum_kernel(
     for start in range(lo, hi, BE):
         positions = start + tl.arange(0, BE)
         mask = positions < hi
-        source = tl.load(permutation_ptr + positions, mask=mask, other=0) if PERMUTED else positions
+        source = tl.load(permutation_ptr + positions, mask=mask, other=0).to(tl.int64) if PERMUTED else positions
         rows = tl.load(rows_ptr + source[:, None] * F + cols[None, :], mask=mask[:, None], other=0.0)
         total += tl.sum(rows.to(tl.float32), 0)
     target = out_ptr + (out_offset + node) * out_stride + cols

@@ -10,8 +10,12 @@ from pydantic import Field
 from torch import Tensor
 
 from gns_framework.contracts import ComponentParams, Graph, GraphBuilder, ModelSetup
+from gns_framework.runtime.host_sync import avoids_read_backs
 
 from .._kernels.fixed_capacity import FixedCapacityRadius
+
+INT32_NODES = 2**31
+"""Graphs of at most this many nodes (particles and the sink) get int32 indices on accelerators."""
 
 
 class FixedCapacityRadiusGraphBuilder(GraphBuilder):
@@ -21,6 +25,7 @@ class FixedCapacityRadiusGraphBuilder(GraphBuilder):
     keeps the host from running ahead and a rollout step from being captured as one
     CUDA graph. Here the buffers are sized on a scene's first build (``capacity`` times
     what it needed) and every later build is the same operations on the same shapes.
+    On accelerators the indices are int32 (half the bytes every gather of a step reads).
     Padding edges join a sink node N after the particles (``Graph.num_nodes`` = N + 1),
     which the learned simulator gives the last particle's features and drops after
     the processor, so no particle receives a padding message.
@@ -54,6 +59,9 @@ class FixedCapacityRadiusGraphBuilder(GraphBuilder):
             empty = torch.zeros(0, dtype=torch.long, device=position.device)
             return Graph(empty, empty, position[:0], 0, receivers_sorted=True)
         senders, receivers = self.search.pairs(position, batch, num_examples, check_now=not self.checks_deferred)
+        if avoids_read_backs(position.device) and n + 1 <= INT32_NODES:
+            # On a GPU every message-passing step gathers rows by these: int32 halves that index traffic.
+            senders, receivers = senders.to(torch.int32), receivers.to(torch.int32)
         # The sink node N takes the last particle's features and position: padding edges have zero displacement.
         node_particle = torch.arange(n + 1, device=position.device).clamp(max=n - 1)
         on_nodes = position[node_particle]

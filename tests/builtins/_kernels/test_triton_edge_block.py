@@ -161,3 +161,19 @@ def test_applies_only_where_it_can(monkeypatch):
     assert not triton_module.applies(e, 32, 3)
     monkeypatch.delenv("GNS_TRITON")
     assert triton_module.applies(e, 32, 3) == (DEVICE.type == "cuda"), "on the CPU only when asked for"
+
+
+def test_int32_indices_give_the_int64_bits():
+    # Issue 45, item 4: the fixed-capacity graph on a GPU has int32 indices; the kernels widen them before a row's
+    # width multiplies them, and sum the same rows in the same order.
+    mlp = model(2).to(DEVICE)
+    senders, receivers = edges(37, 120, seed=4)
+    x, e = on_device(torch.randn(37, 16), torch.randn(senders.numel(), 16))
+    runs = []
+    for dtype in (torch.int64, torch.int32):
+        out, aggregate = run_kernels(mlp, x, e, senders.to(dtype), receivers.to(dtype))
+        (out.sum() + aggregate.square().sum()).backward()
+        runs.append([out.detach(), aggregate.detach(), x.grad.clone(), e.grad.clone()])
+        x.grad, e.grad = None, None
+    for name, wide, narrow in zip(["edges", "aggregate", "x grad", "e grad"], *runs, strict=True):
+        assert torch.equal(wide, narrow), (name, (wide - narrow).abs().max())

@@ -38,6 +38,23 @@ def test_the_edges_are_radius_edges_then_padding_between_sinks():
     assert graph.node_particle.tolist() == [*range(300), 299]  # the sink takes the last particle's features
 
 
+def test_on_an_accelerator_the_indices_are_int32_and_the_same_edges():
+    # Issue 45, item 4: a GPU step gathers node rows by these in every message-passing step; int32 halves that.
+    from gns_framework.runtime.host_sync import EMULATED_ACCELERATOR
+
+    position, batch = _cloud()
+    params = FixedCapacityRadiusGraphBuilder.Params(capacity=1.5)
+    on_cpu = FixedCapacityRadiusGraphBuilder(params, SETUP).build(position, batch, 1)
+    token = EMULATED_ACCELERATOR.set(True)
+    try:
+        on_gpu = FixedCapacityRadiusGraphBuilder(params, SETUP).build(position, batch, 1)
+    finally:
+        EMULATED_ACCELERATOR.reset(token)
+    assert on_cpu.senders.dtype == torch.int64 and on_gpu.senders.dtype == on_gpu.receivers.dtype == torch.int32
+    assert torch.equal(on_gpu.senders.long(), on_cpu.senders) and torch.equal(on_gpu.receivers.long(), on_cpu.receivers)
+    assert torch.equal(on_gpu.displacement, on_cpu.displacement)
+
+
 def test_later_frames_of_a_scene_build_without_waiting_for_the_device():
     position, batch = _cloud()
     builder = FixedCapacityRadiusGraphBuilder(FixedCapacityRadiusGraphBuilder.Params(), SETUP)
