@@ -38,6 +38,7 @@ from ..model.rollout import rollout
 from ..model.rollout_guard import RolloutGuard
 from ..outputs import MARKER, check_folder, claim_folder
 from ..plugins import load_registry
+from ..runtime.compiled import compile_node_side
 from ..runtime.device import resolve_device
 from ..runtime.precision import PRECISIONS
 from ..runtime.processes import Processes
@@ -143,6 +144,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "padded to a capacity class (particles rounded up by at most 25%%) and the batches of a class replay one "
         "capture; not with --partitions",
     )
+    parser.add_argument(
+        "--compile",
+        action="store_true",
+        help="compile the model's node side with torch.compile (whole graphs, fused kernels; the first steps pay the "
+        "compilation): for long rollouts on a GPU",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_overwrite(parser, "write into --out even when it holds something other than rollouts")
     add_outside_envelope(parser)
@@ -183,6 +190,8 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
     registry = load_registry()
     device = start(processes, resolve_device(args.device))
     loaded = load_trained(args.checkpoint, registry, device)
+    if args.compile:
+        compile_node_side(loaded.simulator)
     spec = loaded.recipe.rollout
     # A scene split over processes is read in parts: a layout that can map its positions maps them (it does when
     # it keeps few trajectories), so that each process reads only its own particles' frames.

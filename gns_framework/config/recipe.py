@@ -180,6 +180,12 @@ class TrainingSpec(_Strict):
         description="float32; tf32: float32 products on CUDA tensor cores in TF32 (float32 on CPUs); "
         "or bfloat16 matrix products under autocast (faster on AMX CPUs and GPUs)",
     )
+    compile_node_side: bool = Field(
+        False,
+        description="compile the node side (node features, the encoder's and every step's node MLP, the decoder) "
+        "with torch.compile, whole graphs or an error: fused kernels on GPUs; the first steps pay the compilation "
+        "(gns_framework/runtime/compiled.py)",
+    )
     pushforward_steps: int = Field(
         0,
         ge=0,

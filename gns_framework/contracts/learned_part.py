@@ -3,6 +3,7 @@ model's sizes."""
 
 from __future__ import annotations
 
+from fnmatch import fnmatch
 from typing import ClassVar
 
 from torch import nn
@@ -26,3 +27,13 @@ class LearnedPart(nn.Module):
     def __init__(self, params: ComponentParams, sizes: ModelSizes):
         super().__init__()
         self.params = params
+
+    node_module_names: ClassVar[tuple[str, ...]] = ()
+    """Patterns (``fnmatch``, e.g. ``steps.*.node_mlp``) of the submodules that act on node rows alone, row by row
+    (no edges, no reads of values): the node side, what :func:`~gns_framework.runtime.compiled.compile_node_side`
+    compiles."""
+
+    def node_modules(self) -> list[nn.Module]:
+        """The submodules ``node_module_names`` names, in module order."""
+        names = self.node_module_names
+        return [module for path, module in self.named_modules() if any(fnmatch(path, p) for p in names)]

@@ -32,6 +32,7 @@ from ..model.noise import training_noise_std
 from ..plugins import Registry
 from ..runtime.activation_memory import set_recompute_activations
 from ..runtime.allocator import keep_freed_memory
+from ..runtime.compiled import compile_node_side
 from ..runtime.deterministic import set_deterministic_sums
 from ..runtime.device import resolve_device
 from ..runtime.processes import Processes
@@ -141,6 +142,8 @@ class _Builder:
             pushforward_steps=spec.pushforward_steps,
             precision=spec.precision,
         )
+        if spec.compile_node_side:  # after the weight average copied it: a copy would call the original's graphs
+            compile_node_side(simulator)
         validation = self.validation(data, device, team)
         checkpoints = Checkpoints(
             self.recipe,

@@ -362,3 +362,24 @@ def test_a_rollout_over_two_nodes_writes_what_one_process_writes(tiny_model, tmp
     assert all(node.returncode == 0 for node in nodes), "\n".join(err for _, err in outputs)
     assert any("2 slabs along dimension" in out for out, _ in outputs)
     _same_rollout(tmp_path / "one" / "test_0000.npz", tmp_path / "two" / "test_0000.rollout")
+
+
+def test_rollout_compile_compiles_the_node_side_and_writes_the_same_frames(tiny_model, tmp_path, monkeypatch):
+    # gns rollout --compile (issue 45, item 4); aot_eager traces the graphs inductor would compile, whole.
+    from gns_framework.runtime import compiled
+
+    made = []
+    monkeypatch.setattr(
+        rollout_command, "compile_node_side", lambda model: made.append(compiled.compile_node_side(model, "aot_eager"))
+    )
+    common = [str(tiny_model), "--steps", "3", "--trajectories", "1", "--outside-envelope", "--no-progress"]
+    torch._dynamo.reset()
+    try:
+        assert main(["rollout", *common, "--compile", "--out", str(tmp_path / "compiled")]) == 0
+    finally:
+        torch._dynamo.reset()
+    assert main(["rollout", *common, "--out", str(tmp_path / "eager")]) == 0
+    assert made and "features.node_features" in made[0]
+    [compiled_file] = sorted((tmp_path / "compiled").glob("*.npz"))
+    [eager_file] = sorted((tmp_path / "eager").glob("*.npz"))
+    np.testing.assert_array_equal(load_rollout(compiled_file).predicted, load_rollout(eager_file).predicted)

@@ -46,3 +46,30 @@ def test_trajectories_shorter_than_the_history_are_refused_naming_the_split(data
     recipe = tiny_recipe(dataset_multimaterial, registry, history=25)
     with pytest.raises(DatasetError, match=r"\(split train\): sequence_length: .* at most 20 frames.* = 25"):
         build_training_parts(recipe, registry, run_dir=tmp_path)
+
+
+def test_a_compiled_node_side_trains_as_the_eager_one_and_leaves_the_weight_average_eager(
+    dataset_multimaterial, tmp_path, registry, monkeypatch
+):
+    # training.compile_node_side (issue 45, item 4): the node side compiled after the weight average copied the
+    # model (a copy of a compiled module would run the original's graphs). aot_eager traces what inductor compiles.
+    from gns_framework.runtime import compiled
+    from gns_framework.training import parts as parts_module
+
+    torch._dynamo.reset()
+    made = []
+    monkeypatch.setattr(
+        parts_module, "compile_node_side", lambda model: made.append(compiled.compile_node_side(model, "aot_eager"))
+    )
+    recipe = _with(tiny_recipe(dataset_multimaterial, registry), ema_decay=0.9)
+    losses = {}
+    for switch in (False, True):
+        parts = build_training_parts(_with(recipe, compile_node_side=switch), registry, run_dir=tmp_path / str(switch))
+        step = parts.optimisation
+        losses[switch] = [float(step(k)[0]) for k in range(3)]
+        if switch:
+            assert made and "decoder" in made[0]
+            assert parts.simulator.decoder._compiled_call_impl is not None
+            assert step.ema.module.decoder._compiled_call_impl is None
+    torch._dynamo.reset()
+    assert losses[True] == losses[False]

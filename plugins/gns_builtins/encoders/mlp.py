@@ -20,6 +20,7 @@ class MLPEncoder(Encoder):
     """
 
     name = "mlp"
+    node_module_names = ("node_mlp",)
 
     def __init__(self, params: ComponentParams, sizes: ModelSizes):
         super().__init__(params, sizes)

@@ -76,6 +76,7 @@ class InteractionNetwork(Processor):
     """M interaction-network steps with separate weights (the paper's default, M = 10)."""
 
     name = "interaction_network"
+    node_module_names = ("steps.*.node_mlp",)
     hops_param = "message_passing_steps"
     exchanges_latents = True
 

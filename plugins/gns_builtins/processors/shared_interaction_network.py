@@ -18,6 +18,7 @@ class SharedInteractionNetwork(Processor):
     """
 
     name = "shared_interaction_network"
+    node_module_names = ("step.node_mlp",)
     hops_param = "message_passing_steps"
     exchanges_latents = True
 
