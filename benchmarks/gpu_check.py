@@ -691,34 +691,42 @@ def capture(args) -> None:
         if left(deadline) < 10:
             emit("capture", particles=particles, status="over_budget")
             continue
-        figures = _capture_case(_lattice(particles), device, args.steps)
-        ok = figures["max_abs_diff"] <= 1e-4 and not figures["overflowed"]
+        figures = _capture_case(_lattice(particles), device, args.steps, args.compile_backend)
+        ok = figures["max_abs_diff"] <= 1e-4 and figures["compiled_max_abs_diff"] <= 1e-4 and not figures["overflowed"]
         emit("capture", particles=particles, steps=args.steps, **figures, status="ok" if ok else "differ")
 
 
-def _capture_case(scene, device, steps: int) -> dict:
-    """Eager and captured rollouts of ``steps`` steps of ``scene``: times per step, their difference, captures made."""
+def _capture_case(scene, device, steps: int, backend: str = "inductor") -> dict:
+    """Eager, captured and compiled-then-captured rollouts of ``steps`` steps of ``scene``: times per step, their
+    differences, captures made. ``backend``: torch.compile's for the node side."""
     import torch
 
     from gns_framework.model.captured_steps import CapturedSteps
     from gns_framework.model.history import advance_window
     from gns_framework.model.rollout import capacity_checks, rollout_step
     from gns_framework.model.rollout_guard import RolloutGuard
+    from gns_framework.runtime.compiled import compile_node_side
     from gns_framework.runtime.device import synchronize
 
     simulator = _simulator(scene, device, "radius_fixed_capacity").eval()
+    compiled = _simulator(scene, device, "radius_fixed_capacity").eval()
+    compile_node_side(compiled, backend)
     batch = scene.batch.to(device)
     guard = RolloutGuard(simulator.setup)
     kinematic = torch.zeros(0, dtype=torch.long, device=device)
     still = torch.zeros(0, scene.setup.dim, device=device)
 
-    def one_step(current, kinematic_next):
-        return rollout_step(simulator, guard, current, kinematic, kinematic_next, "float32")
+    def step_of_model(model):
+        return lambda current, kinematic_next: rollout_step(model, guard, current, kinematic, kinematic_next, "float32")
 
+    one_step = step_of_model(simulator)
     captured = CapturedSteps(one_step, batch, simulator.graph_builder)
+    # The node side compiled (fused kernels), then the whole step captured: what gns rollout --compile --capture runs.
+    captured_compiled = CapturedSteps(step_of_model(compiled), batch, compiled.graph_builder)
     step_of = {
         "eager": lambda sequence: one_step(dataclasses.replace(batch, position_sequence=sequence), still),
         "captured": lambda sequence: captured(sequence, None, still),
+        "compiled": lambda sequence: captured_compiled(sequence, None, still),
     }
 
     def roll(name, count):
@@ -729,7 +737,12 @@ def _capture_case(scene, device, steps: int) -> dict:
         return sequence
 
     last, figures = {}, {}
-    with torch.inference_mode(), capacity_checks(simulator.graph_builder), _no_tf32():
+    with (
+        torch.inference_mode(),
+        capacity_checks(simulator.graph_builder),
+        capacity_checks(compiled.graph_builder),
+        _no_tf32(),
+    ):
         for name in step_of:
             roll(name, 1)  # warm-up (and the capture)
             synchronize(device)
@@ -737,9 +750,12 @@ def _capture_case(scene, device, steps: int) -> dict:
             last[name] = roll(name, steps)
             synchronize(device)
             figures[f"{name}_ms"] = (time.perf_counter() - started) / steps * 1e3
-        figures["overflowed"] = simulator.graph_builder.overflowed()
+        figures["overflowed"] = simulator.graph_builder.overflowed() or compiled.graph_builder.overflowed()
     figures["speedup"] = figures["eager_ms"] / figures["captured_ms"]
+    figures["compiled_speedup"] = figures["eager_ms"] / figures["compiled_ms"]
     figures["max_abs_diff"] = float((last["eager"] - last["captured"]).abs().max())
+    # Fused kernels round differently from the eager ones: float32 rounding of positions ~1 m over the steps.
+    figures["compiled_max_abs_diff"] = float((last["eager"] - last["compiled"]).abs().max())
     figures["captures"] = captured.captures
     return figures
 
@@ -899,6 +915,9 @@ def main() -> None:
     )
     sub.choices["capture"].add_argument("--sizes", type=int, nargs="+", default=[300, 10_000, 100_000])
     sub.choices["capture"].add_argument("--steps", type=int, default=20)
+    sub.choices["capture"].add_argument(
+        "--compile-backend", default="inductor", help="torch.compile backend of the node side (eager: trace only)"
+    )
     sub.choices["batched"].add_argument("--scenes", type=int, default=64)
     sub.choices["batched"].add_argument("--particles", type=int, nargs=2, default=[250, 350], help="LO HI per scene")
     sub.choices["batched"].add_argument("--steps", type=int, default=57, help="steps of each scene's rollout")

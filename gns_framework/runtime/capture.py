@@ -72,11 +72,13 @@ class CapturedStep(Generic[T]):
             # Warm-up and capture take the accelerators' path, so the step they record is the one a GPU captures.
             standing_in = EMULATED_ACCELERATOR.set(True)
             try:
-                for _ in range(warmup):
-                    step()
-                tape = _Tape()
-                with tape:
-                    self.outputs = step()
+                # Compiled code cannot run under the recording mode: the tape records its operations run eagerly.
+                with torch.compiler.set_stance("force_eager"):
+                    for _ in range(warmup):
+                        step()
+                    tape = _Tape()
+                    with tape:
+                        self.outputs = step()
             finally:
                 EMULATED_ACCELERATOR.reset(standing_in)
             self._replay = tape.replay

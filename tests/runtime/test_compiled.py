@@ -84,3 +84,15 @@ def test_a_graph_break_on_the_node_side_is_an_error_naming_it():
     compile_node_side(model, backend="eager")
     with pytest.raises(Exception, match=r"test_compiled\.py.*in reads_a_value"):
         rollout(model, wandering_trajectory(frames=8))
+
+
+def test_a_compiled_node_side_can_be_captured_as_on_a_gpu():
+    # gns rollout --compile --capture: on CUDA the compiled kernels are recorded in the CUDA graph; the CPU's
+    # emulation records their operations run eagerly (compiled code cannot run under its recording mode).
+    trajectory = wandering_trajectory(frames=12)
+    eager = rollout(small_simulator("radius_fixed_capacity", FUSED), trajectory)
+    model = small_simulator("radius_fixed_capacity", FUSED)
+    compile_node_side(model, backend="eager")
+    captured = rollout(model, trajectory, capture=True)
+    # Captured, the fused edge block takes the accelerators' torch path: float32 rounding of positions ~0.5 m.
+    assert float(abs(captured.predicted - eager.predicted).max()) <= 1e-5
