@@ -9,8 +9,8 @@ import torch
 from pydantic import Field
 from torch import Tensor
 
+from gns_framework.api import avoids_read_backs
 from gns_framework.contracts import ComponentParams, Graph, GraphBuilder, ModelSetup
-from gns_framework.runtime.host_sync import avoids_read_backs
 
 from .._kernels.fixed_capacity import FixedCapacityRadius
 
