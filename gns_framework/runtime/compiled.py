@@ -31,15 +31,16 @@ def compile_node_side(simulator: LearnedSimulator, backend: str = "inductor") ->
     ``aot_eager`` trace the same graphs without generating code (the tests' way to show that
     nothing breaks a graph, forward and backward). Parameters and checkpoints are unchanged.
     """
-    options = {"fullgraph": True, "dynamic": True, "backend": backend}
     compiled = []
     for part_name in ("encoder", "processor", "decoder"):
         part = getattr(simulator, part_name)
         for path, module in part.named_modules():
             if module in part.node_modules():
-                module.compile(**options)
+                module.compile(fullgraph=True, dynamic=True, backend=backend)
                 compiled.append(f"{part_name}.{path}" if path else part_name)
     features = simulator.features
-    features.node_features = torch.compile(features.node_features, **options)  # type: ignore[method-assign]
+    features.node_features = torch.compile(  # type: ignore[method-assign]
+        features.node_features, fullgraph=True, dynamic=True, backend=backend
+    )
     compiled.append("features.node_features")
     return compiled
