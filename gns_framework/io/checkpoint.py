@@ -103,7 +103,8 @@ def verify_checkpoint(path: str | Path) -> None:
     try:
         with zipfile.ZipFile(path) as archive:
             computed, stored = _record_digest(archive)
-    except (_DamagedRecord, zipfile.BadZipFile, OSError, ValueError) as exc:
+    except (_DamagedRecord, zipfile.BadZipFile, OSError, ValueError, NotImplementedError, EOFError) as exc:
+        # A damaged central directory can claim a zip version or compression zipfile lacks (NotImplementedError).
         raise CheckpointError(f"{damaged}: {exc}") from None
     if stored is not None and stored != computed:
         raise CheckpointError(f"{damaged}: SHA-256 {computed} differs from {stored!r} written with it")

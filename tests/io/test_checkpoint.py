@@ -49,6 +49,18 @@ def test_a_checkpoint_round_trips_with_its_format_and_history(tmp_path):
     assert not list(tmp_path.glob(".checkpoint-*")), "no partial file is left beside it"
 
 
+def test_a_central_directory_claiming_an_unknown_zip_version_is_a_damaged_checkpoint(tmp_path):
+    # Found by tests/fuzz (6 bytes set to ff): zipfile raises NotImplementedError("zip file version 25.5") on
+    # opening such an archive, which must end as the one-line refusal, not a traceback.
+    path = save_checkpoint(tmp_path / "c.pt", state(1))
+    data = bytearray(path.read_bytes())
+    entry = data.index(b"PK\x01\x02")  # the first central directory entry; "version needed" is 6 bytes in
+    data[entry + 6 : entry + 8] = b"\xff\x00"
+    path.write_bytes(bytes(data))
+    with pytest.raises(CheckpointError, match=r"damaged checkpoint.*zip file version 25\.5"):
+        load_checkpoint(path)
+
+
 def test_a_pickle_that_would_run_code_is_refused_not_run(tmp_path):
     class Payload:
         def __reduce__(self):
