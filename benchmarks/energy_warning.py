@@ -46,8 +46,8 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from front_warning import columns, energy_ratio, is_bad, scene_rows, spacing
-from generalization import ROOT, dataset
+from front_warning import add_scene_arguments, columns, energy_ratio, is_bad, scene_rows, scene_sources, spacing
+from generalization import ROOT
 from second_opinion import flag_rates
 
 HINGE = 2.5
@@ -268,31 +268,15 @@ def report(rows: list[dict], threshold: float) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--model", type=Path, default=ROOT / "models" / "sand2d_general_fast.pt")
+    add_scene_arguments(parser)
     parser.add_argument(
         "--training-data",
         type=Path,
         default=ROOT / "data" / "sand_general_2d",
         help="the MPM data the predictor of R is fitted on (the model's training scenes, scene seed 0)",
     )
-    parser.add_argument("--held-out", type=int, default=20, help="held-out scenes per seed")
-    parser.add_argument(
-        "--seed", type=int, nargs="+", default=[11], help="scene seeds of the held-out scenes (training used 0)"
-    )
-    parser.add_argument(
-        "--out",
-        type=Path,
-        nargs="+",
-        default=[ROOT / "runs" / "generalization"],
-        help="one dataset folder per seed (generalization.py's --out); the canonical scenes are the first's",
-    )
-    parser.add_argument("--no-canonical", action="store_true", help="leave the four canonical scenes out")
     parser.add_argument("--threshold", type=float, default=THRESHOLD, help="flag above this |log(R / R predicted)|")
     parser.add_argument("--ridge", type=float, default=RIDGE, help="ridge penalty of the fit")
-    parser.add_argument(
-        "--cache", type=Path, help="keep the learned rollouts here (by model file name, seed and scene) and reuse them"
-    )
-    parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--json", action="store_true", help="also print the rows and rates as one JSON line")
     args = parser.parse_args(argv)
     if len(args.out) != len(args.seed):
@@ -323,18 +307,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     print("standardised coefficients: " + ", ".join(f"{k} {v:+.3f}" for k, v in training["coefficients"].items()))
 
-    cache = None if args.cache is None else args.cache / args.model.stem
-    sources = []
-    for seed, out in zip(args.seed, args.out, strict=True):
-        if args.held_out:
-            data = dataset(ROOT / "scenes" / "sand_general_2d.yaml", out / "held_out", args.held_out, seed, registry)
-            sources.append((f"held-out s{seed}", None, data, cache and cache / f"seed{seed}"))
-    if not args.no_canonical:
-        for scene_path in sorted((ROOT / "scenes" / "canonical").glob("*.yaml")):
-            data = dataset(scene_path, args.out[0] / "canonical" / scene_path.stem, 1, None, registry)
-            sources.append(("canonical", scene_path.stem, data, cache and cache / "canonical" / scene_path.stem))
     rows = []
-    for group, name, data, rollouts in sources:
+    for group, name, data, rollouts in scene_sources(args, registry):
         predicted = predicted_ratios(model, data, registry, predictor)
         for key, row in scene_rows(model, data, registry, rollouts).items():
             # A canonical scene draws one trajectory: its row goes by the scene's name.

@@ -342,8 +342,9 @@ def report(rows: list[dict], share: float, near: float) -> dict:
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
+    """The model, the held-out scenes (per seed, each in its dataset folder), the canonical ones, the rollout cache
+    and the threads: what every warning benchmark here is run on."""
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "sand2d_general_fast.pt")
     parser.add_argument("--held-out", type=int, default=20, help="held-out scenes per seed")
     parser.add_argument(
@@ -357,12 +358,36 @@ def main(argv: list[str] | None = None) -> int:
         help="one dataset folder per seed (generalization.py's --out); the canonical scenes are the first's",
     )
     parser.add_argument("--no-canonical", action="store_true", help="leave the four canonical scenes out")
-    parser.add_argument("--share", type=float, default=SHARE, help="the rule's least run share of a front (0-1)")
-    parser.add_argument("--near", type=float, default=NEAR, help="the rule's largest gap ahead, particle spacings")
     parser.add_argument(
         "--cache", type=Path, help="keep the learned rollouts here (by model file name, seed and scene) and reuse them"
     )
     parser.add_argument("--threads", type=int, default=1)
+
+
+def scene_sources(args: argparse.Namespace, registry) -> list[tuple[str, str | None, Path, Path | None]]:
+    """``(group, name, dataset, rollout cache)`` of the scenes :func:`add_scene_arguments` chose, made when absent.
+
+    ``name`` is the canonical scene's (it draws one trajectory, whose row goes by the scene's name), None for a
+    held-out dataset (its rows go by their trajectories' keys).
+    """
+    cache = None if args.cache is None else args.cache / args.model.stem
+    sources = []
+    for seed, out in zip(args.seed, args.out, strict=True):
+        if args.held_out:
+            data = dataset(ROOT / "scenes" / "sand_general_2d.yaml", out / "held_out", args.held_out, seed, registry)
+            sources.append((f"held-out s{seed}", None, data, cache and cache / f"seed{seed}"))
+    if not args.no_canonical:
+        for scene_path in sorted((ROOT / "scenes" / "canonical").glob("*.yaml")):
+            data = dataset(scene_path, args.out[0] / "canonical" / scene_path.stem, 1, None, registry)
+            sources.append(("canonical", scene_path.stem, data, cache and cache / "canonical" / scene_path.stem))
+    return sources
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_scene_arguments(parser)
+    parser.add_argument("--share", type=float, default=SHARE, help="the rule's least run share of a front (0-1)")
+    parser.add_argument("--near", type=float, default=NEAR, help="the rule's largest gap ahead, particle spacings")
     parser.add_argument("--json", action="store_true", help="also print the rows and sweeps as one JSON line")
     args = parser.parse_args(argv)
     if len(args.out) != len(args.seed):
@@ -374,19 +399,10 @@ def main(argv: list[str] | None = None) -> int:
 
     registry = load_registry()
     model = load_trained(args.model, registry, torch.device("cpu"))
-    cache = None if args.cache is None else args.cache / args.model.stem
     rows = []
-    for seed, out in zip(args.seed, args.out, strict=True):
-        if args.held_out:
-            data = dataset(ROOT / "scenes" / "sand_general_2d.yaml", out / "held_out", args.held_out, seed, registry)
-            figures = scene_rows(model, data, registry, cache and cache / f"seed{seed}")
-            rows += [{"group": f"held-out s{seed}", "scene": key, **row} for key, row in figures.items()]
-    if not args.no_canonical:
-        for scene_path in sorted((ROOT / "scenes" / "canonical").glob("*.yaml")):
-            data = dataset(scene_path, args.out[0] / "canonical" / scene_path.stem, 1, None, registry)
-            # One trajectory drawn per canonical scene: its row goes by the scene's name.
-            for row in scene_rows(model, data, registry, cache and cache / "canonical" / scene_path.stem).values():
-                rows.append({"group": "canonical", "scene": scene_path.stem, **row})
+    for group, name, data, rollouts in scene_sources(args, registry):
+        for key, row in scene_rows(model, data, registry, rollouts).items():
+            rows.append({"group": group, "scene": name or key, **row})
     print(f"{args.model}: % against the MPM at the data's grid; gap in particle spacings ('wall': held by it)")
     summary = report(rows, args.share, args.near)
     if args.json:
