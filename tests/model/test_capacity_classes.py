@@ -11,7 +11,6 @@ import torch
 from fixed_capacity_cases import small_simulator, wandering_trajectory
 
 from gns_framework.data.batch import window
-from gns_framework.model import captured_steps
 from gns_framework.model.batched_rollout import rollout_batch
 from gns_framework.model.capacity_classes import CaptureClasses, padded, particle_capacity
 from gns_framework.model.rollout import rollout
@@ -36,20 +35,6 @@ def test_a_padded_batch_has_the_class_shape_with_nan_rows_in_an_example_of_their
     assert batch.particle_type[12:].tolist() == [int(scenes[1].particle_type[-1])] * 4
     with pytest.raises(ValueError, match="exceed a class of 3 and 10"):
         padded(windows, 10, scenes=3)
-
-
-@pytest.fixture
-def counted(monkeypatch):
-    """Every CapturedSteps made, in order."""
-    made = []
-    original = captured_steps.CapturedSteps.__init__
-
-    def remember(self, *args, **kwargs):
-        original(self, *args, **kwargs)
-        made.append(self)
-
-    monkeypatch.setattr(captured_steps.CapturedSteps, "__init__", remember)
-    return made
 
 
 def _scenes(sizes, seed, box=None):

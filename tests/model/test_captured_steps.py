@@ -9,25 +9,10 @@ import numpy as np
 import pytest
 from fixed_capacity_cases import small_simulator, wandering_trajectory
 
-from gns_framework.model import captured_steps
 from gns_framework.model.rollout import rollout
 from gns_framework.runtime.capture import CaptureError
 
 PAPER = {"name": "interaction_network", "message_passing_steps": 2, "edge_block": "plain"}
-
-
-@pytest.fixture
-def counted(monkeypatch):
-    """Every CapturedSteps the rollouts make, in order."""
-    made = []
-    original = captured_steps.CapturedSteps.__init__
-
-    def remember(self, *args, **kwargs):
-        original(self, *args, **kwargs)
-        made.append(self)
-
-    monkeypatch.setattr(captured_steps.CapturedSteps, "__init__", remember)
-    return made
 
 
 @pytest.mark.parametrize("edge_block", ["plain", "fused"])
