@@ -55,7 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="CHECKPOINT",
         help="fine-tune: start at step 0 from the weights of a trained checkpoint of the same model and scene "
         "(its weight average when it has one) with a fresh optimiser and schedule, e.g. on more data of the "
-        "same envelope; recorded in every checkpoint. Not with --resume (a resumed run keeps its own weights)",
+        "same envelope; the training noise (model.noise_std, noise_relative) may differ; recorded in every "
+        "checkpoint. Not with --resume (a resumed run keeps its own weights)",
     )
     parser.add_argument("--device", help="cpu, cuda or cuda:N (overrides training.device)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -8,7 +8,7 @@ Every problem is reported at once with its location.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
@@ -73,6 +73,13 @@ class DatasetSpec(ComponentSpec):
 
 
 class ModelSpec(_Strict):
+    """The recipe's ``model`` section: what the weights mean, and the training noise."""
+
+    #: Fields that shape how the model is trained, not what its weights compute: a fine-tuning run
+    #: (``gns train --init-from``) may change them. The normalisation statistics that the noise widened
+    #: travel with the weights, so the fine-tuned weights keep the scale they were learned against.
+    TRAINING_ONLY: ClassVar[frozenset[str]] = frozenset({"noise_std", "noise_relative"})
+
     history: int = Field(6, ge=2, description="C, positions per input window (C - 1 velocities)")
     latent_size: int = Field(128, ge=1)
     mlp_hidden_size: int = Field(128, ge=1)

@@ -18,7 +18,7 @@ import torch
 from ..assembly.data import PreparedData
 from ..assembly.learned import plugin_versions
 from ..assembly.scene import scene_to_dict
-from ..config.recipe import Recipe
+from ..config.recipe import ModelSpec, Recipe
 from ..errors import CheckpointError, GnsError
 from ..io.checkpoint import (
     load_checkpoint,
@@ -160,16 +160,19 @@ class Checkpoints:
         # A checkpoint's CUDA generator states (older checkpoints have them) are ignored: nothing
         # draws from them, and restoring them failed with fewer GPUs visible than when it was written.
 
-    def check_same_model(self, state: dict, source: str) -> None:
-        """Refuse a checkpoint of another model (recipe's model section) or scene, naming every difference."""
+    def check_same_model(self, state: dict, source: str, fine_tuning: bool = False) -> None:
+        """Refuse a checkpoint of another model (recipe's model section) or scene, naming every difference.
+
+        When ``fine_tuning``, the fields that only shape training (``ModelSpec.TRAINING_ONLY``, the
+        training noise) may differ; a resumed run must match in every field.
+        """
         saved_model = state["recipe"].get("model", {})
         current = self.recipe.resolved()["model"]
         # The radius the model uses is the scene's (the recipe's, else the data's default): compared there, so
         # a recipe that spells out the radius its checkpoint took from the data is the same model.
+        free = {"connectivity_radius"} | (ModelSpec.TRAINING_ONLY if fine_tuning else set())
         differing = sorted(
-            k
-            for k in set(saved_model) | set(current)
-            if k != "connectivity_radius" and saved_model.get(k) != current.get(k)
+            k for k in set(saved_model) | set(current) if k not in free and saved_model.get(k) != current.get(k)
         )
         if differing:
             details = "; ".join(
@@ -188,7 +191,8 @@ class Checkpoints:
         rollouts use), else its weights, with its normalisation statistics (the weights
         were learned against them). The optimiser, the learning-rate schedule, the
         best-checkpoint record and this run's weight average start afresh. The
-        checkpoint must be of the same model (the recipe's ``model`` section) and scene
+        checkpoint must be of the same model (the recipe's ``model`` section, but for
+        its training noise, which a fine-tuning may change) and scene
         (particle types, bounds, connectivity radius): anything else is refused, naming
         each difference. The source is recorded in every checkpoint (``initialized_from``),
         and the recorded envelope joins the checkpoint's to this data's (:meth:`Envelope.union`).
@@ -199,7 +203,7 @@ class Checkpoints:
         if self.processes.is_chief:
             try:
                 state = load_checkpoint(path)  # refuses a file without recipe, scene, model or step
-                self.check_same_model(state, str(path))
+                self.check_same_model(state, str(path), fine_tuning=True)
             except GnsError as exc:
                 error = exc
         # Rank 0 reads; every rank starts from the same weights.

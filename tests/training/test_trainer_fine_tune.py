@@ -101,3 +101,31 @@ def test_the_fine_tuned_envelope_holds_the_source_models_data_too(uneven_dataset
     assert own != [1, 10**6]
     tuned.checkpoints.initialize_from(source)
     assert tuned.checkpoints.state()["envelope"]["particle_count"] == [1, 10**6]
+
+
+def test_a_fine_tuning_may_change_the_training_noise_and_keeps_the_normalisation_its_weights_learned(
+    uneven_dataset, trained, tmp_path
+):
+    source = load_checkpoint(trained)
+    recipe = tiny_recipe(uneven_dataset)
+    recipe["model"]["noise_relative"] = 0.03
+    quiet = make_trainer(recipe, tmp_path / "quiet")
+    # Built from the data with the new noise, the acceleration scale differs from the checkpoint's ...
+    stats = [k for k in source["model"] if k.endswith(".std")]
+    assert stats and any(not torch.equal(quiet.simulator.state_dict()[k], source["ema"]["model"][k]) for k in stats)
+    quiet.checkpoints.initialize_from(trained)
+    # ... and the checkpoint's, which its weights were learned against, replaces it; the noise is the new one.
+    for key in stats:
+        assert torch.equal(quiet.simulator.state_dict()[key], source["ema"]["model"][key]), key
+    assert quiet.optimisation.noise_std != make_trainer(tiny_recipe(uneven_dataset), tmp_path / "loud").optimisation.noise_std
+
+
+def test_a_resumed_run_must_keep_its_training_noise(uneven_dataset, trained, tmp_path):
+    recipe = tiny_recipe(uneven_dataset)
+    recipe["model"]["noise_relative"] = 0.03
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    state = {k: v for k, v in load_checkpoint(trained).items() if k != "format"}
+    save_checkpoint(run / "checkpoints" / trained.name, state)
+    with pytest.raises(CheckpointError, match=r"model\.noise_relative: checkpoint .*, recipe 0\.03"):
+        make_trainer(recipe, run).checkpoints.resume()
