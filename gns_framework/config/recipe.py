@@ -193,6 +193,12 @@ class TrainingSpec(_Strict):
         "with torch.compile, whole graphs or an error: fused kernels on GPUs; the first steps pay the compilation "
         "(gns_framework/runtime/compiled.py)",
     )
+    capture_step: bool = Field(
+        False,
+        description="replay each training step from captures (CUDA graphs on GPUs): batches padded to capacity classes "
+        "of at most 25 % more particles, one capture per class; one process, graph builder radius_fixed_capacity, a "
+        "processor that reads nothing back (gns_framework/training/captured_step.py)",
+    )
     pushforward_steps: int = Field(
         0,
         ge=0,

@@ -124,7 +124,10 @@ class _Tape(TorchDispatchMode):
         self.operations.append((func, args, kwargs, outputs))
         return result
 
+    @torch.no_grad()
     def replay(self) -> None:
+        # The recorded operations include a captured backward's: replayed as plain ATen operations, as a CUDA
+        # graph's kernels are, not tracked by autograd again.
         for func, args, kwargs, outputs in self.operations:
             again = [leaf for leaf in tree_flatten(func(*args, **kwargs))[0] if isinstance(leaf, torch.Tensor)]
             for captured, fresh in zip(outputs, again, strict=True):

@@ -30,6 +30,7 @@ class WeightAverage(Generic[ModelT]):
             raise ValueError(f"ema_decay must lie in (0, 1), got {decay}")
         self.decay = decay
         self._averaged = AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(decay), use_buffers=False)
+        self._averaging = False  # whether an update has copied the weights (the count, kept on the host)
 
     @property
     def module(self) -> ModelT:
@@ -38,7 +39,18 @@ class WeightAverage(Generic[ModelT]):
 
     @torch.no_grad()
     def update(self, model: torch.nn.Module) -> None:
-        self._averaged.update_parameters(model)
+        if not self._averaging:
+            self._averaged.update_parameters(model)  # the first update copies
+            self._averaging = True
+            return
+        # The same lerp as AveragedModel's, without its comparisons of the count with 0 on the host at every
+        # call: two read-backs a step, which a captured training step cannot make.
+        torch._foreach_lerp_(list(self.module.parameters()), list(model.parameters()), 1.0 - self.decay)
+        self._averaged.n_averaged += 1
+
+    def tensors(self) -> list[torch.Tensor]:
+        """What an update changes: the averaged weights and the update count."""
+        return [*self.module.parameters(), self._averaged.n_averaged]
 
     def state_dict(self) -> dict:
         """The averaged model's weights (keys as the model's) and how many updates they hold."""
@@ -47,3 +59,4 @@ class WeightAverage(Generic[ModelT]):
     def load_state_dict(self, state: dict) -> None:
         self.module.load_state_dict(state["model"])
         self._averaged.n_averaged.fill_(int(state["updates"]))
+        self._averaging = int(state["updates"]) > 0

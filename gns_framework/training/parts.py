@@ -32,12 +32,14 @@ from ..model.noise import training_noise_std
 from ..plugins import Registry
 from ..runtime.activation_memory import set_recompute_activations
 from ..runtime.allocator import keep_freed_memory
+from ..runtime.capture import CaptureError
 from ..runtime.compiled import compile_node_side
 from ..runtime.deterministic import set_deterministic_sums
 from ..runtime.device import resolve_device
 from ..runtime.processes import Processes
 from ..runtime.teams import team_of
 from . import distributed
+from .captured_step import CapturedTrainingStep
 from .checkpoints import Checkpoints
 from .ema import WeightAverage
 from .optim import make_optimizer
@@ -64,6 +66,7 @@ class TrainingParts:
         optimisation: one optimiser step (:class:`~.step.TrainingStep` or its partitioned twin).
         validation: one-step and rollout validation, keeping ``best.pt``.
         checkpoints: writing, resuming and fine-tuning.
+        captured: ``optimisation`` replayed from captures (``training.capture_step``), or None.
     """
 
     recipe: Recipe
@@ -83,6 +86,7 @@ class TrainingParts:
     optimisation: TrainingStep
     validation: Validation
     checkpoints: Checkpoints
+    captured: CapturedTrainingStep | None = None
 
 
 class RunSources(TypedDict, total=False):
@@ -144,6 +148,9 @@ class _Builder:
         )
         if spec.compile_node_side:  # after the weight average copied it: a copy would call the original's graphs
             compile_node_side(simulator)
+        if spec.capture_step and team is not None:
+            raise CaptureError("training.capture_step: not with training.partitions (a captured step cannot exchange)")
+        captured = CapturedTrainingStep(optimisation) if spec.capture_step else None
         validation = self.validation(data, device, team)
         checkpoints = Checkpoints(
             self.recipe,
@@ -176,6 +183,7 @@ class _Builder:
             optimisation,
             validation,
             checkpoints,
+            captured,
         )
 
     def device(self) -> torch.device:

@@ -73,6 +73,7 @@ class Trainer:
         self.simulator, self.model = parts.simulator, parts.model
         self.optimizer, self.scheduler = parts.optimizer, parts.scheduler
         self.optimisation, self.validation, self.checkpoints = parts.optimisation, parts.validation, parts.checkpoints
+        self.captured = parts.captured
         self.progress = progress
         self.stopped_by_time = False
         """Whether :meth:`train` stopped at its time limit, before its last step."""
@@ -108,7 +109,7 @@ class Trainer:
         reads back every step on the CPU and only at logging, validation and
         checkpoint steps on a GPU) and its particle count.
         """
-        loss, particles = self.optimisation(self.step)
+        loss, particles = (self.captured or self.optimisation)(self.step)
         self.step += 1
         return loss, particles
 

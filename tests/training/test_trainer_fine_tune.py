@@ -117,7 +117,10 @@ def test_a_fine_tuning_may_change_the_training_noise_and_keeps_the_normalisation
     # ... and the checkpoint's, which its weights were learned against, replaces it; the noise is the new one.
     for key in stats:
         assert torch.equal(quiet.simulator.state_dict()[key], source["ema"]["model"][key]), key
-    assert quiet.optimisation.noise_std != make_trainer(tiny_recipe(uneven_dataset), tmp_path / "loud").optimisation.noise_std
+    assert (
+        quiet.optimisation.noise_std
+        != make_trainer(tiny_recipe(uneven_dataset), tmp_path / "loud").optimisation.noise_std
+    )
 
 
 def test_a_resumed_run_must_keep_its_training_noise(uneven_dataset, trained, tmp_path):
