@@ -826,6 +826,91 @@ def batched(args) -> None:
     )
 
 
+def train_capture(args) -> None:
+    """Training steps of the paper's model on the fixed-capacity graph, eager against captured
+    (``training.capture_step``: CUDA graphs on CUDA, the emulation on the CPU): the same weights, and the time
+    per step. Two lattice scenes of about ``--particles`` particles (batches of 2 fall in 3 capacity classes);
+    ``--warmup`` steps each way (the captures among them), then ``--steps`` timed. ``loss_rel_diff``: the
+    largest relative difference of the two runs' losses over all steps (TF32 off; the same fused Adam both
+    ways): the padded batches sum in another order, a few float32 ulps. ``weight_diff_lr``: the weights'
+    largest difference in learning rates; Adam's first steps move a weight by about one learning rate whatever
+    its gradient's size, so a gradient at rounding level may move it either way (up to 2 per step)."""
+    import tempfile
+
+    import numpy as np
+    import torch
+
+    from gns_framework.config.recipe import validate_recipe
+    from gns_framework.data.trajectory import Trajectory
+    from gns_framework.plugins import load_registry
+    from gns_framework.runtime.device import synchronize
+    from gns_framework.training.captured_step import make_capturable
+    from gns_framework.training.trainer import Trainer
+
+    registry = load_registry()
+    work = Path(tempfile.mkdtemp(prefix="train_capture."))
+    frames = 12
+    splits = {}
+    for split, seeds in {"train": (0, 1), "valid": (2,), "test": (3,)}.items():
+        splits[split] = []
+        for seed in seeds:
+            scene = _lattice(int(args.particles * (1.0 - 0.1 * seed)))
+            window = scene.batch.position_sequence.transpose(0, 1).numpy()
+            ahead = np.repeat(window[-1:], frames - len(window), axis=0)  # the walls fit the lattice tightly
+            kinds = np.full(window.shape[1], 5)
+            splits[split].append(
+                Trajectory(np.concatenate([window, ahead]).astype(np.float32), kinds, None, None, f"{split}_{seed}")
+            )
+    metadata = _lattice(args.particles).metadata.model_copy(update={"sequence_length": frames})
+    registry.get("dataset", "safe").write(work / "data", metadata, splits)
+    figures, weights, losses = {}, {}, {}
+    with _no_tf32():
+        for name in ("eager", "captured"):
+            recipe = {
+                "name": f"train-capture-{name}",
+                "seed": 0,
+                "dataset": {"path": str(work / "data")},
+                "model": {"graph_builder": {"name": "radius_fixed_capacity"}},
+                "training": {
+                    "steps": args.warmup + args.steps,
+                    "batch_size": 2,
+                    "device": args.device,
+                    "ema_decay": 0.999,
+                    "capture_step": name == "captured",
+                    "log_every": 10**6,
+                    "validate_every": 10**6,
+                    "checkpoint_every": 10**6,
+                },
+            }
+            trainer = Trainer(validate_recipe(recipe, registry), registry, run_dir=work / name, progress=False)
+            trainer.checkpoints.start_afresh()
+            if trainer.captured is None:
+                make_capturable(trainer.optimizer)
+            kept = [trainer.train_step()[0] for _ in range(args.warmup)]
+            synchronize(trainer.device)
+            started = time.perf_counter()
+            kept += [trainer.train_step()[0] for _ in range(args.steps)]
+            synchronize(trainer.device)
+            figures[f"{name}_ms"] = (time.perf_counter() - started) / args.steps * 1e3
+            losses[name] = torch.stack(kept).cpu()
+            lr = trainer.recipe.training.optimizer.lr_init
+            weights[name] = torch.cat([p.detach().flatten() for p in trainer.simulator.parameters()])
+            if trainer.captured is not None:
+                figures["classes"] = len(trainer.captured.classes)
+                figures["captures"] = trainer.captured.captures
+    loss_difference = float(((losses["eager"] - losses["captured"]).abs() / losses["eager"].abs()).max())
+    emit(
+        "train_capture",
+        particles=args.particles,
+        steps=args.steps,
+        **figures,
+        speedup=figures["eager_ms"] / figures["captured_ms"],
+        loss_rel_diff=loss_difference,
+        weight_diff_lr=float((weights["eager"] - weights["captured"]).abs().max()) / lr,
+        status="ok" if loss_difference <= 1e-4 else "differ",
+    )
+
+
 @contextlib.contextmanager
 def _no_tf32():
     import torch
@@ -887,7 +972,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("imports")
-    for name in ("info", "ddp", "sums", "chunks", "scale", "capture", "batched", "mpm"):
+    for name in ("info", "ddp", "sums", "chunks", "scale", "capture", "train_capture", "batched", "mpm"):
         command = sub.add_parser(name)
         command.add_argument("--device", default="cuda")
     sub.add_parser("tests").add_argument("files", nargs="+")
@@ -918,6 +1003,9 @@ def main() -> None:
     sub.choices["capture"].add_argument(
         "--compile-backend", default="inductor", help="torch.compile backend of the node side (eager: trace only)"
     )
+    sub.choices["train_capture"].add_argument("--particles", type=int, default=10_000)
+    sub.choices["train_capture"].add_argument("--warmup", type=int, default=12, help="untimed steps (captures)")
+    sub.choices["train_capture"].add_argument("--steps", type=int, default=20, help="timed steps")
     sub.choices["batched"].add_argument("--scenes", type=int, default=64)
     sub.choices["batched"].add_argument("--particles", type=int, nargs=2, default=[250, 350], help="LO HI per scene")
     sub.choices["batched"].add_argument("--steps", type=int, default=57, help="steps of each scene's rollout")
@@ -935,6 +1023,7 @@ def main() -> None:
         "chunks": chunks,
         "scale": scale,
         "capture": capture,
+        "train_capture": train_capture,
         "batched": batched,
         "mpm": mpm,
         "data": data,

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The GPU check: install what the machine lacks, imports, CUDA tests, training + resume, rollout,
 # DDP, node sums, a chunked step against the CPU, the Triton edge block against the chunked one, captured
-# rollout steps against eager ones, step
+# rollout and training steps against eager ones, step
 # time and peak memory by scene size and precision, many small scenes batched in capacity classes against one at a
 # time, and the MPM on CUDA. Every part has its own time limit and the whole run a budget
 # (450 s, install included), so it ends within 8 minutes on one GPU; exits non-zero when any part fails.
@@ -125,6 +125,7 @@ if [ "$DRY" = 1 ]; then
   SUMS=(--rows 20000 --chunk-rows 2000 --repeat 3)
   CHUNKS=(--particles 500)
   CAPTURE=(--sizes 300 --steps 3 --compile-backend eager)
+  TRAIN_CAPTURE=(--particles 200 --warmup 4 --steps 2)
   BATCHED=(--scenes 6 --particles 40 80 --steps 3 --batch 3)
   KERNELS=(--small --sizes 64 --precisions float32 --repeat 1 --profile-rows 3)
   MPM=(--grid 24 --frames 3)
@@ -134,6 +135,7 @@ else
   SUMS=(--rows 4194304 --chunk-rows 262144 --repeat 10)
   CHUNKS=(--particles 10000)
   CAPTURE=(--sizes 300 10000 100000 --steps 20)
+  TRAIN_CAPTURE=(--particles 10000 --warmup 12 --steps 20)
   BATCHED=(--scenes 32 --particles 250 350 --steps 57 --batch 16)
   KERNELS=(--sizes 10000 100000 --precisions float32 bfloat16 --repeat 5 --profile-rows 15)
   MPM=(--grid 96 --frames 10)
@@ -192,6 +194,7 @@ else
 fi
 # Rollout steps on the fixed-capacity graph, eager against one captured CUDA graph (issue 45, item 4).
 part capture 45 "$PYTHON" benchmarks/gpu_check.py capture --device "$DEVICE" "${CAPTURE[@]}"
+part train_capture 40 "$PYTHON" benchmarks/gpu_check.py train_capture --device "$DEVICE" "${TRAIN_CAPTURE[@]}"
 part scale 130 "$PYTHON" benchmarks/gpu_check.py scale --device "$DEVICE" "${SCALE[@]}"
 # Many small scenes, one at a time against batches replaying their capacity classes' captures (item 5).
 part batched 50 "$PYTHON" benchmarks/gpu_check.py batched --device "$DEVICE" "${BATCHED[@]}"

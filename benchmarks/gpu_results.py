@@ -11,7 +11,8 @@ particle count (the ``scale`` part's median steps at that precision; stored acti
 both were timed, else recompute), the edge kernels' times and speed-ups (``kernels``), whether
 the ordered sums and the Triton training step gave the same bits twice (``same_bits``), float32
 rollout steps eager and captured on the fixed-capacity graph keyed by particle count
-(``captured_rollout_ms``: ``eager_ms``, ``captured_ms``, ``max_abs_diff``), and
+(``captured_rollout_ms``: ``eager_ms``, ``captured_ms``, ``max_abs_diff``), training steps the same way
+(``captured_training_ms``: ``eager_ms``, ``captured_ms``, ``loss_rel_diff``), and
 ``small_scene_rollout_s`` and ``batched_s_per_scene`` when the run measured them (else None).
 Every figure docs/performance.md quotes from a device run lives here, run by run.
 """
@@ -63,6 +64,11 @@ def record(text: str, commit: str, date: str, precision: str = "bfloat16") -> di
         for p, f in lines
         if p == "capture" and f.get("status") in ("ok", "differ") and "captured_ms" in f
     }
+    captured_training = {
+        f["particles"]: {key: float(f[key]) for key in ("eager_ms", "captured_ms", "loss_rel_diff")}
+        for p, f in lines
+        if p == "train_capture" and "captured_ms" in f
+    }
     small = next((float(f["seconds"]) for p, f in lines if p == "small_scene" and "seconds" in f), None)
     batched = next((float(f["s_per_scene"]) for p, f in lines if p == "batched" and "s_per_scene" in f), None)
     return {
@@ -75,6 +81,7 @@ def record(text: str, commit: str, date: str, precision: str = "bfloat16") -> di
         "kernels": kernels,
         "same_bits": same_bits,
         "captured_rollout_ms": captured,
+        "captured_training_ms": captured_training,
         "small_scene_rollout_s": small,
         "batched_s_per_scene": batched,
     }

@@ -59,6 +59,7 @@ def test_the_dry_run_passes_every_cpu_part_and_reports_in_the_documented_format(
             "chunks",
             "kernels",
             "capture",
+            "train_capture",
             "batched",
             "scale",
             "mpm",
@@ -91,6 +92,8 @@ def test_the_dry_run_passes_every_cpu_part_and_reports_in_the_documented_format(
         assert {line["path"] for line in lines if line["part"] == "kernels_profile"} == {"chunked", "triton"}
     capture = next(line for line in lines if line["part"] == "capture")
     assert capture["status"] == "ok" and float(capture["max_abs_diff"]) <= 1e-4 and capture["captures"] == "1"
+    trained = next(line for line in lines if line["part"] == "train_capture" and "captured_ms" in line)
+    assert trained["status"] == "ok" and float(trained["loss_rel_diff"]) <= 1e-4 and int(trained["captures"]) >= 1
     batched = next(line for line in lines if line["part"] == "batched" and "status" in line and "scenes" in line)
     assert batched["status"] == "ok" and int(batched["classes"]) == int(batched["captures"]) >= 1
     steps = [line for line in lines if line["part"] == "step"]

@@ -26,6 +26,7 @@ gpu_check: step particles=1000000 precision=bfloat16 phase=rollout memory=stored
 gpu_check: part name=scale status=pass seconds=100 limit=130
 gpu_check: capture particles=300 steps=20 eager_ms=9.1 captured_ms=0.8 overflowed=False speedup=11.4 max_abs_diff=2e-07 captures=1 status=ok
 gpu_check: capture particles=100000 status=over_budget
+gpu_check: train_capture particles=10000 steps=20 eager_ms=60.5 captured_ms=7.5 classes=3 captures=3 speedup=8.07 loss_rel_diff=3e-06 weight_diff_lr=1.8 status=ok
 """  # noqa: E501 - gpu_check's log lines as it writes them, one record a line
 
 
@@ -38,6 +39,7 @@ def test_the_record_holds_the_step_times_of_one_precision_and_the_kernels():
     assert entry["same_bits"] == {"sums_ordered_sorted": True, "triton_train_bfloat16": True}
     assert entry["small_scene_rollout_s"] is None
     assert entry["captured_rollout_ms"] == {"300": {"eager_ms": 9.1, "captured_ms": 0.8, "max_abs_diff": 2e-07}}
+    assert entry["captured_training_ms"] == {"10000": {"eager_ms": 60.5, "captured_ms": 7.5, "loss_rel_diff": 3e-06}}
 
 
 def test_records_are_appended_to_the_list(tmp_path):
