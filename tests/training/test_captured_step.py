@@ -133,3 +133,43 @@ def test_a_builder_that_waits_for_the_device_is_named(uneven_dataset, tmp_path):
     trainer.train_step()
     with pytest.raises(CaptureError, match="graph builder 'radius' waits for the device"):
         trainer.train_step()
+
+
+READS = ("item", "tolist", "cpu", "numpy", "__bool__", "__int__", "__float__", "__index__")
+
+
+def test_a_replayed_step_reads_back_once_the_capacity_check(uneven_dataset, tmp_path, monkeypatch):
+    """After its classes are captured a step waits for the device once: the graph builder's check before the update."""
+    from gns_builtins._kernels import fixed_capacity
+
+    registry = load_registry()
+    made = recipe(uneven_dataset, capture_step=True, steps=40)
+    trainer = Trainer(validate_recipe(made, registry), registry, run_dir=tmp_path, progress=False)
+    trainer.checkpoints.start_afresh()
+    for _ in range(30):  # every pair of the 4 scenes met, every class captured and grown to what it needs
+        trainer.train_step()
+    steps = trainer.captured
+    assert steps is not None
+    captures = steps.captures
+    documented: list = []
+    originals = {name: getattr(torch.Tensor, name) for name in READS}
+
+    def counted(tensor):
+        documented.append(tuple(tensor.shape))
+        return originals["tolist"](tensor)
+
+    def forbidden(name):
+        def read(self, *args, **kwargs):
+            raise AssertionError(f"Tensor.{name} in a captured training step")
+
+        return read
+
+    with monkeypatch.context() as patch:
+        for name in READS:
+            patch.setattr(torch.Tensor, name, forbidden(name))
+        patch.setattr(fixed_capacity, "read_back", counted)
+        losses = [trainer.train_step()[0] for _ in range(3)]
+    assert steps.captures == captures, "no class was new or grew: the steps replayed captures"
+    # The running maximum of what a search needed: pairs, candidates and grid cells per axis.
+    assert documented == [(4,)] * 3
+    assert all(bool(torch.isfinite(loss)) for loss in losses)
