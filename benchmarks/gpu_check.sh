@@ -194,10 +194,11 @@ else
 fi
 # Rollout steps on the fixed-capacity graph, eager against one captured CUDA graph (issue 45, item 4).
 part capture 45 "$PYTHON" benchmarks/gpu_check.py capture --device "$DEVICE" "${CAPTURE[@]}"
-part train_capture 40 "$PYTHON" benchmarks/gpu_check.py train_capture --device "$DEVICE" "${TRAIN_CAPTURE[@]}"
 part scale 130 "$PYTHON" benchmarks/gpu_check.py scale --device "$DEVICE" "${SCALE[@]}"
 # Many small scenes, one at a time against batches replaying their capacity classes' captures (item 5).
 part batched 50 "$PYTHON" benchmarks/gpu_check.py batched --device "$DEVICE" "${BATCHED[@]}"
+# Training steps eager against replayed from captures, batches padded to capacity classes (item 4).
+part train_capture 40 "$PYTHON" benchmarks/gpu_check.py train_capture --device "$DEVICE" "${TRAIN_CAPTURE[@]}"
 part mpm 40 "$PYTHON" benchmarks/gpu_check.py mpm --device "$DEVICE" "${MPM[@]}"
 
 summary
