@@ -173,3 +173,21 @@ def test_a_replayed_step_reads_back_once_the_capacity_check(uneven_dataset, tmp_
     # The running maximum of what a search needed: pairs, candidates and grid cells per axis.
     assert documented == [(4,)] * 3
     assert all(bool(torch.isfinite(loss)) for loss in losses)
+
+
+def test_a_captured_run_resumes_where_it_stopped(uneven_dataset, eager, tmp_path):
+    """Stopped after 4 steps and resumed in a new process's trainer: the resumed run's first step is eager (it
+    makes Adam capturable again from the checkpoint's state), the rest replayed; the weights end as eager ones."""
+    registry = load_registry()
+    made = recipe(uneven_dataset, capture_step=True, checkpoint_every=4)
+    first = Trainer(validate_recipe(made, registry), registry, run_dir=tmp_path, progress=False)
+    first.checkpoints.start_afresh()
+    first.train(4)
+    first.close()
+    resumed = Trainer(validate_recipe(made, registry), registry, run_dir=tmp_path, progress=False)
+    assert resumed.checkpoints.resume() is not None and resumed.step == 4
+    losses = [float(resumed.train_step()[0]) for _ in range(STEPS - 4)]
+    assert resumed.captured is not None and resumed.captured.eager_steps == 1
+    assert torch.allclose(torch.tensor(losses), torch.tensor(eager.losses[4:]), rtol=1e-5, atol=0)
+    weights, averages = largest_difference(resumed, eager)
+    assert weights < 1e-6 and averages < 1e-6
