@@ -134,22 +134,13 @@ class CapturedTrainingStep:
 
     def __init__(self, step: TrainingStep):
         if step.processes.world_size > 1:
-            raise CaptureError("training.capture: one process only (a captured step cannot all-reduce yet)")
+            raise CaptureError("training.capture_step: one process only (a captured step cannot all-reduce yet)")
         self.eager = step
         self.simulator = step.simulator
         self.classes: dict[Hashable, _Class] = {}
         self.update: CapturedStep[None] | None = None
         self.captures = self.eager_steps = 0
         self._grads: list[Tensor] = []
-
-    # The run's other parts (checkpoints, validation) read these of the step they were given.
-    @property
-    def ema(self):
-        return self.eager.ema
-
-    @property
-    def noise_std(self) -> float:
-        return self.eager.noise_std
 
     def __call__(self, step: int) -> tuple[Tensor, int]:
         """Optimiser step number ``step``: the global batch's loss (float64, on the device) and its particle count."""
@@ -167,6 +158,8 @@ class CapturedTrainingStep:
         noise = step_noise(drawn, counts, (setup.history, setup.dim), eager.noise_std, eager.seed)
         padded, padding = padded_windows(batch, particle_capacity(batch.num_particles))
         noise = torch.cat([noise, noise.new_zeros(len(padding) - len(noise), *noise.shape[1:])])
+        if eager.pins_memory:  # copies to a GPU from pinned memory need not block the host
+            padded, noise, padding = padded.pinned(), noise.pin_memory(), padding.pin_memory()
         unrolled = eager.pushforward_steps(step)
         kept = self._class(padded, noise, padding, unrolled)
         loss = self._gradients(kept)
@@ -236,7 +229,7 @@ class CapturedTrainingStep:
             builder = simulator.graph_builder
             hint = "" if builder.fixed_capacity else f"; the graph builder {builder.name!r} waits for the device"
             raise CaptureError(
-                f"training.capture: this model's training step cannot be captured: {error}{hint}"
+                f"training.capture_step: this model's training step cannot be captured: {error}{hint}"
             ) from error
         self.captures += 1
         return captured
