@@ -372,6 +372,18 @@ def _lattice(particles: int):
     return lattice_scene(particles, dim=3)
 
 
+def _lattice_trajectory(particles: int, still: int, key: str):
+    """The lattice scene's window, then ``still`` frames at its last positions (its walls fit the lattice tightly):
+    a trajectory of 3D water particles to roll out or train on, not kinematic."""
+    import numpy as np
+
+    from gns_framework.data.trajectory import Trajectory
+
+    window = _lattice(particles).batch.position_sequence.transpose(0, 1).numpy()
+    frames = np.concatenate([window, np.repeat(window[-1:], still, axis=0)])
+    return Trajectory(frames, np.full(particles, 5), None, None, key)
+
+
 def _simulator(scene, device, graph_builder: str = "radius"):
     import torch
 
@@ -769,7 +781,6 @@ def batched(args) -> None:
     import numpy as np
     import torch
 
-    from gns_framework.data.trajectory import Trajectory
     from gns_framework.model import captured_steps
     from gns_framework.model.batched_rollout import rollout_batch
     from gns_framework.model.capacity_classes import CaptureClasses
@@ -779,10 +790,7 @@ def batched(args) -> None:
     device = torch.device(args.device)
     sizes = np.random.default_rng(0).integers(args.particles[0], args.particles[1] + 1, args.scenes)
     scenes = []
-    for k, particles in enumerate(sizes):
-        window = _lattice(int(particles)).batch.position_sequence.transpose(0, 1).numpy()
-        frames = np.concatenate([window, np.repeat(window[-1:], args.steps, axis=0)])  # no kinematic particles
-        scenes.append(Trajectory(frames, np.full(int(particles), 5), None, None, f"lattice_{k}"))
+    scenes = [_lattice_trajectory(int(particles), args.steps, f"lattice_{k}") for k, particles in enumerate(sizes)]
     simulator = _simulator(_lattice(int(sizes.max())), device, "radius_fixed_capacity").eval()
     classes = CaptureClasses(args.batch)
     made = []
@@ -837,11 +845,10 @@ def train_capture(args) -> None:
     its gradient's size, so a gradient at rounding level may move it either way (up to 2 per step)."""
     import tempfile
 
-    import numpy as np
     import torch
+    from lattice_scene import HISTORY
 
     from gns_framework.config.recipe import validate_recipe
-    from gns_framework.data.trajectory import Trajectory
     from gns_framework.plugins import load_registry
     from gns_framework.runtime.device import synchronize
     from gns_framework.training.captured_step import make_capturable
@@ -852,15 +859,10 @@ def train_capture(args) -> None:
     frames = 12
     splits = {}
     for split, seeds in {"train": (0, 1), "valid": (2,), "test": (3,)}.items():
-        splits[split] = []
-        for seed in seeds:
-            scene = _lattice(int(args.particles * (1.0 - 0.1 * seed)))
-            window = scene.batch.position_sequence.transpose(0, 1).numpy()
-            ahead = np.repeat(window[-1:], frames - len(window), axis=0)  # the walls fit the lattice tightly
-            kinds = np.full(window.shape[1], 5)
-            splits[split].append(
-                Trajectory(np.concatenate([window, ahead]).astype(np.float32), kinds, None, None, f"{split}_{seed}")
-            )
+        splits[split] = [
+            _lattice_trajectory(int(args.particles * (1.0 - 0.1 * seed)), frames - HISTORY, f"{split}_{seed}")
+            for seed in seeds
+        ]
     metadata = _lattice(args.particles).metadata.model_copy(update={"sequence_length": frames})
     registry.get("dataset", "safe").write(work / "data", metadata, splits)
     figures, weights, losses = {}, {}, {}

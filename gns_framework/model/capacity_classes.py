@@ -47,6 +47,12 @@ def particle_capacity(count: int) -> int:
         base *= 2
 
 
+def class_key(state: ParticleBatch, precision: Precision) -> tuple:
+    """A padded batch's class: the shapes of everything a captured step of it reads, and its precision."""
+    shapes = tuple((f.name, tuple(v.shape)) for f in fields(state) if isinstance(v := getattr(state, f.name), Tensor))
+    return (state.num_examples, shapes, precision)
+
+
 def padded(windows: Sequence[ParticleBatch], capacity: int, scenes: int) -> ParticleBatch:
     """The scenes' one-example windows stacked, then ``scenes - len(windows)`` empty examples and one example of
     ``capacity - N`` padding particles (NaN positions; the last scene's type, properties and walls)."""
@@ -104,13 +110,6 @@ class CaptureClasses:
         self.scenes = scenes
         self.classes: dict[Hashable, CapacityClass] = {}
 
-    def key(self, state: ParticleBatch, precision: Precision) -> Hashable:
-        """A padded batch's class: the shapes of everything the captured step reads, and its precision."""
-        shapes = tuple(
-            (f.name, tuple(v.shape)) for f in fields(state) if isinstance(v := getattr(state, f.name), Tensor)
-        )
-        return (state.num_examples, shapes, precision)
-
     def of(
         self,
         simulator: LearnedSimulator,
@@ -121,7 +120,7 @@ class CaptureClasses:
     ) -> CapacityClass:
         """The class of the padded batch ``state`` (on its device), made on its first batch; ``bounds`` (N_cap, d, 2)
         are its rows' walls (None: the model's), ``guard`` the batch's guard without them."""
-        key = self.key(state, precision)
+        key = class_key(state, precision)
         kept = self.classes.get(key)
         if kept is None:
             walled = guard if bounds is None else guard.with_bounds(bounds)

@@ -45,7 +45,7 @@ from torch import Tensor
 
 from ..contracts import Graph, GraphBuilder
 from ..data.batch import ParticleBatch
-from ..model.capacity_classes import particle_capacity
+from ..model.capacity_classes import class_key, particle_capacity
 from ..model.learned_simulator import LearnedSimulator
 from ..model.loss import masked_squared_error_sum
 from ..model.noise import step_noise
@@ -145,7 +145,7 @@ class CapturedTrainingStep:
     def __call__(self, step: int) -> tuple[Tensor, int]:
         """Optimiser step number ``step``: the global batch's loss (float64, on the device) and its particle count."""
         eager = self.eager
-        if self.update is None and not self._grads:
+        if not self.eager_steps:
             # Makes the optimiser's state and the weight average's first copy, which a replay cannot.
             make_capturable(eager.optimizer)
             self.eager_steps += 1
@@ -172,10 +172,7 @@ class CapturedTrainingStep:
     def _class(self, padded: ParticleBatch, noise: Tensor, padding: Tensor, unrolled: int) -> _Class:
         """The class of this padded batch, its tensors rewritten with it (made, on its device, at its first batch)."""
         device = self.eager.device
-        shapes = tuple(
-            (f.name, tuple(v.shape)) for f in fields(padded) if isinstance(v := getattr(padded, f.name), Tensor)
-        )
-        key = (padded.num_examples, shapes, unrolled, self.eager.precision)
+        key = (*class_key(padded, self.eager.precision), unrolled)
         kept = self.classes.get(key)
         if kept is None:
             on_device = padded.to(device)
