@@ -10,6 +10,7 @@ from pathlib import Path
 from ..config.recipe import DatasetSpec, Recipe
 from ..contracts import Dataset, ModelSetup
 from ..data.metadata import DatasetMetadata
+from ..data.mirror import MirroredDataset
 from ..data.pickle_grant import pickle_granted
 from ..data.stride import FrameStrideDataset
 from ..data.trajectory import Trajectory
@@ -39,11 +40,13 @@ def open_dataset(
         raise DatasetError(f"{folder}: dataset folder not found (dataset.path in the recipe, or --dataset)")
     dataset = cls(params, folder, allow_pickle=pickle_granted(folder, allow_pickle))
     dataset.keep_trajectories = keep
-    if spec.frame_stride == 1:
-        return dataset
-    return FrameStrideDataset(
-        dataset, spec.frame_stride, registry.kinematic_types(), all_offsets_in_train=spec.stride_offsets == "all"
-    )
+    if spec.frame_stride > 1:
+        dataset = FrameStrideDataset(
+            dataset, spec.frame_stride, registry.kinematic_types(), all_offsets_in_train=spec.stride_offsets == "all"
+        )
+    if spec.mirror_axes:
+        dataset = MirroredDataset(dataset, spec.mirror_axes, registry.kinematic_types())
+    return dataset
 
 
 @dataclass

@@ -64,6 +64,13 @@ class DatasetSpec(ComponentSpec):
         "every offset j < k, frames j, j + k, ... (all: k times the windows from the same simulations); "
         "validation and rollouts always start at the first frame",
     )
+    mirror_axes: list[int] = Field(
+        default_factory=list,
+        description="horizontal axes along which the train split also holds every trajectory reflected across its "
+        "box's mid-plane, walls swapped (gns_framework.data.mirror; never the axis gravity acts along: for the MPM's "
+        "scenes, y up, give [0] in 2D, [0, 2] in 3D): the physics is symmetric, a network learns it only from data; "
+        "each axis doubles the train windows; validation and rollouts see the data as stored",
+    )
     memory: Literal["auto", "all", "windows"] = Field(
         "auto",
         description="all: every trajectory read once and kept (fastest when the data fits); windows: a process "

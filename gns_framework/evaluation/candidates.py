@@ -143,12 +143,17 @@ def simulator_candidates(
     history: int,
     grid_scales: Sequence[float],
     substep_scales: Sequence[float],
+    *,
+    fresh_jitter: bool = False,
 ) -> list[Candidate]:
     """The simulator that generated the data, re-run on each case's seed at other grids and time steps.
 
     Each predicts the frames after the first ``history`` of its own run. The unscaled
     setting is the reference (it reproduces the ground truth). Needs the provenance
-    ``gns generate`` stores in metadata.json.
+    ``gns generate`` stores in metadata.json. With ``fresh_jitter`` every setting, the
+    unscaled one too, refills the drawn scene with a fresh lattice jitter: the unscaled row is
+    then another run of the same scene as valid as the data's, and its distance from the data
+    is the simulator's own spread (no reference; a simulator that cannot refill a scene is refused).
     """
     from ..assembly.ground_truth import build_ground_truth_simulator
     from ..ground_truth.generate import trajectory_seeds
@@ -179,10 +184,15 @@ def simulator_candidates(
                 }
             )
             simulator = build_ground_truth_simulator(variant, registry, "metadata.json: generated_from")
-            reference = grid == scene.domain.grid and substeps == scene.time.substeps
+            reference = grid == scene.domain.grid and substeps == scene.time.substeps and not fresh_jitter
             # Every row runs the scene the data holds, as drawn: a scene drawn anew at another grid would put
             # its columns, frictions and obstacles elsewhere (sampling.at_resolution).
             as_drawn = not reference and _runs_drawn_scenes(simulator)
+            if fresh_jitter and not as_drawn:
+                raise DatasetError(
+                    f"metadata.json: generated_from: simulator {simulator.name!r} cannot refill a drawn scene "
+                    "(simulate_at_resolution), so it cannot run the data's scenes with a fresh jitter"
+                )
 
             def simulate(case: Trajectory, simulator=simulator, variant=variant, as_drawn=as_drawn) -> Prediction:
                 seed = seed_of[case.key]
@@ -197,6 +207,8 @@ def simulator_candidates(
                 )
 
             settings = f"grid {grid}, dt {variant.time.frame_dt / substeps:.3g} s"
+            if fresh_jitter:
+                settings += ", the data's scenes with a fresh lattice jitter"
             if not reference and not as_drawn:
                 settings += ", each scene drawn anew (this simulator cannot refill a drawn one)"
             candidates.append(

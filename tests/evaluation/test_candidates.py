@@ -149,3 +149,20 @@ def test_a_reduced_grid_row_simulates_the_scene_the_data_holds(tmp_path):
         redrawn = simulator.simulate(coarse_scene, int(case.key.split("_")[1]))
         drawn_anew += not same_columns(redrawn.position[2], case) or not np.allclose(redrawn.bounds, case.bounds)
     assert drawn_anew >= 2, "scenes drawn anew at the coarse grid differ: the check above would see the bug"
+
+
+def test_a_fresh_jitter_row_runs_the_data_scenes_on_another_lattice_jitter(tmp_path):
+    """The simulator's own spread: at the data's grid and time step, each case's drawn scene refilled with a fresh
+    jitter. Its particles start where the data's do up to the two jitters (each at most 0.2 spacings per axis), yet
+    not on them: a row that reproduced the data (the reference) would measure no spread at all."""
+    registry, scene, _, dataset, cases = _generated(DRAWN, tmp_path, 3)
+    (fresh,) = simulator_candidates(dataset.metadata(), registry, cases, 3, [1.0], [1.0], fresh_jitter=True)
+    assert not fresh.reference and "fresh lattice jitter" in fresh.settings
+    both_jitters = 2 * scene.jitter * scene.particle_spacing
+    for case in cases:
+        start = np.asarray(fresh.simulate(case).start)
+        data = case.position[2]
+        assert start.shape == data.shape, case.key
+        moved = np.abs(start - data).max(axis=1)
+        assert moved.max() <= both_jitters * (1 + 1e-5), case.key
+        assert np.median(moved) > 0.1 * both_jitters, case.key
