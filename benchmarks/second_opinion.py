@@ -14,7 +14,8 @@ a deposit that moves more than the perturbation explains is one the scene does n
 (sensitive to its initial state, as the MPM's deposits that move with resolution are); with ``--shift METRES``
 it is the primary on the scene translated (walls and obstacles too), which a grid processor sees through
 another alignment of its lattice: a deposit that moves with the lattice is one the model's own
-discretization decides.
+discretization decides; with ``--mirror`` it is the primary on the scene's mirror image (x -> lo + hi - x, the side
+walls swapped: the same physics), which a network that has not learned the symmetry runs otherwise.
 Then, for a sweep of thresholds, the share of bad scenes (extent or
 height error above 15 %) that are flagged (the hit rate; goal >= 80 %) and of good scenes
 that are flagged (false alarms; goal <= 20 %). The datasets are generalization.py's
@@ -27,6 +28,7 @@ Usage::
     python benchmarks/second_opinion.py --model models/sand2d_general.pt --perturb 0.001 --held-out 20 --seed 11
     python benchmarks/second_opinion.py --model models/sand2d_general_fast.pt --shift 0.01 --held-out 20 --seed 11
     python benchmarks/second_opinion.py --model models/sand2d_general_fast.pt --mpm-grid 0.5 --held-out 20 --seed 11
+    python benchmarks/second_opinion.py --model models/sand2d_general_fast.pt --mirror --held-out 20 --seed 12
 """
 
 from __future__ import annotations
@@ -73,18 +75,33 @@ def shifted(case, shift: float):
     return dataclasses.replace(case, position=case.position + np.float32(shift), bounds=bounds)
 
 
+def unchanged(position: np.ndarray) -> np.ndarray:
+    return position
+
+
 def rollouts(case, primary, second, history: int, opinion: dict, seed: int) -> list[tuple]:
-    """The two (model, start, offset) rollouts of a case, each prediction minus ``offset`` comparable with the
-    case: the primary on it, and the second opinion: ``second`` on it, or (``opinion`` ``perturb``) the primary
-    on the case perturbed, or (``shift``) the primary on the case translated."""
+    """The two (model, start, back) rollouts of a case, each prediction's positions mapped by ``back`` comparable
+    with the case: the primary on it, and the second opinion: ``second`` on it, or (``opinion`` ``perturb``) the
+    primary on the case perturbed, or (``shift``) on the case translated, or (``mirror``) on its mirror image."""
+    from gns_framework.data.mirror import mirrored
+
     if opinion.get("perturb") is not None:
         return [
-            (primary, case, 0.0),
-            (primary, perturbed(case, primary.simulator, history, opinion["perturb"], seed), 0.0),
+            (primary, case, unchanged),
+            (primary, perturbed(case, primary.simulator, history, opinion["perturb"], seed), unchanged),
         ]
     if opinion.get("shift") is not None:
-        return [(primary, case, 0.0), (primary, shifted(case, opinion["shift"]), opinion["shift"])]
-    return [(primary, case, 0.0), (second, case, 0.0)]
+        return [(primary, case, unchanged), (primary, shifted(case, opinion["shift"]), lambda p: p - opinion["shift"])]
+    if opinion.get("mirror"):
+        lo, hi = case.bounds[0]
+
+        def back(position: np.ndarray) -> np.ndarray:
+            position = np.array(position, copy=True)
+            position[..., 0] = (lo + hi) - position[..., 0]
+            return position
+
+        return [(primary, case, unchanged), (primary, mirrored(case, 0, case.bounds), back)]
+    return [(primary, case, unchanged), (second, case, unchanged)]
 
 
 def scene_figures(primary, second, data: Path, registry, opinion: dict | None = None) -> dict[str, dict]:
@@ -117,9 +134,9 @@ def scene_figures(primary, second, data: Path, registry, opinion: dict | None = 
                 _own_particles(mine, case, history), _as_case(theirs, case, history), history, metadata, granular
             )
         else:
-            _, (model, start, offset) = rollouts(case, primary, second, history, opinion, seed=len(out))
+            _, (model, start, back) = rollouts(case, primary, second, history, opinion, seed=len(out))
             theirs = learned_prediction(model.simulator, start, "cpu", guard=model.rollout_guard())
-            theirs = dataclasses.replace(theirs, position=np.asarray(theirs.position) - np.float32(offset))
+            theirs = dataclasses.replace(theirs, position=back(np.asarray(theirs.position)).astype(np.float32))
             disagreement = deposit(mine, _as_case(theirs, case, history), history, metadata, granular)
         out[case.key] = {
             "error": deposit(mine, case, history, metadata, granular),
@@ -166,7 +183,7 @@ def rates(rows: list[dict], threshold: float) -> dict[str, float | int]:
 
 
 def opinion_of(args) -> dict:
-    return {"perturb": args.perturb, "shift": args.shift, "mpm_grid": args.mpm_grid}
+    return {"perturb": args.perturb, "shift": args.shift, "mpm_grid": args.mpm_grid, "mirror": args.mirror}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -189,6 +206,11 @@ def main(argv: list[str] | None = None) -> int:
         type=float,
         help="the second opinion: the model itself on the scene translated by this many metres along every axis "
         "(walls too): another alignment of a grid processor's lattice",
+    )
+    opinion.add_argument(
+        "--mirror",
+        action="store_true",
+        help="the second opinion: the model itself on the scene's mirror image (x -> lo + hi - x, side walls swapped)",
     )
     parser.add_argument("--held-out", type=int, default=20)
     parser.add_argument("--seed", type=int, default=7, help="scene seed of the held-out scenes (training used 0)")
@@ -227,6 +249,8 @@ def main(argv: list[str] | None = None) -> int:
         what = f"itself on the scene translated by {args.shift} m"
     elif args.mpm_grid is not None:
         what = f"the MPM at {args.mpm_grid:g} of the data's grid"
+    elif args.mirror:
+        what = "itself on the scene's mirror image"
     print(f"primary {args.model}, second opinion {what}; % against the MPM, disagreement against the second")
     print(
         f"{'group':<10} {'scene':<26} {'extent':>7} {'height':>7} {'2nd ext':>7} {'2nd hgt':>7} {'dis ext':>7} "

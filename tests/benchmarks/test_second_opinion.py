@@ -49,13 +49,17 @@ def test_hit_and_false_alarm_rates():
 def test_only_the_second_rollout_starts_perturbed():
     case = Case(position=np.zeros((8, 3, 2), np.float32), particle_type=np.array([6, 6, 6]))
     primary = SimpleNamespace(simulator=SimpleNamespace(predicted_mask=lambda types: types == 6))
-    (first_model, first, _), (second_model, second, offset) = second_opinion.rollouts(
+    (first_model, first, _), (second_model, second, back) = second_opinion.rollouts(
         case, primary, primary, 6, {"perturb": 0.01}, seed=0
     )
-    assert first_model is primary and second_model is primary and offset == 0.0
+    assert first_model is primary and second_model is primary and back is second_opinion.unchanged
     assert first is case and np.abs(second.position[:6]).max() > 0
     other = SimpleNamespace()
-    assert second_opinion.rollouts(case, primary, other, 6, {}, seed=0) == [(primary, case, 0.0), (other, case, 0.0)]
+    unchanged = second_opinion.unchanged
+    assert second_opinion.rollouts(case, primary, other, 6, {}, seed=0) == [
+        (primary, case, unchanged),
+        (other, case, unchanged),
+    ]
 
 
 @dataclass(frozen=True)
@@ -69,9 +73,10 @@ class Walled:
 def test_the_shifted_opinion_moves_the_scene_and_its_walls_and_is_moved_back():
     case = Walled(position=np.zeros((8, 3, 2), np.float32), bounds=np.array([[0.0, 2.0], [0.0, 1.0]], np.float32))
     primary = SimpleNamespace()
-    (_, first, none), (_, second, offset) = second_opinion.rollouts(case, primary, primary, 6, {"shift": 0.01}, 0)
-    assert first is case and none == 0.0 and offset == 0.01
+    (_, first, none), (_, second, back) = second_opinion.rollouts(case, primary, primary, 6, {"shift": 0.01}, 0)
+    assert first is case and none is second_opinion.unchanged
     assert np.allclose(second.position, 0.01) and np.allclose(second.bounds, case.bounds + 0.01)
+    assert np.allclose(back(second.position), case.position)
     assert second_opinion.shifted(Walled(case.position, None), 0.5).bounds is None
 
 
@@ -86,3 +91,17 @@ def test_a_simulators_cloud_stands_in_for_the_truth_with_its_own_particles():
     assert np.allclose(truth.position[:6], 0.5) and np.allclose(truth.position[6:], 1.0)
     own = second_opinion._own_particles(Prediction(np.zeros((2, 3, 2), np.float32)), case, history=6)
     assert own.particle_type is case.particle_type and np.array_equal(own.start, case.position[5])
+
+
+def test_the_mirrored_opinion_reflects_the_scene_and_its_side_walls_and_is_reflected_back():
+    from gns_framework.data.trajectory import Trajectory
+
+    position = np.zeros((8, 2, 2), np.float32)
+    position[:, :, 0] = [0.5, 1.5]
+    walls = np.array([[0.1, 0.0], [0.2, 1.0], [0.3, 0.0], [0.0, 0.0]], np.float32)
+    case = Trajectory(position, np.array([6, 6]), key="c", bounds=np.array([[0.0, 3.0], [0.0, 1.0]]), walls=walls)
+    (_, first, _), (_, second, back) = second_opinion.rollouts(case, None, None, 6, {"mirror": True}, 0)
+    assert first is case
+    np.testing.assert_allclose(second.position[0, :, 0], [2.5, 1.5])
+    np.testing.assert_array_equal(second.walls, walls[[1, 0, 2, 3]])
+    np.testing.assert_allclose(back(second.position), position)
