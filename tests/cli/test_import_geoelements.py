@@ -68,6 +68,7 @@ def test_command_writes_a_checkpoint_that_loads_and_resumes(tmp_path, capsys):
         "path": str(dataset),
         "frame_stride": 1,
         "stride_offsets": "first",
+        "mirror_axes": [],
         "memory": "auto",
     }
     resumed = torch.optim.Adam(loaded.simulator.parameters())
