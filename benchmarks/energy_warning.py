@@ -43,10 +43,18 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from front_warning import add_scene_arguments, columns, energy_ratio, is_bad, scene_rows, scene_sources, spacing
+from front_warning import (
+    add_scene_arguments,
+    columns,
+    energy_ratio,
+    is_bad,
+    parsed_with_model,
+    scene_rows,
+    scene_sources,
+    spacing,
+)
 from generalization import ROOT
 from second_opinion import flag_rates
 
@@ -278,16 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threshold", type=float, default=THRESHOLD, help="flag above this |log(R / R predicted)|")
     parser.add_argument("--ridge", type=float, default=RIDGE, help="ridge penalty of the fit")
     parser.add_argument("--json", action="store_true", help="also print the rows and rates as one JSON line")
-    args = parser.parse_args(argv)
-    if len(args.out) != len(args.seed):
-        parser.error("give one --out per --seed")
-    torch.set_num_threads(args.threads)
-
-    from gns_framework.assembly.trained import load_trained
-    from gns_framework.plugins import load_registry
-
-    registry = load_registry()
-    model = load_trained(args.model, registry, torch.device("cpu"))
+    args, registry, model = parsed_with_model(parser, argv)
     features, target = training_table(model, args.training_data, registry)
     predictor = fit(features, target, args.ridge)
     error = cross_validated(features, target, ridge=args.ridge)

@@ -383,12 +383,9 @@ def scene_sources(args: argparse.Namespace, registry) -> list[tuple[str, str | N
     return sources
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    add_scene_arguments(parser)
-    parser.add_argument("--share", type=float, default=SHARE, help="the rule's least run share of a front (0-1)")
-    parser.add_argument("--near", type=float, default=NEAR, help="the rule's largest gap ahead, particle spacings")
-    parser.add_argument("--json", action="store_true", help="also print the rows and sweeps as one JSON line")
+def parsed_with_model(parser: argparse.ArgumentParser, argv: list[str] | None):
+    """``(args, registry, model)`` of a warning benchmark's command line: one ``--out`` per ``--seed`` checked,
+    torch's threads set, the model loaded on the CPU."""
     args = parser.parse_args(argv)
     if len(args.out) != len(args.seed):
         parser.error("give one --out per --seed")
@@ -398,11 +395,27 @@ def main(argv: list[str] | None = None) -> int:
     from gns_framework.plugins import load_registry
 
     registry = load_registry()
-    model = load_trained(args.model, registry, torch.device("cpu"))
+    return args, registry, load_trained(args.model, registry, torch.device("cpu"))
+
+
+def gathered_rows(args: argparse.Namespace, registry, rows_of) -> list[dict]:
+    """Every scene's row, ``rows_of(dataset, rollout cache)`` per source of :func:`scene_sources`, each with its
+    group and scene name (a canonical scene draws one trajectory: its row goes by the scene's name)."""
     rows = []
     for group, name, data, rollouts in scene_sources(args, registry):
-        for key, row in scene_rows(model, data, registry, rollouts).items():
+        for key, row in rows_of(data, rollouts).items():
             rows.append({"group": group, "scene": name or key, **row})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_scene_arguments(parser)
+    parser.add_argument("--share", type=float, default=SHARE, help="the rule's least run share of a front (0-1)")
+    parser.add_argument("--near", type=float, default=NEAR, help="the rule's largest gap ahead, particle spacings")
+    parser.add_argument("--json", action="store_true", help="also print the rows and sweeps as one JSON line")
+    args, registry, model = parsed_with_model(parser, argv)
+    rows = gathered_rows(args, registry, lambda data, rollouts: scene_rows(model, data, registry, rollouts))
     print(f"{args.model}: % against the MPM at the data's grid; gap in particle spacings ('wall': held by it)")
     summary = report(rows, args.share, args.near)
     if args.json:

@@ -22,10 +22,8 @@ import statistics
 import sys
 from pathlib import Path
 
-import torch
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from front_warning import add_scene_arguments, learned_rollout, scene_sources
+from front_warning import add_scene_arguments, gathered_rows, learned_rollout, parsed_with_model
 from second_opinion import BAD, deposit
 
 
@@ -108,20 +106,9 @@ def main(argv: list[str] | None = None) -> int:
         help="time steps of the fresh-jitter runs, as multiples of the data's substeps per frame",
     )
     parser.add_argument("--json", action="store_true", help="also print the rows and summary as one JSON line")
-    args = parser.parse_args(argv)
-    if len(args.out) != len(args.seed):
-        parser.error("give one --out per --seed")
-    torch.set_num_threads(args.threads)
-
-    from gns_framework.assembly.trained import load_trained
-    from gns_framework.plugins import load_registry
-
-    registry = load_registry()
-    model = load_trained(args.model, registry, torch.device("cpu"))
-    rows = []
-    for group, name, data, rollouts in scene_sources(args, registry):
-        for key, row in scene_rows(model, data, registry, tuple(args.substeps_scale), rollouts).items():
-            rows.append({"group": group, "scene": name or key, **row})
+    args, registry, model = parsed_with_model(parser, argv)
+    scales = tuple(args.substeps_scale)
+    rows = gathered_rows(args, registry, lambda data, rollouts: scene_rows(model, data, registry, scales, rollouts))
     print(f"{args.model}: % against the MPM run that made the data (learned), and between the MPM's own runs")
     summary = report(rows)
     if args.json:
