@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import sys
 from pathlib import Path
@@ -83,7 +84,7 @@ def rollouts(case, primary, second, history: int, opinion: dict, seed: int) -> l
     """The two (model, start, back) rollouts of a case, each prediction's positions mapped by ``back`` comparable
     with the case: the primary on it, and the second opinion: ``second`` on it, or (``opinion`` ``perturb``) the
     primary on the case perturbed, or (``shift``) on the case translated, or (``mirror``) on its mirror image."""
-    from gns_framework.data.mirror import mirrored
+    from gns_framework.data.mirror import mirrored, reflected
 
     if opinion.get("perturb") is not None:
         return [
@@ -93,13 +94,7 @@ def rollouts(case, primary, second, history: int, opinion: dict, seed: int) -> l
     if opinion.get("shift") is not None:
         return [(primary, case, unchanged), (primary, shifted(case, opinion["shift"]), lambda p: p - opinion["shift"])]
     if opinion.get("mirror"):
-        lo, hi = case.bounds[0]
-
-        def back(position: np.ndarray) -> np.ndarray:
-            position = np.array(position, copy=True)
-            position[..., 0] = (lo + hi) - position[..., 0]
-            return position
-
+        back = functools.partial(reflected, axis=0, bounds=case.bounds)
         return [(primary, case, unchanged), (primary, mirrored(case, 0, case.bounds), back)]
     return [(primary, case, unchanged), (second, case, unchanged)]
 

@@ -23,6 +23,17 @@ from .metadata import DatasetMetadata, compute_statistics
 from .trajectory import Trajectory
 
 
+def reflected(position: np.ndarray, axis: int, bounds: np.ndarray) -> np.ndarray:
+    """A copy of ``position`` with ``lo + hi - x`` along ``axis`` of ``bounds`` (its own inverse).
+
+    Shapes: position (..., d) -> (..., d); bounds (d, 2).
+    """
+    lo, hi = float(bounds[axis][0]), float(bounds[axis][1])
+    position = np.array(position, copy=True)
+    position[..., axis] = (lo + hi) - position[..., axis]
+    return position
+
+
 def mirrored(trajectory: Trajectory, axis: int, bounds: np.ndarray) -> Trajectory:
     """``trajectory`` reflected across the mid-plane of ``bounds`` along ``axis``.
 
@@ -36,9 +47,7 @@ def mirrored(trajectory: Trajectory, axis: int, bounds: np.ndarray) -> Trajector
             f"{trajectory.key}: dataset.mirror_axes: the trajectory has a step context (global features per step), "
             "which a mirror image might have to change too; leave mirror_axes empty for this data"
         )
-    lo, hi = float(bounds[axis][0]), float(bounds[axis][1])
-    position = np.array(trajectory.position, copy=True)
-    position[..., axis] = (lo + hi) - position[..., axis]
+    position = reflected(trajectory.position, axis, bounds)
     walls = trajectory.walls
     if walls is not None:
         walls = np.array(walls, copy=True)
