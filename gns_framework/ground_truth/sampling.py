@@ -42,7 +42,7 @@ class BodySample:
         velocity: (d,) initial (blocks) or constant (obstacles) velocity, m/s.
         position: (n, d) float64 particle positions at t = 0.
         values: property and parameter name -> (n,) float64 per-particle values
-            the spec sets for this body.
+            the spec sets for this body (an obstacle's ``friction`` where it records it).
         friction: Coulomb coefficient of an obstacle's surface (0 for blocks).
         angle: rotation about the box centre, or a plane's slope, degrees in the x-y plane.
         vertices: (m, 2) a polygon's corners, counter-clockwise, in the domain's frame, metres.
@@ -255,6 +255,8 @@ def _sample_body(location: str, body: Block | Obstacle, scene: SceneSpec, rng: n
             values[name] = _draw(value, rng, len(position))
     else:
         friction = float(_draw(body.friction, rng, 1)[0])
+        if body.record_friction:
+            values["friction"] = np.full(len(position), friction)
     return BodySample(
         location, body.material, body.shape, lower, size, velocity, position, values, friction, angle, vertices
     )

@@ -71,6 +71,12 @@ class Obstacle(Spec):
     )
     velocity: list[Value] | None = Field(default=None, description="(d,) constant velocity, m/s")
     friction: Value = Field(default_factory=lambda: Range(range=(0.3, 0.3)), description="Coulomb coefficient")
+    record_friction: bool = Field(
+        default=False,
+        description="record the surface's Coulomb coefficient as its particles' friction property, a model input "
+        "(as a wall's is): where the friction is drawn, a model that cannot see it cannot tell a surface the sand "
+        "slides over from one that holds it",
+    )
 
     @property
     def is_static_shape(self) -> bool:

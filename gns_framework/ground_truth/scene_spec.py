@@ -97,10 +97,13 @@ class SceneSpec(Spec):
 
     @property
     def property_names(self) -> tuple[str, ...]:
-        """Material properties the scene sets, in first-use order (the material_property columns)."""
+        """Material properties the scene sets, in first-use order (the material_property columns): the blocks',
+        then ``friction`` where an obstacle records its surface's."""
         names: dict[str, None] = {}
         for block in self.blocks:
             names.update(dict.fromkeys(block.properties))
+        if any(obstacle.record_friction for obstacle in self.obstacles):
+            names["friction"] = None
         return tuple(names)
 
     def material_uses(self) -> list[tuple[str, str]]:

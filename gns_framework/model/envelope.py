@@ -69,7 +69,10 @@ class Envelope:
         frame_stride: stored frames per learned step.
         particle_types: type ids in the data.
         materials: material name of each type id (as registered when training).
-        properties: material property name -> [lowest, highest] value of any particle.
+        properties: material property name -> [lowest, highest] value of any moving particle.
+        fixed_properties: the same of the fixed (kinematic) particles, which record a property where the scene
+            says so (an obstacle's surface friction); None when the checkpoint predates it (then they are not
+            judged).
         extent: per axis [smallest, largest] domain edge length.
         walls: per face (``x_min``, ...) ``{"friction": [low, high] of the rough faces or None,
             "slip": seen frictionless, "no_slip": seen no-slip}``; None when the data recorded no walls.
@@ -97,6 +100,7 @@ class Envelope:
     frames: list[int] = field(default_factory=list)
     boundary_spacing: list[float] | None = None
     refused_types: dict[str, str] = field(default_factory=dict)
+    fixed_properties: dict[str, list[float]] | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -122,9 +126,16 @@ class Envelope:
         def span(a: list, b: list) -> list:
             return [min(a[0], b[0]), max(a[1], b[1])]
 
-        properties = dict(earlier.properties)
-        for name, values in self.properties.items():
-            properties[name] = span(properties[name], values) if name in properties else list(values)
+        def joined(mine: dict[str, list[float]], theirs: dict[str, list[float]]) -> dict[str, list[float]]:
+            out = dict(theirs)
+            for name, values in mine.items():
+                out[name] = span(out[name], values) if name in out else list(values)
+            return out
+
+        properties = joined(self.properties, earlier.properties)
+        fixed = None
+        if self.fixed_properties is not None and earlier.fixed_properties is not None:
+            fixed = joined(self.fixed_properties, earlier.fixed_properties)
         walls = None
         if self.walls is not None or earlier.walls is not None:
             walls = {}
@@ -147,6 +158,7 @@ class Envelope:
             particle_types=sorted(set(self.particle_types) | set(earlier.particle_types)),
             materials={**earlier.materials, **self.materials},
             properties=properties,
+            fixed_properties=fixed,
             extent=[span(a, b) for a, b in zip(self.extent, earlier.extent, strict=True)],
             walls=walls,
             max_speed=max(self.max_speed, earlier.max_speed),
@@ -186,6 +198,10 @@ class Envelope:
             (f"refused: {self.materials.get(t, '?')} (type {t})", reason) for t, reason in self.refused_types.items()
         ]
         rows += [(f"property {name}", f"{lo:.4g} .. {hi:.4g}") for name, (lo, hi) in self.properties.items()]
+        rows += [
+            (f"property {name} of fixed particles", f"{lo:.4g} .. {hi:.4g}")
+            for name, (lo, hi) in (self.fixed_properties or {}).items()
+        ]
         rows += [(f"domain {axes[a]} extent", f"{lo:.4g} .. {hi:.4g} m") for a, (lo, hi) in enumerate(self.extent)]
         rows += [(f"wall {face}", _wall_kinds(seen)) for face, seen in (self.walls or {}).items()]
         rows += [
@@ -218,6 +234,14 @@ def _property_values(trajectory: Trajectory, column: int, moving: np.ndarray) ->
     return values[moving] if moving.any() else values
 
 
+def _spanned(ranges: dict[str, list[float]], name: str, values: np.ndarray) -> None:
+    """Widen ``ranges[name]`` to hold ``values`` (none: unchanged)."""
+    if values.size:
+        low, high = float(values.min()), float(values.max())
+        seen = ranges.setdefault(name, [low, high])
+        seen[0], seen[1] = min(seen[0], low), max(seen[1], high)
+
+
 def _extent(trajectory: Trajectory, metadata: DatasetMetadata) -> np.ndarray:
     """(d,) edge lengths of a trajectory's domain: its own bounds, else the dataset's."""
     bounds = np.asarray(trajectory.bounds if trajectory.bounds is not None else metadata.bounds, dtype=np.float64)
@@ -244,6 +268,7 @@ def measure_envelope(
     spacings, boundary_spacings, counts, frames, speed = [], [], [], [], 0.0
     extents = []
     properties: dict[str, list[float]] = {}
+    fixed_properties: dict[str, list[float]] = {}
     faces: dict[str, dict] | None = {}
     types: set[int] = set()
     kinematic = np.asarray(scene.kinematic_types, dtype=np.int64)
@@ -260,10 +285,8 @@ def measure_envelope(
         extents.append(_extent(trajectory, metadata))
         if trajectory.material_property is not None:
             for column, name in enumerate(scene.property_names):
-                values = _property_values(trajectory, column, moving)
-                low, high = float(values.min()), float(values.max())
-                seen = properties.setdefault(name, [low, high])
-                seen[0], seen[1] = min(seen[0], low), max(seen[1], high)
+                _spanned(properties, name, _property_values(trajectory, column, moving))
+                _spanned(fixed_properties, name, trajectory.material_property[~moving, column])
         if faces is not None:
             if trajectory.walls is None:
                 faces = None
@@ -286,6 +309,7 @@ def measure_envelope(
         particle_types=sorted(types),
         materials={str(t): materials.get(t, "?") for t in sorted(types)},
         properties=properties,
+        fixed_properties=fixed_properties,
         extent=[
             [float(lo), float(hi)] for lo, hi in zip(extents_array.min(axis=0), extents_array.max(axis=0), strict=True)
         ],
@@ -334,8 +358,9 @@ class SceneMeasures:
             measured on the whole frame by the run that starts at particle 0 (None on the others).
         types: particle types in the run; ``moving``: whether any of the run's particles moves.
         speed: largest input speed of the run's moving particles (m/s).
-        properties: per material property column, (low, high) over the run's moving particles, and over all of
-            its particles (the scene's all count where none of the scene's particles moves); None: no properties.
+        properties: per material property column, (low, high) over the run's moving particles, over all of
+            its particles (the scene's all count where none of the scene's particles moves) and over its fixed
+            ones; None: no properties.
         lowest, highest: (d,) per axis, the moving particles' extremes over every frame (None: none moves).
         bounds: (d, 2) the domain's walls (its edge lengths are its extent); ``walls`` the face conditions.
     """
@@ -346,7 +371,7 @@ class SceneMeasures:
     types: frozenset[int]
     moving: bool
     speed: float
-    properties: tuple[tuple[tuple[float, float], tuple[float, float]], ...] | None
+    properties: tuple[tuple[tuple[float, float], tuple[float, float], tuple[float, float]], ...] | None
     lowest: tuple[float, ...] | None
     highest: tuple[float, ...] | None
     bounds: tuple[tuple[float, float], ...]
@@ -365,7 +390,7 @@ class SceneMeasures:
         if self.properties is not None and other.properties is not None:
             # A run without moving particles has the empty range (inf, -inf), which a span absorbs.
             pairs = zip(self.properties, other.properties, strict=True)
-            properties = tuple((span(a[0], b[0]), span(a[1], b[1])) for a, b in pairs)
+            properties = tuple((span(a[0], b[0]), span(a[1], b[1]), span(a[2], b[2])) for a, b in pairs)
         return replace(
             self,
             spacing=self.spacing if self.spacing is not None else other.spacing,
@@ -398,7 +423,10 @@ def scene_measures(
     properties = None
     if run.material_property is not None:
         columns = np.asarray(run.material_property, dtype=np.float64)
-        properties = tuple((_range(columns[moving, k]), _range(columns[:, k])) for k in range(columns.shape[1]))
+        properties = tuple(
+            (_range(columns[moving, k]), _range(columns[:, k]), _range(columns[~moving, k]))
+            for k in range(columns.shape[1])
+        )
     lowest = highest = None
     if moving.any():
         low, high = [], []
@@ -510,13 +538,14 @@ def outside_envelope_of(envelope: Envelope, metadata: DatasetMetadata, scenes: S
         if scene.properties is not None:
             # The columns both the data and the envelope have: a missing column has no values to judge.
             pairs = zip(envelope.properties.items(), scene.properties, strict=False)
-            for (name, (lo, hi)), (of_moving, of_all) in pairs:
-                values = of_moving if scene.moving else of_all
-                slack = PROPERTY_SLACK * max(hi - lo, abs(hi), 1e-12)
-                if values[0] < lo - slack:
-                    findings.add(f"property {name}", f"{values[0]:.4g}", f"{lo:.4g} .. {hi:.4g}", key)
-                elif values[1] > hi + slack:
-                    findings.add(f"property {name}", f"{values[1]:.4g}", f"{lo:.4g} .. {hi:.4g}", key)
+            for (name, trained), (of_moving, of_all, _) in pairs:
+                _judge_property(findings, f"property {name}", of_moving if scene.moving else of_all, trained, key)
+            if envelope.fixed_properties is not None:
+                # A fixed particle's property (an obstacle's friction) is an input like any other: judged by the
+                # column's name against what the fixed particles had when trained (absent: never recorded, 0).
+                for (name, _), (_, _, of_fixed) in zip(envelope.properties.items(), scene.properties, strict=False):
+                    trained = envelope.fixed_properties.get(name, [0.0, 0.0])
+                    _judge_property(findings, f"property {name} of fixed particles", of_fixed, trained, key)
         if envelope.walls is not None and scene.walls is not None:
             reached = _faces_reached(scene, REACH_SPACINGS * envelope.particle_spacing)
             for index, (friction, no_slip) in enumerate(scene.walls):
@@ -536,6 +565,18 @@ def outside_envelope_of(envelope: Envelope, metadata: DatasetMetadata, scenes: S
                 if not ok:
                     findings.add(f"wall {face}", value, _wall_kinds(seen), key)
     return findings.lines()
+
+
+def _judge_property(
+    findings: _Findings, quantity: str, values: tuple[float, float], trained: list[float], key: str
+) -> None:
+    """Add ``values`` (low, high; (inf, -inf): none) to ``findings`` where they leave the ``trained`` range."""
+    lo, hi = trained
+    slack = PROPERTY_SLACK * max(hi - lo, abs(hi), 1e-12)
+    if values[0] < lo - slack:
+        findings.add(quantity, f"{values[0]:.4g}", f"{lo:.4g} .. {hi:.4g}", key)
+    elif values[1] > hi + slack:
+        findings.add(quantity, f"{values[1]:.4g}", f"{lo:.4g} .. {hi:.4g}", key)
 
 
 REACH_SPACINGS = 4

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 
-from ..ground_truth.scene_spec import FACES, Block, OneOf, Range, SceneSpec, Span, WallChoice, WallRange
+from ..ground_truth.scene_spec import FACES, Block, Obstacle, OneOf, Range, SceneSpec, Span, WallChoice, WallRange
 from ..limits import scene_particles
 from .envelope import (
     COUNT_SLACK,
@@ -196,6 +196,7 @@ def _body_problems(scene: SceneSpec, envelope: Envelope, trained: SceneSpec | No
             problems.append((f"{location}.material", f"{body.material!r}; trained on {', '.join(sorted(materials))}"))
             continue
         if not isinstance(body, Block):
+            problems += _obstacle_friction_problems(location, body, envelope)
             continue
         for name, value in body.properties.items():
             asked, known = value_range(value), envelope.properties.get(name)
@@ -231,6 +232,22 @@ def _body_problems(scene: SceneSpec, envelope: Envelope, trained: SceneSpec | No
     return problems
 
 
+def _obstacle_friction_problems(location: str, obstacle: Obstacle, envelope: Envelope) -> list[tuple[str, str]]:
+    """An obstacle's surface friction where the model's fixed particles had a recorded friction: the scene's must be
+    recorded (else its particles read 0) and lie in the trained range. Not judged for checkpoints that predate it."""
+    known = (envelope.fixed_properties or {}).get("friction")
+    if known is None:
+        return []
+    asked = value_range(obstacle.friction) if obstacle.record_friction else (0.0, 0.0)
+    if asked is None:
+        return []
+    slack = PROPERTY_SLACK * max(known[1] - known[0], abs(known[1]), 1e-12)
+    if known[0] - slack <= asked[0] and asked[1] <= known[1] + slack:
+        return []
+    recorded = "" if obstacle.record_friction else " (not recorded: its particles read 0; record_friction: true)"
+    return [(f"{location}.friction", f"{_shown(asked)}{recorded}; trained {known[0]:.4g} .. {known[1]:.4g}")]
+
+
 def _shown(span: tuple[float, float]) -> str:
     return f"{span[0]:.4g}" if span[0] == span[1] else f"{span[0]:.4g} .. {span[1]:.4g}"
 
@@ -261,6 +278,8 @@ def scene_file_terms(trained: SceneSpec | None, envelope: Envelope) -> list[str]
             extra = "".join(
                 f", {name} {_shown(r)}" for name, v in getattr(body, "properties", {}).items() if (r := value_range(v))
             )
+            if isinstance(body, Obstacle) and body.record_friction and (r := value_range(body.friction)):
+                extra += f", friction {_shown(r)} (recorded)"
             lines.append(f"{location}: {_shown(count)} {body.material} {body.shape}(s) of {sizes or '-'} m{extra}")
     lines += [
         f"measured on the training data: median nearest-neighbour distance {envelope.particle_spacing:.4g} m, "
@@ -268,4 +287,8 @@ def scene_file_terms(trained: SceneSpec | None, envelope: Envelope) -> list[str]
         f"largest speed {envelope.max_speed:.3g} m/s",
     ]
     lines += [f"property {name}: {low:.4g} .. {high:.4g}" for name, (low, high) in envelope.properties.items()]
+    lines += [
+        f"property {name} of fixed particles: {low:.4g} .. {high:.4g}"
+        for name, (low, high) in (envelope.fixed_properties or {}).items()
+    ]
     return lines

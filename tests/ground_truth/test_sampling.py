@@ -178,3 +178,35 @@ def test_at_the_data_s_own_grid_the_bodies_and_box_are_the_data_s():
     assert _layout(same) == _layout(data)
     for before, after in zip(data.blocks, same.blocks, strict=True):
         assert after.num_particles == before.num_particles  # the jitter alone is drawn anew
+
+
+def test_an_obstacle_that_records_its_friction_gives_it_to_its_particles_and_draws_nothing_more():
+    raw = mixed()
+    raw["obstacles"][0]["friction"] = {"range": [0.3, 0.5]}
+    recording = {**raw, "obstacles": [{**raw["obstacles"][0], "record_friction": True}]}
+    plain, recorded = sample_scene(parse_scene(raw), 3), sample_scene(parse_scene(recording), 3)
+    for x, y in zip(plain.bodies, recorded.bodies, strict=True):  # the same draws, particle for particle
+        assert x.position.tobytes() == y.position.tobytes() and x.friction == y.friction
+    from gns_framework.plugins import load_registry
+
+    registry = load_registry()
+    materials = {name: registry.get("material", name) for name in registry.names("material")}
+    obstacle = recorded.obstacles[0]
+    assert 0.3 <= obstacle.friction <= 0.5
+    column = recorded.property_names.index("friction")
+    assert recorded.property_names == plain.property_names == ("friction",)
+    rows = recorded.material_property(materials)[:, column]
+    kinematic = slice(recorded.num_particles - obstacle.num_particles, None)
+    np.testing.assert_array_equal(rows[kinematic], np.float32(obstacle.friction))
+    np.testing.assert_array_equal(
+        rows[: kinematic.start], plain.material_property(materials)[: kinematic.start, column]
+    )
+    assert (plain.material_property(materials)[kinematic, column] == 0).all()  # unrecorded: the material's default
+
+
+def test_a_scene_whose_only_friction_is_an_obstacle_s_records_that_column():
+    raw = mixed()
+    raw["blocks"][1].pop("properties")
+    assert parse_scene(raw).property_names == ()
+    raw["obstacles"][0]["record_friction"] = True
+    assert parse_scene(raw).property_names == ("friction",)

@@ -324,3 +324,44 @@ def test_a_property_below_and_above_the_trained_range_names_the_farthest_value()
     values[17] = 1.5
     (line,) = outside_envelope(ENVELOPE, _metadata(), [replace(low, material_property=values)], history=6)
     assert line.startswith("property friction 1.5 in trajectory 'k'")
+
+
+def _obstacle_friction(trajectory: Trajectory, friction: float) -> Trajectory:
+    """``trajectory`` with its fixed particles' friction column set to ``friction`` (an obstacle recording it)."""
+    assert trajectory.material_property is not None
+    values = trajectory.material_property.copy()
+    values[trajectory.particle_type == OBSTACLE_TYPE] = friction
+    return replace(trajectory, material_property=values)
+
+
+def test_a_fixed_particle_s_property_is_judged_against_the_fixed_particles_seen_when_trained():
+    """An obstacle's surface friction, recorded as its particles' friction, is an input: a model trained where obstacles
+    recorded none (0) refuses one that records it, and one trained on 0.3 .. 0.5 refuses 0.7 (not against the sand's
+    0.5 .. 0.9, which it lies in)."""
+    plain = [_with_obstacle(t, 0.3, 0.3, 1.3 * SPACING) for t in TRAINED]
+    fixed = (OBSTACLE_TYPE,)
+    blind = measure_envelope(_metadata(), plain, OBSTACLE_SCENE, {3: "rigid", 6: "sand"}, frame_stride=2)
+    assert blind.fixed_properties == {"friction": [0.0, 0.0]} and blind.properties == ENVELOPE.properties
+    recording = _obstacle_friction(_with_obstacle(_column(0.1, 0.2, key="r"), 0.3, 0.3, 1.3 * SPACING), 0.44)
+    (line,) = outside_envelope(blind, _metadata(), [recording], history=6, kinematic_types=fixed)
+    assert line == "property friction of fixed particles 0.44 in trajectory 'r' (trained: 0 .. 0)"
+    seeing = measure_envelope(
+        _metadata(),
+        [_obstacle_friction(t, f) for t, f in zip(plain, (0.3, 0.5), strict=True)],
+        OBSTACLE_SCENE,
+        {3: "rigid", 6: "sand"},
+        frame_stride=2,
+    )
+    assert seeing.fixed_properties == {"friction": [pytest.approx(0.3), pytest.approx(0.5)]}
+    assert ("property friction of fixed particles", "0.3 .. 0.5") in seeing.rows()
+    assert outside_envelope(seeing, _metadata(), [recording], history=6, kinematic_types=fixed) == []
+    (line,) = outside_envelope(
+        seeing, _metadata(), [_obstacle_friction(recording, 0.7)], history=6, kinematic_types=fixed
+    )
+    assert line.startswith("property friction of fixed particles 0.7 in trajectory 'r'")
+    assert seeing.union(blind).fixed_properties == {"friction": [0.0, pytest.approx(0.5)]}
+    raw = seeing.to_dict()
+    raw.pop("fixed_properties")
+    assert outside_envelope(Envelope.from_dict(raw), _metadata(), [recording], 6, kinematic_types=fixed) == [], (
+        "a checkpoint from before fixed particles' properties were measured does not judge them"
+    )

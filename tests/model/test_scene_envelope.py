@@ -104,3 +104,27 @@ def test_value_ranges_of_every_kind_of_scene_value():
         )
         is None
     )
+
+
+def test_an_obstacle_s_friction_is_judged_where_the_model_saw_it_recorded(general):
+    """A model whose obstacles recorded their friction (0.3 .. 0.5) refuses an obstacle that does not record it (its
+    particles would read 0) or whose friction lies outside; a checkpoint from before it judges neither."""
+    from dataclasses import replace
+
+    envelope, trained = general
+    seeing = replace(envelope, fixed_properties={"friction": [0.3, 0.5]})
+    hump = {"material": "rigid", "shape": "box", "position": [1.0, 0.0], "size": [0.1, 0.1]}
+    recorded = {**hump, "friction": {"range": [0.35, 0.45]}, "record_friction": True}
+    assert scene_problems(_scene(obstacles=[recorded]), seeing, trained) == []
+    (unrecorded,) = scene_problems(_scene(obstacles=[{**recorded, "record_friction": False}]), seeing, trained)
+    assert unrecorded == (
+        "obstacles[0].friction",
+        "0 (not recorded: its particles read 0; record_friction: true); trained 0.3 .. 0.5",
+    )
+    (rough,) = scene_problems(_scene(obstacles=[{**recorded, "friction": 0.8}]), seeing, trained)
+    assert rough == ("obstacles[0].friction", "0.8; trained 0.3 .. 0.5")
+    assert envelope.fixed_properties is None  # the shipped model's checkpoint predates it
+    assert scene_problems(_scene(obstacles=[{**recorded, "friction": 0.8}]), envelope, trained) == []
+    text = "\n".join(scene_file_terms(parse_scene({**BASE, "obstacles": [recorded]}), seeing))
+    assert "obstacles[0]: 1 rigid box(s) of 0.1 x 0.1 m, friction 0.35 .. 0.45 (recorded)" in text
+    assert "property friction of fixed particles: 0.3 .. 0.5" in text
