@@ -6,9 +6,15 @@ checkpoint with it to a new file; the input is never changed. Used once for the 
 models/sand2d_fast.pt and models/sand2d_throw.pt (regenerate their data first with the
 commands of models/README.md: generation is deterministic, so it is the same data).
 
+With ``--fields``, only those fields of the measured envelope are written and the rest of the stored one is kept:
+how the shipped general sand models got ``fixed_properties`` (their obstacles' friction, never recorded: 0) without
+their other figures moving with later changes to how those are measured.
+
 Usage::
 
     python scripts/record_envelope.py models/sand2d_fast.pt --dataset data/demo_sand_2d --out sand2d_fast.pt
+    python scripts/record_envelope.py models/sand2d_general.pt --dataset data/sand_general_2d \
+        --fields fixed_properties --out sand2d_general.pt
 """
 
 from __future__ import annotations
@@ -32,6 +38,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("checkpoint", type=Path)
     parser.add_argument("--dataset", type=Path, required=True, help="the data the model was trained on")
     parser.add_argument("--out", type=Path, required=True, help="new checkpoint file (must not exist)")
+    parser.add_argument(
+        "--fields", nargs="+", metavar="FIELD", help="record only these envelope fields; keep the stored others"
+    )
     args = parser.parse_args(argv)
     if args.out.exists():
         print(f"{args.out}: exists; choose a new file", file=sys.stderr)
@@ -61,7 +70,17 @@ def main(argv: list[str] | None = None) -> int:
     )
     state = load_checkpoint(args.checkpoint, map_location="cpu")
     state.pop("format", None)
-    save_checkpoint(args.out, {**state, "envelope": envelope.to_dict()})
+    recorded = envelope.to_dict()
+    if args.fields:
+        unknown = sorted(set(args.fields) - set(recorded))
+        stored = state.get("envelope")
+        if unknown or not isinstance(stored, dict):
+            why = f"unknown field(s) {unknown}; the fields are {sorted(recorded)}" if unknown else "it holds none"
+            print(f"--fields: {why}", file=sys.stderr)
+            return 2
+        recorded = {**stored, **{name: recorded[name] for name in args.fields}}
+        envelope = type(envelope).from_dict(recorded)
+    save_checkpoint(args.out, {**state, "envelope": recorded})
     for quantity, trained in envelope.rows():
         print(f"{quantity:<22} {trained}")
     print(f"wrote {args.out}")

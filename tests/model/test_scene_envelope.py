@@ -123,8 +123,12 @@ def test_an_obstacle_s_friction_is_judged_where_the_model_saw_it_recorded(genera
     )
     (rough,) = scene_problems(_scene(obstacles=[{**recorded, "friction": 0.8}]), seeing, trained)
     assert rough == ("obstacles[0].friction", "0.8; trained 0.3 .. 0.5")
-    assert envelope.fixed_properties is None  # the shipped model's checkpoint predates it
-    assert scene_problems(_scene(obstacles=[{**recorded, "friction": 0.8}]), envelope, trained) == []
+    assert envelope.fixed_properties == {"friction": [0.0, 0.0]}  # the shipped model never saw it recorded
+    (blind,) = scene_problems(_scene(obstacles=[recorded]), envelope, trained)
+    assert blind == ("obstacles[0].friction", "0.35 .. 0.45; trained 0 .. 0")
+    assert scene_problems(_scene(obstacles=[hump]), envelope, trained) == []
+    older = replace(envelope, fixed_properties=None)  # a checkpoint from before fixed particles were measured
+    assert scene_problems(_scene(obstacles=[{**recorded, "friction": 0.8}]), older, trained) == []
     text = "\n".join(scene_file_terms(parse_scene({**BASE, "obstacles": [recorded]}), seeing))
     assert "obstacles[0]: 1 rigid box(s) of 0.1 x 0.1 m, friction 0.35 .. 0.45 (recorded)" in text
     assert "property friction of fixed particles: 0.3 .. 0.5" in text
