@@ -133,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--held-out", type=int, default=20, help="scenes per seed")
     parser.add_argument("--frictions", type=float, nargs="+", default=[0.3, 0.5], help="obstacle frictions to run")
     parser.add_argument("--out", type=Path, required=True, help="datasets are kept here, per seed and friction")
-    parser.add_argument("--goal", type=float, default=15.0, help="worst-case goal, %")
+    parser.add_argument("--goal", type=float, default=15.0, help="worst-case goal, %%")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--json", action="store_true", help="also print the rows and summary as one JSON line")
     args = parser.parse_args(argv)
