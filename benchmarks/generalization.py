@@ -122,6 +122,14 @@ def main(argv: list[str] | None = None) -> int:
         help="grids of the MPM yardsticks, as fractions of the data's (comma-separated; default 0.5): each runs the "
         "data's drawn scene refilled at its spacing",
     )
+    parser.add_argument(
+        "--scene",
+        type=Path,
+        default=ROOT / "scenes" / "sand_general_2d.yaml",
+        help="the envelope the held-out scenes are drawn from (default: scenes/sand_general_2d.yaml); one drawing the "
+        "same scenes but recording more, as scenes/sand_general_2d_obstacle_friction.yaml does, for a model trained "
+        "on it",
+    )
     parser.add_argument("--json", action="store_true", help="also print the per-scene figures as one JSON line")
     parser.add_argument(
         "--gifs",
@@ -140,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     groups = {}
     if args.held_out:
         data = dataset(
-            ROOT / "scenes" / "sand_general_2d.yaml",
+            args.scene,
             args.out / ("held_out_without_obstacles" if args.without_obstacles else "held_out"),
             args.held_out,
             args.seed,
