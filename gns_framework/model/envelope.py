@@ -38,6 +38,12 @@ DT_TOLERANCE = 1e-3
 PROPERTY_SLACK = 0.02
 """Fraction of a trained property range (or of its value, for a single value) accepted beyond its ends."""
 
+
+def property_slack(trained: list[float] | tuple[float, float]) -> float:
+    """How far beyond either end of a ``trained`` (low, high) property range a value is accepted."""
+    return PROPERTY_SLACK * max(trained[1] - trained[0], abs(trained[1]), 1e-12)
+
+
 SPEED_SLACK = 1.25
 """Input speeds up to this multiple of the largest trained speed are accepted."""
 
@@ -572,7 +578,7 @@ def _judge_property(
 ) -> None:
     """Add ``values`` (low, high; (inf, -inf): none) to ``findings`` where they leave the ``trained`` range."""
     lo, hi = trained
-    slack = PROPERTY_SLACK * max(hi - lo, abs(hi), 1e-12)
+    slack = property_slack(trained)
     if values[0] < lo - slack:
         findings.add(quantity, f"{values[0]:.4g}", f"{lo:.4g} .. {hi:.4g}", key)
     elif values[1] > hi + slack:

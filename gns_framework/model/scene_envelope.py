@@ -21,11 +21,11 @@ from ..limits import scene_particles
 from .envelope import (
     COUNT_SLACK,
     DT_TOLERANCE,
-    PROPERTY_SLACK,
     REACH_SPACINGS,
     SPACING_TOLERANCE,
     WALL_SLACK,
     Envelope,
+    property_slack,
 )
 
 
@@ -202,7 +202,7 @@ def _body_problems(scene: SceneSpec, envelope: Envelope, trained: SceneSpec | No
             asked, known = value_range(value), envelope.properties.get(name)
             if asked is None or known is None:
                 continue
-            slack = PROPERTY_SLACK * max(known[1] - known[0], abs(known[1]), 1e-12)
+            slack = property_slack(known)
             if asked[0] < known[0] - slack or asked[1] > known[1] + slack:
                 problems.append(
                     (
@@ -241,7 +241,7 @@ def _obstacle_friction_problems(location: str, obstacle: Obstacle, envelope: Env
     asked = value_range(obstacle.friction) if obstacle.record_friction else (0.0, 0.0)
     if asked is None:
         return []
-    slack = PROPERTY_SLACK * max(known[1] - known[0], abs(known[1]), 1e-12)
+    slack = property_slack(known)
     if known[0] - slack <= asked[0] and asked[1] <= known[1] + slack:
         return []
     recorded = "" if obstacle.record_friction else " (not recorded: its particles read 0; record_friction: true)"
