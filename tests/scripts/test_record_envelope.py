@@ -4,22 +4,12 @@ from __future__ import annotations
 
 import pytest
 from load_script import load_script
-from tiny import tiny_recipe, tiny_trainer
 
 from gns_framework.io.checkpoint import load_checkpoint, save_checkpoint
 
 record_envelope = load_script("scripts/record_envelope.py")
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
-
-
-@pytest.fixture(scope="module")
-def trained(dataset_multimaterial, tmp_path_factory):
-    trainer = tiny_trainer(tiny_recipe(dataset_multimaterial), tmp_path_factory.mktemp("run"))
-    trainer.train(1)
-    path = trainer.checkpoints.save()
-    trainer.close()
-    return path
 
 
 def _older(trained, tmp_path):

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import pytest
 from load_script import load_script
-from tiny import tiny_recipe, tiny_trainer
 
 from gns_framework.assembly.data import open_dataset
 from gns_framework.assembly.trained import load_trained
@@ -19,15 +18,6 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 REFUSED = 5
 """The second material of the synthetic multimaterial data (tests/synthetic.py): every test trajectory holds it."""
-
-
-@pytest.fixture(scope="module")
-def trained(dataset_multimaterial, tmp_path_factory):
-    trainer = tiny_trainer(tiny_recipe(dataset_multimaterial), tmp_path_factory.mktemp("run"))
-    trainer.train(2)
-    path = trainer.checkpoints.save()
-    trainer.close()
-    return path
 
 
 def test_the_refusal_is_recorded_and_everything_else_is_kept(trained, tmp_path, registry):
