@@ -67,8 +67,7 @@ def scene_rows(scene_path: Path, seed: int, out: Path, held_out: int, frictions,
     from gns_framework.ground_truth.scene_spec import load_scene
 
     scene = load_scene(scene_path).model_copy(update={"seed": seed})
-    granular = registry.get("material", "sand").particle_type
-    kinematic = registry.get("material", "rigid").particle_type
+    kinematic = list(registry.kinematic_types())
     runs = {f: generated(pinned(scene, f), scene_path, out / f"friction_{f:g}", held_out, registry) for f in frictions}
     data = generated(scene, scene_path, out / "data", held_out, registry)
     rows = []
@@ -76,9 +75,10 @@ def scene_rows(scene_path: Path, seed: int, out: Path, held_out: int, frictions,
         stored = {f: np.load(path / "test.npz") for f, path in runs.items()}
         for key in sorted({name.split("/")[0] for name in truth.files}):
             types = truth[f"{key}/particle_type"]
-            if not (types == kinematic).any():
+            if not np.isin(types, kinematic).any():
                 continue
-            sand, floor = types == granular, float(truth[f"{key}/bounds"][1, 0])
+            granular = [t for t in np.unique(types) if registry.material_by_type(int(t)).cls.granular]
+            sand, floor = np.isin(types, granular), float(truth[f"{key}/bounds"][1, 0])
             position = truth[f"{key}/position"]
             extent, height = deposit(position[-1], sand, floor)
             row = {"scene": key, "seed": seed, "drawn": _drawn_frictions(read_drawn(data, key)), "runs": {}}
