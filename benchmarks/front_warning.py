@@ -52,6 +52,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from generalization import ROOT, dataset
 from second_opinion import BAD, deposit, flag_rates
+from training_fit import first_offsets
 
 SHARE = 0.5
 """Run share (front's run over the final extent) from which the flow, not the scene, places a front."""
@@ -197,9 +198,13 @@ def other_signals(path: np.ndarray, start: np.ndarray, friction: np.ndarray, obs
     return {name: float(value) for name, value in signals.items()}
 
 
-def scene_rows(model, data: Path, registry, cache: Path | None) -> dict[str, dict]:
-    """Per case of ``data``'s test split: the model's extent and height errors against the MPM (%), its fronts
-    and the other signals (from the scene and the learned rollout only), and the MPM deposit's energy ratio."""
+def scene_rows(
+    model, data: Path, registry, cache: Path | None, split: str = "test", limit: int | None = None
+) -> dict[str, dict]:
+    """Per trajectory of ``data``'s ``split`` (rolled out from its stored frame 0 only, when the recipe reads every
+    frame offset): the model's extent and height errors against the MPM (%), its fronts and the other signals (from
+    the scene and the learned rollout only; ``sand_particles`` the sand's particle count), and the MPM deposit's
+    energy ratio. ``limit``: the first that many trajectories only."""
     from gns_framework.assembly.data import open_dataset
     from gns_framework.evaluation.candidates import cases_from_split, granular_particle_types
 
@@ -208,7 +213,7 @@ def scene_rows(model, data: Path, registry, cache: Path | None) -> dict[str, dic
     setup = model.simulator.setup
     granular = granular_particle_types(setup, registry)
     out = {}
-    for case in cases_from_split(data_set.split("test")):
+    for case in first_offsets(cases_from_split(data_set.split(split)))[:limit]:
         prediction = learned_rollout(model, case, cache)
         sand = np.isin(case.particle_type, granular)
         path = np.asarray(prediction.position)[:, sand]
@@ -220,7 +225,7 @@ def scene_rows(model, data: Path, registry, cache: Path | None) -> dict[str, dic
         out[case.key] = {
             "error": deposit(prediction, case, setup.history, metadata, granular),
             "fronts": [dataclasses.asdict(f) for f in fronts(path, start, obstacle, case.bounds, h)],
-            "signals": {**signals, "held": prediction.held or 0},
+            "signals": {**signals, "held": prediction.held or 0, "sand_particles": int(sand.sum())},
             # Needs the truth: what a predictor of the energy ratio from the scene alone would have to match.
             "mpm_energy_ratio": energy_ratio(start, case.position[-1, sand], friction),
         }

@@ -50,12 +50,30 @@ BAD = 15.0
 THRESHOLDS = (5.0, 7.5, 10.0, 15.0, 20.0, 30.0, 40.0, 50.0)
 
 
+DEPOSIT = ("extent_error_pct", "height_error_pct")
+"""The deposit measures scored (the others, Sinkhorn among them, would take most of a warning benchmark's time)."""
+
+
+@functools.cache
+def deposit_scoring() -> tuple[tuple[int, ...], tuple]:
+    """The installed plugins' kinematic particle types and their ``DEPOSIT`` metrics (the registry loaded once)."""
+    from gns_framework.plugins import load_registry
+
+    registry = load_registry()
+    return tuple(registry.kinematic_types()), tuple(m for m in registry.metrics() if m.name in DEPOSIT)
+
+
 def deposit(prediction, case, history, metadata, granular) -> dict[str, float]:
     """Extent and height errors (%) of ``prediction`` against ``case`` beyond its first ``history`` frames."""
     from gns_framework.evaluation.metrics import summarise
     from gns_framework.evaluation.report import score_prediction
 
-    scores = summarise(score_prediction(prediction, case, history, metadata, granular_types=granular))
+    kinematic, metrics = deposit_scoring()
+    scores = summarise(
+        score_prediction(
+            prediction, case, history, metadata, granular_types=granular, kinematic_types=kinematic, metrics=metrics
+        )
+    )
     return {"extent": float(scores["extent_error_pct"]), "height": float(scores["height_error_pct"])}
 
 

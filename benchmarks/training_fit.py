@@ -22,10 +22,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from second_opinion import BAD
-
-DEPOSIT = ("extent_error_pct", "height_error_pct")
-"""The deposit measures scored (the others, Sinkhorn among them, would take most of the time)."""
+from second_opinion import BAD, deposit
 
 
 def first_offsets(cases):
@@ -37,24 +34,17 @@ def scene_rows(model, data: Path, registry, split: str, limit: int | None) -> li
     """Per trajectory of ``split``: the learned extent and height errors (%) and whether it holds fixed particles."""
     from gns_framework.assembly.data import open_dataset
     from gns_framework.evaluation.candidates import cases_from_split, granular_particle_types, learned_prediction
-    from gns_framework.evaluation.metrics import summarise
-    from gns_framework.evaluation.report import score_prediction
 
     data_set = open_dataset(model.recipe.dataset, registry, data)
     metadata, setup = data_set.metadata(), model.simulator.setup
     granular = granular_particle_types(setup, registry)
-    metrics = [m for m in registry.metrics() if m.name in DEPOSIT]
     rows = []
     for case in first_offsets(cases_from_split(data_set.split(split)))[:limit]:
         prediction = learned_prediction(model.simulator, case, "cpu", guard=model.rollout_guard())
-        scores = summarise(
-            score_prediction(prediction, case, setup.history, metadata, granular_types=granular, metrics=metrics)
-        )
         rows.append(
             {
                 "scene": case.key,
-                "extent": float(scores["extent_error_pct"]),
-                "height": float(scores["height_error_pct"]),
+                **deposit(prediction, case, setup.history, metadata, granular),
                 "obstacle": bool(np.isin(case.particle_type, setup.kinematic_types).any()),
             }
         )
