@@ -224,7 +224,10 @@ def main(argv: list[str] | None = None) -> int:
     data = args.data or Path(model.recipe.dataset.path)
     cache = None if args.cache is None else args.cache / args.model.stem / "train"
     training = list(scene_rows(model, data, registry, cache, split="train", limit=args.limit).values())
-    warning = trained_warning(training, args.l2, args.folds, args.hit)
+    try:
+        warning = trained_warning(training, args.l2, args.folds, args.hit)
+    except ValueError as error:
+        parser.error(f"{data}: {error}")
     rows = gathered_rows(args, registry, lambda data, rollouts: scene_rows(model, data, registry, rollouts))
     print(f"{args.model}: a warning fitted on its {len(training)} training scenes, scored on scenes it never saw")
     summary = report(warning, training, rows)

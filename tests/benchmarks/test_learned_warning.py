@@ -114,3 +114,13 @@ def test_main_reports_each_group_and_all(monkeypatch, capsys):
     assert result["rates"]["canonical"]["false_alarm_rate"] == 1.0
     assert result["rates"]["all"] == {"bad": 2, "good": 2, "hit_rate": 1.0, "false_alarm_rate": 0.5}
     assert "held-out s7   2 of 2 bad, 0 of 1 good flagged" in out
+
+
+def test_main_names_the_data_when_it_has_too_few_bad_scenes(monkeypatch, capsys):
+    training = separable_rows(24, 5)  # 3 bad
+    monkeypatch.setattr(learned_warning, "scene_rows", lambda *a, **k: {str(i): r for i, r in enumerate(training)})
+    args = ["--model", "models/sand2d_general_fast.pt", "--data", "my_data", "--seed", "7", "--out", "unused"]
+    with pytest.raises(SystemExit) as exit_:
+        learned_warning.main([*args, "--folds", "5"])
+    assert exit_.value.code == 2
+    assert "my_data: 3 bad and 21 good training scenes: fewer than 5 folds" in capsys.readouterr().err
