@@ -181,18 +181,18 @@ def report(warning: LearnedWarning, training: list[dict], rows: list[dict]) -> d
     for name, weight in zip(SIGNALS, warning.weights[:-1], strict=True):
         print(f"  {name:<22} {weight:+.2f}")
     score = warning.score(rows)
+    flagged = {id(row): bool(s >= warning.threshold) for row, s in zip(rows, score, strict=True)}
     print(f"\n{'group':<13} {'scene':<24} {'extent':>6} {'height':>6} {'score':>6} flag")
     for row, s in zip(rows, score, strict=True):
-        mark = ("FLAG" if s >= warning.threshold else "    ") + (" (bad)" if is_bad(row) else "")
+        mark = ("FLAG" if flagged[id(row)] else "    ") + (" (bad)" if is_bad(row) else "")
         print(
             f"{row['group']:<13} {row['scene']:<24} {row['error']['extent']:6.1f} {row['error']['height']:6.1f} "
             f"{s:6.2f} {mark}"
         )
-    by_row = {id(row): s >= warning.threshold for row, s in zip(rows, score, strict=True)}
     groups = {}
     for group in dict.fromkeys(row["group"] for row in rows):
-        groups[group] = flag_rates([r for r in rows if r["group"] == group], lambda r: by_row[id(r)])
-    groups["all"] = flag_rates(rows, lambda r: by_row[id(r)])
+        groups[group] = flag_rates([r for r in rows if r["group"] == group], lambda r: flagged[id(r)])
+    groups["all"] = flag_rates(rows, lambda r: flagged[id(r)])
     print(f"\nthreshold {warning.threshold:.2f} (log-odds); goal: >= 80 % of bad flagged, <= 20 % of good")
     for group, rates in groups.items():
         hits = round(rates["hit_rate"] * rates["bad"]) if rates["bad"] else 0
