@@ -54,44 +54,21 @@ from generalization import ROOT, dataset
 from second_opinion import BAD, deposit, flag_rates
 from training_fit import first_offsets
 
+from gns_framework.evaluation.deposit_signals import Front, deposit_signals, energy_ratio
+
 SHARE = 0.5
 """Run share (front's run over the final extent) from which the flow, not the scene, places a front."""
 NEAR = 20.0
 """Particle spacings (about 0.17 m) within which an obstacle or wall ahead of a front makes its end undecided."""
-AT_WALL = 1.0
-"""Particle spacings from a wall within which a front is held by it (its place is the wall's)."""
-TAIL = 0.1
-"""Share of the rollout's last frames whose motion says whether the deposit has stopped."""
 ORACLE = (0.05, 0.1, 0.15)
 """Thresholds of |log| of the learned over the MPM's energy ratio, for the upper bound of an energy warning."""
 SHARES = (0.3, 0.4, 0.5, 0.6, 0.7)
 NEARS = (5.0, 10.0, 20.0, 40.0, float("inf"))
 
 
-@dataclasses.dataclass(frozen=True)
-class Front:
-    """One outer front of a learned deposit (the leftmost or rightmost sand particle at the last frame).
-
-    Attributes:
-        side: ``left`` or ``right``.
-        run: distance the front travelled from the sand's starting edge on its side, m.
-        share: ``run`` over the deposit's final extent (0-1).
-        gap: particle spacings from the front to the nearest obstacle particle ahead of it (0: on it) or the wall
-            ahead, whichever is closer.
-        at_wall: whether the front ends within ``AT_WALL`` spacings of the wall ahead.
-        tail: particle spacings the front moved over the last ``TAIL`` of the frames (below 1: stopped).
-    """
-
-    side: str
-    run: float
-    share: float
-    gap: float
-    at_wall: bool
-    tail: float
-
-    def undecided(self, share: float = SHARE, near: float = NEAR) -> bool:
-        """Whether the flow placed this front (run share >= ``share``) near an obstacle or a wall not reached."""
-        return self.share >= share and not self.at_wall and self.gap <= near
+def undecided(front: Front, share: float = SHARE, near: float = NEAR) -> bool:
+    """Whether the flow placed ``front`` (run share >= ``share``) near an obstacle or a wall not reached."""
+    return front.share >= share and not front.at_wall and front.gap <= near
 
 
 def learned_rollout(model, case, cache: Path | None):
@@ -110,101 +87,13 @@ def learned_rollout(model, case, cache: Path | None):
     return prediction
 
 
-def spacing(start: np.ndarray) -> float:
-    """The sand's particle spacing, m: the median distance from a particle to its nearest neighbour at the start."""
-    from scipy.spatial import cKDTree
-
-    distance, _ = cKDTree(start).query(start, k=2)
-    return float(np.median(distance[:, 1]))
-
-
-def fronts(path: np.ndarray, start: np.ndarray, obstacle: np.ndarray, bounds: np.ndarray, h: float) -> list[Front]:
-    """The two outer fronts of the sand ``path`` (S, N, 2) from ``start`` (N, 2), m, among ``obstacle`` particles
-    (M, 2) and the walls ``bounds`` (2, 2), with particle spacing ``h``, m."""
-    extent = np.ptp(path[-1, :, 0])
-    tail = max(1, round(TAIL * len(path)))
-    out = []
-    for side, ahead, edge, wall in (
-        ("left", -1.0, np.min, bounds[0, 0]),
-        ("right", 1.0, np.max, bounds[0, 1]),
-    ):
-        series = edge(path[:, :, 0], axis=1)
-        x = series[-1]
-        run = abs(x - edge(start[:, 0]))
-        # Obstacle particles ahead of the front, or under it (within a spacing behind): 0 when it is on one.
-        reach = ahead * (obstacle[:, 0] - x)
-        to_obstacle = max(reach[reach > -h].min(initial=np.inf), 0.0)
-        to_wall = ahead * (wall - x)
-        out.append(
-            Front(
-                side=side,
-                run=float(run),
-                share=float(run / extent),
-                gap=float(min(to_obstacle, to_wall) / h),
-                at_wall=bool(to_wall <= AT_WALL * h),
-                tail=float(abs(x - series[-1 - tail]) / h),
-            )
-        )
-    return out
-
-
-def columns(start: np.ndarray, friction: np.ndarray, gap: float) -> list[np.ndarray]:
-    """Indices of each column of sand at the start: runs along x split where neighbours are more than ``gap``
-    apart, m, or their friction changes (two columns side by side)."""
-    order = np.argsort(start[:, 0], kind="stable")
-    x, phi = start[order, 0], friction[order]
-    cuts = np.flatnonzero((np.diff(x) > gap) | (np.abs(np.diff(phi)) > 1e-6)) + 1
-    return np.split(order, cuts)
-
-
-def energy_ratio(start: np.ndarray, final: np.ndarray, friction: np.ndarray) -> float:
-    """Potential energy the sand released over the work Coulomb friction does along its horizontal displacement:
-    sum of the height drops, m, over the sum of tan(phi) |dx|, m (1 for a rigid block sliding to rest; a collapse,
-    whose inner particles fall more than they travel, is above 1). The deposit is at rest, so this is the share
-    of the released energy that sliding friction accounts for, inverted."""
-    work = (friction * np.abs(final[:, 0] - start[:, 0])).sum()
-    return float((start[:, 1] - final[:, 1]).sum() / work) if work > 0 else float("nan")
-
-
-def other_signals(path: np.ndarray, start: np.ndarray, friction: np.ndarray, obstacle: np.ndarray, bounds, h: float):
-    """The candidate signals besides the rule's, of the sand ``path`` (S, N, 2) from ``start`` (N, 2), m, of
-    per-particle tan(phi) ``friction``, among ``obstacle`` particles (M, 2) and walls ``bounds`` (2, 2), with
-    particle spacing ``h``, m."""
-    from scipy.spatial import cKDTree
-
-    final = path[-1]
-    ratios, aspects, tan_phis = [], [], []
-    for index in columns(start, friction, 2 * h):
-        width = np.ptp(start[index, 0]) + h
-        ratios.append((np.ptp(final[index, 0]) + h) / width)
-        aspects.append((start[index, 1].max() - bounds[1, 0] + h / 2) / width)
-        tan_phis.append(float(friction[index[0]]))
-    tallest = int(np.argmax(aspects))
-    step = np.diff(np.concatenate([start[None], path]), axis=0)
-    energy = (step**2).sum(axis=2).mean(axis=1)
-    tail = max(1, round(TAIL * len(path)))
-    touching = (final[:, 0] - bounds[0, 0] < h) | (bounds[0, 1] - final[:, 0] < h)
-    if len(obstacle):
-        touching |= cKDTree(obstacle).query(final, k=1)[0] < 1.5 * h
-    signals = {
-        "runout_ratio": max(ratios),
-        "aspect": aspects[tallest],
-        "tan_phi": tan_phis[tallest],
-        "aspect_over_tan_phi": aspects[tallest] / tan_phis[tallest],
-        "end_energy": energy[-tail:].mean() / energy.max(),
-        "touching": touching.mean(),
-        "energy_ratio": energy_ratio(start, final, friction),
-    }
-    return {name: float(value) for name, value in signals.items()}
-
-
 def scene_rows(
     model, data: Path, registry, cache: Path | None, split: str = "test", limit: int | None = None
 ) -> dict[str, dict]:
     """Per trajectory of ``data``'s ``split`` (rolled out from its stored frame 0 only, when the recipe reads every
     frame offset): the model's extent and height errors against the MPM (%), its fronts and the other signals (from
-    the scene and the learned rollout only; ``sand_particles`` the sand's particle count), and the MPM deposit's
-    energy ratio. ``limit``: the first that many trajectories only."""
+    the scene and the learned rollout only: :func:`gns_framework.evaluation.deposit_signals.deposit_signals`), and
+    the MPM deposit's energy ratio. ``limit``: the first that many trajectories only."""
     from gns_framework.assembly.data import open_dataset
     from gns_framework.evaluation.candidates import cases_from_split, granular_particle_types
 
@@ -220,12 +109,11 @@ def scene_rows(
         start = case.position[setup.history - 1, sand]
         obstacle = case.position[-1, np.isin(case.particle_type, setup.kinematic_types)]  # prescribed, not predicted
         friction = case.material_property[sand, 0]
-        h = spacing(start)
-        signals = other_signals(path, start, friction, obstacle, case.bounds, h)
+        signals = deposit_signals(path, start, friction, obstacle, case.bounds, prediction.held or 0)
         out[case.key] = {
             "error": deposit(prediction, case, setup.history, metadata, granular),
-            "fronts": [dataclasses.asdict(f) for f in fronts(path, start, obstacle, case.bounds, h)],
-            "signals": {**signals, "held": prediction.held or 0, "sand_particles": int(sand.sum())},
+            "fronts": [dataclasses.asdict(f) for f in signals.fronts],
+            "signals": signals.signals,
             # Needs the truth: what a predictor of the energy ratio from the scene alone would have to match.
             "mpm_energy_ratio": energy_ratio(start, case.position[-1, sand], friction),
         }
@@ -234,7 +122,7 @@ def scene_rows(
 
 def flagged(row: dict, share: float = SHARE, near: float = NEAR) -> bool:
     """Whether the rule flags ``row``: one of its fronts is undecided."""
-    return any(Front(**f).undecided(share, near) for f in row["fronts"])
+    return any(undecided(Front(**f), share, near) for f in row["fronts"])
 
 
 def leading(row: dict) -> dict:
@@ -262,7 +150,7 @@ def print_table(rows: list[dict], share: float, near: float) -> None:
         print(
             f"{row['group']:<13} {row['scene']:<24} {e['extent']:6.1f} {e['height']:6.1f} | {f['side']:>5} "
             f"{f['run']:5.2f} {f['share']:5.2f} {gap:>6} | {s['runout_ratio']:5.2f} {s['aspect']:6.2f} "
-            f"{s['tan_phi']:6.2f} {s['end_energy']:7.1e} {tail:5.2f} {s['touching']:5.3f} {s['held']:4d} "
+            f"{s['tan_phi']:6.2f} {s['end_energy']:7.1e} {tail:5.2f} {s['touching']:5.3f} {int(s['held']):4d} "
             f"{s['energy_ratio']:5.2f} {row['mpm_energy_ratio']:5.2f} {mark}"
         )
 

@@ -25,10 +25,14 @@ split into ``--folds`` folds and each fold scored by the fit on the others; the 
 that flags ``--hit`` of the bad training scenes, and the strength kept is the one whose out-of-fold false-alarm
 rate is lowest (ties: the stronger). The final weights are fitted on every training row.
 
+The fitted warning is :class:`gns_framework.evaluation.deposit_warning.DepositWarning`, scored exactly as ``gns
+rollout`` and ``gns evaluate`` score it; ``--record NEW.pt`` writes the model's checkpoint with it to a new file.
+
 Usage (the held-out datasets are generalization.py's; rollouts are cached as front_warning.py's are)::
 
     python benchmarks/learned_warning.py --model models/sand2d_general_fast.pt --seed 11 12 13 \\
-        --out runs/generalization runs/gen_r3_s12 runs/gen_r3_s13 --threads 1 --cache /tmp/front_warning/rollouts
+        --out runs/generalization runs/gen_r3_s12 runs/gen_r3_s13 --threads 1 --cache /tmp/front_warning/rollouts \\
+        [--record warned.pt]
 """
 
 from __future__ import annotations
@@ -37,42 +41,26 @@ import argparse
 import dataclasses
 import json
 import sys
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from front_warning import add_scene_arguments, gathered_rows, is_bad, leading, parsed_with_model, scene_rows
+from front_warning import add_scene_arguments, gathered_rows, is_bad, parsed_with_model, scene_rows
 from second_opinion import BAD, flag_rates
 
-GAP_CAP = 200.0
-"""Particle spacings beyond which an obstacle or wall ahead no longer bears on a front (about 1.7 m)."""
+from gns_framework.evaluation.deposit_signals import DepositSignals, Front
+from gns_framework.evaluation.deposit_warning import INPUTS, DepositWarning, warning_inputs
 
 
-def _log(value: float, floor: float) -> float:
-    """log(value), with ``value`` raised to ``floor`` and an undefined (NaN) value read as 1."""
-    return float(np.log(max(value, floor))) if np.isfinite(value) else 0.0
-
-
-SIGNALS: dict[str, Callable[[dict], float]] = {
-    "run share": lambda r: leading(r)["share"],
-    "held by a wall": lambda r: float(leading(r)["at_wall"]),
-    "log gap ahead": lambda r: float(np.log1p(np.clip(leading(r)["gap"], 0.0, GAP_CAP))),
-    "tan phi": lambda r: r["signals"]["tan_phi"],
-    "aspect over tan phi": lambda r: r["signals"]["aspect_over_tan_phi"],
-    "log sand particles": lambda r: _log(r["signals"]["sand_particles"], 1.0),
-    "log energy ratio": lambda r: _log(r["signals"]["energy_ratio"], 1e-3),
-    "log runout ratio": lambda r: _log(r["signals"]["runout_ratio"], 1e-3),
-    "log end energy": lambda r: _log(r["signals"]["end_energy"], 1e-12),
-    "log front tail": lambda r: float(np.log1p(max(f["tail"] for f in r["fronts"]))),
-}
-"""The warning's inputs, by name, from one front_warning row."""
+def row_signals(row: dict) -> DepositSignals:
+    """The signals of one front_warning row, as the warning reads them."""
+    return DepositSignals([Front(**f) for f in row["fronts"]], row["signals"])
 
 
 def design(rows: list[dict]) -> tuple[np.ndarray, np.ndarray]:
-    """The signals (R, S) and the labels (R,), 1.0 where the model is more than ``BAD`` % off, of ``rows``."""
-    x = np.array([[signal(row) for signal in SIGNALS.values()] for row in rows], dtype=float)
+    """The inputs (R, S) and the labels (R,), 1.0 where the model is more than ``BAD`` % off, of ``rows``."""
+    x = np.array([warning_inputs(row_signals(row)) for row in rows], dtype=float).reshape(len(rows), len(INPUTS))
     return x, np.array([float(is_bad(row)) for row in rows])
 
 
@@ -108,29 +96,23 @@ def threshold_for(score: np.ndarray, bad: np.ndarray, hit: float) -> float:
 
 @dataclasses.dataclass(frozen=True)
 class LearnedWarning:
-    """A fitted warning: standardisation, weights, threshold, and how it was chosen.
+    """A fitted warning (the record a checkpoint stores) and how it was chosen.
 
     Attributes:
-        mean, scale: per signal (S,), of the training rows.
-        weights: (S + 1,), the intercept last, on standardised signals.
-        threshold: log-odds at or above which a rollout is flagged.
+        record: standardisation, weights and threshold, scored as ``gns rollout`` and ``gns evaluate`` score it.
         l2: the strength kept.
         cross_validated: per strength tried, its out-of-fold hit and false-alarm rates.
     """
 
-    mean: np.ndarray
-    scale: np.ndarray
-    weights: np.ndarray
-    threshold: float
+    record: DepositWarning
     l2: float
     cross_validated: list[dict]
 
     def score(self, rows: list[dict]) -> np.ndarray:
-        x, _ = design(rows)
-        return scores((x - self.mean) / self.scale, self.weights)
+        return np.array([self.record.score_signals(row_signals(row)).score for row in rows])
 
     def flags(self, rows: list[dict]) -> np.ndarray:
-        return self.score(rows) >= self.threshold
+        return self.score(rows) >= self.record.threshold
 
 
 def folds_of(count: int, folds: int, seed: int) -> list[np.ndarray]:
@@ -166,7 +148,21 @@ def trained_warning(rows: list[dict], l2s: list[float], folds: int, hit: float, 
             }
         )
     best = min(tried, key=lambda t: (t["false_alarm_rate"], -t["l2"]))
-    return LearnedWarning(mean, scale, fit(z, y, best["l2"]), best["threshold"], best["l2"], tried)
+    weights = fit(z, y, best["l2"])
+    record = DepositWarning(
+        inputs=tuple(INPUTS),
+        mean=tuple(map(float, mean)),
+        scale=tuple(map(float, scale)),
+        weights=tuple(map(float, weights[:-1])),
+        intercept=float(weights[-1]),
+        threshold=best["threshold"],
+        error_pct=BAD,
+        fitted_on=(
+            f"{len(y)} training scenes ({int(bad.sum())} over {BAD:g} %); out of fold it flagged "
+            f"{best['hit_rate']:.0%} of those and {best['false_alarm_rate']:.0%} of the others (l2 {best['l2']:g})"
+        ),
+    )
+    return LearnedWarning(record, best["l2"], tried)
 
 
 def report(warning: LearnedWarning, training: list[dict], rows: list[dict]) -> dict:
@@ -178,10 +174,11 @@ def report(warning: LearnedWarning, training: list[dict], rows: list[dict]) -> d
             f"{'  <- kept' if t['l2'] == warning.l2 else ''}"
         )
     print("weights on standardised signals (log-odds per standard deviation):")
-    for name, weight in zip(SIGNALS, warning.weights[:-1], strict=True):
+    for name, weight in zip(warning.record.inputs, warning.record.weights, strict=True):
         print(f"  {name:<22} {weight:+.2f}")
     score = warning.score(rows)
-    flagged = {id(row): bool(s >= warning.threshold) for row, s in zip(rows, score, strict=True)}
+    threshold = warning.record.threshold
+    flagged = {id(row): bool(s >= threshold) for row, s in zip(rows, score, strict=True)}
     print(f"\n{'group':<13} {'scene':<24} {'extent':>6} {'height':>6} {'score':>6} flag")
     for row, s in zip(rows, score, strict=True):
         mark = ("FLAG" if flagged[id(row)] else "    ") + (" (bad)" if is_bad(row) else "")
@@ -193,20 +190,37 @@ def report(warning: LearnedWarning, training: list[dict], rows: list[dict]) -> d
     for group in dict.fromkeys(row["group"] for row in rows):
         groups[group] = flag_rates([r for r in rows if r["group"] == group], lambda r: flagged[id(r)])
     groups["all"] = flag_rates(rows, lambda r: flagged[id(r)])
-    print(f"\nthreshold {warning.threshold:.2f} (log-odds); goal: >= 80 % of bad flagged, <= 20 % of good")
+    print(f"\nthreshold {threshold:.2f} (log-odds); goal: >= 80 % of bad flagged, <= 20 % of good")
     for group, rates in groups.items():
         hits = round(rates["hit_rate"] * rates["bad"]) if rates["bad"] else 0
         alarms = round(rates["false_alarm_rate"] * rates["good"]) if rates["good"] else 0
         print(f"  {group:<13} {hits} of {rates['bad']} bad, {alarms} of {rates['good']} good flagged")
     return {
         "l2": warning.l2,
-        "threshold": warning.threshold,
+        "threshold": threshold,
         "cross_validated": warning.cross_validated,
-        "weights": dict(zip(SIGNALS, map(float, warning.weights[:-1]), strict=True)),
-        "intercept": float(warning.weights[-1]),
+        "weights": dict(zip(warning.record.inputs, warning.record.weights, strict=True)),
+        "intercept": warning.record.intercept,
         "scores": {f"{row['group']}/{row['scene']}": float(s) for row, s in zip(rows, score, strict=True)},
         "rates": groups,
     }
+
+
+def record(model: Path, warning: LearnedWarning, unseen: dict, out: Path) -> None:
+    """Write ``model``'s checkpoint with ``warning`` (and its rates on the unseen scenes, in its description) to
+    ``out``."""
+    from gns_framework.io.checkpoint import load_checkpoint, save_checkpoint
+
+    state = load_checkpoint(model, map_location="cpu")
+    state.pop("format", None)
+    fitted_on = (
+        f"{warning.record.fitted_on}; on {unseen['bad'] + unseen['good']} scenes it never saw it flagged "
+        f"{unseen['hit_rate']:.0%} of {unseen['bad']} over {BAD:g} % and {unseen['false_alarm_rate']:.0%} of "
+        f"{unseen['good']} others"
+    )
+    stored = dataclasses.replace(warning.record, fitted_on=fitted_on)
+    save_checkpoint(out, {**state, "deposit_warning": stored.to_dict()})
+    print(f"wrote {out} with the warning ({fitted_on})")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -220,7 +234,16 @@ def main(argv: list[str] | None = None) -> int:
         "--l2", type=float, nargs="+", default=[0.3, 1.0, 3.0, 10.0], help="penalty strengths to choose from"
     )
     parser.add_argument("--json", action="store_true", help="also print the fit and rates as one JSON line")
+    parser.add_argument(
+        "--record",
+        type=Path,
+        metavar="NEW.pt",
+        help="write the model's checkpoint with the fitted warning to this new file (gns rollout and gns evaluate "
+        "then score every rollout with it); the model's own file is never changed",
+    )
     args, registry, model = parsed_with_model(parser, argv)
+    if args.record is not None and args.record.exists():
+        parser.error(f"--record {args.record}: exists; choose a new file")
     data = args.data or Path(model.recipe.dataset.path)
     cache = None if args.cache is None else args.cache / args.model.stem / "train"
     training = list(scene_rows(model, data, registry, cache, split="train", limit=args.limit).values())
@@ -231,6 +254,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = gathered_rows(args, registry, lambda data, rollouts: scene_rows(model, data, registry, rollouts))
     print(f"{args.model}: a warning fitted on its {len(training)} training scenes, scored on scenes it never saw")
     summary = report(warning, training, rows)
+    if args.record is not None:
+        record(args.model, warning, summary["rates"]["all"], args.record)
     if args.json:
         print(json.dumps({"model": str(args.model), **summary}))
     return 0

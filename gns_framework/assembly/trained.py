@@ -12,6 +12,7 @@ import torch
 from ..config.recipe import Recipe, validate_recipe, without_pickle_grant
 from ..data.metadata import DatasetMetadata, parse_metadata
 from ..errors import CheckpointError
+from ..evaluation.deposit_warning import DepositWarning
 from ..io.checkpoint import load_checkpoint
 from ..model.envelope import Envelope
 from ..model.learned_simulator import LearnedSimulator
@@ -31,6 +32,8 @@ class LoadedModel:
     path: Path
     envelope: Envelope | None = None
     """What the model was trained on; None for checkpoints written before envelopes were recorded."""
+    deposit_warning: DepositWarning | None = None
+    """The warning its rollouts of sand are scored with (benchmarks/learned_warning.py --record), or None."""
 
     def rollout_guard(self) -> RolloutGuard:
         """The boundary treatment its recipe gives rollouts (``rollout.guard``), the same in every command."""
@@ -65,7 +68,13 @@ def load_trained(path: str | Path, registry: Registry, device: torch.device | st
             envelope = Envelope.from_dict(state["envelope"])
         except (TypeError, KeyError, ValueError, AttributeError) as exc:
             raise CheckpointError(f"{path}: envelope: not an envelope record ({type(exc).__name__}: {exc})") from None
-    return LoadedModel(simulator.to(device), recipe, metadata, int(state["step"]), path, envelope)
+    warning = None
+    if "deposit_warning" in state:
+        try:
+            warning = DepositWarning.from_dict(state["deposit_warning"])
+        except ValueError as exc:
+            raise CheckpointError(f"{path}: deposit_warning: not a warning record ({exc})") from None
+    return LoadedModel(simulator.to(device), recipe, metadata, int(state["step"]), path, envelope, warning)
 
 
 def require_components(path: Path, record: Mapping, registry: Registry) -> None:

@@ -88,6 +88,7 @@ def data_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str]]:
     from ..assembly.data import prepare_data
     from ..assembly.learned import build_learned_simulator
     from ..data.windows import WindowIndex
+    from ..training.step import rolled_window_problems
 
     try:
         data = prepare_data(recipe, registry)
@@ -95,17 +96,10 @@ def data_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str]]:
         return [(loc or "dataset.path", message) for loc, message in exc.problems]
     except (GnsError, OSError, ValueError) as exc:
         return [(_data_location(str(exc)), str(exc))]
-    problems = []
-    if recipe.training.pushforward_steps and data.setup.context_size:
-        problems.append(
-            (
-                "training.pushforward_steps",
-                "push-forward needs data without a per-frame global context "
-                "(step_context): set it to 0 for this dataset",
-            )
-        )
+    spec = recipe.training
+    problems = rolled_window_problems(spec.pushforward_steps, spec.unrolled_loss_steps, data.setup.context_size)
     try:
-        WindowIndex(data.train, recipe.model.history, recipe.training.pushforward_steps)
+        WindowIndex(data.train, recipe.model.history, spec.pushforward_steps + spec.unrolled_loss_steps)
     except ValueError as exc:
         problems.append(("model.history", f"{recipe.dataset.path}: train split: {exc}"))
     try:

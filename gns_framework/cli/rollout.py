@@ -8,6 +8,12 @@ rollout is written and every clamp is reported on stderr.
 Data outside what the model was trained on (its envelope) is refused before any
 rollout, each quantity named; ``--outside-envelope`` rolls out anyway and records
 the warning in every rollout file's metadata and the MLflow run.
+
+A model that carries a deposit warning (:mod:`gns_framework.evaluation.deposit_warning`)
+scores every rollout of sand that runs to its trajectory's end: the score is printed
+with the rollout and kept in its file's metadata (``deposit_warning``), and a flagged
+scene ("may be more than 15 % off") is reported on stderr. Partitioned rollouts are
+not scored.
 """
 
 from __future__ import annotations
@@ -19,15 +25,20 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from ..assembly.data import open_dataset
-from ..assembly.trained import load_trained
+from ..assembly.trained import LoadedModel, load_trained
+from ..contracts import ModelSetup
 from ..data.in_parts import scene_in_parts
 from ..data.metadata import DatasetMetadata
+from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..decomposition.rollout import RolloutOptions, WrittenRollout, sharded_rollout
 from ..errors import DatasetError, GnsError
+from ..evaluation.candidates import granular_particle_types
+from ..evaluation.deposit_warning import DepositWarning, WarningScore
 from ..io.rollout_file import write_rollout
 from ..io.run_folder import RunFolder
 from ..io.sharded_rollout import SUFFIX, is_sharded_rollout
@@ -35,9 +46,9 @@ from ..model.batched_rollout import rollout_batch
 from ..model.capacity_classes import CaptureClasses
 from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import rollout
-from ..model.rollout_guard import RolloutGuard
+from ..model.rollout_guard import RolloutGuard, held_particles
 from ..outputs import MARKER, check_folder, claim_folder
-from ..plugins import load_registry
+from ..plugins import Registry, load_registry
 from ..runtime.compiled import compile_node_side
 from ..runtime.device import resolve_device
 from ..runtime.precision import PRECISIONS
@@ -231,19 +242,26 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
 
     written = _Output(out, safe_component(split_name), recorded, claim)
     job = _Job(loaded.simulator, trajectories, count, steps, device, guard)
+    warned = _Warning.of(loaded, registry, dataset.metadata())
     for position, (index, result) in enumerate(_rollouts(job, args, processes, written)):
         if result is None:
             continue  # a partitioned rollout is reported by its team's first process
+        assessed = None
         if isinstance(result, WrittenRollout):
             path = result.folder
         else:
             if position == 0:
                 claim()
-            path = write_rollout(written.file(index), result, recorded)
+            assessed = warned.assess(result) if warned else None
+            noted = recorded.model_copy(update={"deposit_warning": assessed.to_dict()}) if assessed else recorded
+            path = write_rollout(written.file(index), result, noted)
         clamped = f", clamped at {len(result.guard_violations)} check(s)" if result.guard_violations else ""
-        print(f"{path}: {result.num_steps} steps, position MSE {result.position_mse:.4g}{clamped}")
+        scored = f", deposit warning score {assessed.score:.2f}" if assessed else ""
+        print(f"{path}: {result.num_steps} steps, position MSE {result.position_mse:.4g}{clamped}{scored}")
         for violation in result.guard_violations:
             print(f"gns rollout: warning: {path}: clamped {violation.describe()}", file=sys.stderr)
+        if assessed is not None and assessed.flagged:
+            print(f"gns rollout: warning: {path}: {assessed.describe()}", file=sys.stderr)
         errors.append(result.position_mse)
     if args.partitions > 1:
         # Each team's first process holds its scenes' errors; rank 0 logs the mean over all of them.
@@ -260,6 +278,32 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
         if tracked:
             print(f"logged rollout_position_mse_{split_name} at step {loaded.step} to MLflow run {tracked}")
     return 0
+
+
+@dataclass(frozen=True)
+class _Warning:
+    """The model's deposit warning with what scoring a rollout of this dataset needs (its sand types, its box)."""
+
+    warning: DepositWarning
+    setup: ModelSetup
+    granular_types: list[int]
+    bounds: np.ndarray
+
+    @classmethod
+    def of(cls, loaded: LoadedModel, registry: Registry, metadata: DatasetMetadata) -> _Warning | None:
+        """None when the model carries no warning."""
+        if loaded.deposit_warning is None:
+            return None
+        setup = loaded.simulator.setup
+        granular = granular_particle_types(setup, registry)
+        return cls(loaded.deposit_warning, setup, granular, np.asarray(metadata.bounds, dtype=float))
+
+    def assess(self, result: Rollout) -> WarningScore | None:
+        """The warning of one rollout; None where it does not apply (no sand, or stopped before the end)."""
+        held = held_particles(result.guard_violations)
+        return self.warning.assess(
+            result.predicted, result.truth, result.history, self.setup, self.granular_types, self.bounds, held
+        )
 
 
 @dataclass(frozen=True)

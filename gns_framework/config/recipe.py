@@ -213,6 +213,14 @@ class TrainingSpec(_Strict):
         "k steps on from its ground-truth inputs without gradient, k drawn from 0..pushforward_steps per step, and "
         "learns the next true frame from its own rolled-out inputs, so it learns to correct its rollouts' drift",
     )
+    unrolled_loss_steps: int = Field(
+        0,
+        ge=0,
+        description="loss through the model's own rollout (backpropagation through time): after the next frame the "
+        "model rolls each window on this many steps with gradient, each step's error against the true frame in the "
+        "loss, so errors that compound over a rollout cost in training (the loss logged is the mean over the steps); "
+        "each step costs a forward and a backward pass and the activations of every step are kept until the backward",
+    )
     validation_rollouts: int = Field(
         0,
         ge=0,
@@ -235,6 +243,15 @@ class TrainingSpec(_Strict):
         "or valid_rollout_<name>_worst, its largest; valid_rollout_deposit_error_pct is the mean of each rollout's "
         "final extent and height errors",
     )
+
+    @model_validator(mode="after")
+    def _unrolled_loss_on_one_step_kind(self) -> TrainingSpec:
+        # The captured and the partitioned steps compute a one-step loss of their own.
+        if self.unrolled_loss_steps and self.capture_step:
+            raise ValueError("unrolled_loss_steps is not available with capture_step: set one of them to 0 / false")
+        if self.unrolled_loss_steps and self.partitions > 1:
+            raise ValueError("unrolled_loss_steps is not available with partitions > 1: set one of them to 0 / 1")
+        return self
 
 
 class RolloutGuardSpec(_Strict):

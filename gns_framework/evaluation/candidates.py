@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import replace
 from typing import cast
 
@@ -21,6 +21,7 @@ from ..model.rollout import rollout
 from ..model.rollout_guard import RolloutGuard, held_particles
 from ..plugins import Registry
 from ..runtime.precision import Precision
+from .deposit_warning import WarningScore
 from .report import Candidate, Prediction, Report, evaluate
 
 
@@ -98,7 +99,14 @@ def learned_predictions_batch(
 
 
 def learned_candidate(
-    model: LoadedModel, name: str, device: torch.device, batch: int = 1, precision: Precision = "float32"
+    model: LoadedModel,
+    name: str,
+    device: torch.device,
+    batch: int = 1,
+    precision: Precision = "float32",
+    *,
+    granular_types: Collection[int] = (),
+    dataset_bounds: np.ndarray | None = None,
 ) -> Candidate:
     """A trained simulator rolled out from each case's input frames (kinematic particles prescribed).
 
@@ -107,6 +115,9 @@ def learned_candidate(
     share of the batch's time; the row is named ``<name> [batch B]``. In another
     ``precision`` than float32 (:mod:`gns_framework.runtime.precision`) the row is
     named ``<name> [bfloat16]`` (``<name> [bfloat16, batch B]``).
+
+    A model that carries a deposit warning scores each rollout with it (``warn``): its particles of
+    ``granular_types`` are the sand, and a case without bounds of its own has ``dataset_bounds`` (d, 2).
     """
 
     guard = model.rollout_guard()
@@ -116,6 +127,15 @@ def learned_candidate(
 
     def simulate_batch(cases: Sequence[Trajectory]) -> list[Prediction]:
         return learned_predictions_batch(model.simulator, cases, device, precision, guard)
+
+    warning, setup, history = model.deposit_warning, model.simulator.setup, model.simulator.setup.history
+    warn = None
+    if warning is not None and granular_types and dataset_bounds is not None:
+
+        def warn(case: Trajectory, prediction: Prediction) -> WarningScore | None:
+            position = np.asarray(torch.as_tensor(prediction.position).cpu())
+            held = prediction.held or 0
+            return warning.assess(position, case, history, setup, granular_types, dataset_bounds, held)
 
     settings = f"{model.path.name} (step {model.step})"
     if precision != "float32":
@@ -132,8 +152,9 @@ def learned_candidate(
             device=str(device),
             simulate_batch=simulate_batch,
             batch=batch,
+            warn=warn,
         )
-    return Candidate(name, "learned", simulate, settings=settings, device=str(device))
+    return Candidate(name, "learned", simulate, settings=settings, device=str(device), warn=warn)
 
 
 def simulator_candidates(
@@ -257,11 +278,14 @@ def compare(
     bfloat16 products change are measured side by side. ``progress`` is :func:`evaluate`'s.
     """
     setup = models[0][1].simulator.setup
+    granular, bounds = granular_particle_types(setup, registry), np.asarray(metadata.bounds, dtype=float)
     candidates = []
     for precision in precisions:
-        candidates += [learned_candidate(model, name, device, 1, precision) for name, model in models]
-        if batch > 1:
-            candidates += [learned_candidate(model, name, device, batch, precision) for name, model in models]
+        for size in (1, batch) if batch > 1 else (1,):
+            candidates += [
+                learned_candidate(model, name, device, size, precision, granular_types=granular, dataset_bounds=bounds)
+                for name, model in models
+            ]
     if with_simulator:
         candidates += simulator_candidates(metadata, registry, cases, setup.history, grid_scales, substep_scales)
     return evaluate(
@@ -272,7 +296,7 @@ def compare(
         repeats=repeats,
         warmup=warmup,
         error_metric=error_metric,
-        granular_types=granular_particle_types(setup, registry),
+        granular_types=granular,
         material_names=registry.material_names(setup.particle_types),
         kinematic_types=setup.kinematic_types,
         metrics=registry.metrics(),

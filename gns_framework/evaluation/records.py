@@ -11,9 +11,14 @@ import numpy as np
 import torch
 
 from ..data.trajectory import Trajectory
+from .deposit_warning import WarningScore
 
 WALL_HELD = "wall_held_particles"
 """Per case: the particles that left the domain in a learned rollout and were put back by the model's guard."""
+WARNING_SCORE = "deposit_warning_score"
+"""Per case: the model's deposit warning score of its rollout (log-odds of being more than 15 % off)."""
+WARNING_FLAG = "deposit_warning_flagged"
+"""Per case: 1 where that score reaches the warning's threshold, else 0."""
 
 Kind = Literal["learned", "simulator"]
 
@@ -55,6 +60,8 @@ class Candidate:
             the cases are rolled out ``batch`` at a time and each is charged its share of
             the batch's time (the throughput a parametric study gets).
         batch: cases per ``simulate_batch`` call.
+        warn: (case, its rollout) -> the model's deposit warning of that rollout, or None where it has none or it
+            does not apply (:mod:`gns_framework.evaluation.deposit_warning`).
     """
 
     name: str
@@ -65,6 +72,7 @@ class Candidate:
     device: str | None = None
     simulate_batch: Callable[[Sequence[Trajectory]], list[Prediction]] | None = None
     batch: int = 1
+    warn: Callable[[Trajectory, Prediction], WarningScore | None] | None = None
 
 
 @dataclass(frozen=True)

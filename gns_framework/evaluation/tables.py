@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .records import WALL_HELD, Report
+from .records import WALL_HELD, WARNING_FLAG, WARNING_SCORE, Report
 from .timing import format_hardware
 
 HEADLINE_METRICS = ("mse_1", "mse_20", "mse_full", "sinkhorn_final", "kinetic_energy_error_pct", "runout_error_pct")
@@ -70,6 +70,7 @@ def markdown_table(report: Report) -> str:
         lines.append("| " + " | ".join(row) + " |")
     lines += _spread_over_cases(report)
     lines += _walls_held(report)
+    lines += _deposit_warnings(report)
     lines += ["", "Metrics (L: the dataset's length unit, s: seconds):", ""]
     lines += [f"- `{name}`: {meaning}" for name, meaning in report.metric_units.items()]
     lines.append("")
@@ -91,6 +92,24 @@ def _walls_held(report: Report) -> list[str]:
         return []
     intro = (
         "Particles a wall held (they left the box; the model's `rollout.guard` put them back, as `gns rollout` does):"
+    )
+    return ["", intro, "", *lines]
+
+
+def _deposit_warnings(report: Report) -> list[str]:
+    """Per learned model that carries a deposit warning, the cases it flags (the ones to check with a simulator)."""
+    lines = []
+    for e in report.entries:
+        scored = {key: c for key, c in e.cases.items() if c.get(WARNING_FLAG) is not None}
+        if scored:
+            flagged = [key for key, c in scored.items() if c[WARNING_FLAG]]
+            named = f": {', '.join(flagged)}" if flagged else ""
+            lines.append(f"- {e.name}: {len(flagged)} of {len(scored)} case(s) flagged{named}")
+    if not lines:
+        return []
+    intro = (
+        "Deposit warning (the model's own, fitted on its training scenes): cases whose extent or height may be more "
+        f"than 15 % off; `{WARNING_SCORE}` in cases.csv has every score:"
     )
     return ["", intro, "", *lines]
 

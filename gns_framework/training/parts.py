@@ -44,7 +44,7 @@ from .checkpoints import Checkpoints
 from .ema import WeightAverage
 from .optim import make_optimizer
 from .partitioned_step import PartitionedTrainingStep
-from .step import TrainingStep
+from .step import TrainingStep, rolled_window_problems
 from .validation import Validation, validation_windows
 
 
@@ -144,6 +144,7 @@ class _Builder:
             device,
             seed=self.recipe.seed,
             pushforward_steps=spec.pushforward_steps,
+            unrolled_loss_steps=spec.unrolled_loss_steps,
             precision=spec.precision,
         )
         if spec.compile_node_side:  # after the weight average copied it: a copy would call the original's graphs
@@ -214,23 +215,16 @@ class _Builder:
 
         metadata, scene, shapes = distributed.from_chief(self.processes, derive)
         data = read[0] if read else prepare_data(self.recipe, self.registry, self.allow_pickle, keep, (metadata, scene))
-        if self.recipe.training.pushforward_steps and data.setup.context_size:
-            raise RecipeError(
-                None,
-                [
-                    (
-                        "training.pushforward_steps",
-                        "push-forward needs data without a per-frame global context (step_context): set it to 0 "
-                        "for this dataset",
-                    )
-                ],
-            )
+        spec = self.recipe.training
+        problems = rolled_window_problems(spec.pushforward_steps, spec.unrolled_loss_steps, data.setup.context_size)
+        if problems:
+            raise RecipeError(None, problems)
         return data, shapes
 
     def windows(self, data: PreparedData, shapes: list[tuple[int, int]]) -> WindowIndex:
         """The train split's windows; a split with none is a DatasetError naming the split's file and why."""
         train, history = data.train, self.recipe.model.history
-        ahead = self.recipe.training.pushforward_steps
+        ahead = self.recipe.training.pushforward_steps + self.recipe.training.unrolled_loss_steps
         where = f"{data.dataset.path} (split train)"
         if len(train) == 0:
             raise DatasetError(f"{where}: holds 0 trajectories: training needs at least one")
@@ -241,7 +235,7 @@ class _Builder:
             raise DatasetError(
                 f"{where}: sequence_length: its {len(train)} trajector{'y has' if len(train) == 1 else 'ies have'} "
                 f"at most {longest} frames, and training needs more than model.history"
-                f"{' + training.pushforward_steps' if ahead else ''} = {history + ahead}"
+                f"{' + training.pushforward_steps + training.unrolled_loss_steps' if ahead else ''} = {history + ahead}"
             ) from None
 
     def team(self) -> Processes | None:

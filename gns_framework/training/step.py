@@ -7,7 +7,9 @@ are its own predictions:
 - random-walk noise on the input positions (the target is corrected so that the
   next position stays the true one), so it learns to pull a drifted state back;
 - push-forward (Brandstetter et al. 2022): the window is first rolled on k steps by
-  the model itself, without gradient, and it learns the true frame after them.
+  the model itself, without gradient, and it learns the true frame after them;
+- an unrolled loss: after the next frame the model rolls on K more steps with
+  gradient through them, each step's error against the true frame in the loss.
 """
 
 from __future__ import annotations
@@ -30,6 +32,21 @@ from ..runtime.processes import Processes
 from .ema import WeightAverage
 
 
+def rolled_window_problems(
+    pushforward_steps: int, unrolled_loss_steps: int, context_size: int
+) -> list[tuple[str, str]]:
+    """(recipe field, why) for rolling training windows on over data whose frames carry a global context.
+
+    Push-forward and the unrolled loss advance a window frame by frame, and the per-frame context
+    (``step_context``) is not rolled with it.
+    """
+    if not context_size:
+        return []
+    why = "needs data without a per-frame global context (step_context): set it to 0 for this dataset"
+    asked = {"training.pushforward_steps": pushforward_steps, "training.unrolled_loss_steps": unrolled_loss_steps}
+    return [(field, f"{field.split('.')[1]} {why}") for field, steps in asked.items() if steps]
+
+
 class TrainingStep:
     """The optimisation step of a run, called once per step number.
 
@@ -44,6 +61,7 @@ class TrainingStep:
         processes: this process's place in a torchrun job.
         seed: the run's seed (noise and push-forward draws are seeded by it and the step).
         pushforward_steps: the most push-forward steps (0: none).
+        unrolled_loss_steps: steps rolled on after the next frame with gradient, in the loss (0: one-step loss).
         precision: of the forward and backward (``training.precision``).
     """
 
@@ -62,6 +80,7 @@ class TrainingStep:
         *,
         seed: int,
         pushforward_steps: int = 0,
+        unrolled_loss_steps: int = 0,
         precision: Precision = "float32",
     ):
         self.simulator, self.model = simulator, model
@@ -70,6 +89,7 @@ class TrainingStep:
         self.optimizer, self.scheduler, self.ema = optimizer, scheduler, ema
         self.processes, self.device = processes, device
         self.seed, self.most_pushforward, self.precision = seed, pushforward_steps, precision
+        self.unrolled_loss_steps = unrolled_loss_steps
         # Copies to a GPU from pinned host memory need not block the host.
         self.pins_memory = is_cuda(device)
 
@@ -104,12 +124,14 @@ class TrainingStep:
     def gradients(self, batch: ParticleBatch, noise: Tensor, mask: Tensor) -> Tensor:
         """Fresh gradients of the global batch's loss on every rank; returns that loss (float64).
 
-        The loss averages the squared error over the predicted particles of *every* rank's windows: each
-        rank divides its error sum by the all-reduced count times the world size, which DDP's averaging
-        undoes, so W processes of B windows take exactly one process's step with the same W x B windows.
+        The loss averages the squared error over the predicted particles of *every* rank's windows (and, with an
+        unrolled loss, over its steps: ``mask`` is repeated once per step): each rank divides its error sum by the
+        all-reduced count times the world size, which DDP's averaging undoes, so W processes of B windows take
+        exactly one process's step with the same W x B windows.
         """
         with autocast(self.precision, self.device):
-            prediction, target = self.model(batch, noise)
+            prediction, target = self.model(batch, noise, self.unrolled_loss_steps)
+        mask = mask.repeat(1 + self.unrolled_loss_steps)
         error_sum = masked_squared_error_sum(prediction.to(target.dtype), target, mask)
         local = torch.stack([error_sum.detach().double(), mask.sum().double()])
         global_error, global_predicted = self.processes.sum(local).unbind()
@@ -128,7 +150,7 @@ class TrainingStep:
 
     @torch.no_grad()
     def pushed_forward(self, batch: ParticleBatch, steps: int) -> ParticleBatch:
-        """``batch`` with its inputs rolled ``steps`` on by the model itself, and the true frame after them as target.
+        """``batch`` with its inputs rolled ``steps`` on by the model itself, and the true frames after them as targets.
 
         No gradient flows through the unrolled steps (the push-forward trick): the
         model is trained on the inputs its own rollouts produce, as it will meet them,
@@ -143,4 +165,4 @@ class TrainingStep:
                 replace(batch, position_sequence=sequence), prescribed=truth[:, k]
             )
             sequence = advance_window(sequence, rolled)
-        return replace(batch, position_sequence=sequence, next_position=truth[:, steps])
+        return replace(batch, position_sequence=sequence, next_position=truth[:, steps], ahead=truth[:, steps + 1 :])

@@ -78,7 +78,7 @@ def test_cross_validation_on_rows_where_the_run_share_decides():
     warning = learned_warning.trained_warning(separable_rows(160, 0), [1.0, 10.0], folds=5, hit=0.8)
     for tried in warning.cross_validated:
         assert tried["hit_rate"] >= 0.8 and tried["false_alarm_rate"] == 0.0
-    weights = dict(zip(learned_warning.SIGNALS, warning.weights[:-1], strict=True))
+    weights = dict(zip(warning.record.inputs, warning.record.weights, strict=True))
     assert max(weights, key=lambda name: abs(weights[name])) == "run share" and weights["run share"] > 0
     assert warning.l2 == 10.0  # equal false alarms: the stronger penalty
     fresh = separable_rows(80, 1)

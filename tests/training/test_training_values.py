@@ -76,7 +76,7 @@ class FixedPrediction(nn.Module):
     def target(num_particles: int, dim: int) -> torch.Tensor:
         return torch.arange(num_particles * dim, dtype=torch.float32).reshape(num_particles, dim) / 10
 
-    def forward(self, batch, noise):
+    def forward(self, batch, noise, unrolled_steps=0):
         self.noise = noise.clone()
         num_particles, dim = batch.num_particles, batch.position_sequence.shape[-1]
         return self.offset.expand(num_particles, dim), self.target(num_particles, dim)
