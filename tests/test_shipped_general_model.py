@@ -77,6 +77,17 @@ def test_it_holds_on_a_canonical_scene(canonical, tmp_path, model):
     assert float(learned["diverged"]) == 0
     # The card's goal for the canonical scenes: final extent and pile height within 15 % of the MPM's.
     assert float(learned["extent_error_pct"]) < 15 and float(learned["height_error_pct"]) < 15
+    with (tmp_path / "cases.csv").open() as handle:
+        (case,) = list(csv.DictReader(handle))
+    # The fast model carries a deposit warning and scores its rollout with it; the other model has none.
+    assert bool(case.get("deposit_warning_score")) == (model == FAST)
+
+
+def test_the_fast_model_carries_the_deposit_warning_the_card_measures(registry):
+    warning = load_trained(FAST, registry, "cpu").deposit_warning
+    assert warning is not None and warning.error_pct == 15.0 and warning.friction_property == "friction"
+    assert "250 training scenes (20 over 15 %)" in warning.fitted_on
+    assert "on 104 scenes it never saw it flagged 92% of 12 over 15 % and 20% of 92 others" in warning.fitted_on
 
 
 @models

@@ -252,7 +252,7 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
         else:
             if position == 0:
                 claim()
-            assessed = warned.assess(result) if warned else None
+            assessed = warned.assess(result, trajectories[index]) if warned else None
             noted = recorded.model_copy(update={"deposit_warning": assessed.to_dict()}) if assessed else recorded
             path = write_rollout(written.file(index), result, noted)
         clamped = f", clamped at {len(result.guard_violations)} check(s)" if result.guard_violations else ""
@@ -298,11 +298,12 @@ class _Warning:
         granular = granular_particle_types(setup, registry)
         return cls(loaded.deposit_warning, setup, granular, np.asarray(metadata.bounds, dtype=float))
 
-    def assess(self, result: Rollout) -> WarningScore | None:
-        """The warning of one rollout; None where it does not apply (no sand, or stopped before the end)."""
+    def assess(self, result: Rollout, case: Trajectory) -> WarningScore | None:
+        """The warning of the rollout ``result`` of ``case`` (the whole trajectory: a rollout's own truth ends where
+        it stopped); None where it does not apply (no sand, or stopped before the case's end)."""
         held = held_particles(result.guard_violations)
         return self.warning.assess(
-            result.predicted, result.truth, result.history, self.setup, self.granular_types, self.bounds, held
+            result.predicted, case, result.history, self.setup, self.granular_types, self.bounds, held
         )
 
 

@@ -116,3 +116,23 @@ def test_a_checkpoint_recorded_before_distributions_were_keeps_the_stored_recipe
     ((location, message),) = info.value.problems
     assert info.value.source == f"{old} (stored recipe)" and location == "model.processor.name"
     assert message.startswith("unknown processor 'foo'")
+
+
+def test_a_stored_deposit_warning_is_loaded_and_a_broken_one_named(tmp_path):
+    from tiny import with_deposit_warning
+
+    from synthetic import write_synthetic_dataset
+
+    data = write_synthetic_dataset(tmp_path / "data", train=1, valid=1, test=1, frames=12)
+    trainer = tiny_trainer(tiny_recipe(data), tmp_path / "run")
+    plain = trainer.checkpoints.save()
+    trainer.close()
+    assert load_trained(plain, load_registry()).deposit_warning is None
+    warned = with_deposit_warning(plain, tmp_path / "warned.pt", threshold=0.25)
+    assert load_trained(warned, load_registry()).deposit_warning.threshold == 0.25
+    state = load_checkpoint(warned, map_location="cpu")
+    state.pop("format")
+    state["deposit_warning"]["weights"] = [1.0]
+    broken = save_checkpoint(tmp_path / "broken.pt", state)
+    with pytest.raises(CheckpointError, match=r"broken.pt: deposit_warning: not a warning record \(.*one value per"):
+        load_trained(broken, load_registry())

@@ -383,3 +383,31 @@ def test_rollout_compile_compiles_the_node_side_and_writes_the_same_frames(tiny_
     [compiled_file] = sorted((tmp_path / "compiled").glob("*.npz"))
     [eager_file] = sorted((tmp_path / "eager").glob("*.npz"))
     np.testing.assert_array_equal(load_rollout(compiled_file).predicted, load_rollout(eager_file).predicted)
+
+
+def test_a_model_with_a_deposit_warning_scores_every_sand_rollout_and_reports_the_flagged_ones(tiny_model, tmp_path):
+    from tiny import with_deposit_warning
+
+    common = ["--outside-envelope", "--no-progress", "--trajectories", "1"]
+    flagging = with_deposit_warning(tiny_model, tmp_path / "flags.pt", threshold=0.0)
+    flagged = gns("rollout", str(flagging), "--out", str(tmp_path / "flagged"), *common)
+    assert flagged.returncode == 0, flagged.stderr
+    rollout_file = tmp_path / "flagged" / "test_0000.npz"
+    assert f"{rollout_file}: " in flagged.stdout and "deposit warning score 0.00" in flagged.stdout
+    assert f"warning: {rollout_file}: the deposit may be more than 15 % off in extent or height" in flagged.stderr
+    with np.load(rollout_file, allow_pickle=False) as z:
+        recorded = json.loads(str(z["metadata_json"]))["deposit_warning"]
+    assert recorded == {"score": 0.0, "threshold": 0.0, "error_pct": 15.0, "flagged": True}
+
+    quiet = with_deposit_warning(tiny_model, tmp_path / "quiet.pt", threshold=0.5)
+    calm = gns("rollout", str(quiet), "--out", str(tmp_path / "calm"), *common)
+    assert calm.returncode == 0, calm.stderr
+    assert "deposit warning score 0.00" in calm.stdout and "may be more than" not in calm.stderr
+    with np.load(tmp_path / "calm" / "test_0000.npz", allow_pickle=False) as z:
+        assert json.loads(str(z["metadata_json"]))["deposit_warning"]["flagged"] is False
+
+    # A rollout cut short has no deposit to judge; a model without a warning says nothing of one.
+    short = gns("rollout", str(flagging), "--out", str(tmp_path / "short"), "--steps", "3", *common)
+    assert short.returncode == 0 and "deposit warning" not in short.stdout + short.stderr
+    plain = gns("rollout", str(tiny_model), "--out", str(tmp_path / "plain"), *common)
+    assert plain.returncode == 0 and "deposit warning" not in plain.stdout + plain.stderr

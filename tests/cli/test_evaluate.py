@@ -125,3 +125,22 @@ def test_precisions_are_checked_before_anything_runs(tmp_path: Path):
     assert result.returncode == 2
     assert "--precisions: expected comma-separated distinct precisions among float32, tf32, bfloat16" in result.stderr
     assert "'float32,float16'" in result.stderr and not (tmp_path / "r").exists()
+
+
+def test_evaluate_lists_the_cases_a_models_deposit_warning_flags(tiny_model, tmp_path: Path):
+    import csv
+
+    from tiny import with_deposit_warning
+
+    warned = with_deposit_warning(tiny_model, tmp_path / "warned.pt", threshold=0.0)
+    out = tmp_path / "report"
+    common = ["--no-simulator", "--repeats", "1", "--warmup", "0", "--outside-envelope"]
+    result = gns("evaluate", str(warned), "--out", str(out), *common)
+    assert result.returncode == 0, result.stderr
+    table = (out / "report.md").read_text()
+    assert "Deposit warning (the model's own" in table and "- tiny: 1 of 1 case(s) flagged: test_000" in table
+    with (out / "cases.csv").open() as handle:
+        (row,) = list(csv.DictReader(handle))
+    assert float(row["deposit_warning_score"]) == 0.0 and float(row["deposit_warning_flagged"]) == 1.0
+    plain = gns("evaluate", str(tiny_model), "--out", str(tmp_path / "plain"), *common)
+    assert plain.returncode == 0 and "Deposit warning" not in (tmp_path / "plain" / "report.md").read_text()
