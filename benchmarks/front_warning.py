@@ -54,7 +54,7 @@ from generalization import ROOT, dataset
 from second_opinion import BAD, deposit, flag_rates
 from training_fit import first_offsets
 
-from gns_framework.evaluation.deposit_signals import Front, deposit_signals, energy_ratio
+from gns_framework.model.deposit_signals import Front, deposit_signals, energy_ratio
 
 SHARE = 0.5
 """Run share (front's run over the final extent) from which the flow, not the scene, places a front."""
@@ -92,7 +92,7 @@ def scene_rows(
 ) -> dict[str, dict]:
     """Per trajectory of ``data``'s ``split`` (rolled out from its stored frame 0 only, when the recipe reads every
     frame offset): the model's extent and height errors against the MPM (%), its fronts and the other signals (from
-    the scene and the learned rollout only: :func:`gns_framework.evaluation.deposit_signals.deposit_signals`), and
+    the scene and the learned rollout only: :func:`gns_framework.model.deposit_signals.deposit_signals`), and
     the MPM deposit's energy ratio. ``limit``: the first that many trajectories only."""
     from gns_framework.assembly.data import open_dataset
     from gns_framework.evaluation.candidates import cases_from_split, granular_particle_types

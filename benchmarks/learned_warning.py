@@ -25,7 +25,7 @@ split into ``--folds`` folds and each fold scored by the fit on the others; the 
 that flags ``--hit`` of the bad training scenes, and the strength kept is the one whose out-of-fold false-alarm
 rate is lowest (ties: the stronger). The final weights are fitted on every training row.
 
-The fitted warning is :class:`gns_framework.evaluation.deposit_warning.DepositWarning`, scored exactly as ``gns
+The fitted warning is :class:`gns_framework.model.deposit_warning.DepositWarning`, scored exactly as ``gns
 rollout`` and ``gns evaluate`` score it; ``--record NEW.pt`` writes the model's checkpoint with it to a new file.
 
 Usage (the held-out datasets are generalization.py's; rollouts are cached as front_warning.py's are)::
@@ -49,8 +49,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from front_warning import add_scene_arguments, gathered_rows, is_bad, parsed_with_model, scene_rows
 from second_opinion import BAD, flag_rates
 
-from gns_framework.evaluation.deposit_signals import DepositSignals, Front
-from gns_framework.evaluation.deposit_warning import INPUTS, DepositWarning, warning_inputs
+from gns_framework.model.deposit_signals import DepositSignals, Front
+from gns_framework.model.deposit_warning import INPUTS, DepositWarning, warning_inputs
 
 
 def row_signals(row: dict) -> DepositSignals:

@@ -69,8 +69,8 @@ def tiny_trainer(recipe: Recipe, run_dir: Path, registry: Registry | None = None
 def with_deposit_warning(checkpoint: Path, out: Path, threshold: float) -> Path:
     """A copy of ``checkpoint`` at ``out`` carrying a deposit warning whose score is 0 for every rollout (no weights,
     no intercept): it flags every sand scene when ``threshold`` <= 0 and none when it is above."""
-    from gns_framework.evaluation.deposit_warning import INPUTS, DepositWarning
     from gns_framework.io.checkpoint import load_checkpoint, save_checkpoint
+    from gns_framework.model.deposit_warning import INPUTS, DepositWarning
 
     count = len(INPUTS)
     warning = DepositWarning(tuple(INPUTS), (0.0,) * count, (1.0,) * count, (0.0,) * count, 0.0, threshold)

@@ -12,8 +12,8 @@ import torch
 from ..config.recipe import Recipe, validate_recipe, without_pickle_grant
 from ..data.metadata import DatasetMetadata, parse_metadata
 from ..errors import CheckpointError
-from ..evaluation.deposit_warning import DepositWarning
 from ..io.checkpoint import load_checkpoint
+from ..model.deposit_warning import DepositWarning
 from ..model.envelope import Envelope
 from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout_guard import RolloutGuard

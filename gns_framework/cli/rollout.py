@@ -9,7 +9,7 @@ Data outside what the model was trained on (its envelope) is refused before any
 rollout, each quantity named; ``--outside-envelope`` rolls out anyway and records
 the warning in every rollout file's metadata and the MLflow run.
 
-A model that carries a deposit warning (:mod:`gns_framework.evaluation.deposit_warning`)
+A model that carries a deposit warning (:mod:`gns_framework.model.deposit_warning`)
 scores every rollout of sand that runs to its trajectory's end: the score is printed
 with the rollout and kept in its file's metadata (``deposit_warning``), and a flagged
 scene ("may be more than 15 % off") is reported on stderr. Partitioned rollouts are
@@ -38,12 +38,12 @@ from ..data.trajectory import Trajectory
 from ..decomposition.rollout import RolloutOptions, WrittenRollout, sharded_rollout
 from ..errors import DatasetError, GnsError
 from ..evaluation.candidates import granular_particle_types
-from ..evaluation.deposit_warning import DepositWarning, WarningScore
 from ..io.rollout_file import write_rollout
 from ..io.run_folder import RunFolder
 from ..io.sharded_rollout import SUFFIX, is_sharded_rollout
 from ..model.batched_rollout import rollout_batch
 from ..model.capacity_classes import CaptureClasses
+from ..model.deposit_warning import DepositWarning, WarningScore
 from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import rollout
 from ..model.rollout_guard import RolloutGuard, held_particles

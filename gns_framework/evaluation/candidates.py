@@ -16,12 +16,12 @@ from ..data.stride import strided
 from ..data.trajectory import Trajectory
 from ..errors import DatasetError, RolloutDiverged
 from ..model.batched_rollout import rollout_batch
+from ..model.deposit_warning import WarningScore
 from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import rollout
 from ..model.rollout_guard import RolloutGuard, held_particles
 from ..plugins import Registry
 from ..runtime.precision import Precision
-from .deposit_warning import WarningScore
 from .report import Candidate, Prediction, Report, evaluate
 
 

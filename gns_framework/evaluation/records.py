@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from ..data.trajectory import Trajectory
-from .deposit_warning import WarningScore
+from ..model.deposit_warning import WarningScore
 
 WALL_HELD = "wall_held_particles"
 """Per case: the particles that left the domain in a learned rollout and were put back by the model's guard."""
@@ -61,7 +61,7 @@ class Candidate:
             the batch's time (the throughput a parametric study gets).
         batch: cases per ``simulate_batch`` call.
         warn: (case, its rollout) -> the model's deposit warning of that rollout, or None where it has none or it
-            does not apply (:mod:`gns_framework.evaluation.deposit_warning`).
+            does not apply (:mod:`gns_framework.model.deposit_warning`).
     """
 
     name: str

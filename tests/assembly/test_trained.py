@@ -119,9 +119,8 @@ def test_a_checkpoint_recorded_before_distributions_were_keeps_the_stored_recipe
 
 
 def test_a_stored_deposit_warning_is_loaded_and_a_broken_one_named(tmp_path):
-    from tiny import with_deposit_warning
-
     from synthetic import write_synthetic_dataset
+    from tiny import with_deposit_warning
 
     data = write_synthetic_dataset(tmp_path / "data", train=1, valid=1, test=1, frames=12)
     trainer = tiny_trainer(tiny_recipe(data), tmp_path / "run")

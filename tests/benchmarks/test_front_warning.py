@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 
 import front_warning
 
-from gns_framework.evaluation.deposit_signals import Front, fronts
+from gns_framework.model.deposit_signals import Front, fronts
 
 REL = 1e-9
 H = 0.125

@@ -1,4 +1,4 @@
-"""gns_framework.evaluation.deposit_warning: the score is the logistic model's log-odds of the standardised inputs,
+"""gns_framework.model.deposit_warning: the score is the logistic model's log-odds of the standardised inputs,
 a rollout is flagged at or above the threshold, a scene is scored only where the warning applies, and a stored
 record is read back exactly or refused naming what is wrong."""
 
@@ -9,8 +9,8 @@ import pytest
 
 from gns_framework.contracts import ModelSetup
 from gns_framework.data.trajectory import Trajectory
-from gns_framework.evaluation.deposit_signals import deposit_signals
-from gns_framework.evaluation.deposit_warning import INPUTS, DepositWarning, WarningScore, warning_inputs
+from gns_framework.model.deposit_signals import deposit_signals
+from gns_framework.model.deposit_warning import INPUTS, DepositWarning, WarningScore, warning_inputs
 
 H = 0.125
 NAMES = tuple(INPUTS)

@@ -1,4 +1,4 @@
-"""gns_framework.evaluation.deposit_signals: the particle spacing, the two outer fronts (run, share, gap, held by a
+"""gns_framework.model.deposit_signals: the particle spacing, the two outer fronts (run, share, gap, held by a
 wall, motion at the end), the energy ratio and the other signals, on small synthetic scenes whose answers are derived
 by hand.
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gns_framework.evaluation.deposit_signals import (
+from gns_framework.model.deposit_signals import (
     Front,
     deposit_signals,
     energy_ratio,
