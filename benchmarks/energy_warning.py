@@ -1,7 +1,7 @@
 """Does the learned deposit's energy balance, against one predicted from the scene, say when it may be wrong?
 
-The energy ratio R of a deposit (``front_warning.energy_ratio``) is the potential energy the sand released over the
-work Coulomb friction (tan phi) does along its horizontal displacement. The learned R is close to the MPM's where
+The energy ratio R of a deposit (``gns_framework.model.deposit_signals.energy_ratio``) is the potential energy the
+sand released over the work Coulomb friction (tan phi) does along its horizontal displacement. The learned R is close to the MPM's where
 the model is right and off where it is wrong, but the MPM's R ranges from about 1.1 to 2.6 between scenes, so the
 learned R alone is no warning (models/README.md). This predicts the MPM deposit's R from what a user has before any
 simulator runs, the first frame and the scene, fitted on the training data's MPM deposits, and flags a rollout when
@@ -45,18 +45,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from front_warning import (
-    add_scene_arguments,
-    columns,
-    energy_ratio,
-    is_bad,
-    parsed_with_model,
-    scene_rows,
-    scene_sources,
-    spacing,
-)
+from front_warning import add_scene_arguments, is_bad, parsed_with_model, scene_rows, scene_sources
 from generalization import ROOT
 from second_opinion import flag_rates
+
+from gns_framework.model.deposit_signals import columns, energy_ratio, spacing
 
 HINGE = 2.5
 """Aspect H / L0 above which a column's runout grows like a^(2/3) instead of a (Lube et al. 2005: 1.8-3)."""
@@ -88,7 +81,7 @@ def scene_features(
     obstacle particles ``blockers`` (M, 2), m, the box ``bounds`` (2, 2), m, its faces' ``walls`` (4, 2: Coulomb
     coefficient, no-slip flag of x_min, x_max, y_min, y_max) and the particle spacing ``h``, m.
 
-    Per column (``front_warning.columns``): its aspect a = H / L0 (H from the floor to its top, L0 its width against
+    Per column (``gns_framework.model.deposit_signals.columns``): its aspect a = H / L0 (H from the floor to its top, L0 its width against
     a wall, half of it standing free), the runout the scaling predicts on each side it can flow to, and how much of
     it the nearest wall, obstacle or other column ahead cuts off (0: none, 1: all). The scene's features are the
     columns' averages weighted by potential energy (particles times H)."""

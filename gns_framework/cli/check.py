@@ -88,7 +88,7 @@ def data_problems(recipe: Recipe, registry: Registry) -> list[tuple[str, str]]:
     from ..assembly.data import prepare_data
     from ..assembly.learned import build_learned_simulator
     from ..data.windows import WindowIndex
-    from ..training.step import rolled_window_problems
+    from ..training.parts import rolled_window_problems
 
     try:
         data = prepare_data(recipe, registry)

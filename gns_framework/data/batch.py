@@ -24,8 +24,7 @@ class ParticleBatch:
         next_position: (N, d) the position after the window (training label), or None.
         material_property: (N, P) float32 or None.
         context: (B, c) float32 global context of each example's last input frame, or None.
-        ahead: (N, m, d) float32 the m true positions after ``next_position`` (push-forward
-            training), or None.
+        ahead: (N, m, d) float32 the m true positions after ``next_position`` (push-forward, unrolled loss), or None.
         bounds: (B, d, 2) float32 each example's domain (its walls), or None (the model's bounds).
         walls: (B, 2d, 2) float32 each example's face conditions (friction, no-slip flag), or None.
         owned: (N,) bool, the particles this process owns in a piece of a scene split with a halo of latents

@@ -17,7 +17,7 @@ Shapes = Sequence[tuple[int, int]] | None
 class WindowIndex:
     """Every window ``[start, start + C + ahead]`` (C inputs, 1 target, ``ahead`` later frames) of every trajectory.
 
-    ``ahead`` > 0 keeps the true frames after the target for push-forward training
+    ``ahead`` > 0 keeps the true frames after the target for push-forward and the unrolled loss
     (``ParticleBatch.ahead``). ``shapes``: each trajectory's (frames, particles), when known without reading it.
     """
 
@@ -28,7 +28,7 @@ class WindowIndex:
         shapes = shapes if shapes is not None else [(t.num_steps, t.num_particles) for t in trajectories]
         pairs = [(i, s) for i, (frames, _) in enumerate(shapes) for s in range(frames - history - ahead)]
         if not pairs:
-            raise ValueError(f"no trajectory has more than history + push-forward = {history + ahead} frames")
+            raise ValueError(f"no trajectory has more than history + frames ahead = {history + ahead} frames")
         self.pairs = np.asarray(pairs, dtype=np.int64)
         self._particles = np.asarray([particles for _, particles in shapes], dtype=np.int64)
 

@@ -16,9 +16,9 @@ from ..data.batch import ParticleBatch
 from ..moved import renamed
 from ..runtime.host_sync import avoids_read_backs
 from .features import FeatureBuilder
-from .history import advance_window
 from .normalization import Stats
 from .periodic import PeriodicBox
+from .unrolled_loss import unrolled_outputs
 
 
 @renamed("scene", "setup")  # its names until 0.2
@@ -129,47 +129,27 @@ class LearnedSimulator(nn.Module):
         return torch.where(moving[:, None], predicted.to(base.dtype), base)
 
     def forward(self, batch: ParticleBatch, position_noise: Tensor, unrolled_steps: int = 0) -> tuple[Tensor, Tensor]:
-        """Training prediction and target on noise-corrupted inputs, for the next frame and ``unrolled_steps`` more.
+        """Training prediction and target on noise-corrupted inputs.
 
         The noise is added to the inputs, and the target next position moves with the last input's noise, so the
         target corrects the velocity noise but not the position noise (Sanchez-Gonzalez et al. 2020, Sec. 3).
 
-        With ``unrolled_steps`` = K > 0 the model then rolls its own predictions on K steps, with gradient through
-        them (backpropagation through time): step k's inputs are the window the model itself produced, and its
-        target is the output that brings that window to the true frame k + 1 steps after the next one (moved by the
-        same last-input noise). A one-step loss only ever sees true (or noised) histories, and a learned rollout
-        drifts where every single step was fitted; here the error a step leaves in the window costs in the steps
-        after it, so the model learns steps whose errors do not compound. Kinematic particles follow their true
-        positions.
-
         Args:
-            batch: windows with ``next_position`` (and at least K frames ``ahead`` when K > 0).
+            batch: windows with ``next_position``.
             position_noise: (N, C, d), zero for kinematic particles.
-            unrolled_steps: K, the steps rolled on after the first, with gradient.
 
         Returns:
-            predicted and target normalised outputs, ((1 + K) N, d) each: the first step's N rows, then the next's.
+            predicted and target normalised outputs, (N, d) each.
         """
+        if unrolled_steps:  # this step, then that many of the model's own, with gradient: ((1 + K) N, d) each
+            return unrolled_outputs(self, batch, position_noise, unrolled_steps)
         assert batch.next_position is not None  # training windows have their target
         sequence = self.continuous(batch.position_sequence)
-        true_frames = [batch.next_position]
-        if unrolled_steps:
-            assert batch.ahead is not None and batch.ahead.shape[1] >= unrolled_steps  # windows drawn with them
-            true_frames += list(batch.ahead[:, :unrolled_steps].unbind(1))
-        window, moved_by = sequence + position_noise, position_noise[:, -1]
-        moving = self.predicted_mask(batch.particle_type)[:, None]
-        true_position, predictions, targets = sequence[:, -1], [], []
-        for k, frame in enumerate(true_frames):
-            true_position = frame if self.box is None else self.box.unwrap_next(true_position, frame)
-            target_position = true_position + moved_by
-            prediction = self.decoder(self.processed_latent(window, batch))
-            predictions.append(prediction)
-            targets.append(self.output_stats.normalize(self.integrator.target(window, target_position)))
-            if k < unrolled_steps:
-                rolled = self.integrator.next_position(
-                    window, self.output_stats.denormalize(prediction.to(window.dtype))
-                )
-                window = advance_window(window, torch.where(moving, rolled, target_position))
-        if not unrolled_steps:
-            return predictions[0], targets[0]
-        return torch.cat(predictions), torch.cat(targets)
+        next_position = (
+            batch.next_position if self.box is None else self.box.unwrap_next(sequence[:, -1], batch.next_position)
+        )
+        noisy_sequence = sequence + position_noise
+        prediction = self.decoder(self.processed_latent(noisy_sequence, batch))
+        next_position_adjusted = next_position + position_noise[:, -1]
+        target = self.output_stats.normalize(self.integrator.target(noisy_sequence, next_position_adjusted))
+        return prediction, target

@@ -39,10 +39,9 @@ def random_walk_noise(
 def training_noise_std(model: ModelSpec, metadata: DatasetMetadata) -> float:
     """The random-walk noise std of a model's recipe, in dataset length units per frame.
 
-    ``noise_relative`` scales with the data: the reference's absolute 6.7e-4 was tuned
-    for DeepMind's datasets, and on data with slower particles the same value drowns
-    the velocity signal. The std enters the input normalisation too, so a checkpoint
-    rebuilds the same value from its stored metadata.
+    ``noise_relative`` scales with the data: the reference's absolute 6.7e-4 was tuned for DeepMind's datasets, and
+    on data with slower particles the same value drowns the velocity signal. The std enters the input normalisation
+    too, so a checkpoint rebuilds the same value from its stored metadata.
     """
     if model.noise_relative is None:
         return model.noise_std

@@ -1,14 +1,13 @@
 """Precision of the learned simulator's matrix products: float32, TF32, or bfloat16 under autocast.
 
-In ``tf32`` every tensor stays float32 and, on CUDA, float32 matrix products run on
-the tensor cores in TF32 (10-bit mantissa inputs, float32 accumulation): several
-times faster on Ampere and later GPUs. On the CPU ``tf32`` is ``float32``.
+In ``tf32`` every tensor stays float32 and, on CUDA, float32 matrix products run on the tensor cores in TF32 (10-bit
+mantissa inputs, float32 accumulation): several times faster on Ampere and later GPUs. On the CPU ``tf32`` is
+``float32``.
 
-In ``bfloat16`` the Linear layers (and the interaction network's chunked edge
-products) run in bfloat16 with float32 accumulation; LayerNorm, residuals,
-aggregation, the loss, the optimiser and the integrator stay in float32. CPUs with
-AMX or AVX512-BF16 and GPUs with bfloat16 tensor cores run the products several
-times faster; the error this adds is measured in docs/performance.md.
+In ``bfloat16`` the Linear layers (and the interaction network's chunked edge products) run in bfloat16 with float32
+accumulation; LayerNorm, residuals, aggregation, the loss, the optimiser and the integrator stay in float32. CPUs
+with AMX or AVX512-BF16 and GPUs with bfloat16 tensor cores run the products several times faster; the error this
+adds is measured in docs/performance.md.
 """
 
 from __future__ import annotations

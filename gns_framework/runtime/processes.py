@@ -1,9 +1,9 @@
 """This process's place in a training job and the few collectives training needs.
 
-One plain process (``world_size == 1``) is the default: then every collective is the identity and
-nothing touches ``torch.distributed``. Under torchrun (:mod:`.distributed` starts the process group)
-global rank 0 alone writes checkpoints and talks to the tracker; on resume it reads the checkpoint
-and sends the state to the other ranks, so only rank 0 needs the run folder.
+One plain process (``world_size == 1``) is the default: then every collective is the identity and nothing touches
+``torch.distributed``. Under torchrun (:mod:`.distributed` starts the process group) global rank 0 alone writes
+checkpoints and talks to the tracker; on resume it reads the checkpoint and sends the state to the other ranks, so
+only rank 0 needs the run folder.
 """
 
 from __future__ import annotations
@@ -48,11 +48,10 @@ class Processes:
     def device(self, requested: torch.device, visible_gpus: int | None = None) -> torch.device:
         """One GPU per process on its node; CPU stays CPU.
 
-        torchrun shows every rank all the node's GPUs: rank ``local_rank`` takes GPU
-        ``local_rank``. Launchers that bind each rank to its own GPU (SLURM
-        ``--gpus-per-task``, ``CUDA_VISIBLE_DEVICES`` per rank) show it fewer GPUs
-        than ``local_rank + 1``: then its GPU is the first it sees. ``visible_gpus``
-        defaults to ``torch.cuda.device_count()``.
+        torchrun shows every rank all the node's GPUs: rank ``local_rank`` takes GPU ``local_rank``. Launchers that
+        bind each rank to its own GPU (SLURM ``--gpus-per-task``, ``CUDA_VISIBLE_DEVICES`` per rank) show it fewer
+        GPUs than ``local_rank + 1``: then its GPU is the first it sees. ``visible_gpus`` defaults to
+        ``torch.cuda.device_count()``.
         """
         if not (self.distributed and is_cuda(requested)):
             return requested

@@ -44,8 +44,23 @@ from .checkpoints import Checkpoints
 from .ema import WeightAverage
 from .optim import make_optimizer
 from .partitioned_step import PartitionedTrainingStep
-from .step import TrainingStep, rolled_window_problems
+from .step import TrainingStep
 from .validation import Validation, validation_windows
+
+
+def rolled_window_problems(
+    pushforward_steps: int, unrolled_loss_steps: int, context_size: int
+) -> list[tuple[str, str]]:
+    """(recipe field, why) for rolling training windows on over data whose frames carry a global context.
+
+    Push-forward and the unrolled loss advance a window frame by frame, and the per-frame context
+    (``step_context``) is not rolled with it.
+    """
+    if not context_size:
+        return []
+    why = "needs data without a per-frame global context (step_context): set it to 0 for this dataset"
+    asked = {"training.pushforward_steps": pushforward_steps, "training.unrolled_loss_steps": unrolled_loss_steps}
+    return [(field, f"{field.split('.')[1]} {why}") for field, steps in asked.items() if steps]
 
 
 @dataclass

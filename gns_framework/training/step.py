@@ -1,15 +1,13 @@
 """One optimisation step: a batch of noisy training windows, push-forward, the loss, the backward and the update.
 
-The model learns accelerations from windows of C past positions (Sanchez-Gonzalez et
-al. 2020). Two things make what it learns hold over a long rollout, where its inputs
-are its own predictions:
+The model learns accelerations from windows of C past positions (Sanchez-Gonzalez et al. 2020). Two things make
+what it learns hold over a long rollout, where its inputs are its own predictions:
 
-- random-walk noise on the input positions (the target is corrected so that the
-  next position stays the true one), so it learns to pull a drifted state back;
-- push-forward (Brandstetter et al. 2022): the window is first rolled on k steps by
-  the model itself, without gradient, and it learns the true frame after them;
-- an unrolled loss: after the next frame the model rolls on K more steps with
-  gradient through them, each step's error against the true frame in the loss.
+- random-walk noise on the input positions (the target is corrected so that the next position stays the true
+  one), so it learns to pull a drifted state back;
+- push-forward (Brandstetter et al. 2022): the window is first rolled on k steps by the model itself, without
+  gradient, and it learns the true frame after them (with an unrolled loss, ``model/unrolled_loss.py``, the K
+  frames after that too, with gradient through them).
 """
 
 from __future__ import annotations
@@ -30,21 +28,6 @@ from ..runtime.device import is_cuda
 from ..runtime.precision import Precision, autocast, backward_precision
 from ..runtime.processes import Processes
 from .ema import WeightAverage
-
-
-def rolled_window_problems(
-    pushforward_steps: int, unrolled_loss_steps: int, context_size: int
-) -> list[tuple[str, str]]:
-    """(recipe field, why) for rolling training windows on over data whose frames carry a global context.
-
-    Push-forward and the unrolled loss advance a window frame by frame, and the per-frame context
-    (``step_context``) is not rolled with it.
-    """
-    if not context_size:
-        return []
-    why = "needs data without a per-frame global context (step_context): set it to 0 for this dataset"
-    asked = {"training.pushforward_steps": pushforward_steps, "training.unrolled_loss_steps": unrolled_loss_steps}
-    return [(field, f"{field.split('.')[1]} {why}") for field, steps in asked.items() if steps]
 
 
 class TrainingStep:
@@ -87,9 +70,8 @@ class TrainingStep:
         self.windows, self.order = windows, order
         self.noise_std = noise_std
         self.optimizer, self.scheduler, self.ema = optimizer, scheduler, ema
-        self.processes, self.device = processes, device
+        self.processes, self.device, self.unrolled_loss_steps = processes, device, unrolled_loss_steps
         self.seed, self.most_pushforward, self.precision = seed, pushforward_steps, precision
-        self.unrolled_loss_steps = unrolled_loss_steps
         # Copies to a GPU from pinned host memory need not block the host.
         self.pins_memory = is_cuda(device)
 
@@ -124,10 +106,9 @@ class TrainingStep:
     def gradients(self, batch: ParticleBatch, noise: Tensor, mask: Tensor) -> Tensor:
         """Fresh gradients of the global batch's loss on every rank; returns that loss (float64).
 
-        The loss averages the squared error over the predicted particles of *every* rank's windows (and, with an
-        unrolled loss, over its steps: ``mask`` is repeated once per step): each rank divides its error sum by the
-        all-reduced count times the world size, which DDP's averaging undoes, so W processes of B windows take
-        exactly one process's step with the same W x B windows.
+        The loss averages the squared error over the predicted particles of *every* rank's windows (and unrolled
+        steps): each rank divides its error sum by the all-reduced count times the world size, which DDP's averaging
+        undoes, so W processes of B windows take exactly one process's step with the same W x B windows.
         """
         with autocast(self.precision, self.device):
             prediction, target = self.model(batch, noise, self.unrolled_loss_steps)
@@ -152,10 +133,9 @@ class TrainingStep:
     def pushed_forward(self, batch: ParticleBatch, steps: int) -> ParticleBatch:
         """``batch`` with its inputs rolled ``steps`` on by the model itself, and the true frames after them as targets.
 
-        No gradient flows through the unrolled steps (the push-forward trick): the
-        model is trained on the inputs its own rollouts produce, as it will meet them,
-        at the cost of ``steps`` extra forward passes. Kinematic particles follow their
-        true positions.
+        No gradient flows through the unrolled steps (the push-forward trick): the model is trained on the inputs
+        its own rollouts produce, as it will meet them, at the cost of ``steps`` extra forward passes. Kinematic
+        particles follow their true positions.
         """
         assert batch.next_position is not None and batch.ahead is not None  # windows drawn with push-forward steps
         truth = torch.cat([batch.next_position[:, None], batch.ahead], dim=1)

@@ -125,7 +125,7 @@ def test_the_unrolled_loss_is_refused_beside_steps_that_take_one_step_only(datas
 
 
 def test_rolling_windows_over_per_frame_context_names_each_field_asked():
-    from gns_framework.training.step import rolled_window_problems
+    from gns_framework.training.parts import rolled_window_problems
 
     assert rolled_window_problems(2, 3, 0) == []
     problems = rolled_window_problems(0, 3, 4)
