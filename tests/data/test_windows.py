@@ -25,7 +25,7 @@ def test_every_window_of_every_trajectory_is_indexed_with_its_target_and_frames_
 
 
 def test_too_short_trajectories_are_refused_naming_the_frames_needed():
-    with pytest.raises(ValueError, match="history \\+ push-forward = 7 frames"):
+    with pytest.raises(ValueError, match="history \\+ frames ahead = 7 frames"):
         WindowIndex([trajectory(7, 2)], history=6, ahead=1)
 
 
