@@ -1,11 +1,11 @@
 """Does the learned deposit's energy balance, against one predicted from the scene, say when it may be wrong?
 
 The energy ratio R of a deposit (``gns_framework.model.deposit_signals.energy_ratio``) is the potential energy the
-sand released over the work Coulomb friction (tan phi) does along its horizontal displacement. The learned R is close to the MPM's where
-the model is right and off where it is wrong, but the MPM's R ranges from about 1.1 to 2.6 between scenes, so the
-learned R alone is no warning (models/README.md). This predicts the MPM deposit's R from what a user has before any
-simulator runs, the first frame and the scene, fitted on the training data's MPM deposits, and flags a rollout when
-the learned R is more than a factor ``exp(t)`` from the prediction.
+sand released over the work Coulomb friction (tan phi) does along its horizontal displacement. The learned R is close
+to the MPM's where the model is right and off where it is wrong, but the MPM's R ranges from about 1.1 to 2.6 between
+scenes, so the learned R alone is no warning (models/README.md). This predicts the MPM deposit's R from what a user
+has before any simulator runs, the first frame and the scene, fitted on the training data's MPM deposits, and flags a
+rollout when the learned R is more than a factor ``exp(t)`` from the prediction.
 
 Physics of the predictor. A column of sand of height H and flowing width L0 (its width against a wall, half its
 width when it stands free and spreads both ways) collapses with a runout that grows like its aspect a = H / L0 while
@@ -81,10 +81,10 @@ def scene_features(
     obstacle particles ``blockers`` (M, 2), m, the box ``bounds`` (2, 2), m, its faces' ``walls`` (4, 2: Coulomb
     coefficient, no-slip flag of x_min, x_max, y_min, y_max) and the particle spacing ``h``, m.
 
-    Per column (``gns_framework.model.deposit_signals.columns``): its aspect a = H / L0 (H from the floor to its top, L0 its width against
-    a wall, half of it standing free), the runout the scaling predicts on each side it can flow to, and how much of
-    it the nearest wall, obstacle or other column ahead cuts off (0: none, 1: all). The scene's features are the
-    columns' averages weighted by potential energy (particles times H)."""
+    Per column (``gns_framework.model.deposit_signals.columns``): its aspect a = H / L0 (H from the floor to its top,
+    L0 its width against a wall, half of it standing free), the runout the scaling predicts on each side it can flow
+    to, and how much of it the nearest wall, obstacle or other column ahead cuts off (0: none, 1: all). The scene's
+    features are the columns' averages weighted by potential energy (particles times H)."""
     floor = bounds[1, 0]
     floor_mu = max(float(walls[2, 0]), 1e-3) if walls[2, 1] == 0 else float(friction.max())  # no-slip: as the sand
     parts = columns(start, friction, 2 * h)

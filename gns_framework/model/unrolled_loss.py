@@ -10,24 +10,37 @@ target is its rolled position minus the true one (in normalised acceleration uni
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import torch
 from torch import Tensor
 
+from ..contracts import Decoder, Integrator
 from ..data.batch import ParticleBatch
 from .history import advance_window
+from .normalization import Stats
+from .periodic import PeriodicBox
 
-if TYPE_CHECKING:
-    from .learned_simulator import LearnedSimulator
+
+class Stepped(Protocol):
+    """What of a learned simulator the unrolled loss uses (its class imports this module, so it is not named here)."""
+
+    box: PeriodicBox | None
+    decoder: Decoder
+    integrator: Integrator
+    output_stats: Stats
+
+    def continuous(self, position_sequence: Tensor) -> Tensor: ...
+    def predicted_mask(self, particle_type: Tensor) -> Tensor: ...
+    def processed_latent(self, position_sequence: Tensor, batch: ParticleBatch) -> Tensor: ...
 
 
 def unrolled_outputs(
-    simulator: LearnedSimulator, batch: ParticleBatch, position_noise: Tensor, steps: int
+    simulator: Stepped, batch: ParticleBatch, position_noise: Tensor, steps: int
 ) -> tuple[Tensor, Tensor]:
     """Predicted and target normalised outputs of the next frame and ``steps`` more, ((1 + steps) N, d) each.
 
-    Step 0 is :meth:`LearnedSimulator.forward`'s (noised inputs, target moved by the last input's noise); every
+    Step 0 is ``LearnedSimulator.forward``'s (noised inputs, target moved by the last input's noise); every
     target after it moves by the same noise, so the rollout is judged against the truth shifted as its start was.
     Kinematic particles follow their true positions.
 
