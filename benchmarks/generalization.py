@@ -9,12 +9,14 @@ For a trained model (default ``models/sand2d_general.pt``) on
 
 it prints per scene the final sand extent, pile height and runout errors of the learned
 rollout against the MPM that made the data (%), its final-cloud Sinkhorn error (% of the
-largest domain side), the particles a wall held, and the Sinkhorn error and time of the MPM
+largest domain side), the particles a wall held, whether the deposit is free (the MPM's stops
+short of a side wall, so the flow sets its extent), and the Sinkhorn error and time of the MPM
 at reduced resolutions (``--grid-scales``, default half) on the same drawn scene, then the
 medians and worst cases against the goal: median <= 5 %, worst <= 15 % for extent and
-height, Sinkhorn below the half-resolution MPM's, and the summed time against each MPM. Datasets are generated
-into ``--out`` on the first run (``gns generate``'s code, same seeds: reproducible) and
-reused afterwards. The learned model and the two MPMs run on the same scenes in one run.
+height, median <= 8 % and worst <= 15 % for the extent of free deposits, Sinkhorn below the
+half-resolution MPM's, and the summed time against each MPM. Datasets are generated into
+``--out`` on the first run (``gns generate``'s code, same seeds: reproducible) and reused
+afterwards. The learned model and the two MPMs run on the same scenes in one run.
 
 Usage::
 
@@ -34,6 +36,8 @@ import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 GOAL = {"median": 5.0, "worst": 15.0}
+FREE_GOAL = {"median": 8.0, "worst": 15.0}
+"""Free deposits (the true one stops short of a side wall: its extent is the flow's, not the box's) reported apart."""
 MEASURES = ("extent_error_pct", "height_error_pct", "runout_error_pct", "sinkhorn_final_pct")
 
 
@@ -173,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         header
         + " "
         + " ".join(f"{y + ' sinkhorn':>17}" for y in yardsticks)
-        + f" {'held':>5} {'learned s':>9} "
+        + f" {'held':>5} {'free':>4} {'learned s':>9} "
         + " ".join(f"{y + ' s':>9}" for y in yardsticks)
     )
     rows = []
@@ -185,13 +189,18 @@ def main(argv: list[str] | None = None) -> int:
             sticks = " ".join(f"{case[y].get('sinkhorn_final_pct') or float('nan'):>17.2f}" for y in yardsticks)
             times = " ".join(f"{case[y]['seconds_per_rollout']:>9.2f}" for y in yardsticks)
             held = int(learned.get("wall_held_particles") or 0)
-            print(f"{group:<10} {key:<26} {cells} {sticks} {held:>5} {learned['seconds_per_rollout']:>9.2f} {times}")
+            free = "yes" if learned.get("free_deposit") else "no"
+            print(
+                f"{group:<10} {key:<26} {cells} {sticks} {held:>5} {free:>4} {learned['seconds_per_rollout']:>9.2f} "
+                f"{times}"
+            )
             rows.append(
                 {
                     "group": group,
                     "scene": key,
                     **{m: learned.get(m) for m in MEASURES},
                     "wall_held_particles": held,
+                    "free_deposit": free == "yes",
                     "seconds": learned["seconds_per_rollout"],
                     **{f"{y}_sinkhorn_final_pct": case[y].get("sinkhorn_final_pct") for y in yardsticks},
                     # The yardsticks' own deposit errors: a scene on which a finer or coarser MPM also lands
@@ -214,6 +223,16 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f"{group:<10} {measure:<18} median {median:6.2f} %  worst {worst:6.2f} %  "
                 f"goal <= {GOAL['median']:g} / {GOAL['worst']:g} %: {'met' if ok else 'NOT met'}"
+            )
+        free = [r["extent_error_pct"] for r in chosen if r["free_deposit"] and r["extent_error_pct"] is not None]
+        if free:
+            median, worst = statistics.median(free), max(free)
+            ok = median <= FREE_GOAL["median"] and worst <= FREE_GOAL["worst"]
+            verdicts.append(ok)
+            print(
+                f"{group:<10} {'free deposits':<18} extent median {median:6.2f} %  worst {worst:6.2f} % on {len(free)} "
+                f"of {len(chosen)}  goal <= {FREE_GOAL['median']:g} / {FREE_GOAL['worst']:g} %: "
+                f"{'met' if ok else 'NOT met'}"
             )
         for y in yardsticks:
             below = sum(r["sinkhorn_final_pct"] < r[f"{y}_sinkhorn_final_pct"] for r in chosen)

@@ -21,6 +21,7 @@ from .data.trajectory import Trajectory
 from .errors import DatasetError, GnsError, PluginError, RecipeError
 
 # Metrics of rollouts.
+from .evaluation.free_deposit import free_deposits
 from .evaluation.metrics import RolloutPair, horizon_mse, per_material_mse
 
 # Ground-truth simulators: the scene file, sampled.
@@ -81,6 +82,7 @@ __all__ = [
     "checked",
     "choose_device",
     "deterministic_sums",
+    "free_deposits",
     "hookimpl",
     "horizon_mse",
     "load_metadata",

@@ -66,14 +66,17 @@ def tiny_trainer(recipe: Recipe, run_dir: Path, registry: Registry | None = None
     return Trainer(recipe, registry or load_registry(), run_dir=run_dir, progress=False)
 
 
-def with_deposit_warning(checkpoint: Path, out: Path, threshold: float) -> Path:
+def with_deposit_warning(checkpoint: Path, out: Path, threshold: float, error_pct: float = 15.0) -> Path:
     """A copy of ``checkpoint`` at ``out`` carrying a deposit warning whose score is 0 for every rollout (no weights,
-    no intercept): it flags every sand scene when ``threshold`` <= 0 and none when it is above."""
+    no intercept): it flags every sand scene when ``threshold`` <= 0 and none when it is above; it warns of errors
+    over ``error_pct``."""
     from gns_framework.io.checkpoint import load_checkpoint, save_checkpoint
     from gns_framework.model.deposit_warning import INPUTS, DepositWarning
 
     count = len(INPUTS)
-    warning = DepositWarning(tuple(INPUTS), (0.0,) * count, (1.0,) * count, (0.0,) * count, 0.0, threshold)
+    warning = DepositWarning(
+        tuple(INPUTS), (0.0,) * count, (1.0,) * count, (0.0,) * count, 0.0, threshold, error_pct=error_pct
+    )
     state = load_checkpoint(checkpoint, map_location="cpu")
     state.pop("format", None)
     return save_checkpoint(out, {**state, "deposit_warning": warning.to_dict()})

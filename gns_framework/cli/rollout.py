@@ -29,11 +29,9 @@ import numpy as np
 import torch
 
 from ..assembly.data import open_dataset
-from ..assembly.trained import LoadedModel, load_trained
-from ..contracts import ModelSetup
+from ..assembly.trained import load_trained
 from ..data.in_parts import scene_in_parts
 from ..data.metadata import DatasetMetadata
-from ..data.rollout import Rollout
 from ..data.trajectory import Trajectory
 from ..decomposition.rollout import RolloutOptions, WrittenRollout, sharded_rollout
 from ..errors import DatasetError, GnsError
@@ -43,12 +41,11 @@ from ..io.run_folder import RunFolder
 from ..io.sharded_rollout import SUFFIX, is_sharded_rollout
 from ..model.batched_rollout import rollout_batch
 from ..model.capacity_classes import CaptureClasses
-from ..model.deposit_warning import DepositWarning, WarningScore
 from ..model.learned_simulator import LearnedSimulator
 from ..model.rollout import rollout
 from ..model.rollout_guard import RolloutGuard, held_particles
 from ..outputs import MARKER, check_folder, claim_folder
-from ..plugins import Registry, load_registry
+from ..plugins import load_registry
 from ..runtime.compiled import compile_node_side
 from ..runtime.device import resolve_device
 from ..runtime.precision import PRECISIONS
@@ -242,7 +239,10 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
 
     written = _Output(out, safe_component(split_name), recorded, claim)
     job = _Job(loaded.simulator, trajectories, count, steps, device, guard)
-    warned = _Warning.of(loaded, registry, dataset.metadata())
+    warned = None
+    if loaded.deposit_warning is not None:
+        granular = granular_particle_types(loaded.simulator.setup, registry)
+        warned = loaded.deposit_warning.bound(loaded.simulator.setup, granular, np.asarray(dataset.metadata().bounds))
     for position, (index, result) in enumerate(_rollouts(job, args, processes, written)):
         if result is None:
             continue  # a partitioned rollout is reported by its team's first process
@@ -252,7 +252,8 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
         else:
             if position == 0:
                 claim()
-            assessed = warned.assess(result, trajectories[index]) if warned else None
+            held = held_particles(result.guard_violations)
+            assessed = warned(result.predicted, trajectories[index], held) if warned else None
             noted = recorded.model_copy(update={"deposit_warning": assessed.to_dict()}) if assessed else recorded
             path = write_rollout(written.file(index), result, noted)
         clamped = f", clamped at {len(result.guard_violations)} check(s)" if result.guard_violations else ""
@@ -278,33 +279,6 @@ def _run(args: argparse.Namespace, processes: Processes) -> int:
         if tracked:
             print(f"logged rollout_position_mse_{split_name} at step {loaded.step} to MLflow run {tracked}")
     return 0
-
-
-@dataclass(frozen=True)
-class _Warning:
-    """The model's deposit warning with what scoring a rollout of this dataset needs (its sand types, its box)."""
-
-    warning: DepositWarning
-    setup: ModelSetup
-    granular_types: list[int]
-    bounds: np.ndarray
-
-    @classmethod
-    def of(cls, loaded: LoadedModel, registry: Registry, metadata: DatasetMetadata) -> _Warning | None:
-        """None when the model carries no warning."""
-        if loaded.deposit_warning is None:
-            return None
-        setup = loaded.simulator.setup
-        granular = granular_particle_types(setup, registry)
-        return cls(loaded.deposit_warning, setup, granular, np.asarray(metadata.bounds, dtype=float))
-
-    def assess(self, result: Rollout, case: Trajectory) -> WarningScore | None:
-        """The warning of the rollout ``result`` of ``case`` (the whole trajectory: a rollout's own truth ends where
-        it stopped); None where it does not apply (no sand, or stopped before the case's end)."""
-        held = held_particles(result.guard_violations)
-        return self.warning.assess(
-            result.predicted, case, result.history, self.setup, self.granular_types, self.bounds, held
-        )
 
 
 @dataclass(frozen=True)

@@ -128,14 +128,12 @@ def learned_candidate(
     def simulate_batch(cases: Sequence[Trajectory]) -> list[Prediction]:
         return learned_predictions_batch(model.simulator, cases, device, precision, guard)
 
-    warning, setup, history = model.deposit_warning, model.simulator.setup, model.simulator.setup.history
     warn = None
-    if warning is not None and granular_types and dataset_bounds is not None:
+    if model.deposit_warning is not None and granular_types and dataset_bounds is not None:
+        scored = model.deposit_warning.bound(model.simulator.setup, granular_types, dataset_bounds)
 
         def warn(case: Trajectory, prediction: Prediction) -> WarningScore | None:
-            position = np.asarray(torch.as_tensor(prediction.position).cpu())
-            held = prediction.held or 0
-            return warning.assess(position, case, history, setup, granular_types, dataset_bounds, held)
+            return scored(np.asarray(torch.as_tensor(prediction.position).cpu()), case, prediction.held or 0)
 
     settings = f"{model.path.name} (step {model.step})"
     if precision != "float32":

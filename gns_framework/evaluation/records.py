@@ -16,9 +16,12 @@ from ..model.deposit_warning import WarningScore
 WALL_HELD = "wall_held_particles"
 """Per case: the particles that left the domain in a learned rollout and were put back by the model's guard."""
 WARNING_SCORE = "deposit_warning_score"
-"""Per case: the model's deposit warning score of its rollout (log-odds of being more than 15 % off)."""
+"""Per case: the model's deposit warning score of its rollout (log-odds of being more than its
+``error_pct`` off)."""
 WARNING_FLAG = "deposit_warning_flagged"
 """Per case: 1 where that score reaches the warning's threshold, else 0."""
+WARNING_ERROR = "deposit_warning_error_pct"
+"""Per case: what a flag warns of, extent or height more than this far off, % (the warning's ``error_pct``)."""
 
 Kind = Literal["learned", "simulator"]
 

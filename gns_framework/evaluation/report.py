@@ -33,7 +33,7 @@ from ..runtime.device import is_cuda
 from ..safe_names import ensure_inside, unique_components
 from .metrics import DEFAULT_HORIZONS, ParticleRollout, RolloutPair, metric_units, rollout_metrics, summarise
 from .plots import case_range, plot_error_over_rollout, plot_error_vs_time
-from .records import WALL_HELD, WARNING_FLAG, WARNING_SCORE, Candidate, Entry, Kind, Prediction, Report
+from .records import WALL_HELD, WARNING_ERROR, WARNING_FLAG, WARNING_SCORE, Candidate, Entry, Kind, Prediction, Report
 from .report_files import write_report
 from .tables import markdown_table, write_cases_csv, write_csv
 from .timing import Timing, hardware_description, time_call
@@ -136,6 +136,7 @@ def evaluate(
             warned = candidate.warn(case, prediction) if candidate.warn is not None else None
             if warned is not None:
                 summary[WARNING_SCORE], summary[WARNING_FLAG] = warned.score, float(warned.flagged)
+                summary[WARNING_ERROR] = warned.error_pct
             summaries.append(summary)
             timings.append(timing)
             curves.append(None if scores["mse_per_step"] is None else scores["mse_per_step"][0].numpy())

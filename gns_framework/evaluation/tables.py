@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .records import WALL_HELD, WARNING_FLAG, WARNING_SCORE, Report
+from .records import WALL_HELD, WARNING_ERROR, WARNING_FLAG, WARNING_SCORE, Report
 from .timing import format_hardware
 
 HEADLINE_METRICS = ("mse_1", "mse_20", "mse_full", "sinkhorn_final", "kinetic_energy_error_pct", "runout_error_pct")
@@ -104,12 +104,14 @@ def _deposit_warnings(report: Report) -> list[str]:
         if scored:
             flagged = [key for key, c in scored.items() if c[WARNING_FLAG]]
             named = f": {', '.join(flagged)}" if flagged else ""
-            lines.append(f"- {e.name}: {len(flagged)} of {len(scored)} case(s) flagged{named}")
+            error = next(iter(scored.values())).get(WARNING_ERROR)  # one warning per model
+            told = f" as more than {error:g} % off" if error is not None else ""
+            lines.append(f"- {e.name}: {len(flagged)} of {len(scored)} case(s) flagged{told}{named}")
     if not lines:
         return []
     intro = (
-        "Deposit warning (the model's own, fitted on its training scenes): cases whose extent or height may be more "
-        f"than 15 % off; `{WARNING_SCORE}` in cases.csv has every score:"
+        "Deposit warning (the model's own, fitted on its training scenes): cases whose extent or height may be "
+        f"further off than it was fitted to tell; `{WARNING_SCORE}` in cases.csv has every score:"
     )
     return ["", intro, "", *lines]
 

@@ -21,6 +21,8 @@ import dataclasses
 
 import numpy as np
 
+from ..data.particle_spacing import particle_spacing
+
 AT_WALL = 1.0
 """Particle spacings from a wall within which a front is held by it (its place is the wall's)."""
 TAIL = 0.1
@@ -50,11 +52,9 @@ class Front:
 
 
 def spacing(start: np.ndarray) -> float:
-    """The particle spacing, L: the median distance from a particle of ``start`` (N, d) to its nearest neighbour."""
-    from scipy.spatial import cKDTree
-
-    distance, _ = cKDTree(start).query(start, k=2)
-    return float(np.median(distance[:, 1]))
+    """The particle spacing, L: the median distance from a particle of ``start`` (N, d) to its nearest neighbour,
+    over every particle (the warning was fitted on that, not on a subset)."""
+    return particle_spacing(start, max_queries=len(start))
 
 
 def fronts(path: np.ndarray, start: np.ndarray, obstacle: np.ndarray, bounds: np.ndarray, h: float) -> list[Front]:

@@ -150,6 +150,10 @@ class DepositWarning:
         signals = deposit_signals(predicted[:, sand], case.position[history - 1, sand], friction, fixed, bounds, held)
         return self.score_signals(signals)
 
+    def bound(self, setup: ModelSetup, granular_types: Collection[int], dataset_bounds: np.ndarray) -> BoundWarning:
+        """This warning with what scoring a model's rollouts of one dataset needs (see :meth:`assess`)."""
+        return BoundWarning(self, setup, tuple(granular_types), np.asarray(dataset_bounds, dtype=float))
+
     def to_dict(self) -> dict:
         """Plain values, as a checkpoint stores them."""
         return {
@@ -192,3 +196,22 @@ class DepositWarning:
         except (TypeError, ValueError) as exc:
             raise ValueError(f"not numbers where numbers belong ({exc})") from None
         return cls(**values)
+
+
+@dataclasses.dataclass(frozen=True)
+class BoundWarning:
+    """A model's deposit warning bound to its setup, the sand's particle types and a dataset's box (d, 2): what
+    ``gns rollout`` and ``gns evaluate`` score each rollout with."""
+
+    warning: DepositWarning
+    setup: ModelSetup
+    granular_types: tuple[int, ...]
+    dataset_bounds: np.ndarray
+
+    def __call__(self, predicted: np.ndarray, case: Trajectory, held: int = 0) -> WarningScore | None:
+        """:meth:`DepositWarning.assess` of the rollout ``predicted`` (S, N, d) of ``case`` from the setup's history,
+        ``held`` particles held by a wall."""
+        setup = self.setup
+        return self.warning.assess(
+            predicted, case, setup.history, setup, self.granular_types, self.dataset_bounds, held
+        )

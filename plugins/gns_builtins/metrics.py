@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import torch
 
-from gns_framework.api import Metric, RolloutPair, hookimpl, horizon_mse, per_material_mse
+from gns_framework.api import Metric, RolloutPair, free_deposits, hookimpl, horizon_mse, per_material_mse
 
 
 def _mse_full(pair: RolloutPair):
@@ -71,6 +71,17 @@ def _deposit_error_pct(pair: RolloutPair):
     return None if extent is None or height is None else (extent + height) / 2
 
 
+def _free_deposit(pair: RolloutPair):
+    """1 where the true deposit stops short of a side wall (its extent is the flow's to set), else 0; None without
+    granular types."""
+    if not pair.granular_types:
+        return None
+    truth = pair.target
+    start = truth.start if truth.start is not None else truth.position[:, 0]
+    sand = truth.of_types(pair.granular_types)
+    return free_deposits(truth.position[:, -1], start, sand, pair.bounds, pair.runout_axis).to(start.dtype)
+
+
 BUILTIN_METRICS = (
     Metric("mse_{h}", "L^2, position MSE averaged over rollout steps 1..h", horizon_mse, pairwise=True),
     Metric("mse_full", "L^2, position MSE averaged over the whole rollout", _mse_full, pairwise=True, validation="mse"),
@@ -127,6 +138,12 @@ BUILTIN_METRICS = (
         "%, mean of extent_error_pct and height_error_pct: the deposit's shape in one figure",
         _deposit_error_pct,
         validation="deposit_error_pct",
+    ),
+    Metric(
+        "free_deposit",
+        "flag, 1 where the true final deposit ends more than a particle spacing from a side wall (its extent is set "
+        "by the flow), 0 where it reaches both walls (set by the box)",
+        _free_deposit,
     ),
     Metric(
         "profile_error",

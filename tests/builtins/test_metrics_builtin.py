@@ -119,4 +119,4 @@ def test_the_metrics_tracked_in_training_and_the_report_order():
     # The order of the report's columns: horizons first, then whole-rollout errors; the hook gives them all.
     assert [m.name for m in BUILTIN_METRICS][:3] == ["mse_{h}", "mse_full", "rmse_full_pct"]
     assert builtin.gns_metrics() == list(BUILTIN_METRICS)
-    assert all(m.unit.split(",")[0] in {"L", "L^2", "%", "L^2/s^2"} for m in BUILTIN_METRICS)
+    assert all(m.unit.split(",")[0] in {"L", "L^2", "%", "L^2/s^2", "flag"} for m in BUILTIN_METRICS)

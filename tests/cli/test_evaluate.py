@@ -132,13 +132,18 @@ def test_evaluate_lists_the_cases_a_models_deposit_warning_flags(tiny_model, tmp
 
     from tiny import with_deposit_warning
 
-    warned = with_deposit_warning(tiny_model, tmp_path / "warned.pt", threshold=0.0)
+    # Fitted to another error than the shipped 15 %: the report says what this record warns of.
+    warned = with_deposit_warning(tiny_model, tmp_path / "warned.pt", threshold=0.0, error_pct=12.5)
     out = tmp_path / "report"
     common = ["--no-simulator", "--repeats", "1", "--warmup", "0", "--outside-envelope"]
     result = gns("evaluate", str(warned), "--out", str(out), *common)
     assert result.returncode == 0, result.stderr
     table = (out / "report.md").read_text()
-    assert "Deposit warning (the model's own" in table and "- tiny: 1 of 1 case(s) flagged: test_000" in table
+    assert (
+        "Deposit warning (the model's own" in table
+        and "- tiny: 1 of 1 case(s) flagged as more than 12.5 % off: test_000" in table
+    )
+    assert "15 %" not in table
     with (out / "cases.csv").open() as handle:
         (row,) = list(csv.DictReader(handle))
     assert float(row["deposit_warning_score"]) == 0.0 and float(row["deposit_warning_flagged"]) == 1.0

@@ -96,6 +96,19 @@ def test_assess_does_not_apply_to_a_partial_rollout_a_scene_without_sand_or_with
     assert fitted.assess(predicted, without, 3, SETUP, [6], bounds) is None
 
 
+def test_a_bound_warning_scores_as_assess_with_its_setups_history_and_the_datasets_box():
+    case, predicted = column_scene()
+    fitted, setup = warning(), ModelSetup(**{**SETUP.__dict__, "history": 3})
+    unboxed = Trajectory(case.position, case.particle_type, case.material_property, key="column")
+    scored = fitted.bound(setup, [6], np.asarray(SETUP.bounds))
+    assert scored(predicted, unboxed, 2) == fitted.assess(
+        predicted, unboxed, 3, setup, [6], np.asarray(SETUP.bounds), 2
+    )
+    assert scored(predicted[:-1], unboxed) is None, "its history decides where the case's rollout ends"
+    shorter = fitted.bound(ModelSetup(**{**SETUP.__dict__, "history": 4}), [6], np.asarray(SETUP.bounds))
+    assert shorter(predicted[:-1], unboxed) is not None
+
+
 def test_a_record_reads_back_as_the_same_warning():
     fitted = warning(fitted_on="250 training scenes")
     assert DepositWarning.from_dict(fitted.to_dict()) == fitted
