@@ -155,6 +155,9 @@ class OptimizerSpec(_Strict):
     anneal_fraction: float = Field(
         1.0, gt=0, le=1, description="cosine schedule only: fraction of training.steps at which lr reaches lr_min"
     )
+    clip_grad_norm: float | None = Field(
+        None, gt=0, description="scale the gradients down to this global L2 norm before each update; default: none"
+    )
 
     @model_validator(mode="after")
     def _floor_below_start(self) -> OptimizerSpec:

@@ -41,6 +41,7 @@ from ..runtime.teams import team_of
 from . import distributed
 from .captured_step import CapturedTrainingStep
 from .checkpoints import Checkpoints
+from .clipping import clip_before_each_update
 from .ema import WeightAverage
 from .optim import make_optimizer
 from .partitioned_step import PartitionedTrainingStep
@@ -145,6 +146,8 @@ class _Builder:
         model = simulator if team is not None else self.processes.wrap(simulator, device)
         noise_std = training_noise_std(self.recipe.model, data.metadata)
         optimizer, scheduler = make_optimizer(simulator.parameters(), spec.optimizer, spec.steps)
+        if spec.optimizer.clip_grad_norm is not None:
+            clip_before_each_update(optimizer, spec.optimizer.clip_grad_norm)
         step_kind = TrainingStep if team is None else partial(PartitionedTrainingStep, team=team)
         optimisation = step_kind(
             simulator,

@@ -73,3 +73,15 @@ def test_a_compiled_node_side_trains_as_the_eager_one_and_leaves_the_weight_aver
             assert step.ema.module.decoder._compiled_call_impl is None
     torch._dynamo.reset()
     assert losses[True] == losses[False]
+
+
+def test_a_recipes_gradient_bound_holds_for_every_update_of_its_run(dataset_multimaterial, tmp_path, registry):
+    recipe = tiny_recipe(dataset_multimaterial, registry)
+    bounded = recipe.training.optimizer.model_copy(update={"clip_grad_norm": 1e-6})
+    for optimizer, run in ((recipe.training.optimizer, "free"), (bounded, "bounded")):
+        parts = build_training_parts(_with(recipe, optimizer=optimizer), registry, run_dir=tmp_path / run)
+        parameters = [p for p in parts.simulator.parameters() if p.requires_grad]
+        parts.optimisation(0)
+        norm = torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(p.grad) for p in parameters]))
+        # The update has run: the gradients it used are left scaled to the bound (to round-off), or not.
+        assert (norm <= 1e-6 * (1 + 1e-4)) == (run == "bounded"), float(norm)
