@@ -261,7 +261,7 @@ def score_prediction(
     """Every metric of ``metrics`` for one prediction against its case's ground truth, in float64.
 
     The case's first ``history`` frames are the input, the rest the truth; ``metadata``
-    gives the frames' time step and the domain's bounds.
+    gives the frames' time step and the domain's bounds, where the case has no box of its own.
     ``kinematic_types``: particle types left out of every error (the scene's
     ``kinematic_types``); ``metrics``: what is measured. None: those of the installed
     plugins (:meth:`~gns_framework.plugins.Registry.kinematic_types`, ``.metrics``).
@@ -289,7 +289,8 @@ def score_prediction(
         predicted,
         target,
         dt=metadata.dt,
-        bounds=metadata.bounds,
+        # A case drawn in a box of its own (the general sand scenes) is measured in it: its walls, its size.
+        bounds=case.bounds.tolist() if case.bounds is not None else metadata.bounds,
         same_particles=prediction.particle_type is None,
         horizons=horizons,
         granular_types=granular_types,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 from gns_builtins.metrics import BUILTIN_METRICS
@@ -77,3 +78,25 @@ def test_the_builtin_metric_reads_the_true_deposit_only():
     assert metric.function(swapped).tolist() == [1.0]
     assert metric.function(RolloutPair(rollout(short), rollout(true_final), dt=0.01, bounds=BOUNDS)) is None
     assert math.isclose(float(wall_gaps(short[None], torch.ones(1, n, dtype=torch.bool), BOUNDS)[0, 1]), 0.5 + H / 4)
+
+
+def test_a_case_in_a_box_of_its_own_is_measured_against_its_walls_not_the_datasets():
+    from types import SimpleNamespace
+
+    from gns_framework.data.trajectory import Trajectory
+    from gns_framework.evaluation.report import Prediction, score_prediction
+
+    start = lattice(0.0, 0.2, layers=10)
+    final = spread(start, H / 2, 1.0 - H / 2)  # wall to wall in its own 1 m box
+    frames = np.stack([start, start, final, final]).astype(np.float32)
+    types = np.full(len(start), 6)
+    metadata = SimpleNamespace(dt=0.01, bounds=[[0.0, 2.0], [0.0, 1.0]])  # the dataset's boxes reach 2 m
+
+    def scores(bounds):
+        case = Trajectory(frames, types, None, key="case", bounds=bounds)
+        values = score_prediction(Prediction(frames[2:]), case, 2, metadata, granular_types=(6,), kinematic_types=())
+        return float(values["free_deposit"])
+
+    own = np.array(BOUNDS, dtype=np.float32)
+    assert scores(own) == 0.0, "it reaches both of its own walls"
+    assert scores(None) == 1.0, "in the dataset's 2 m box it would stop half-way"
