@@ -118,6 +118,8 @@ def _deposit_warnings(report: Report) -> list[str]:
 
 SPREAD_METRICS = ("runout_error_pct", "sinkhorn_final_pct")
 """Metrics whose median and worst case over the test cases the Markdown report states (cases.csv has all)."""
+FREE_DEPOSIT = "free_deposit"
+"""Per case: 1 where the true deposit stops short of a side wall; their extent errors are stated apart."""
 
 
 def _spread_over_cases(report: Report) -> list[str]:
@@ -132,6 +134,11 @@ def _spread_over_cases(report: Report) -> list[str]:
             present = [v for v in values if v is not None]
             if values and len(present) == len(values):
                 parts.append(f"{metric} {_format(float(np.median(present)))} / {_format(max(present))}")
+        # Where the true deposit spans the box its extent is the box's: the extent errors that are the model's.
+        free = [c.get("extent_error_pct") for c in e.cases.values() if c.get(FREE_DEPOSIT) == 1.0]
+        if free and None not in free:
+            median, worst = _format(float(np.median(free))), _format(max(free))
+            parts.append(f"extent_error_pct of the {len(free)} free deposit(s) {median} / {worst}")
         if parts:
             lines.append(f"- {e.name}: " + "; ".join(parts))
     return lines if len(lines) > 3 else []

@@ -39,3 +39,13 @@ def test_csv_files_hold_every_metric_of_every_entry_and_case(tmp_path):
         ("model", "case1"),
     ]
     assert cases[3]["runout_error_pct"] == "10.0"
+
+
+def test_the_extent_errors_of_free_deposits_are_stated_apart():
+    made = report()
+    model = made.entries[1]
+    model.cases["case0"].update(extent_error_pct=0.0, free_deposit=0.0)  # wall to wall: the box's extent
+    model.cases["case1"].update(extent_error_pct=12.0, free_deposit=1.0)
+    assert "extent_error_pct of the 1 free deposit(s) 12 / 12" in markdown_table(made)
+    model.cases["case1"]["free_deposit"] = 0.0
+    assert "free deposit" not in markdown_table(made), "nothing is said when no deposit is free"
