@@ -136,9 +136,10 @@ def _spread_over_cases(report: Report) -> list[str]:
                 parts.append(f"{metric} {_format(float(np.median(present)))} / {_format(max(present))}")
         # Where the true deposit spans the box its extent is the box's: the extent errors that are the model's.
         free = [c.get("extent_error_pct") for c in e.cases.values() if c.get(FREE_DEPOSIT) == 1.0]
-        if free and None not in free:
-            median, worst = _format(float(np.median(free))), _format(max(free))
-            parts.append(f"extent_error_pct of the {len(free)} free deposit(s) {median} / {worst}")
+        measured = [v for v in free if v is not None]
+        if measured and len(measured) == len(free):
+            median, worst = _format(float(np.median(measured))), _format(max(measured))
+            parts.append(f"extent_error_pct of the {len(measured)} free deposit(s) {median} / {worst}")
         if parts:
             lines.append(f"- {e.name}: " + "; ".join(parts))
     return lines if len(lines) > 3 else []
