@@ -108,6 +108,17 @@ def evaluate(
     return {key: {kind: entry.cases[key] for kind, entry in by_kind.items()} for key in by_kind["learned"].cases}
 
 
+def against_goal(label: str, values: list[float], goal: dict[str, float], scope: str = "") -> bool:
+    """Print ``values``' median and worst case after ``label`` (and ``scope``) against ``goal``; whether it is met."""
+    median, worst = statistics.median(values), max(values)
+    ok = median <= goal["median"] and worst <= goal["worst"]
+    print(
+        f"{label}median {median:6.2f} %  worst {worst:6.2f} %{scope}  "
+        f"goal <= {goal['median']:g} / {goal['worst']:g} %: {'met' if ok else 'NOT met'}"
+    )
+    return ok
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "sand2d_general.pt")
@@ -217,23 +228,11 @@ def main(argv: list[str] | None = None) -> int:
         chosen = [r for r in rows if r["group"] == group]
         for measure in ("extent_error_pct", "height_error_pct"):
             values = [r[measure] for r in chosen if r[measure] is not None]
-            median, worst = statistics.median(values), max(values)
-            ok = median <= GOAL["median"] and worst <= GOAL["worst"]
-            verdicts.append(ok)
-            print(
-                f"{group:<10} {measure:<18} median {median:6.2f} %  worst {worst:6.2f} %  "
-                f"goal <= {GOAL['median']:g} / {GOAL['worst']:g} %: {'met' if ok else 'NOT met'}"
-            )
+            verdicts.append(against_goal(f"{group:<10} {measure:<18} ", values, GOAL))
         free = [r["extent_error_pct"] for r in chosen if r["free_deposit"] and r["extent_error_pct"] is not None]
         if free:
-            median, worst = statistics.median(free), max(free)
-            ok = median <= FREE_GOAL["median"] and worst <= FREE_GOAL["worst"]
-            verdicts.append(ok)
-            print(
-                f"{group:<10} {'free deposits':<18} extent median {median:6.2f} %  worst {worst:6.2f} % on {len(free)} "
-                f"of {len(chosen)}  goal <= {FREE_GOAL['median']:g} / {FREE_GOAL['worst']:g} %: "
-                f"{'met' if ok else 'NOT met'}"
-            )
+            label = f"{group:<10} {'free deposits':<18} extent "
+            verdicts.append(against_goal(label, free, FREE_GOAL, f" on {len(free)} of {len(chosen)}"))
         for y in yardsticks:
             below = sum(r["sinkhorn_final_pct"] < r[f"{y}_sinkhorn_final_pct"] for r in chosen)
             if y == "mpm_0.5":

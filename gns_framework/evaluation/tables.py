@@ -130,19 +130,25 @@ def _spread_over_cases(report: Report) -> list[str]:
     for e in report.entries:
         parts = []
         for metric in SPREAD_METRICS:
-            values = [c.get(metric) for c in e.cases.values()]
-            present = [v for v in values if v is not None]
-            if values and len(present) == len(values):
-                parts.append(f"{metric} {_format(float(np.median(present)))} / {_format(max(present))}")
+            spread = _median_worst([c.get(metric) for c in e.cases.values()])
+            if spread:
+                parts.append(f"{metric} {spread}")
         # Where the true deposit spans the box its extent is the box's: the extent errors that are the model's.
         free = [c.get("extent_error_pct") for c in e.cases.values() if c.get(FREE_DEPOSIT) == 1.0]
-        measured = [v for v in free if v is not None]
-        if measured and len(measured) == len(free):
-            median, worst = _format(float(np.median(measured))), _format(max(measured))
-            parts.append(f"extent_error_pct of the {len(measured)} free deposit(s) {median} / {worst}")
+        spread = _median_worst(free)
+        if spread:
+            parts.append(f"extent_error_pct of the {len(free)} free deposit(s) {spread}")
         if parts:
             lines.append(f"- {e.name}: " + "; ".join(parts))
     return lines if len(lines) > 3 else []
+
+
+def _median_worst(values: list[float | None]) -> str | None:
+    """``median / worst`` of ``values``; None when there are none or any is missing."""
+    present = [v for v in values if v is not None]
+    if not values or len(present) < len(values):
+        return None
+    return f"{_format(float(np.median(present)))} / {_format(max(present))}"
 
 
 def write_cases_csv(report: Report, path: Path) -> None:
